@@ -1,0 +1,59 @@
+"""Small helpers that give variables complete CF/ACDD attributes in one call."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+__all__ = ["var_attrs", "with_bounds", "height_coord", "time_coord"]
+
+
+def var_attrs(
+    long_name: str,
+    units: str,
+    standard_name: str | None = None,
+    coverage_content_type: str = "modelResult",
+    **extra: Any,
+) -> dict[str, Any]:
+    """Attributes for a data variable: ``long_name``, ``units``, ACDD content type.
+
+    ``coverage_content_type`` is one of ISO 19115-1's codes (``physicalMeasurement``,
+    ``modelResult``, ``qualityInformation``, ``auxiliaryInformation``, ``coordinate`` ...).
+    """
+    attrs = {"long_name": long_name, "units": units, "coverage_content_type": coverage_content_type}
+    if standard_name:
+        attrs["standard_name"] = standard_name
+    attrs.update(extra)
+    return attrs
+
+
+def height_coord(values: Any) -> xr.DataArray:
+    """The ``height`` coordinate of the fixed contract (metres, positive up)."""
+    return xr.DataArray(
+        np.asarray(values, dtype=float), dims="height",
+        attrs={"standard_name": "height", "long_name": "height above ground level", "units": "m",
+               "positive": "up", "axis": "Z"},
+    )
+
+
+def with_bounds(ds: xr.Dataset, coord: str, edges: Any) -> xr.Dataset:
+    """Attach CF cell bounds ``<coord>_bounds`` (dims ``(coord, nv)``) from bin ``edges``.
+
+    ``edges`` has one more element than the coordinate (contiguous bins) or shape (n, 2).
+    """
+    edges = np.asarray(edges, dtype=float)
+    bounds = np.stack([edges[:-1], edges[1:]], axis=-1) if edges.ndim == 1 else edges
+    name = f"{coord}_bounds"
+    out = ds.assign_coords({name: ((coord, "nv"), bounds, {"units": ds[coord].attrs.get("units", "1")})})
+    out[coord].attrs["bounds"] = name
+    return out
+
+
+def time_coord(values: Any) -> xr.DataArray:
+    """A CF ``time`` coordinate (period start times, UTC)."""
+    return xr.DataArray(
+        np.asarray(values, dtype="datetime64[ns]"), dims="time",
+        attrs={"standard_name": "time", "long_name": "start of 10-minute period (UTC)", "axis": "T"},
+    )

@@ -1,0 +1,75 @@
+"""The ``lidarcal`` command line: thin wrappers over the library, one subcommand per stage.
+
+Each subcommand lives in a small module exposing ``register(subparsers)``; the module's
+handler parses arguments, calls the dataset-level function and writes the artefact.
+Errors derived from :class:`~lidarcal.errors.LidarcalError` are printed as one clear line
+(exit status 2); anything else is a bug and shows its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+from lidarcal import __version__
+from lidarcal.errors import LidarcalError
+
+#: Subcommand modules, in the order they appear in ``lidarcal --help``.
+COMMANDS = (
+    "calibrate",
+    "bench",
+    "rwf",
+    "terms",
+    "conditions",
+    "turbulence",
+    "simulate",
+    "sensitivity",
+    "budget",
+    "sweep",
+    "certificate",
+    "verify",
+    "diagnose",
+    "validate",
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the argument parser from every available subcommand module."""
+    parser = argparse.ArgumentParser(
+        prog="lidarcal",
+        description="Anemometer-free calibration of pulsed Doppler wind lidars.",
+    )
+    parser.add_argument("--version", action="version", version=f"lidarcal {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMANDS:
+        try:
+            module = importlib.import_module(f"lidarcal.cli.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"lidarcal.cli.{name}":
+                continue  # stage not built yet
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``lidarcal`` command."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "handler", None):
+        parser.print_help()
+        return 1
+    try:
+        return int(args.handler(args) or 0)
+    except LidarcalError as exc:
+        print(f"lidarcal {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

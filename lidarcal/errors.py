@@ -1,0 +1,40 @@
+"""Exception hierarchy for lidarcal.
+
+Every error a user can cause derives from :class:`LidarcalError`; the ones caused by bad
+input are also :class:`ValueError` so that generic callers can catch them.  Messages name
+the file, the variable, what was expected and what was found.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+
+class LidarcalError(Exception):
+    """Base class of every error lidarcal raises on purpose."""
+
+
+class InputError(LidarcalError, ValueError):
+    """An input file or value cannot be used as given."""
+
+
+class MissingVariableError(InputError):
+    """A required variable or column is absent."""
+
+
+class UnitError(InputError):
+    """A quantity has missing, unparsable or incompatible units."""
+
+
+class ValidationError(InputError):
+    """An artefact violates its schema; carries every problem found."""
+
+    def __init__(self, problems: Iterable[str], source: str = "<dataset>"):
+        self.problems = list(problems)
+        self.source = source
+        lines = "\n".join(f"  - {p}" for p in self.problems)
+        super().__init__(f"{source}: {len(self.problems)} problem(s) found:\n{lines}")
+
+
+class OutputExistsError(LidarcalError, FileExistsError):
+    """Refusing to overwrite an existing output without an explicit request."""

@@ -1,0 +1,128 @@
+"""Reading and writing artefacts: atomic, validated, never half-written.
+
+:func:`write_artefact` validates a dataset against its schema, writes it to a temporary
+file in the destination directory and renames it into place, so a crash or a bad dataset
+never leaves a partial file.  It refuses to replace an existing file unless asked.
+:func:`open_artefact` turns every way a file can be unreadable into one clear
+:class:`~lidarcal.errors.InputError` naming the file.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.errors import InputError, OutputExistsError
+from lidarcal.provenance import sha256
+
+__all__ = ["write_artefact", "open_artefact", "atomic_path", "check_writable"]
+
+
+def check_writable(path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    """Fail early (before any work) if ``path`` exists and may not be replaced."""
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise OutputExistsError(f"{path}: file exists; pass overwrite=True (--overwrite) to replace it")
+    if not path.parent.exists():
+        raise InputError(f"{path}: output directory {path.parent} does not exist")
+    return path
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[Path]:
+    """Yield a temporary path next to ``path``; rename it onto ``path`` only on success."""
+    path = check_writable(path, overwrite=overwrite)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    os.close(fd)
+    tmp = Path(tmp)
+    try:
+        yield tmp
+        if path.exists() and not overwrite:
+            raise OutputExistsError(f"{path}: file appeared while writing; not replaced")
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _encoding(ds: xr.Dataset) -> dict[str, dict]:
+    enc: dict[str, dict] = {}
+    for name, var in ds.variables.items():
+        e: dict = {}
+        if name in ds.coords or name.endswith("_bounds") or name in ds.dims:
+            e["_FillValue"] = None  # CF: coordinates and bounds carry no fill value
+        elif var.dtype.kind == "f":
+            e["_FillValue"] = np.nan if var.dtype.itemsize == 8 else np.float32(np.nan)
+        elif var.dtype.kind in "iu":
+            e["_FillValue"] = None
+        if var.dtype.kind == "f" and var.ndim >= 1 and var.size > 1000:
+            e.update(zlib=True, complevel=4)
+        enc[name] = e
+    return enc
+
+
+def write_artefact(
+    ds: xr.Dataset,
+    path: str | os.PathLike,
+    *,
+    overwrite: bool = False,
+    validate: bool = True,
+) -> Path:
+    """Validate ``ds`` against its schema and write it atomically to netCDF-4.
+
+    Raises
+    ------
+    ValidationError
+        If the dataset does not satisfy the schema named by its ``lidarcal_artefact``
+        attribute; nothing is written.
+    OutputExistsError
+        If ``path`` exists and ``overwrite`` is false.
+    """
+    from lidarcal.schema import validate_dataset
+
+    path = check_writable(path, overwrite=overwrite)
+    if validate:
+        validate_dataset(ds, source=str(path), raise_on_error=True)
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        ds.to_netcdf(tmp, format="NETCDF4", engine="netcdf4", encoding=_encoding(ds))
+    return path
+
+
+def open_artefact(
+    path: str | os.PathLike,
+    kind: str | None = None,
+    *,
+    chunks: dict | None = None,
+    load: bool = True,
+) -> xr.Dataset:
+    """Open a lidarcal artefact (or input file) with clear errors.
+
+    The file's SHA-256 and name are attached as ``lidarcal_source_sha256`` and
+    ``lidarcal_source_file`` so that downstream artefacts can record their inputs.
+    """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: file not found")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path}: file is empty")
+    try:
+        ds = xr.open_dataset(path, engine="netcdf4", chunks=chunks)
+        if load and chunks is None:
+            ds = ds.load()
+            ds.close()
+    except Exception as exc:
+        raise InputError(f"{path}: not a readable netCDF file (truncated or corrupt?): {exc}") from None
+    if not ds.variables:
+        raise InputError(f"{path}: netCDF file contains no variables (truncated or not a dataset)")
+    found = ds.attrs.get("lidarcal_artefact")
+    if kind is not None and found is not None and found != kind:
+        raise InputError(f"{path}: is a {found!r} artefact; expected a {kind!r} artefact")
+    ds.attrs["lidarcal_source_sha256"] = sha256(path)
+    ds.attrs["lidarcal_source_file"] = path.name
+    return ds

@@ -1,0 +1,151 @@
+"""Declarative artefact schemas and the validator that reports every problem at once.
+
+Each artefact kind has one YAML file in ``schemas/`` (shipped inside the package as
+``lidarcal/schemas``) listing its dimensions, coordinates and variables (dims, units,
+whether NaN is allowed, physical range) and its required global attributes.  The validator
+never stops at the first problem: it collects them all, each naming the source, the
+variable, what was expected and what was found.
+"""
+
+from __future__ import annotations
+
+import functools
+from importlib import resources
+from typing import Any
+
+import numpy as np
+import xarray as xr
+import yaml
+
+from lidarcal.errors import InputError, ValidationError
+from lidarcal.units import LOG_UNITS, _parse
+
+__all__ = ["load_schema", "list_kinds", "validate_dataset", "COMMON_ATTRIBUTES"]
+
+#: Global attributes every artefact written by lidarcal must carry.
+COMMON_ATTRIBUTES = (
+    "Conventions", "title", "summary", "history", "date_created", "id", "license",
+    "lidarcal_artefact", "lidarcal_version", "lidarcal_software", "lidarcal_inputs",
+    "lidarcal_config", "lidarcal_seeds",
+)
+
+
+def _schema_dir():
+    """``schemas/`` as installed in the wheel, else the checkout's top-level folder."""
+    packaged = resources.files("lidarcal") / "schemas"
+    if packaged.is_dir():
+        return packaged
+    return resources.files("lidarcal").parent / "schemas"  # editable install / checkout
+
+
+def list_kinds() -> list[str]:
+    """Names of all artefact kinds that have a schema."""
+    return sorted(p.name[:-5] for p in _schema_dir().iterdir() if p.name.endswith(".yaml"))
+
+
+@functools.cache
+def load_schema(kind: str) -> dict[str, Any]:
+    """Load and sanity-check the schema of artefact ``kind``."""
+    path = _schema_dir() / f"{kind}.yaml"
+    if not path.is_file():
+        raise InputError(f"unknown artefact kind {kind!r}; known kinds: {', '.join(list_kinds())}")
+    schema = yaml.safe_load(path.read_text())
+    for key in ("kind", "description", "dims", "coordinates", "variables"):
+        if key not in schema:
+            raise InputError(f"schema {path.name}: missing top-level key {key!r}")
+    if schema["kind"] != kind:
+        raise InputError(f"schema {path.name}: declares kind {schema['kind']!r}")
+    return schema
+
+
+def _unit_ok(found: str | None, spec: dict) -> str | None:
+    """Return a problem description, or None when ``found`` satisfies ``spec``."""
+    expected = spec.get("units")
+    if expected is None:
+        return None
+    if found is None:
+        return f"has no 'units' attribute; expected {expected!r}"
+    if spec.get("convertible", False):
+        if expected in LOG_UNITS:
+            return None if found in LOG_UNITS[expected] else f"has units {found!r}; expected {expected!r}"
+        try:
+            ok = _parse(found, where="").dimensionality == _parse(expected, where="").dimensionality
+        except InputError:
+            ok = False
+        return None if ok else f"has units {found!r}; expected units convertible to {expected!r}"
+    return None if found == expected else f"has units {found!r}; expected {expected!r}"
+
+
+def _check_variable(ds: xr.Dataset, name: str, spec: dict, role: str, problems: list[str]) -> None:
+    if name not in ds.variables:
+        if spec.get("required", True):
+            problems.append(f"{role} {name!r} is missing")
+        return
+    var = ds[name] if name in ds.data_vars or name in ds.coords else ds.variables[name]
+    dims = spec.get("dims")
+    if dims is not None and list(var.dims) != list(dims):
+        problems.append(f"{role} {name!r} has dims {tuple(var.dims)}; expected {tuple(dims)}")
+    msg = _unit_ok(var.attrs.get("units"), spec)
+    if msg:
+        problems.append(f"{role} {name!r} {msg}")
+    for attr, value in spec.get("attributes", {}).items():
+        if var.attrs.get(attr) != value:
+            problems.append(f"{role} {name!r} attribute {attr!r} is {var.attrs.get(attr)!r}; expected {value!r}")
+    kind = var.dtype.kind
+    if kind not in "fiu":
+        return
+    values = np.asarray(var.values, dtype=float)
+    nan = np.isnan(values)
+    if not spec.get("allow_nan", False) and nan.any():
+        problems.append(f"{role} {name!r} has {int(nan.sum())} NaN value(s); NaN is not allowed here")
+    rng = spec.get("range")
+    if rng is not None and (~nan).any():
+        lo, hi = (float(r) if r is not None else None for r in rng)
+        finite = values[~nan]
+        if lo is not None and finite.min() < lo:
+            problems.append(f"{role} {name!r} has minimum {finite.min():.6g}, below the physical range [{lo}, {hi}]")
+        if hi is not None and finite.max() > hi:
+            problems.append(f"{role} {name!r} has maximum {finite.max():.6g}, above the physical range [{lo}, {hi}]")
+
+
+def validate_dataset(
+    ds: xr.Dataset,
+    kind: str | None = None,
+    *,
+    source: str = "<dataset>",
+    raise_on_error: bool = False,
+) -> list[str]:
+    """Check ``ds`` against the schema of ``kind`` (default: its ``lidarcal_artefact``).
+
+    Returns the list of problems (empty when valid); with ``raise_on_error`` a non-empty
+    list raises :class:`~lidarcal.errors.ValidationError` carrying all of them.
+    """
+    found_kind = ds.attrs.get("lidarcal_artefact")
+    kind = kind or found_kind
+    problems: list[str] = []
+    if kind is None:
+        problems.append("global attribute 'lidarcal_artefact' is missing; cannot tell which schema applies")
+    else:
+        schema = load_schema(kind)
+        if found_kind is not None and found_kind != kind:
+            problems.append(f"is a {found_kind!r} artefact; expected {kind!r}")
+        for dim in schema["dims"]:
+            if dim not in ds.dims:
+                problems.append(f"dimension {dim!r} is missing; found {sorted(map(str, ds.dims))}")
+        for name, spec in (schema.get("coordinates") or {}).items():
+            _check_variable(ds, name, spec or {}, "coordinate", problems)
+        for name, spec in (schema.get("variables") or {}).items():
+            _check_variable(ds, name, spec or {}, "variable", problems)
+        attrs = list(schema.get("attributes") or [])
+        if schema.get("provenance", True):
+            attrs = [*COMMON_ATTRIBUTES, *attrs]
+        for attr in attrs:
+            if attr not in ds.attrs:
+                problems.append(f"global attribute {attr!r} is missing")
+        if schema.get("units_on_every_variable", True):
+            for name, var in ds.data_vars.items():
+                if var.dtype.kind in "fiu" and "units" not in var.attrs and "flag_values" not in var.attrs:
+                    problems.append(f"variable {name!r} has no 'units' attribute")
+    if problems and raise_on_error:
+        raise ValidationError(problems, source)
+    return problems

@@ -1,0 +1,144 @@
+"""The single pint registry and the unit checks used at every public boundary.
+
+The registry is cf-xarray's, so UDUNITS/CF strings such as ``m s-1`` parse.  Pint treats
+``dB`` as a logarithmic (offset) unit, so CNR quantities are checked by their unit string
+and then handled as plain floats.
+"""
+
+from __future__ import annotations
+
+import numbers
+from typing import Any
+
+import cf_xarray.units  # noqa: F401  (registers the CF unit formatter and aliases)
+import numpy as np
+import pint
+import pint_xarray  # noqa: F401  (registers the .pint accessor)
+import xarray as xr
+from cf_xarray.units import units as ureg
+
+from lidarcal.errors import MissingVariableError, UnitError
+
+__all__ = [
+    "ureg",
+    "Q_",
+    "LOG_UNITS",
+    "cf_units",
+    "convert_values",
+    "convert_variable",
+    "to_magnitude",
+    "quantify",
+    "dequantify",
+]
+
+Q_ = ureg.Quantity
+
+#: Units pint cannot do arithmetic with; accepted only as these exact strings.
+LOG_UNITS = {"dB": {"dB", "decibel"}, "dB m-1": {"dB m-1", "dB/m", "decibel m-1"}}
+
+_CANONICAL = {
+    "degree": "degree",
+    "decibel": "dB",
+    "delta_decibel / meter": "dB m-1",
+    "dimensionless": "1",
+    "percent": "%",
+}
+
+
+def cf_units(unit: pint.Unit | str) -> str:
+    """Return the UDUNITS/CF spelling of ``unit`` (``degree`` rather than ``deg``)."""
+    unit = ureg.Unit(unit) if isinstance(unit, str) else unit
+    name = str(unit)
+    if name in _CANONICAL:
+        return _CANONICAL[name]
+    return f"{unit:cf}" or "1"
+
+
+def _parse(text: str, *, where: str) -> pint.Unit:
+    try:
+        return ureg.Unit(text)
+    except Exception as exc:  # pint raises several unrelated types here
+        raise UnitError(f"{where}: units {text!r} cannot be parsed ({exc})") from None
+
+
+def convert_values(values: Any, found: str | None, expected: str, *, where: str) -> np.ndarray:
+    """Convert ``values`` from unit ``found`` to ``expected`` or raise a :class:`UnitError`.
+
+    ``where`` names the file and variable in the message, e.g. ``"conditions.nc: variable
+    'wind_speed'"``.
+    """
+    values = np.asarray(values, dtype=float)
+    if found is None or str(found).strip() == "":
+        raise UnitError(f"{where} has no 'units' attribute; expected units convertible to {expected!r}")
+    found = str(found).strip()
+    if expected in LOG_UNITS:
+        if found in LOG_UNITS[expected]:
+            return values
+        raise UnitError(f"{where} has units {found!r}; expected {expected!r}")
+    if found in {alias for a in LOG_UNITS.values() for alias in a}:
+        raise UnitError(f"{where} has units {found!r}; expected units convertible to {expected!r}")
+    src, dst = _parse(found, where=where), _parse(expected, where="expected unit")
+    if src.dimensionality != dst.dimensionality:
+        raise UnitError(
+            f"{where} has units {found!r} ({src.dimensionality}); expected units convertible "
+            f"to {expected!r} ({dst.dimensionality})"
+        )
+    if src == dst:
+        return values
+    return Q_(values, src).to(dst).magnitude
+
+
+def convert_variable(ds: xr.Dataset, name: str, expected: str, *, source: str = "<dataset>") -> xr.DataArray:
+    """Return ``ds[name]`` converted to ``expected`` units, attributes kept, ``units`` updated."""
+    if name not in ds.variables:
+        raise MissingVariableError(
+            f"{source}: required variable {name!r} is missing; found {sorted(map(str, ds.variables))}"
+        )
+    da = ds[name]
+    where = f"{source}: variable {name!r}"
+    values = convert_values(da.values, da.attrs.get("units"), expected, where=where)
+    out = da.copy(data=values)
+    out.attrs = {**da.attrs, "units": expected}
+    return out
+
+
+def to_magnitude(value: Any, expected: str, *, name: str) -> float | np.ndarray:
+    """Convert a physical argument to a bare magnitude in ``expected`` units.
+
+    Accepts a pint quantity or a string such as ``"100 m"``.  Bare numbers are refused for
+    dimensional quantities (their unit would be a guess) but accepted for dimensionless ones.
+    """
+    if isinstance(value, str):
+        try:
+            value = ureg.Quantity(value)
+        except Exception as exc:
+            raise UnitError(f"argument {name!r}: cannot parse {value!r} as a quantity ({exc})") from None
+    if isinstance(value, pint.Quantity):
+        where = f"argument {name!r}"
+        return convert_values(value.magnitude, f"{value.units:~cf}" or "1", expected, where=where) \
+            if expected not in LOG_UNITS else np.asarray(value.magnitude, dtype=float)
+    dimensionless = _parse(expected, where="expected unit").dimensionless if expected not in LOG_UNITS else False
+    if isinstance(value, numbers.Number | np.ndarray | list | tuple) and dimensionless:
+        return np.asarray(value, dtype=float) if not isinstance(value, numbers.Number) else float(value)
+    raise UnitError(
+        f"argument {name!r}: got the bare number {value!r}; give a quantity with units "
+        f"convertible to {expected!r}, e.g. ureg.Quantity({value!r}, {expected!r})"
+    )
+
+
+def quantify(ds: xr.Dataset) -> xr.Dataset:
+    """Attach pint units from the ``units`` attributes, using lidarcal's registry."""
+    return ds.pint.quantify(unit_registry=ureg)
+
+
+def dequantify(ds: xr.Dataset) -> xr.Dataset:
+    """Inverse of :func:`quantify` that writes UDUNITS spellings (``degree``, ``dB m-1``)."""
+    units = {
+        name: cf_units(var.data.units)
+        for name, var in ds.variables.items()
+        if isinstance(var.data, pint.Quantity)
+    }
+    out = ds.pint.dequantify()
+    for name, unit in units.items():
+        out[name].attrs["units"] = unit
+    return out
