@@ -1,0 +1,198 @@
+"""Pure numpy kernels of the analysis stage: binning, regression, significance, quadrature.
+
+Nothing here knows about files, xarray or units: arguments are plain float arrays in SI
+(or the caller's) units.  Functions that take data arrays work over the **last** axis and
+broadcast over any leading axes, so the dataset layer can hand them ``(..., time)`` blocks.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "edges_from_width",
+    "centred_edges",
+    "bin_statistics",
+    "linear_regression",
+    "significance",
+    "quadrature",
+]
+
+
+def edges_from_width(lo: float, hi: float, width: float) -> np.ndarray:
+    """Contiguous bin edges at integer multiples of ``width`` covering ``[lo, hi]``.
+
+    >>> edges_from_width(0.03, 0.21, 0.05).round(2).tolist()
+    [0.0, 0.05, 0.1, 0.15, 0.2, 0.25]
+    """
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise ValueError(f"cannot place bins: data range [{lo}, {hi}] is not finite")
+    if not width > 0:
+        raise ValueError(f"bin width must be positive; got {width}")
+    first = np.floor(lo / width + 1e-9)
+    last = np.floor(hi / width + 1e-9) + 1
+    return np.arange(first, last + 1) * width
+
+
+def centred_edges(lo: float, hi: float, width: float) -> np.ndarray:
+    """Edges of bins *centred* on integer multiples of ``width`` (IEC 61400-12-1 style).
+
+    A 0.5 m s-1 bin centred on 8 m s-1 covers [7.75, 8.25).
+
+    >>> centred_edges(7.8, 8.3, 0.5).tolist()
+    [7.75, 8.25, 8.75]
+    """
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        raise ValueError(f"cannot place bins: data range [{lo}, {hi}] is not finite")
+    if not width > 0:
+        raise ValueError(f"bin width must be positive; got {width}")
+    first = np.floor(lo / width + 0.5 + 1e-9)
+    last = np.floor(hi / width + 0.5 + 1e-9)
+    return (np.arange(first, last + 2) - 0.5) * width
+
+
+def _bin_index(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
+    """Bin index of every ``x`` (``-1`` outside or NaN); bins are ``[e_i, e_i+1)``."""
+    idx = np.searchsorted(edges, x, side="right") - 1
+    nbins = len(edges) - 1
+    idx = np.where((idx >= 0) & (idx < nbins), idx, -1)
+    return np.where(np.isnan(x), -1, idx)
+
+
+def bin_statistics(
+    x: np.ndarray, y: np.ndarray, edges: np.ndarray, *, ddof: int = 1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per-bin count, mean and standard deviation of ``y`` binned by ``x``.
+
+    Parameters
+    ----------
+    x, y : array, shape (..., n)
+        Binning variable and values; a pair is used only if both are finite.
+    edges : array, shape (nbins + 1,)
+        Increasing bin edges; bin *i* is ``[edges[i], edges[i+1])``; values outside are ignored.
+    ddof : int
+        Delta degrees of freedom of the standard deviation (1: sample std).
+
+    Returns
+    -------
+    count : int array (..., nbins)
+    mean_y, std_y, mean_x : float arrays (..., nbins)
+        NaN where a bin is empty (``std_y`` also where ``count <= ddof``).
+
+    Examples
+    --------
+    >>> x, y = np.array([0.1, 0.2, 1.5]), np.array([1., 3., 5.])
+    >>> n, m, s, mx = bin_statistics(x, y, np.array([0., 1., 2.]))
+    >>> n.tolist(), m.tolist(), mx.tolist()
+    ([2, 1], [2.0, 5.0], [0.15000000000000002, 1.5])
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    x, y = np.broadcast_arrays(x, y)
+    edges = np.asarray(edges, dtype=float)
+    nbins = len(edges) - 1
+    lead = x.shape[:-1]
+    nrow = int(np.prod(lead)) if lead else 1
+    x2 = x.reshape(nrow, -1)
+    y2 = y.reshape(nrow, -1)
+    idx = _bin_index(x2, edges)
+    idx = np.where(np.isfinite(y2), idx, -1)
+    ok = idx >= 0
+    flat = (np.arange(nrow)[:, None] * nbins + idx)[ok]
+    size = nrow * nbins
+    count = np.bincount(flat, minlength=size).astype(np.int64)
+    sum_y = np.bincount(flat, weights=y2[ok], minlength=size)
+    sum_x = np.bincount(flat, weights=x2[ok], minlength=size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean_y = sum_y / count
+        mean_x = sum_x / count
+        # two-pass variance: subtract the bin mean first (no catastrophic cancellation)
+        dev = y2[ok] - mean_y[flat]
+        ss = np.bincount(flat, weights=dev * dev, minlength=size)
+        std_y = np.sqrt(ss / (count - ddof))
+    std_y = np.where(count > ddof, std_y, np.nan)
+    shape = (*lead, nbins)
+    return count.reshape(shape), mean_y.reshape(shape), std_y.reshape(shape), mean_x.reshape(shape)
+
+
+def linear_regression(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Unweighted least-squares line ``y = slope * x + intercept`` over the last axis.
+
+    Points where ``x`` or ``y`` is NaN are left out.  Equivalent to
+    :func:`scipy.stats.linregress` on the finite points, vectorised over leading axes.
+
+    Returns
+    -------
+    slope, intercept, r, slope_stderr : float arrays (...)
+        NaN where fewer than two distinct ``x`` remain (``r`` and the stderr also NaN when
+        fewer than three points or when ``y`` is constant).
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    x, y = np.broadcast_arrays(x, y)
+    ok = np.isfinite(x) & np.isfinite(y)
+    n = ok.sum(axis=-1)
+    xz = np.where(ok, x, 0.0)
+    yz = np.where(ok, y, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mx = xz.sum(axis=-1) / n
+        my = yz.sum(axis=-1) / n
+        dx = np.where(ok, x - mx[..., None], 0.0)
+        dy = np.where(ok, y - my[..., None], 0.0)
+        sxx = (dx * dx).sum(axis=-1)
+        syy = (dy * dy).sum(axis=-1)
+        sxy = (dx * dy).sum(axis=-1)
+        valid = (n >= 2) & (sxx > 0)
+        slope = np.where(valid, sxy / sxx, np.nan)
+        intercept = np.where(valid, my - slope * mx, np.nan)
+        r = np.where(valid & (syy > 0), sxy / np.sqrt(sxx * syy), np.nan)
+        r = np.clip(r, -1.0, 1.0)
+        resid = np.maximum(syy - slope * sxy, 0.0)
+        stderr = np.where(valid & (n > 2), np.sqrt(resid / np.maximum(n - 2, 1) / sxx), np.nan)
+    return slope, intercept, r, stderr
+
+
+def significance(
+    slope: np.ndarray, std: np.ndarray, r: np.ndarray, *, threshold_12: float = 0.5, threshold_13: float = 0.1
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Significance tests of the paper's Eqs. 12 and 13 (IEC 61400-50-2 style).
+
+    ``|m·std| > threshold_12`` (Eq. 12, 0.5 %) and ``|m·std·R| > threshold_13`` (Eq. 13,
+    0.1 %), with ``m`` in % per unit of the variable and ``std`` in that unit.
+
+    Returns
+    -------
+    m_std, m_std_r : float arrays
+        The two test statistics (signed, in %).
+    sig_12, sig_13 : bool arrays
+        Whether each test is passed (strictly greater); False where the statistic is NaN.
+
+    >>> significance(np.array([10.0]), np.array([0.06]), np.array([0.2]))[2:]
+    (array([ True]), array([ True]))
+    """
+    slope, std, r = (np.asarray(a, dtype=float) for a in (slope, std, r))
+    m_std = slope * std
+    m_std_r = m_std * r
+    with np.errstate(invalid="ignore"):
+        sig_12 = np.abs(m_std) > threshold_12
+        sig_13 = np.abs(m_std_r) > threshold_13
+    return m_std, m_std_r, sig_12, sig_13
+
+
+def quadrature(*terms: np.ndarray, axis: int | None = None) -> np.ndarray:
+    """Root sum of squares of uncertainty terms (NaN if any term is NaN).
+
+    With ``axis`` a single array is combined along that axis.
+
+    >>> float(quadrature(np.array(3.0), np.array(4.0)))
+    5.0
+    """
+    if axis is not None:
+        (arr,) = terms
+        arr = np.asarray(arr, dtype=float)
+        return np.sqrt((arr * arr).sum(axis=axis))
+    total = np.zeros(np.broadcast_shapes(*(np.shape(t) for t in terms)))
+    for t in terms:
+        t = np.asarray(t, dtype=float)
+        total = total + t * t
+    return np.sqrt(total)

@@ -1,0 +1,339 @@
+"""Environmental sensitivities of the lidar–reference difference (paper §3.3, IEC 61400-50-2).
+
+For one environmental variable *X* and each height:
+
+1. the records (10-minute periods) are binned by *X* (contiguous bins at integer multiples
+   of the bin width, or user edges);
+2. per bin, the mean, standard deviation and count of the difference
+   ``d = 100 % · (lidar − reference) / reference`` (``relative=True``; relative to the
+   **reference** wind speed of each period, then averaged) or ``d = lidar − reference`` in
+   m s-1 (``relative=False``);
+3. bins with fewer than ``min_samples`` periods are dropped (kept in the table with their
+   count, flagged, mean set to NaN);
+4. an **unweighted** ordinary least-squares line of the remaining bin means against the bin
+   centres (as the paper describes the 50-2 procedure; identical to
+   :func:`scipy.stats.linregress`): slope *m* (% per unit of *X*), intercept, correlation *R*;
+5. ``std`` = sample standard deviation (ddof = 1) of *X* over all periods in the kept bins;
+6. the significance tests ``|m·std| > 0.5 %`` (Eq. 12) and ``|m·std·R| > 0.1 %`` (Eq. 13).
+
+One ``sensitivity`` artefact describes one variable, so every quantity has a single unit
+(a slope in "% per m s-1" and one in "% per degree" cannot share a CF variable).  Several
+variables → several artefacts (:func:`sensitivities`); simulated and measured results line up
+with :func:`compare_slopes` (paper Figure 8).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.analysis import kernels
+from lidarcal.analysis._records import STANDARD_NAMES, checked, select_heights, source_name
+from lidarcal.cf import var_attrs, with_bounds
+from lidarcal.errors import InputError
+from lidarcal.provenance import stamp
+from lidarcal.units import LOG_UNITS, to_magnitude
+
+__all__ = ["sensitivity", "sensitivities", "compare_slopes", "DEFAULT_BIN_WIDTHS", "DEFAULT_MIN_SAMPLES"]
+
+#: Bin widths used when none is given, in the variable's canonical units.
+DEFAULT_BIN_WIDTHS = {
+    "wind_speed": 0.5,            # m s-1, the IEC wind-speed bin
+    "wind_from_direction": 10.0,  # degree
+    "turbulence_intensity": 0.01,  # 1 (one percentage point of TI)
+    "wind_shear_exponent": 0.05,  # 1
+    "cnr": 2.0,                   # dB, the bench's CNR step (Table 1)
+    "cnr_gradient": 0.01,         # dB m-1
+}
+
+#: Minimum number of 10-minute periods for a bin to enter the regression.  Three is the
+#: smallest count that gives a bin standard deviation with two degrees of freedom; the
+#: 50-2 classification practice of "sufficient samples" is site-specific, so it is a
+#: parameter (``--min-samples``) and recorded in the artefact.
+DEFAULT_MIN_SAMPLES = 3
+
+#: Wind-speed range (m s-1, of the reference) used by default, the IEC classification range.
+DEFAULT_REFERENCE_RANGE = (4.0, 16.0)
+
+THRESHOLD_EQ12 = 0.5  # %
+THRESHOLD_EQ13 = 0.1  # %
+
+
+def _per_unit(diff_units: str, x_units: str) -> str:
+    """Units of a slope of ``diff_units`` per ``x_units`` in UDUNITS spelling."""
+    if x_units in ("1", ""):
+        return diff_units
+    parts = x_units.split()
+    inverse = []
+    for p in parts:
+        base = p.rstrip("-0123456789")
+        exp = p[len(base):] or "1"
+        e = -int(exp)
+        inverse.append(base if e == 1 else f"{base}{e}")
+    return f"{diff_units} {' '.join(inverse)}"
+
+
+def _width(variable: str, bin_width: Any, units: str) -> float:
+    if bin_width is None:
+        if variable not in DEFAULT_BIN_WIDTHS:
+            raise InputError(f"no default bin width for variable {variable!r}; give bin_width= or bins=")
+        return DEFAULT_BIN_WIDTHS[variable]
+    if units in LOG_UNITS:
+        if hasattr(bin_width, "magnitude"):
+            return float(bin_width.magnitude)
+        if isinstance(bin_width, str):
+            value, _, unit = bin_width.partition(" ")
+            if unit and unit.strip() not in LOG_UNITS[units]:
+                raise InputError(f"bin width {bin_width!r} for {variable!r}: expected units {units!r}")
+            return float(value)
+        return float(bin_width)
+    return float(to_magnitude(bin_width, units, name="bin_width"))
+
+
+def _range(reference_range) -> tuple[float, float]:
+    if reference_range is None:
+        return 0.0, np.inf
+    lo, hi = reference_range
+    conv = [(-np.inf if i == 0 else np.inf) if v is None else
+            float(v if isinstance(v, int | float) else to_magnitude(v, "m s-1", name="reference_range"))
+            for i, v in enumerate((lo, hi))]
+    return max(conv[0], 0.0), conv[1]
+
+
+def sensitivity(
+    records: xr.Dataset,
+    variable: str,
+    *,
+    bin_width: Any = None,
+    bins: Any = None,
+    min_samples: int = DEFAULT_MIN_SAMPLES,
+    relative: bool = True,
+    heights: Iterable[float] | None = None,
+    reference_range: tuple[Any, Any] | None = DEFAULT_REFERENCE_RANGE,
+    source: str | None = None,
+) -> xr.Dataset:
+    """Sensitivity of the lidar–reference difference to one environmental variable.
+
+    Parameters
+    ----------
+    records : xarray.Dataset
+        ``simulated_rtd`` or ``field_campaign`` records on (time, height) with
+        ``lidar_wind_speed``, ``reference_wind_speed`` and ``variable``.  May be Dask-backed;
+        the result (a small table per height) is computed in one pass.
+    variable : str
+        Environmental variable to bin by, e.g. ``"wind_shear_exponent"``.
+    bin_width : quantity, str or float, optional
+        Bin width in the variable's units (``"0.5 m s-1"``; a bare float only for
+        dimensionless variables and dB); default :data:`DEFAULT_BIN_WIDTHS`.
+    bins : array, optional
+        Explicit increasing bin edges (canonical units) instead of ``bin_width``.
+    min_samples : int
+        Bins with fewer periods are left out of the regression (default 3).
+    relative : bool
+        Difference in % of the reference (default) or in m s-1.
+    heights : sequence of float, optional
+        Heights (m) to analyse; default all.  A height not in the records is an error.
+    reference_range : (low, high), optional
+        Reference wind-speed range of the periods used, in m s-1 (default 4–16 m s-1);
+        ``None`` uses every period with a positive reference speed.
+
+    Returns
+    -------
+    xarray.Dataset
+        A ``sensitivity`` artefact (dims ``height``, ``bin``).
+    """
+    source = source or source_name(records)
+    if bin_width is not None and bins is not None:
+        raise InputError("give either bin_width or bins, not both")
+    if int(min_samples) < 1:
+        raise InputError(f"min_samples must be >= 1; got {min_samples}")
+    min_samples = int(min_samples)
+    records = select_heights(records, heights, source=source)
+    x = checked(records, variable, source=source)
+    units = x.attrs["units"]
+    lidar = checked(records, "lidar_wind_speed", source=source)
+    ref = checked(records, "reference_wind_speed", source=source)
+    lo_ref, hi_ref = _range(reference_range)
+    use = (ref > lo_ref) & (ref <= hi_ref) & np.isfinite(lidar) & np.isfinite(x)
+    diff = (100.0 * (lidar - ref) / ref) if relative else (lidar - ref)
+    diff = diff.where(use)
+    diff_units = "%" if relative else "m s-1"
+
+    if bins is not None:
+        edges = np.asarray(bins, dtype=float)
+        if edges.ndim != 1 or len(edges) < 2 or np.any(np.diff(edges) <= 0):
+            raise InputError(f"bins must be at least two strictly increasing edges; got {edges.tolist()}")
+        width = None
+    else:
+        width = _width(variable, bin_width, units)
+        xs = x.where(np.isfinite(diff))
+        lo, hi = float(xs.min().compute()), float(xs.max().compute())
+        if not np.isfinite(lo):
+            raise InputError(
+                f"{source}: no period has finite {variable!r}, lidar_wind_speed and reference_wind_speed "
+                f"with the reference in [{lo_ref:g}, {hi_ref:g}] m s-1; nothing to bin"
+            )
+        edges = kernels.edges_from_width(lo, hi, width)
+    nb = len(edges) - 1
+
+    def _stats(xv, yv):
+        return kernels.bin_statistics(xv, yv, edges)
+
+    count, mean, std, mean_x = xr.apply_ufunc(
+        _stats, x, diff, input_core_dims=[["time"], ["time"]], output_core_dims=[["bin"]] * 4,
+        dask="parallelized", output_dtypes=[np.int64, float, float, float],
+        dask_gufunc_kwargs={"output_sizes": {"bin": nb}, "allow_rechunk": True},
+    )
+    count, mean, std, mean_x = (a.compute() for a in (count, mean, std, mean_x))
+    keep = count >= min_samples
+    if not bool(keep.any()):
+        raise InputError(
+            f"{source}: variable {variable!r}: no bin has at least min_samples={min_samples} periods "
+            f"(largest bin count {int(count.max())}, {int(count.sum())} usable periods in {nb} bins); "
+            "lower --min-samples, widen the bins or supply more records"
+        )
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    mean_kept = mean.where(keep)
+    slope, intercept, r, stderr = kernels.linear_regression(
+        np.broadcast_to(centres, mean_kept.shape), mean_kept.values)
+    if not np.isfinite(slope).any():
+        raise InputError(
+            f"{source}: variable {variable!r}: no height has two bins with at least "
+            f"min_samples={min_samples} "
+            f"periods, so no regression is possible (bins per height: "
+            f"{dict(zip(map(float, records.height.values), keep.sum('bin').values.tolist(), strict=True))})"
+        )
+
+    def _std_used(xv, yv, keepv):
+        idx = kernels._bin_index(xv, edges)
+        k = np.take_along_axis(keepv, np.maximum(idx, 0), axis=-1) & (idx >= 0) & np.isfinite(yv)
+        n = k.sum(axis=-1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = np.where(k, xv, 0.0).sum(axis=-1) / n
+            ss = (np.where(k, xv - m[..., None], 0.0) ** 2).sum(axis=-1)
+            return np.where(n > 1, np.sqrt(ss / (n - 1)), np.nan), n
+
+    xstd, n_used = xr.apply_ufunc(
+        _std_used, x, diff, keep, input_core_dims=[["time"], ["time"], ["bin"]],
+        output_core_dims=[[], []], dask="parallelized", output_dtypes=[float, np.int64],
+        dask_gufunc_kwargs={"allow_rechunk": True},
+    )
+    xstd, n_used = xstd.compute().values, n_used.compute().values
+    m_std, m_std_r, sig12, sig13 = kernels.significance(
+        slope, xstd, r, threshold_12=THRESHOLD_EQ12, threshold_13=THRESHOLD_EQ13)
+
+    xname = variable.replace("_", " ")
+    slope_units = _per_unit(diff_units, units)
+    flag = dict(flag_values=np.array([0, 1], dtype=np.int8), flag_meanings="not_significant significant",
+                coverage_content_type="qualityInformation")
+    hd = ("height",)
+    hb = ("height", "bin")
+    ds = xr.Dataset(
+        {
+            "mean_difference": (hb, mean_kept.values, var_attrs(
+                f"mean {'relative ' if relative else ''}lidar minus reference wind speed difference in bin",
+                diff_units, ancillary_variables="sample_count bin_flag",
+                comment="relative to each period's reference wind speed, then averaged" if relative else "")),
+            "std_difference": (hb, std.values, var_attrs(
+                "standard deviation of the lidar minus reference difference in bin (ddof=1)", diff_units)),
+            "sample_count": (hb, count.values.astype(np.int32), var_attrs(
+                "number of 10-minute periods in bin", "1", coverage_content_type="auxiliaryInformation")),
+            "variable_mean": (hb, mean_x.values, var_attrs(f"mean {xname} of the periods in bin", units,
+                                                           STANDARD_NAMES.get(variable))),
+            "bin_flag": (hb, np.where(keep.values, 0, np.where(count.values > 0, 1, 2)).astype(np.int8),
+                         var_attrs("bin usage flag", "1", coverage_content_type="qualityInformation",
+                                   flag_values=np.array([0, 1, 2], dtype=np.int8),
+                                   flag_meanings="used too_few_samples empty")),
+            "slope": (hd, slope, var_attrs(f"sensitivity slope m of the difference to {xname}", slope_units,
+                                           comment="unweighted least squares of bin means on bin centres")),
+            "slope_standard_error": (hd, stderr, var_attrs("standard error of the slope", slope_units)),
+            "intercept": (hd, intercept, var_attrs("intercept of the sensitivity regression", diff_units)),
+            "correlation": (hd, r, var_attrs("correlation coefficient R of the sensitivity regression", "1")),
+            "variable_std": (hd, xstd, var_attrs(
+                f"standard deviation of {xname} over the periods used (ddof=1)", units)),
+            "periods_used": (hd, n_used.astype(np.int32), var_attrs(
+                "number of periods in the bins used", "1", coverage_content_type="auxiliaryInformation")),
+            "bins_used": (hd, keep.sum("bin").values.astype(np.int32), var_attrs(
+                "number of bins used in the regression", "1", coverage_content_type="auxiliaryInformation")),
+            "slope_times_std": (hd, m_std, var_attrs("Eq. 12 statistic m * std", diff_units)),
+            "slope_times_std_times_r": (hd, m_std_r, var_attrs("Eq. 13 statistic m * std * R", diff_units)),
+            "significant_eq12": (hd, sig12.astype(np.int8), var_attrs(
+                f"|m * std| > {THRESHOLD_EQ12} % (Eq. 12)", "1", **flag)),
+            "significant_eq13": (hd, sig13.astype(np.int8), var_attrs(
+                f"|m * std * R| > {THRESHOLD_EQ13} % (Eq. 13)", "1", **flag)),
+            "significant": (hd, (sig12 | sig13).astype(np.int8), var_attrs(
+                "sensitivity significant by Eq. 12 or Eq. 13", "1", **flag)),
+        },
+        coords={
+            "height": records["height"].variable.copy(),
+            "bin": ("bin", centres, var_attrs(f"centre of {xname} bin", units, STANDARD_NAMES.get(variable),
+                                              coverage_content_type="coordinate")),
+        },
+    )
+    if not relative:
+        for name in ("slope_times_std", "slope_times_std_times_r"):
+            ds[name].attrs["comment"] = "the thresholds of Eqs. 12-13 are in %; they do not apply here"
+    ds["height"].attrs = dict(records["height"].attrs)
+    ds = with_bounds(ds, "bin", edges)
+    config = {
+        "variable": variable, "variable_units": units, "bin_width": width, "bin_edges": edges.tolist(),
+        "min_samples": min_samples, "relative": relative,
+        "reference_range_m_s-1": [lo_ref, None if np.isinf(hi_ref) else hi_ref],
+        "regression": "unweighted ordinary least squares of bin means on bin centres",
+        "thresholds_percent": {"eq12": THRESHOLD_EQ12, "eq13": THRESHOLD_EQ13},
+    }
+    ds.attrs = {
+        "environmental_variable": variable,
+        "environmental_variable_units": units,
+        "difference_definition": ("100 % * (lidar_wind_speed - reference_wind_speed) / reference_wind_speed"
+                                  if relative else "lidar_wind_speed - reference_wind_speed"),
+        "regression_method": config["regression"] + " (scipy.stats.linregress equivalent)",
+        "min_samples": min_samples,
+        "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")),
+    }
+    for key in ("lidar_serial",):
+        if key in records.attrs:
+            ds.attrs[key] = records.attrs[key]
+    return stamp(
+        ds, "sensitivity",
+        title=f"Sensitivity of lidar wind speed to {xname}",
+        summary=(f"IEC 61400-50-2 style sensitivity of the lidar-reference wind speed difference to {xname} "
+                 "per height: binned means, unweighted regression on bin centres, Eqs. 12-13 tests."),
+        call=f"lidarcal.analysis.sensitivity(records, {variable!r})",
+        input_datasets={"records": records}, config=config,
+    )
+
+
+def sensitivities(records: xr.Dataset, variables: Iterable[str], **kwargs: Any) -> dict[str, xr.Dataset]:
+    """:func:`sensitivity` for several variables; ``bin_width`` may be a mapping per variable."""
+    widths = kwargs.pop("bin_width", None)
+    out = {}
+    for v in variables:
+        w = widths.get(v) if isinstance(widths, Mapping) else widths
+        out[v] = sensitivity(records, v, bin_width=w, **kwargs)
+    return out
+
+
+def compare_slopes(results: Mapping[str, xr.Dataset]) -> xr.Dataset:
+    """Line up slopes of several sensitivity artefacts of one variable (paper Figure 8).
+
+    ``results`` maps a label (``"simulated"``, ``"classification #1"`` ...) to a sensitivity
+    artefact; the output has a ``source`` dimension and the union of their heights (NaN
+    where a source has no such height).
+    """
+    if not results:
+        raise InputError("compare_slopes needs at least one sensitivity dataset")
+    names = {ds.attrs.get("environmental_variable") for ds in results.values()}
+    if len(names) != 1:
+        raise InputError(f"cannot compare slopes of different variables: {sorted(map(str, names))}")
+    keep = ["slope", "intercept", "correlation", "variable_std", "slope_times_std",
+            "slope_times_std_times_r", "significant"]
+    parts = [ds[keep] for ds in results.values()]
+    out = xr.concat(parts, dim=xr.DataArray(list(results), dims="source", name="source"), join="outer",
+                    combine_attrs="drop_conflicts")
+    out["source"].attrs = {"long_name": "origin of the sensitivity (simulation or field campaign)"}
+    out.attrs = {"environmental_variable": names.pop()}
+    return out
