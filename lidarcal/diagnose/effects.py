@@ -1,0 +1,217 @@
+"""The catalogue of model effects that ``lidarcal diagnose`` can name, fit and add.
+
+The catalogue is data (STYLE.md, "registries are data"): :data:`EFFECTS` maps each catalogue id
+of DESIGN.md 3.2 to a small frozen :class:`Effect` that states
+
+- its parameters (name, unit, physical bounds, the ``LidarModel`` field each one sets, and the
+  probe step used to measure the model's response to it),
+- the environmental drivers it acts through (``conditions`` variables; the per-height response
+  is smoothed on these, see :mod:`lidarcal.diagnose.fit`),
+- how it modifies a model, ``effect.apply(model, params)`` → a new ``LidarModel`` made with
+  :func:`dataclasses.replace` (models are frozen), and
+- optionally an *exact shortcut*: when an effect acts only after the turbulence has been
+  sampled (the hybrid weight p only re-weights the scalar and vector reconstructions the
+  simulator already returns; the reference over-speeding only scales the virtual reference),
+  the records of the modified model follow exactly from the baseline records, so no
+  re-simulation is needed.  ``tests/test_diagnose_engine.py`` checks each shortcut against a
+  full re-simulation.
+
+Expected signatures (first order, cone angle φ from vertical, relative to the reference):
+
+``zero_distance_offset``  +α·δz·cos φ / h (gate higher by δz·cos φ; grows with shear, falls with height)
+``beam_angle_offset``     +cot φ·δφ − α·tan φ·δφ (mostly constant: the horizontal projection
+                          sin(φ+δφ) is divided by sin φ; the gate also sits lower)
+``cnr_gradient_weighting`` +α·cos φ·σ_r²·(ln 10 / 20)·s·g / h (Eq. 2 moves the RWF barycentre by
+                          σ_r²·(ln 10/20)·s·g along the beam for a Gaussian RWF of std σ_r)
+``hybrid_weight``         (p − p₀)·(V_scalar − V_vector)/V_ref (grows with TI²)
+``reference_overspeeding`` −c·TI (the cup over-reads, so the lidar looks low)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+__all__ = ["Parameter", "Effect", "EFFECTS", "CONDITION_VARIABLES", "get_effect"]
+
+#: The conditions variables of DESIGN 3.1 (the only legal drivers).
+CONDITION_VARIABLES = (
+    "wind_speed", "wind_from_direction", "turbulence_intensity", "wind_shear_exponent", "cnr",
+    "cnr_gradient",
+)
+
+#: Records are dicts of arrays over (time, height) with the simulated_rtd names.
+Records = Mapping[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One fitted parameter of an effect.
+
+    Attributes
+    ----------
+    name : str
+        Name in the ``--json`` output (DESIGN 3.2), e.g. ``"offset"``.
+    units : str
+        UDUNITS spelling (``m``, ``degree``, ``1``).
+    bounds : tuple of float
+        Physically sensible range; fits are clipped to it.
+    model_field : str
+        The ``LidarModel`` field this parameter sets (absolute value, not an increment).
+    step : float
+        Probe step: the response is measured at ``nominal + step`` (``nominal − step`` if that
+        leaves the bounds).
+    long_name : str
+        Human-readable description.
+    """
+
+    name: str
+    units: str
+    bounds: tuple[float, float]
+    model_field: str
+    step: float
+    long_name: str
+
+
+def _hybrid_shortcut(records: Records, conditions: Records, nominal: Mapping[str, float],
+                     params: Mapping[str, float]) -> dict[str, np.ndarray]:
+    """Return the records with hybrid weight p: V = p·V_scalar + (1 − p)·V_vector (same turbulence)."""
+    p = float(params["p"])
+    lidar = p * records["lidar_wind_speed_scalar"] + (1.0 - p) * records["lidar_wind_speed_vector"]
+    return {"lidar_wind_speed": lidar, "reference_wind_speed": records["reference_wind_speed"]}
+
+
+def _overspeeding_shortcut(records: Records, conditions: Records, nominal: Mapping[str, float],
+                           params: Mapping[str, float]) -> dict[str, np.ndarray]:
+    """Return the records with reference over-speeding c: reference × (1 + c·TI) / (1 + c₀·TI)."""
+    ti = np.asarray(conditions["turbulence_intensity"], dtype=float)
+    scale = (1.0 + float(params["coefficient"]) * ti) / (1.0 + float(nominal["coefficient"]) * ti)
+    return {"lidar_wind_speed": records["lidar_wind_speed"],
+            "reference_wind_speed": records["reference_wind_speed"] * scale}
+
+
+@dataclass(frozen=True)
+class Effect:
+    """A catalogue entry: a way the nominal model can be wrong, with its parameters."""
+
+    id: str
+    description: str
+    parameters: tuple[Parameter, ...]
+    drivers: tuple[str, ...]
+    signature: str
+    shortcut: Callable[[Records, Records, Mapping[str, float], Mapping[str, float]],
+                       dict[str, np.ndarray]] | None = field(default=None, compare=False)
+
+    @property
+    def n_parameters(self) -> int:
+        """Number of fitted parameters (the BIC penalty counts these)."""
+        return len(self.parameters)
+
+    def nominal(self, model: Any) -> dict[str, float]:
+        """Return the parameter values the nominal ``model`` already has (the null hypothesis)."""
+        return {p.name: float(getattr(model, p.model_field)) for p in self.parameters}
+
+    def apply(self, model: Any, params: Mapping[str, float]) -> Any:
+        """Return a copy of the frozen ``model`` with this effect at ``params``.
+
+        Raises
+        ------
+        ValueError
+            If a parameter is missing, unknown or outside its bounds.
+        """
+        names = {p.name for p in self.parameters}
+        unknown = set(params) - names
+        if unknown:
+            raise ValueError(f"effect {self.id!r}: unknown parameter(s) {sorted(unknown)}; "
+                             f"expected {sorted(names)}")
+        changes = {}
+        for p in self.parameters:
+            if p.name not in params:
+                raise ValueError(f"effect {self.id!r}: parameter {p.name!r} is missing")
+            value = float(params[p.name])
+            lo, hi = p.bounds
+            if not lo <= value <= hi:
+                raise ValueError(f"effect {self.id!r}: parameter {p.name!r} = {value:g} {p.units} "
+                                 f"is outside its bounds [{lo:g}, {hi:g}]")
+            changes[p.model_field] = value
+        return dataclasses.replace(model, **changes) if changes else model
+
+    def probe(self, model: Any) -> dict[str, float]:
+        """Parameter values at which the model's response is measured (nominal ± step)."""
+        out = {}
+        for p in self.parameters:
+            base = float(getattr(model, p.model_field))
+            value = base + p.step
+            out[p.name] = value if p.bounds[0] <= value <= p.bounds[1] else base - p.step
+        return out
+
+
+_CONE = "cone angle φ from vertical"
+
+EFFECTS: dict[str, Effect] = {
+    "none": Effect(
+        id="none",
+        description="No significant disagreement between the nominal model and the field records.",
+        parameters=(),
+        drivers=(),
+        signature="residual consistent with zero in every height and environmental bin",
+    ),
+    "zero_distance_offset": Effect(
+        id="zero_distance_offset",
+        description="Every range gate sits `offset` metres further out along its beam than nominal "
+                    "(a zero-distance Zd error); the measurement height moves up by offset·cos φ.",
+        parameters=(Parameter("offset", "m", (-30.0, 30.0), "zero_distance_offset", 4.0,
+                              "range-gate offset along the beam (positive away from the lidar)"),),
+        drivers=("wind_shear_exponent",),
+        signature=f"relative bias ≈ +α·offset·cos φ / h ({_CONE}): grows with shear, falls with height",
+    ),
+    "beam_angle_offset": Effect(
+        id="beam_angle_offset",
+        description="The oblique beams' true cone angle is nominal + `offset` degrees while the "
+                    "reconstruction uses the nominal angle.",
+        parameters=(Parameter("offset", "degree", (-3.0, 3.0), "beam_angle_offset", 0.5,
+                              "true minus nominal cone angle of the oblique beams"),),
+        drivers=("wind_shear_exponent",),
+        signature=f"relative bias ≈ +cot φ·δφ − α·tan φ·δφ ({_CONE}, δφ in rad): nearly constant",
+    ),
+    "cnr_gradient_weighting": Effect(
+        id="cnr_gradient_weighting",
+        description="The range-weighting function is CNR-weighted as in Eq. 2 "
+                    "(`scale` = 1 is Eq. 2 as written, 0 is no weighting).",
+        parameters=(Parameter("scale", "1", (0.0, 5.0), "cnr_weighting_scale", 1.0,
+                              "multiplier of the CNR gradient in the Eq. 2 weighting"),),
+        drivers=("wind_shear_exponent", "cnr_gradient"),
+        signature="relative bias ≈ α·cos φ·σ_r²·(ln10/20)·scale·g / h: sign follows shear × CNR gradient",
+    ),
+    "hybrid_weight": Effect(
+        id="hybrid_weight",
+        description="The firmware's hybrid weight p (V = p·V_scalar + (1−p)·V_vector) differs from "
+                    "the nominal one.",
+        parameters=(Parameter("p", "1", (0.0, 1.0), "hybrid_weight", -1.0 / 6.0,
+                              "weight of the scalar-averaged speed in the hybrid reconstruction"),),
+        drivers=("turbulence_intensity",),
+        signature="relative bias ≈ (p − p₀)·(V_scalar − V_vector)/V_ref, growing with TI²",
+        shortcut=_hybrid_shortcut,
+    ),
+    "reference_overspeeding": Effect(
+        id="reference_overspeeding",
+        description="The reference cup over-reads in proportion to turbulence intensity.",
+        parameters=(Parameter("coefficient", "1", (-0.5, 0.5), "reference_overspeeding", 0.05,
+                              "relative over-reading of the reference per unit turbulence intensity"),),
+        drivers=("turbulence_intensity",),
+        signature="relative bias ≈ −coefficient·TI",
+        shortcut=_overspeeding_shortcut,
+    ),
+}
+
+
+def get_effect(effect_id: str) -> Effect:
+    """Look up a catalogue entry, naming the valid ids when ``effect_id`` is unknown."""
+    try:
+        return EFFECTS[effect_id]
+    except KeyError:
+        raise ValueError(f"unknown effect {effect_id!r}; catalogue ids: {', '.join(EFFECTS)}") from None

@@ -1,0 +1,188 @@
+"""Fitting a catalogue effect to the residual: pure numpy, no files, no xarray.
+
+The workflow (see :mod:`lidarcal.diagnose.core`) simulates the campaign with the nominal model
+θ₀ and again at a probe value θ₀ + h with the *same seeds* (common random numbers), so the
+difference ``Δd = d_sim(θ₀+h) − d_sim(θ₀)`` of the simulated relative differences carries the
+effect with most of the Monte Carlo noise cancelled.  What is left of the noise would bias a
+regression on ``Δd`` towards zero (errors in variables), so the response is first *smoothed*:
+per height, ``Δd/h`` is regressed on a quadratic in the effect's environmental drivers
+(:func:`smooth_response`), which estimates E[∂d/∂θ | conditions] — the quantity that links the
+model to independent field data.
+
+The parameter is then fitted by weighted least squares of the per-period residual
+``r = d_meas − d_sim(θ₀)`` on that response (:func:`fit_linear`), with
+
+- weights from a noise model estimated on the *simulation* (independent of the field data and
+  of the effect sought): per height, the squared scatter of ``d_sim`` about its smooth mean
+  regressed on [1, TI²] (:func:`noise_weights`);
+- a standard error that is robust to heteroscedasticity and to the correlation between the
+  heights of one period (a cluster-robust sandwich estimator, clusters = periods);
+- a BIC on the weighted residual sum of squares with the number of observations replaced by
+  an effective number ``n / deff``, where the design effect ``deff = 1 + (m − 1)·ρ`` comes from
+  the intra-period correlation ρ of the residuals over m heights (:func:`design_effect`);
+  treating correlated heights as independent would inflate every ΔBIC by up to a factor m and
+  give false alarms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import combinations
+
+import numpy as np
+
+__all__ = [
+    "features", "smooth_response", "noise_weights", "design_effect", "FitResult", "fit_linear",
+    "delta_bic",
+]
+
+
+def features(drivers: list[np.ndarray]) -> np.ndarray:
+    """Quadratic design matrix [1, xᵢ, xᵢ², xᵢ·xⱼ] of 1-D driver arrays, standardised."""
+    n = drivers[0].size if drivers else 0
+    cols = [np.ones(n)] if drivers else []
+    std = []
+    for x in drivers:
+        x = np.asarray(x, dtype=float)
+        s = np.nanstd(x)
+        std.append((x - np.nanmean(x)) / (s if s > 0 else 1.0))
+    cols += std
+    cols += [x**2 for x in std]
+    cols += [a * b for a, b in combinations(std, 2)]
+    return np.column_stack(cols) if cols else np.ones((0, 1))
+
+
+def smooth_response(dy: np.ndarray, drivers: dict[str, np.ndarray], names: tuple[str, ...],
+                    valid: np.ndarray) -> np.ndarray:
+    """Per height, the least-squares fit of ``dy`` (periods × heights) on :func:`features`.
+
+    With no drivers the response is the per-height mean.  Entries outside ``valid`` are NaN.
+    """
+    out = np.full(dy.shape, np.nan)
+    for j in range(dy.shape[1]):
+        ok = valid[:, j] & np.isfinite(dy[:, j])
+        for name in names:
+            ok &= np.isfinite(drivers[name][:, j])
+        if not ok.any():
+            continue
+        cols = [drivers[name][ok, j] for name in names]
+        X = features(cols) if cols else np.ones((int(ok.sum()), 1))
+        if X.shape[1] >= ok.sum():  # too few periods for the quadratic: fall back to the mean
+            X = np.ones((int(ok.sum()), 1))
+        beta, *_ = np.linalg.lstsq(X, dy[ok, j], rcond=None)
+        out[ok, j] = X @ beta
+    return out
+
+
+def noise_weights(d_sim: np.ndarray, drivers: dict[str, np.ndarray], valid: np.ndarray) -> np.ndarray:
+    """Inverse-variance weights (periods × heights, mean 1 over ``valid``) from the simulation.
+
+    Per height: the scatter of the simulated relative difference about its smooth mean in all
+    drivers is squared and regressed on [1, TI²]; the fitted variance is floored at a quarter of
+    its median so that no period gets an extreme weight.
+    """
+    names = tuple(drivers)
+    smooth = smooth_response(d_sim, drivers, names, valid)
+    var = np.full(d_sim.shape, np.nan)
+    ti = drivers["turbulence_intensity"]
+    for j in range(d_sim.shape[1]):
+        ok = valid[:, j] & np.isfinite(smooth[:, j]) & np.isfinite(ti[:, j])
+        if ok.sum() < 3:
+            continue
+        e2 = (d_sim[ok, j] - smooth[ok, j]) ** 2
+        X = np.column_stack([np.ones(ok.sum()), ti[ok, j] ** 2])
+        beta, *_ = np.linalg.lstsq(X, e2, rcond=None)
+        v = X @ beta
+        floor = 0.25 * np.median(e2) if np.median(e2) > 0 else np.mean(e2)
+        var[ok, j] = np.maximum(v, max(floor, 1e-12))
+    w = np.where(np.isfinite(var), 1.0 / var, 0.0)
+    w[~valid] = 0.0
+    mean = w[w > 0].mean() if (w > 0).any() else 1.0
+    return w / mean
+
+
+def design_effect(r: np.ndarray, w: np.ndarray) -> float:
+    """Design effect 1 + (m̄ − 1)·ρ of per-period clusters of heights (≥ 1).
+
+    ρ is the intra-period correlation of the standardised residuals ``r·√w`` (zero-mean model:
+    the mean residual is removed first); m̄ the mean number of usable heights per period.
+    """
+    e = np.where(w > 0, r * np.sqrt(w), np.nan)
+    e = e - np.nanmean(e)
+    e = np.where(np.isfinite(e), e, 0.0)
+    m = (w > 0).sum(axis=1)
+    keep = m >= 2
+    if not keep.any():
+        return 1.0
+    e, m = e[keep], m[keep]
+    total = (e**2).sum()
+    cross = (e.sum(axis=1) ** 2 - (e**2).sum(axis=1)).sum()
+    pairs = (m * (m - 1)).sum()
+    if total <= 0 or pairs <= 0:
+        return 1.0
+    rho = (cross / pairs) / (total / m.sum())
+    mbar = m.mean()
+    return float(max(1.0, 1.0 + (mbar - 1.0) * rho))
+
+
+@dataclass
+class FitResult:
+    """Outcome of a weighted least-squares fit of the residual on the response(s)."""
+
+    delta: np.ndarray       # fitted θ − θ₀ per parameter
+    stderr: np.ndarray      # cluster-robust standard error per parameter
+    rss: float              # weighted residual sum of squares with the fit
+    rss0: float             # ... without it (the `none` model)
+    n_obs: int
+    n_clusters: int
+    clipped: bool
+
+
+def fit_linear(r: np.ndarray, J: np.ndarray | list[np.ndarray], w: np.ndarray,
+               bounds: list[tuple[float, float]] | None = None) -> FitResult:
+    """Fit ``r ≈ Σₖ δₖ·Jₖ`` by weighted least squares (periods × heights arrays).
+
+    ``bounds`` are limits on δ (θ bounds minus θ₀); a fit outside them is clipped (for one
+    parameter the clipped value is the constrained optimum).  Observations with zero weight
+    or a non-finite value are ignored.
+    """
+    Js = [J] if isinstance(J, np.ndarray) else list(J)
+    ok = (w > 0) & np.isfinite(r)
+    for Jk in Js:
+        ok &= np.isfinite(Jk)
+    rows, _ = np.nonzero(ok)
+    y = r[ok]
+    ww = w[ok]
+    X = np.column_stack([Jk[ok] for Jk in Js])
+    rss0 = float(np.sum(ww * y**2))
+    A = X.T @ (ww[:, None] * X)
+    if y.size <= X.shape[1] or np.linalg.cond(A) > 1e12:
+        k = X.shape[1]
+        return FitResult(np.zeros(k), np.full(k, np.inf), rss0, rss0, int(y.size),
+                         int(np.unique(rows).size), False)
+    delta = np.linalg.solve(A, X.T @ (ww * y))
+    clipped = False
+    if bounds is not None:
+        lo = np.array([b[0] for b in bounds])
+        hi = np.array([b[1] for b in bounds])
+        c = np.clip(delta, lo, hi)
+        clipped = bool(np.any(c != delta))
+        delta = c
+    e = y - X @ delta
+    rss = float(np.sum(ww * e**2))
+    # cluster-robust (periods) sandwich covariance, with the small-sample factor G/(G-1)
+    score = X * (ww * e)[:, None]
+    _, inv = np.unique(rows, return_inverse=True)
+    G = int(inv.max()) + 1
+    S = np.zeros((G, X.shape[1]))
+    np.add.at(S, inv, score)
+    Ainv = np.linalg.inv(A)
+    cov = Ainv @ (S.T @ S) @ Ainv * (G / max(G - 1, 1))
+    return FitResult(delta, np.sqrt(np.diag(cov)), rss, rss0, int(y.size), G, clipped)
+
+
+def delta_bic(rss: float, rss0: float, n_params: int, n_eff: float) -> float:
+    """BIC of a fit minus BIC of the `none` model: n_eff·ln(RSS/RSS₀) + k·ln(n_eff)."""
+    if rss0 <= 0 or rss <= 0:
+        return 0.0
+    return float(n_eff * np.log(rss / rss0) + n_params * np.log(n_eff))
