@@ -61,6 +61,10 @@ def _encoding(ds: xr.Dataset) -> dict[str, dict]:
             e["_FillValue"] = np.nan if var.dtype.itemsize == 8 else np.float32(np.nan)
         elif var.dtype.kind in "iu":
             e["_FillValue"] = None
+        if name in ds.dims and var.dtype.kind in "OU":
+            # string dimension coordinate (e.g. bench_cube ``los``): write a CF character array;
+            # compliance-checker crashes on variable-length string coordinate variables
+            e["dtype"] = "S1"
         if var.dtype.kind == "f" and var.ndim >= 1 and var.size > 1000:
             e.update(zlib=True, complevel=4)
         enc[name] = e
