@@ -1,0 +1,296 @@
+"""Plain-text formats of a bench run: the lidar's RTD and the SAFO-MV control log (CSV).
+
+Both files are UTF-8 CSV with one header row.  Lines starting with ``#`` before the header
+are comments; in the control log they carry ``# key: value`` metadata.  A column's unit is
+the suffix of its name (``radial_wind_speed_m_s`` is in m s-1, ``_km_h`` in km h-1,
+``_knot`` in knots): ``<a>_<b>`` reads "a per b", a single token is the unit itself.
+
+RTD file (one row per lidar LOS estimate, 1.25 Hz; the lidar keeps scanning DBS, so only
+the rows of the beam the bench's optical switch feeds carry the bench signal):
+
+=============================  ==========================================================
+``timestamp_utc``              ISO 8601, UTC (``2023-02-17T16:07:00.800Z``; an explicit
+                               offset is converted to UTC; no designator means UTC)
+``los``                        beam id: ``0``, ``90``, ``180``, ``270`` (azimuth, degree) or ``V``
+``radial_wind_speed_<unit>``   measured radial velocity; any unit convertible to m s-1
+``cnr_dB``                     measured carrier-to-noise ratio, dB (no other unit accepted)
+``lidar_serial``               lidar serial number (must match the control log)
+=============================  ==========================================================
+
+Control log (one row per programmed ℓcv-bin, in time order, bins may not overlap)::
+
+    # SAFO-MV control log
+    # bench_id: SAFO-MV-01
+    # operator: A
+    # run_id: 1
+    # lidar_serial: WLS866-0195
+    # rf_driver_calibration_reference: ASERTI certificate ...
+    # rf_driver_relative_uncertainty_percent: 5.95622e-08
+    bin_index,start_utc,end_utc,los,programmed_velocity_m_s,programmed_cnr_dB
+    0,2023-02-17T16:07:00.000Z,2023-02-17T16:17:50.000Z,0,-18.000,-28.00
+
+Readers check everything a later step relies on and raise :mod:`lidarcal.errors`
+exceptions naming the file, the column, what was expected and what was found.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from lidarcal.bench.grid import LOS_LABELS, los_index
+from lidarcal.errors import InputError, MissingVariableError, UnitError
+from lidarcal.io import atomic_path
+from lidarcal.units import convert_values
+
+__all__ = [
+    "RtdTable", "ControlLog", "read_rtd", "read_control_log", "write_rtd", "write_control_log",
+    "CONTROL_METADATA", "column_unit",
+]
+
+#: Required ``# key: value`` metadata of a control log.
+CONTROL_METADATA = (
+    "bench_id", "operator", "run_id", "lidar_serial",
+    "rf_driver_calibration_reference", "rf_driver_relative_uncertainty_percent",
+)
+_CONTROL_COLUMNS = ("start_utc", "end_utc", "los")
+
+
+@dataclass
+class RtdTable:
+    """RTD as numpy arrays: time (int64 ns since epoch, UTC), LOS index, velocity (m s-1), CNR (dB)."""
+
+    time_ns: np.ndarray
+    los: np.ndarray
+    velocity: np.ndarray
+    cnr: np.ndarray
+    lidar_serial: str
+    source: str = "<rtd>"
+
+    def __len__(self) -> int:
+        return len(self.time_ns)
+
+
+@dataclass
+class ControlLog:
+    """Programmed bins: start/end (int64 ns, UTC), LOS index, velocity (m s-1), CNR (dB), metadata."""
+
+    start_ns: np.ndarray
+    end_ns: np.ndarray
+    los: np.ndarray
+    velocity: np.ndarray
+    cnr: np.ndarray
+    metadata: dict = field(default_factory=dict)
+    source: str = "<control>"
+
+    def __len__(self) -> int:
+        return len(self.start_ns)
+
+
+def column_unit(suffix: str) -> str:
+    """UDUNITS unit string of a column-name unit suffix (``m_s`` → ``m s-1``, ``dB`` → ``dB``)."""
+    parts = suffix.split("_")
+    if len(parts) == 1:
+        return parts[0]
+    if len(parts) == 2 and all(parts):
+        return f"{parts[0]} {parts[1]}-1"
+    return suffix.replace("_", " ")
+
+
+def _read_table(path: str | os.PathLike, what: str) -> tuple[pd.DataFrame, dict]:
+    """CSV body and the ``# key: value`` metadata of the comment lines before the header."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: {what} file not found")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path}: {what} file is empty")
+    meta: dict[str, str] = {}
+    with open(path, encoding="utf-8") as fh:
+        for line in fh:
+            if not line.startswith("#"):
+                break
+            m = re.match(r"#\s*([A-Za-z0-9_]+)\s*:\s*(.*?)\s*$", line)
+            if m:
+                meta[m.group(1)] = m.group(2)
+    try:
+        df = pd.read_csv(path, comment="#", dtype=str, skip_blank_lines=True)
+    except pd.errors.EmptyDataError:
+        raise InputError(f"{path}: {what} file has no header row and no data") from None
+    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: {what} file is not a readable CSV table: {exc}") from None
+    df.columns = [str(c).strip() for c in df.columns]
+    if len(df) == 0:
+        raise InputError(f"{path}: {what} file has a header but no data rows")
+    return df, meta
+
+
+def _require(df: pd.DataFrame, name: str, path, what: str) -> pd.Series:
+    if name not in df.columns:
+        raise MissingVariableError(
+            f"{path}: {what} column {name!r} is missing; found columns {list(df.columns)}")
+    return df[name]
+
+
+def _unit_column(df: pd.DataFrame, prefix: str, expected: str, path, what: str) -> tuple[np.ndarray, str]:
+    """Find the one column ``<prefix>_<unit>`` and return its values converted to ``expected``."""
+    names = [c for c in df.columns if c.startswith(prefix + "_")]
+    if len(names) != 1:
+        found = "none" if not names else ", ".join(names)
+        raise MissingVariableError(
+            f"{path}: {what} needs exactly one column named '{prefix}_<unit>' (e.g. '{prefix}_"
+            f"{expected.replace(' ', '_').replace('-1', '')}'); found {found} among {list(df.columns)}")
+    name = names[0]
+    unit = column_unit(name[len(prefix) + 1:])
+    values = _numeric(df[name], name, path, what)
+    try:
+        return convert_values(values, unit, expected, where=f"{path}: column {name!r}"), name
+    except UnitError as exc:
+        raise UnitError(f"{exc} (unit taken from the column name suffix)") from None
+
+
+def _numeric(col: pd.Series, name: str, path, what: str) -> np.ndarray:
+    values = pd.to_numeric(col.str.strip(), errors="coerce").to_numpy(dtype=float)
+    bad = ~np.isfinite(values)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            f"{path}: {what} column {name!r} has {int(bad.sum())} missing, NaN or non-numeric value(s); "
+            f"expected finite numbers; first at data row {i + 1}: found {col.iloc[i]!r}")
+    return values
+
+
+def _times(col: pd.Series, name: str, path, what: str) -> np.ndarray:
+    text = col.str.strip()
+    missing = text.isna().to_numpy() | (text == "").to_numpy()
+    if missing.any():
+        i = int(np.argmax(missing))
+        raise InputError(f"{path}: {what} column {name!r} has {int(missing.sum())} empty timestamp(s); "
+                         f"first at data row {i + 1}")
+    try:
+        parsed = pd.to_datetime(text, format="ISO8601", utc=True)
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"{path}: {what} column {name!r}: expected ISO 8601 UTC timestamps "
+                         f"(e.g. 2023-02-17T16:07:00.800Z); {exc}") from None
+    return parsed.dt.tz_convert(None).to_numpy().astype("datetime64[ns]").astype(np.int64)
+
+
+def _check_increasing(t: np.ndarray, name: str, path, what: str) -> None:
+    step = np.diff(t)
+    bad = step <= 0
+    if bad.any():
+        i = int(np.argmax(bad)) + 1
+        kind = "duplicated" if step[i - 1] == 0 else "out of order"
+        raise InputError(
+            f"{path}: {what} column {name!r}: timestamps must be strictly increasing; "
+            f"{int(bad.sum())} are duplicated or out of order, first at data row {i + 1} "
+            f"({_iso(t[i])} is {kind} after {_iso(t[i - 1])})")
+
+
+def _iso(t_ns: int) -> str:
+    return str(np.datetime64(int(t_ns), "ns").astype("datetime64[ms]")) + "Z"
+
+
+def _los(col: pd.Series, path, what: str) -> np.ndarray:
+    labels = col.fillna("").str.strip().to_numpy(dtype=str)
+    idx = los_index(labels)
+    bad = idx < 0
+    if bad.any():
+        unknown = sorted(set(labels[bad].tolist()))[:10]
+        raise InputError(f"{path}: {what} column 'los' has {int(bad.sum())} row(s) with unknown LOS id(s) "
+                         f"{unknown}; expected one of {list(LOS_LABELS)} (first at data row "
+                         f"{int(np.argmax(bad)) + 1})")
+    return idx
+
+
+def read_rtd(path: str | os.PathLike) -> RtdTable:
+    """Read and check an RTD CSV file (see the module docstring for its columns)."""
+    what = "RTD"
+    df, _ = _read_table(path, what)
+    for name in ("timestamp_utc", "los", "lidar_serial"):
+        _require(df, name, path, what)
+    velocity, _ = _unit_column(df, "radial_wind_speed", "m s-1", path, what)
+    cnr, _ = _unit_column(df, "cnr", "dB", path, what)
+    t = _times(df["timestamp_utc"], "timestamp_utc", path, what)
+    _check_increasing(t, "timestamp_utc", path, what)
+    los = _los(df["los"], path, what)
+    serials = df["lidar_serial"].fillna("").str.strip().unique().tolist()
+    if len(serials) != 1 or not serials[0]:
+        raise InputError(f"{path}: RTD column 'lidar_serial' must hold one lidar serial; found {serials[:5]}")
+    return RtdTable(t, los, velocity, cnr, serials[0], str(path))
+
+
+def read_control_log(path: str | os.PathLike) -> ControlLog:
+    """Read and check a SAFO-MV control log (see the module docstring)."""
+    what = "control log"
+    df, meta = _read_table(path, what)
+    missing = [k for k in CONTROL_METADATA if not meta.get(k)]
+    if missing:
+        raise MissingVariableError(f"{path}: control log header lacks metadata {missing} "
+                                   f"(lines '# key: value' before the column header); found {sorted(meta)}")
+    try:
+        meta["rf_driver_relative_uncertainty_percent"] = float(meta["rf_driver_relative_uncertainty_percent"])
+    except ValueError:
+        found = meta["rf_driver_relative_uncertainty_percent"]
+        raise InputError(f"{path}: control log metadata 'rf_driver_relative_uncertainty_percent' must be a "
+                         f"number (percent); found {found!r}") from None
+    for name in _CONTROL_COLUMNS:
+        _require(df, name, path, what)
+    start = _times(df["start_utc"], "start_utc", path, what)
+    end = _times(df["end_utc"], "end_utc", path, what)
+    _check_increasing(start, "start_utc", path, what)
+    short = end <= start
+    if short.any():
+        i = int(np.argmax(short))
+        raise InputError(f"{path}: control log row {i + 1}: end_utc {_iso(end[i])} is not after "
+                         f"start_utc {_iso(start[i])}")
+    overlap = end[:-1] > start[1:]
+    if overlap.any():
+        i = int(np.argmax(overlap)) + 1
+        raise InputError(f"{path}: control log row {i + 1} starts at {_iso(start[i])}, before the previous "
+                         f"bin ends ({_iso(end[i - 1])}); programmed bins must not overlap")
+    velocity, _ = _unit_column(df, "programmed_velocity", "m s-1", path, what)
+    cnr, _ = _unit_column(df, "programmed_cnr", "dB", path, what)
+    los = _los(df["los"], path, what)
+    return ControlLog(start, end, los, velocity, cnr, meta, str(path))
+
+
+def _iso_column(t_ns: np.ndarray) -> np.ndarray:
+    return np.char.add(np.datetime_as_string(np.asarray(t_ns).astype("datetime64[ns]"), unit="ms"), "Z")
+
+
+def write_rtd(rtd: RtdTable, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    """Write an RTD CSV atomically (m s-1 and dB, three decimals, millisecond timestamps)."""
+    df = pd.DataFrame({
+        "timestamp_utc": _iso_column(rtd.time_ns),
+        "los": np.asarray(LOS_LABELS)[rtd.los],
+        "radial_wind_speed_m_s": np.round(rtd.velocity, 3),
+        "cnr_dB": np.round(rtd.cnr, 2),
+        "lidar_serial": rtd.lidar_serial,
+    })
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        df.to_csv(tmp, index=False, float_format="%.3f", lineterminator="\n")
+    return Path(path)
+
+
+def write_control_log(log: ControlLog, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    """Write a control log atomically, metadata as ``# key: value`` lines before the header."""
+    df = pd.DataFrame({
+        "bin_index": np.arange(len(log)),
+        "start_utc": _iso_column(log.start_ns),
+        "end_utc": _iso_column(log.end_ns),
+        "los": np.asarray(LOS_LABELS)[log.los],
+        "programmed_velocity_m_s": log.velocity,
+        "programmed_cnr_dB": log.cnr,
+    })
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write("# SAFO-MV control log\n")
+            for key, value in log.metadata.items():
+                fh.write(f"# {key}: {value}\n")
+            df.to_csv(fh, index=False, float_format="%.3f", lineterminator="\n")
+    return Path(path)
