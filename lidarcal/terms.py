@@ -1,0 +1,359 @@
+"""Uncertainty terms not modelled by the Monte Carlo simulation (paper §2.4, Eqs. 6–11, Table 4).
+
+Five standard uncertainties of the horizontal wind speed U, added in quadrature to the
+Monte Carlo budget.  ``phi`` is the cone (opening) angle of the oblique beams from the
+vertical (28° for a WindCube; Table 1's "polar 62°" is the elevation, 90° - 28°).
+
+=============================  =====  ============================================================
+contributor                    Eq.    standard uncertainty of U
+=============================  =====  ============================================================
+``bench_std_repeatability``    6      ``s_s / (sqrt(2) sin phi)``
+``bench_bias_repeatability``   7      ``s_delta / (sqrt(2) sqrt(N) sin phi)``
+``bench_uncertainty``          8      ``(dv_SAFO / k) / (sqrt(2) sqrt(N_los) sin phi)``
+``beam_angle``                 9      ``U cot(phi) dphi`` (or ``c U`` with a given coefficient c)
+``zero_distance``              11     ``alpha U dz / z`` (power-law shear, Eq. 10)
+=============================  =====  ============================================================
+
+What the paper's printed numbers imply (and what lidarcal therefore does)
+-------------------------------------------------------------------------
+*N in Eq. 7.*  The text says N is the number of repeated bench runs (4 kept runs), which
+gives 0.021 / (sqrt(2) sqrt(4) sin 28°) = 0.0158 m/s.  Table 4 prints 0.0026 m/s, which is
+Eq. 7 with the N = 150 LOS samples per 10 minutes of Eq. 8 (0.00258).  The default,
+``bias_repeatability_n="los_samples"``, reproduces Table 4; ``"runs"`` follows the text.
+
+*Coverage factor of dv_SAFO.*  The bench uncertainty 0.0145 m/s is stated at k = 2, yet
+Table 4's 0.0018 m/s is Eq. 8 with 0.0145 used as a standard uncertainty (0.00178); with
+k = 2 removed it would be 0.00089 m/s.  The default ``bench_coverage_factor=1`` reproduces
+Table 4 (conservative); pass 2 to convert the expanded uncertainty to a standard one.
+
+*Beam angle, 0.00248 vs 0.00286.*  Eq. 9 with dphi = 0.087° = 1.518e-3 rad and phi = 28°
+gives cot(28°) × 1.518e-3 = 0.00286 U, not the printed 0.00248 U (that coefficient would
+need dphi = 0.0756°, or phi = 31.5° with 0.087°).  Table 4's beam-angle row uses 0.00248 U.
+By default lidarcal evaluates the formula (0.00286 U); pass ``beam_angle_coefficient=0.00248``
+to reproduce the table as printed.
+
+*Rounding of the printed total.*  Table 4's Total rows are the quadrature sum of the rows
+*as printed* (in particular Eq. 6 rounded to 0.041 m/s from 0.04067), and the % row is that
+rounded total divided by U.  lidarcal sums the unrounded terms, which gives totals up to
+0.0003 m/s (0.07 percentage points at 4 m/s) below the printed ones; ``tests/test_terms.py``
+shows both.
+
+*Zd uncertainty along the beam.*  Eq. 11 uses the 0.45 m range uncertainty as a height
+uncertainty; the height error of an oblique beam is dz cos(phi) (0.40 m), so Eq. 11 as
+written is slightly conservative.  lidarcal follows Eq. 11.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Literal
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.cf import var_attrs
+from lidarcal.errors import InputError
+from lidarcal.io import open_artefact
+from lidarcal.provenance import stamp
+from lidarcal.units import Q_, convert_variable, to_magnitude
+
+__all__ = [
+    "CONTRIBUTORS",
+    "PAPER_INPUTS",
+    "TABLE4_WIND_SPEEDS",
+    "table4_kernel",
+    "uncertainty_terms",
+    "repeatability_inputs",
+    "format_table",
+]
+
+#: Contributor id -> (equation, description), in Table 4's row order.
+CONTRIBUTORS: dict[str, tuple[str, str]] = {
+    "bench_std_repeatability": ("6", "repeatability of the SAFO-MV LOS standard deviation"),
+    "bench_bias_repeatability": ("7", "repeatability of the SAFO-MV LOS mean bias"),
+    "bench_uncertainty": ("8", "standard uncertainty of the SAFO-MV bench"),
+    "beam_angle": ("9", "lidar beam (cone) angle uncertainty"),
+    "zero_distance": ("11", "zero-distance (Zd) calibration uncertainty under shear"),
+}
+
+#: Inputs of Table 4 as given in the paper (§2.4); ``uncertainty_terms(ws, **PAPER_INPUTS)``.
+PAPER_INPUTS: dict[str, Any] = {
+    "mean_between_run_std_std": Q_(0.027, "m/s"),
+    "mean_between_run_std_bias": Q_(0.021, "m/s"),
+    "n_runs": 4,
+    "n_los_samples": 150,
+    "bench_uncertainty": Q_(0.0145, "m/s"),
+    "beam_angle_uncertainty": Q_(0.087, "degree"),
+    "zero_distance_uncertainty": Q_(0.45, "m"),
+    "shear_exponent": 0.2,
+    "height": Q_(100.0, "m"),
+    "cone_angle": Q_(28.0, "degree"),
+}
+#: Wind speeds of Table 4's columns.
+TABLE4_WIND_SPEEDS = Q_(np.arange(4.0, 17.0, 2.0), "m/s")
+
+
+def table4_kernel(
+    wind_speed: np.ndarray,
+    *,
+    std_repeatability: float,
+    bias_repeatability: float,
+    n_bias: float,
+    n_los_samples: float,
+    bench_uncertainty: float,
+    beam_angle_uncertainty: float,
+    zero_distance_uncertainty: float,
+    shear_exponent: float,
+    height: float,
+    cone_angle: float,
+    beam_angle_coefficient: float | None = None,
+) -> np.ndarray:
+    """Eqs. 6–9 and 11 on SI floats; returns shape (len(wind_speed), 5) in m s-1.
+
+    Angles are in radians; ``n_bias`` is the N of Eq. 7; ``bench_uncertainty`` is already a
+    standard uncertainty.  Columns follow :data:`CONTRIBUTORS`.
+    """
+    u = np.asarray(wind_speed, dtype=float)
+    denom = np.sqrt(2.0) * np.sin(cone_angle)
+    eq6 = std_repeatability / denom
+    eq7 = bias_repeatability / (denom * np.sqrt(n_bias))
+    eq8 = bench_uncertainty / (denom * np.sqrt(n_los_samples))
+    if beam_angle_coefficient is None:
+        eq9 = u * beam_angle_uncertainty / np.tan(cone_angle)
+    else:
+        eq9 = beam_angle_coefficient * u
+    eq11 = shear_exponent * u * zero_distance_uncertainty / height
+    ones = np.ones_like(u)
+    return np.stack([eq6 * ones, eq7 * ones, eq8 * ones, eq9, eq11], axis=-1)
+
+
+def _positive(value: float, name: str, unit: str, *, allow_zero: bool = True) -> float:
+    value = float(value)
+    if not np.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        need = "a non-negative" if allow_zero else "a positive"
+        raise InputError(f"argument {name!r}: expected {need} finite value; found {value:g} {unit}".rstrip())
+    return value
+
+
+def uncertainty_terms(
+    wind_speed: Any,
+    *,
+    mean_between_run_std_std: Any,
+    mean_between_run_std_bias: Any,
+    n_runs: int,
+    n_los_samples: int,
+    bench_uncertainty: Any,
+    beam_angle_uncertainty: Any,
+    zero_distance_uncertainty: Any,
+    shear_exponent: float,
+    height: Any,
+    cone_angle: Any,
+    beam_angle_coefficient: float | None = None,
+    bias_repeatability_n: Literal["los_samples", "runs"] = "los_samples",
+    bench_coverage_factor: float = 1.0,
+    repeatability: xr.Dataset | None = None,
+    call: str = "lidarcal.terms.uncertainty_terms",
+) -> xr.Dataset:
+    """Build the ``uncertainty_terms`` artefact: Table 4 for any inputs and wind speeds.
+
+    Parameters
+    ----------
+    wind_speed : pint.Quantity
+        Horizontal wind speeds (1-D, > 0), e.g. :data:`TABLE4_WIND_SPEEDS`.
+    mean_between_run_std_std, mean_between_run_std_bias : pint.Quantity (speed)
+        s-bar_s and s-bar_delta of the repeatability analysis (0.027 and 0.021 m/s).
+    n_runs : int
+        Number of bench runs in the repeatability analysis (the N of Eq. 7 per the text).
+    n_los_samples : int
+        Radial velocities per LOS in a 10-minute period (150; the N of Eq. 8).
+    bench_uncertainty : pint.Quantity (speed)
+        dv_SAFO (0.0145 m/s, stated at k = 2; see ``bench_coverage_factor``).
+    beam_angle_uncertainty : pint.Quantity (angle)
+        dphi, standard uncertainty of the cone angle (0.087°).
+    zero_distance_uncertainty : pint.Quantity (length)
+        dz, standard uncertainty of the zero distance (0.45 m).
+    shear_exponent : float
+        Power-law alpha of Eq. 10 (0.2).
+    height : pint.Quantity (length)
+        Measurement height z (100 m).
+    cone_angle : pint.Quantity (angle)
+        phi, beam angle from vertical (28°).
+    beam_angle_coefficient : float, optional
+        If given, Eq. 9 is ``coefficient * U`` (Table 4 uses 0.00248) instead of
+        ``U cot(phi) dphi`` (0.00286 U with the paper's inputs).
+    bias_repeatability_n : {"los_samples", "runs"}
+        Which N divides Eq. 7: ``n_los_samples`` (reproduces Table 4) or ``n_runs`` (the text).
+    bench_coverage_factor : float
+        k dividing ``bench_uncertainty``; 1 reproduces Table 4, 2 converts the k = 2 value.
+    repeatability : xarray.Dataset, optional
+        The repeatability artefact the inputs came from (recorded in provenance).
+    call : str
+        Recorded in ``history``.
+
+    Returns
+    -------
+    xarray.Dataset
+        Dims ``(wind_speed, contributor)``: ``uncertainty`` (m s-1) and
+        ``relative_uncertainty`` (%) per contributor, ``total`` and ``total_relative`` (the
+        quadrature sums), the inputs as scalar variables and ``height`` as a scalar coordinate.
+        Select with ``ds.uncertainty.sel(wind_speed=8, contributor="beam_angle")``.
+
+    Examples
+    --------
+    >>> ds = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, beam_angle_coefficient=0.00248)
+    >>> round(float(ds.uncertainty.sel(wind_speed=10, contributor="beam_angle")), 4)
+    0.0248
+    """
+    ws = np.atleast_1d(np.asarray(to_magnitude(wind_speed, "m s-1", name="wind_speed"), dtype=float))
+    if ws.ndim != 1 or ws.size == 0 or not np.all(np.isfinite(ws)) or np.any(ws <= 0):
+        raise InputError(f"argument 'wind_speed': expected a 1-D array of positive finite speeds; found {ws}")
+    if len(np.unique(ws)) != ws.size:
+        raise InputError(f"argument 'wind_speed': expected distinct speeds; found duplicates in {ws}")
+    s_s = _positive(to_magnitude(mean_between_run_std_std, "m s-1", name="mean_between_run_std_std"),
+                    "mean_between_run_std_std", "m s-1")
+    s_d = _positive(to_magnitude(mean_between_run_std_bias, "m s-1", name="mean_between_run_std_bias"),
+                    "mean_between_run_std_bias", "m s-1")
+    dv = _positive(to_magnitude(bench_uncertainty, "m s-1", name="bench_uncertainty"),
+                   "bench_uncertainty", "m s-1")
+    dphi = _positive(to_magnitude(beam_angle_uncertainty, "degree", name="beam_angle_uncertainty"),
+                     "beam_angle_uncertainty", "degree")
+    dz = _positive(to_magnitude(zero_distance_uncertainty, "m", name="zero_distance_uncertainty"),
+                   "zero_distance_uncertainty", "m")
+    z = _positive(to_magnitude(height, "m", name="height"), "height", "m", allow_zero=False)
+    phi = float(to_magnitude(cone_angle, "degree", name="cone_angle"))
+    if not 0 < phi < 90:
+        raise InputError(
+            f"argument 'cone_angle': expected an angle from vertical in (0, 90) degree; found {phi:g}")
+    alpha = float(to_magnitude(shear_exponent, "1", name="shear_exponent"))
+    if not np.isfinite(alpha):
+        raise InputError(f"argument 'shear_exponent': expected a finite exponent; found {alpha}")
+    k_cov = _positive(bench_coverage_factor, "bench_coverage_factor", "", allow_zero=False)
+    counts = {}
+    for name, value in (("n_runs", n_runs), ("n_los_samples", n_los_samples)):
+        if not float(value) >= 1 or float(value) != int(value):
+            raise InputError(f"argument {name!r}: expected a whole number >= 1; found {value}")
+        counts[name] = int(value)
+    if bias_repeatability_n not in ("los_samples", "runs"):
+        raise InputError(f"argument 'bias_repeatability_n': expected 'los_samples' or 'runs'; "
+                         f"found {bias_repeatability_n!r}")
+    if beam_angle_coefficient is not None:
+        beam_angle_coefficient = _positive(beam_angle_coefficient, "beam_angle_coefficient", "")
+    n_bias = counts["n_los_samples"] if bias_repeatability_n == "los_samples" else counts["n_runs"]
+
+    terms = table4_kernel(
+        ws, std_repeatability=s_s, bias_repeatability=s_d, n_bias=n_bias,
+        n_los_samples=counts["n_los_samples"], bench_uncertainty=dv / k_cov,
+        beam_angle_uncertainty=np.deg2rad(dphi), zero_distance_uncertainty=dz, shear_exponent=alpha,
+        height=z, cone_angle=np.deg2rad(phi), beam_angle_coefficient=beam_angle_coefficient,
+    )
+    inputs = {
+        "mean_between_run_std_std": (s_s, "m s-1", "mean between-run std of the bench LOS std (s-bar_s)"),
+        "mean_between_run_std_bias": (s_d, "m s-1",
+                                      "mean between-run std of the bench LOS bias (s-bar_delta)"),
+        "n_runs": (np.int32(counts["n_runs"]), "1", "number of bench runs in the repeatability analysis"),
+        "n_los_samples": (np.int32(counts["n_los_samples"]), "1", "radial velocities per LOS per 10 minutes"),
+        "bench_uncertainty": (dv, "m s-1", "SAFO-MV bench radial-velocity uncertainty as stated (dv_SAFO)"),
+        "bench_coverage_factor": (k_cov, "1", "coverage factor dividing bench_uncertainty in Eq. 8"),
+        "beam_angle_uncertainty": (dphi, "degree", "standard uncertainty of the beam cone angle"),
+        "zero_distance_uncertainty": (dz, "m", "standard uncertainty of the zero distance"),
+        "shear_exponent": (alpha, "1", "wind shear power-law exponent (Eq. 10)"),
+        "cone_angle": (phi, "degree", "beam cone angle from vertical"),
+    }
+    if beam_angle_coefficient is not None:
+        inputs["beam_angle_coefficient"] = (beam_angle_coefficient, "1",
+                                            "coefficient replacing cot(phi) dphi in Eq. 9")
+    config = {
+        **{name: v[0] for name, v in inputs.items()}, "height": z, "wind_speed": ws,
+        "bias_repeatability_n": bias_repeatability_n, "beam_angle_coefficient": beam_angle_coefficient,
+    }
+    ds = _to_dataset(ws, terms, z, inputs)
+    ds.attrs.update({
+        "bias_repeatability_n": bias_repeatability_n,
+        "eq7_sample_count": np.int32(n_bias),
+        "beam_angle_method": "coefficient" if beam_angle_coefficient is not None else "cot(phi) dphi (Eq. 9)",
+    })
+    summary = (
+        f"Uncertainty terms of the horizontal wind speed not modelled by Monte Carlo (paper Eqs. 6-11, "
+        f"Table 4) at z = {z:g} m, alpha = {alpha:g}, phi = {phi:g} degree for {ws.size} wind speeds; "
+        f"total {float(ds.total.min()):.4f} to {float(ds.total.max()):.4f} m/s."
+    )
+    return stamp(ds, "uncertainty_terms", title="Non-simulated calibration uncertainty terms (Table 4)",
+                 summary=summary, call=call,
+                 input_datasets={"repeatability": repeatability} if repeatability is not None else None,
+                 config=config, keywords="Doppler lidar, calibration, uncertainty budget, wind speed")
+
+
+def _to_dataset(ws: np.ndarray, terms: np.ndarray, z: float, inputs: dict) -> xr.Dataset:
+    rel = 100.0 * terms / ws[:, None]
+    total = np.sqrt(np.sum(terms**2, axis=1))
+    names = list(CONTRIBUTORS)
+    ds = xr.Dataset(
+        {
+            "uncertainty": (("wind_speed", "contributor"), terms, var_attrs(
+                "standard uncertainty of the horizontal wind speed per contributor (Table 4)", "m s-1",
+                "wind_speed standard_error")),
+            "relative_uncertainty": (("wind_speed", "contributor"), rel, var_attrs(
+                "standard uncertainty per contributor relative to the wind speed", "%")),
+            "total": ("wind_speed", total, var_attrs(
+                "quadrature sum of the non-simulated uncertainty terms", "m s-1",
+                "wind_speed standard_error")),
+            "total_relative": ("wind_speed", 100.0 * total / ws, var_attrs(
+                "quadrature sum of the non-simulated terms relative to the wind speed", "%")),
+        },
+        coords={
+            "wind_speed": ("wind_speed", ws, {"standard_name": "wind_speed", "units": "m s-1",
+                                              "long_name": "horizontal wind speed"}),
+            "contributor": ("contributor", np.array(names, dtype=object),
+                            {"long_name": "uncertainty contributor (paper Table 4 row)"}),
+            "equation": ("contributor", np.array([CONTRIBUTORS[n][0] for n in names], dtype=object),
+                         {"long_name": "equation number in the paper"}),
+            "contributor_description": ("contributor",
+                                        np.array([CONTRIBUTORS[n][1] for n in names], dtype=object),
+                                        {"long_name": "description of the uncertainty contributor"}),
+            "height": ((), z, {"standard_name": "height", "long_name": "measurement height above ground",
+                               "units": "m", "positive": "up", "axis": "Z"}),
+        },
+    )
+    for name, (value, unit, text) in inputs.items():
+        ds[name] = ((), value, var_attrs(text, unit, coverage_content_type="auxiliaryInformation"))
+    return ds
+
+
+def repeatability_inputs(source: str | os.PathLike | xr.Dataset) -> tuple[dict[str, Any], xr.Dataset]:
+    """Read s-bar_s, s-bar_delta and the run count from a ``repeatability`` artefact.
+
+    Returns the keyword arguments (pint quantities / int) for :func:`uncertainty_terms` and
+    the opened dataset (for provenance).
+    """
+    ds = source if isinstance(source, xr.Dataset) else open_artefact(source, "repeatability")
+    where = "<repeatability dataset>" if isinstance(source, xr.Dataset) else str(source)
+    out: dict[str, Any] = {}
+    for name in ("mean_between_run_std_std", "mean_between_run_std_bias"):
+        da = convert_variable(ds, name, "m s-1", source=where)
+        if da.ndim != 0:
+            raise InputError(f"{where}: variable {name!r} has dims {da.dims}; expected a scalar")
+        out[name] = Q_(float(da), "m/s")
+    n = convert_variable(ds, "n_runs", "1", source=where)
+    if n.ndim != 0 or not float(n) >= 1:
+        raise InputError(f"{where}: variable 'n_runs' is {n.values!r}; expected a scalar count >= 1")
+    out["n_runs"] = int(n)
+    return out, ds
+
+
+def format_table(ds: xr.Dataset, digits: int = 4) -> str:
+    """Human-readable Table 4 (rows: contributors and totals; columns: wind speeds)."""
+    ws = ds.wind_speed.values
+    head = f"{'term':<26}{'Eq.':>4}  " + "".join(f"{f'U={u:g}':>9}" for u in ws)
+    lines = [
+        f"Non-simulated uncertainty terms (m/s) at z = {float(ds.height):g} m, "
+        f"alpha = {float(ds.shear_exponent):g}, phi = {float(ds.cone_angle):g} degree",
+        head, "-" * len(head),
+    ]
+    for name in ds.contributor.values:
+        row = ds.uncertainty.sel(contributor=name).values
+        eq = str(ds.equation.sel(contributor=name).values)
+        lines.append(f"{name:<26}{eq:>4}  " + "".join(f"{v:>9.{digits}f}" for v in row))
+    lines.append("-" * len(head))
+    lines.append(f"{'Total (m/s)':<30}" + "".join(f"{v:>9.{digits}f}" for v in ds.total.values))
+    lines.append(f"{'Total (%)':<30}" + "".join(f"{v:>8.2f}%" for v in ds.total_relative.values))
+    return "\n".join(lines)
