@@ -1,0 +1,11 @@
+"""Dask-parallel, resumable Monte Carlo over a campaign of 10-minute periods.
+
+:func:`simulate_campaign` turns a ``conditions`` input and a
+:class:`lidarcal.lidar.LidarModel` into a ``simulated_rtd`` artefact; see
+:mod:`lidarcal.campaign.run` for scheduling, seeding and resuming.
+"""
+
+from lidarcal.campaign.chunks import check_reachable
+from lidarcal.campaign.run import BLAS_ENV, DEFAULT_BASE_SEED, simulate_campaign
+
+__all__ = ["simulate_campaign", "check_reachable", "DEFAULT_BASE_SEED", "BLAS_ENV"]

@@ -1,0 +1,187 @@
+"""One chunk of a campaign: simulate consecutive periods, cache the result atomically.
+
+Everything here runs inside a Dask task (thread, process or ``dask.distributed`` worker), so
+the task payload is plain data (model as a dict, numpy arrays) and the function is pure: a
+period's result depends only on the model, its conditions and the seed entropy
+``(base_seed, period_index)`` — never on the chunk it lands in, the worker or the order of
+execution.  That is what makes any chunking and any number of workers bit-identical.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["OUTPUTS", "chunk_key", "chunk_path", "load_chunk", "run_chunk", "check_reachable"]
+
+#: Per-height outputs of :func:`lidarcal.lidar.simulate_period` stored by the campaign.
+OUTPUTS = (
+    "lidar_wind_speed",
+    "lidar_wind_speed_scalar",
+    "lidar_wind_speed_vector",
+    "reference_wind_speed",
+    "availability",
+)
+
+#: Inputs passed to the engine, in the order of the conditions contract.
+INPUTS = (
+    "wind_speed",
+    "wind_from_direction",
+    "turbulence_intensity",
+    "wind_shear_exponent",
+    "cnr",
+    "cnr_gradient",
+)
+
+_FORMAT = 1  # bump when the chunk file layout or the result of a chunk changes meaning
+
+
+def chunk_key(
+    conditions_checksum: str,
+    model: dict,
+    base_seed: int,
+    start: int,
+    stop: int,
+    heights: np.ndarray,
+    duration: float,
+    los_periods: tuple[int, ...],
+) -> str:
+    """SHA-256 naming a chunk's result: same key ⇔ same inputs ⇔ same numbers."""
+    los = [int(i) for i in los_periods if start <= i < stop]
+    text = json.dumps(
+        {
+            "format": _FORMAT,
+            "conditions": conditions_checksum,
+            "model": model,
+            "base_seed": int(base_seed),
+            "start": int(start),
+            "stop": int(stop),
+            "heights": [float(h) for h in heights],
+            "duration": float(duration),
+            "los": los,
+        },
+        sort_keys=True,
+    )
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def chunk_path(workdir: str | os.PathLike, start: int, stop: int, key: str) -> Path:
+    """``workdir/chunk-<start>-<stop>-<key16>.npz``."""
+    return Path(workdir) / f"chunk-{start:07d}-{stop:07d}-{key[:16]}.npz"
+
+
+def load_chunk(path: Path, key: str, n: int, n_heights: int) -> dict[str, np.ndarray] | None:
+    """Return the cached chunk if ``path`` holds a complete result for ``key``; else None."""
+    if not path.is_file():
+        return None
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            if str(z["key"]) != key:
+                return None
+            out = {name: z[name] for name in z.files if name != "key"}
+    except Exception:  # unreadable (cannot happen with atomic writes, but never trust a cache)
+        return None
+    if any(out.get(name, np.empty(0)).shape != (n, n_heights) for name in OUTPUTS):
+        return None
+    return out
+
+
+def _save_atomic(path: Path, key: str, result: dict[str, np.ndarray]) -> None:
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, key=np.asarray(key), **result)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def check_reachable(model, heights: np.ndarray) -> list[str]:
+    """Problems with measuring at ``heights`` (m) with ``model``; empty when all are reachable.
+
+    Each RWF quadrature node of each beam must sit at a positive range and height: the gate is
+    placed at range ``h / cos(cone)`` (nominal cone), moved by ``zero_distance_offset`` and
+    the node offset, and seen along the true cone ``cone + beam_angle_offset``.
+    """
+    problems = []
+    cone = np.radians(model.cone_angle)
+    true_cone = np.radians(model.cone_angle + model.beam_angle_offset)
+    offsets = np.asarray(model.rwf_offsets, dtype=float)
+    for h in np.asarray(heights, dtype=float):
+        if not np.isfinite(h) or h <= 0:
+            problems.append(f"height {h:g} m is not > 0")
+            continue
+        ranges = h / np.cos(cone) + model.zero_distance_offset + offsets
+        if ranges.min() <= 0 or (ranges * np.cos(true_cone)).min() <= 0:
+            problems.append(
+                f"height {h:g} m needs range {ranges.min():.4g} m for the nearest RWF node "
+                f"(gate {h / np.cos(cone):.4g} m, zero-distance offset {model.zero_distance_offset:g} m, "
+                f"RWF reaching {offsets.min():.4g} m); the RWF would extend below the lidar"
+            )
+    return problems
+
+
+def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
+    """Simulate the periods of one chunk (runs on a worker).
+
+    ``task`` holds ``model`` (dict), ``heights`` (h,), the six ``INPUTS`` arrays (n, h),
+    ``valid`` (n, h) bool, ``period_index`` (n,), ``los`` (n,) bool, ``base_seed``,
+    ``duration``, and optionally ``workdir``/``key`` to cache the result atomically.
+    Returns ``{output: (n, h) array}`` plus ``los`` (``{period_index: {name: array}}``).
+    """
+    from lidarcal.lidar import LidarModel, simulate_period
+
+    model = LidarModel.from_dict(task["model"])
+    heights = np.asarray(task["heights"], dtype=float)
+    valid = np.asarray(task["valid"], dtype=bool)
+    n, nh = valid.shape
+    out = {name: np.full((n, nh), np.nan) for name in OUTPUTS}
+    los: dict[int, dict[str, np.ndarray]] = {}
+    for i in range(n):
+        cols = np.flatnonzero(valid[i])
+        if cols.size == 0:
+            continue
+        pidx = int(task["period_index"][i])
+        want_los = bool(task["los"][i])
+        res = simulate_period(
+            model,
+            heights=heights[cols],
+            **{name: np.asarray(task[name][i, cols], dtype=float) for name in INPUTS},
+            seed=(int(task["base_seed"]), pidx),
+            duration=float(task["duration"]),
+            return_los=want_los,
+        )
+        for name in OUTPUTS:
+            out[name][i, cols] = res[name]
+        if want_los:
+            los[pidx] = {"columns": cols, **{k: np.asarray(v) for k, v in res.items() if k not in OUTPUTS}}
+    if task.get("workdir"):
+        flat = dict(out)
+        for pidx, extra in los.items():
+            for k, v in extra.items():
+                flat[f"los__{pidx}__{k}"] = v
+        _save_atomic(chunk_path(task["workdir"], task["start"], task["stop"], task["key"]), task["key"], flat)
+    return {**out, "los": los}
+
+
+def unflatten_los(cached: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Turn a cached chunk's ``los__<period>__<name>`` entries back into the ``los`` mapping."""
+    los: dict[int, dict[str, np.ndarray]] = {}
+    out: dict[str, Any] = {}
+    for name, value in cached.items():
+        if name.startswith("los__"):
+            _, pidx, k = name.split("__", 2)
+            los.setdefault(int(pidx), {})[k] = value
+        else:
+            out[name] = value
+    out["los"] = los
+    return out

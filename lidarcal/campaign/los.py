@@ -1,0 +1,58 @@
+"""LOS time series of selected periods as ``simulated_rtd`` variables (``--los-periods``)."""
+
+from __future__ import annotations
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.cf import var_attrs
+
+__all__ = ["los_variables"]
+
+
+def los_variables(los_data: dict[int, dict[str, np.ndarray]], heights: np.ndarray) -> xr.Dataset:
+    """``los_radial_velocity`` (los_period, height, los_time) and its coordinates.
+
+    ``los_data`` maps a period index to the engine's ``return_los`` output for the heights
+    that were simulated in that period (``columns``); other heights are NaN.
+    """
+    periods = sorted(los_data)
+    first = los_data[periods[0]]
+    n_times = int(np.asarray(first["los_time"]).size)
+    values = np.full((len(periods), heights.size, n_times), np.nan)
+    for i, p in enumerate(periods):
+        values[i, np.asarray(los_data[p]["columns"], dtype=int)] = los_data[p]["los"]
+    return xr.Dataset(
+        {
+            "los_radial_velocity": (
+                ("los_period", "height", "los_time"),
+                values,
+                var_attrs(
+                    "radial velocity of the virtual lidar along its line of sight "
+                    "(positive away from the lidar; NaN = sample not available)",
+                    "m s-1",
+                    "radial_velocity_of_scatterers_away_from_instrument",
+                ),
+            )
+        },
+        coords={
+            "los_period": (
+                "los_period",
+                np.asarray(periods, dtype=np.int64),
+                {"long_name": "period index of the stored LOS time series", "units": "1"},
+            ),
+            "los_time": (
+                "los_time",
+                np.asarray(first["los_time"], dtype=float),
+                {"long_name": "time of the LOS sample since the period start", "units": "s"},
+            ),
+            "los_beam": (
+                "los_time",
+                np.asarray(first["los_beam"], dtype=np.int8),
+                {
+                    "long_name": "index of the oblique beam (into the model's azimuths) of the LOS sample",
+                    "units": "1",
+                },
+            ),
+        },
+    )

@@ -1,0 +1,399 @@
+"""Dask-parallel, resumable Monte Carlo over a campaign of 10-minute periods.
+
+:func:`simulate_campaign` splits the periods of a ``conditions`` input into chunks of
+``chunk`` consecutive periods, runs one Dask task per chunk (deterministic task names
+``lidarcal-chunk-<key>-<start>-<stop>``) and assembles the ``simulated_rtd`` artefact.
+
+* **Seeds** — period ``i`` (its position in the conditions file) uses the entropy
+  ``(base_seed, i)``; the engine adds ``round(height * 1000)``.  Results therefore do not
+  depend on chunk size, worker count, scheduler or which other heights are simulated.
+* **Schedulers** — ``None``/``"processes"`` (local process pool, the default), ``"threads"``,
+  ``"synchronous"``, ``"local"`` (a ``distributed.LocalCluster`` of single-threaded worker
+  processes), an address ``"tcp://host:port"`` of a running ``dask.distributed`` scheduler,
+  or a ``distributed.Client``.  Worker processes get ``OPENBLAS/MKL/OMP_NUM_THREADS=1``.
+* **Resume** — with ``workdir`` every finished chunk is saved atomically as
+  ``chunk-<start>-<stop>-<key>.npz`` where the key hashes (conditions checksum, model, base
+  seed, chunk bounds, heights, duration); a re-run loads finished chunks instead of
+  recomputing them, so a killed run resumes and gives the identical result.  With
+  ``dask.distributed`` a lost worker's tasks are recomputed elsewhere: it costs time, not data.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.campaign.chunks import (
+    INPUTS,
+    OUTPUTS,
+    check_reachable,
+    chunk_key,
+    chunk_path,
+    load_chunk,
+    run_chunk,
+    unflatten_los,
+)
+from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.conditions import CONDITION_VARIABLES, load_conditions
+from lidarcal.errors import InputError
+from lidarcal.provenance import stamp
+
+__all__ = ["simulate_campaign", "DEFAULT_BASE_SEED", "BLAS_ENV"]
+
+DEFAULT_BASE_SEED = 20240101
+#: Environment of every simulation worker: one BLAS/OpenMP thread (DESIGN.md section 5).
+BLAS_ENV = {"OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+
+_OUTPUT_ATTRS = {
+    "lidar_wind_speed": var_attrs(
+        "virtual lidar 10-minute horizontal wind speed (hybrid reconstruction)", "m s-1", "wind_speed"
+    ),
+    "lidar_wind_speed_scalar": var_attrs(
+        "virtual lidar 10-minute horizontal wind speed (scalar average, Eq. 3)", "m s-1", "wind_speed"
+    ),
+    "lidar_wind_speed_vector": var_attrs(
+        "virtual lidar 10-minute horizontal wind speed (vector average, Eq. 4)", "m s-1", "wind_speed"
+    ),
+    "reference_wind_speed": var_attrs(
+        "virtual point reference 10-minute scalar mean horizontal wind speed", "m s-1", "wind_speed"
+    ),
+    "availability": var_attrs("fraction of LOS samples kept in the period", "1"),
+}
+
+
+@contextlib.contextmanager
+def _blas_env() -> Iterator[None]:
+    """Set one BLAS thread in the environment inherited by spawned worker processes."""
+    old = {k: os.environ.get(k) for k in BLAS_ENV}
+    os.environ.update(BLAS_ENV)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _connect(address: str, timeout: float):
+    from distributed import Client
+
+    try:
+        return Client(address, timeout=timeout, set_as_default=False)
+    except (OSError, TimeoutError) as exc:
+        raise InputError(
+            f"cannot reach the dask scheduler at {address!r} within {timeout:g} s "
+            f"({type(exc).__name__}: {exc}); is `dask scheduler` running there?"
+        ) from None
+
+
+def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool) -> Iterator[tuple[str, dict]]:
+    from distributed import as_completed
+
+    futures = {client.submit(run_chunk, payload, key=name, pure=False): name for name, payload in tasks}
+    bar = _bar(len(tasks), progress)
+    try:
+        for fut in as_completed(futures):
+            result = fut.result()
+            name = futures[fut]
+            fut.release()
+            bar.update(1)
+            yield name, result
+    finally:
+        bar.close()
+
+
+def _bar(total: int, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, unit="chunk", desc="simulate", disable=not enabled, dynamic_ncols=True)
+
+
+def _run_local(
+    tasks: list[tuple[str, dict]], scheduler: str, workers: int | None, progress: bool
+) -> Iterator[tuple[str, dict]]:
+    import dask
+
+    delayed = [dask.delayed(run_chunk, pure=False)(payload, dask_key_name=name) for name, payload in tasks]
+    kw: dict[str, Any] = {"scheduler": scheduler}
+    if scheduler in ("processes", "threads") and workers:
+        kw["num_workers"] = int(workers)
+    callbacks = []
+    if progress:
+        from tqdm.dask import TqdmCallback
+
+        callbacks.append(TqdmCallback(desc="simulate", unit="chunk", dynamic_ncols=True))
+    with _blas_env(), contextlib.ExitStack() as stack:
+        for cb in callbacks:
+            stack.enter_context(cb)
+        if scheduler == "processes":
+            stack.enter_context(dask.config.set({"multiprocessing.context": "spawn"}))
+        results = dask.compute(*delayed, **kw)
+    yield from zip((name for name, _ in tasks), results, strict=True)
+
+
+def _execute(tasks, scheduler, workers, progress, connect_timeout) -> Iterator[tuple[str, dict]]:
+    if not tasks:
+        return
+    if scheduler is None:
+        scheduler = "processes"
+    if hasattr(scheduler, "submit"):  # a distributed.Client
+        yield from _run_distributed(scheduler, tasks, progress)
+        return
+    if not isinstance(scheduler, str):
+        raise InputError(
+            f"scheduler must be None, a name, an address or a distributed.Client; got {scheduler!r}"
+        )
+    if "://" in scheduler:
+        client = _connect(scheduler, connect_timeout)
+        try:
+            yield from _run_distributed(client, tasks, progress)
+        finally:
+            client.close()
+        return
+    if scheduler == "local":
+        from distributed import Client, LocalCluster
+
+        n = int(workers or os.cpu_count() or 1)
+        with (
+            _blas_env(),
+            LocalCluster(
+                n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None, env=dict(BLAS_ENV)
+            ) as cluster,
+            Client(cluster, set_as_default=False) as client,
+        ):
+            yield from _run_distributed(client, tasks, progress)
+        return
+    if scheduler not in ("processes", "threads", "synchronous", "sync", "single-threaded"):
+        raise InputError(
+            f"unknown scheduler {scheduler!r}; use 'processes', 'threads', 'synchronous', 'local', "
+            f"an address such as 'tcp://127.0.0.1:8786', or a distributed.Client"
+        )
+    yield from _run_local(tasks, scheduler, workers, progress)
+
+
+def _select_heights(cond: xr.Dataset, heights: Sequence[float] | None, source: str) -> np.ndarray:
+    available = cond.height.values
+    if heights is None:
+        return np.arange(available.size)
+    idx = []
+    for h in np.atleast_1d(np.asarray(heights, dtype=float)):
+        j = int(np.abs(available - h).argmin())
+        if abs(available[j] - h) > 1e-6:
+            raise InputError(
+                f"{source}: height {h:g} m is not in the conditions; available heights (m): "
+                f"{[float(a) for a in available]}"
+            )
+        idx.append(j)
+    if len(set(idx)) != len(idx):
+        raise InputError(f"heights {list(heights)} repeat a height")
+    return np.asarray(sorted(idx))
+
+
+def simulate_campaign(
+    conditions: str | os.PathLike | xr.Dataset,
+    model,
+    *,
+    heights: Sequence[float] | None = None,
+    base_seed: int = DEFAULT_BASE_SEED,
+    chunk: int = 64,
+    scheduler: Any = None,
+    workers: int | None = None,
+    workdir: str | os.PathLike | None = None,
+    progress: bool = False,
+    los_periods: Sequence[int] = (),
+    duration: float = 600.0,
+    connect_timeout: float = 5.0,
+    call: str | None = None,
+) -> xr.Dataset:
+    """Simulate every 10-minute period of ``conditions`` with the virtual lidar ``model``.
+
+    Parameters
+    ----------
+    conditions : path or xarray.Dataset
+        A ``conditions`` (or ``field_campaign``) input; see :func:`lidarcal.conditions.load_conditions`.
+    model : lidarcal.lidar.LidarModel
+        The virtual lidar.
+    heights : sequence of float, optional
+        Heights (m) to simulate; each must be one of the conditions' heights.  Default: all.
+    base_seed : int
+        Period ``i`` uses ``SeedSequence([base_seed, i, round(height * 1000)])``.
+    chunk : int
+        Periods per Dask task (does not change the result).
+    scheduler : None, str or distributed.Client
+        See the module docstring; ``None`` runs a local process pool.
+    workers : int, optional
+        Worker processes/threads for local schedulers (default: number of CPUs).
+    workdir : path, optional
+        Directory for the resumable chunk cache (created if missing).
+    progress : bool
+        Show a progress bar (tqdm) on the terminal.
+    los_periods : sequence of int
+        Period indices whose LOS time series are kept (``return_los=True``).
+    duration : float
+        Period length in s (600).
+    connect_timeout : float
+        Seconds to wait for a remote scheduler before raising :class:`~lidarcal.errors.InputError`.
+    call : str, optional
+        Command line recorded in the history (default: a description of this call).
+
+    Returns
+    -------
+    xarray.Dataset
+        A ``simulated_rtd`` artefact (CONTRIBUTING.md): dims ``time``, ``height``; the six
+        conditions variables used, the four wind speeds, ``availability``, ``simulated``
+        (0 where a period was skipped for missing input) and ``period_index``.
+    """
+    from lidarcal.lidar import LidarModel
+
+    if not isinstance(model, LidarModel):
+        raise InputError(f"model must be a lidarcal.lidar.LidarModel; got {type(model).__name__}")
+    path = None if isinstance(conditions, xr.Dataset) else os.fspath(conditions)
+    cond = load_conditions(conditions)
+    source = path or str(cond.attrs.get("lidarcal_source_file", "<dataset>"))
+    hidx = _select_heights(cond, heights, source)
+    z = cond.height.values[hidx]
+    problems = check_reachable(model, z)
+    if problems:
+        raise InputError(
+            f"{source}: heights the lidar cannot measure with this RWF/geometry: " + "; ".join(problems)
+        )
+    chunk = int(chunk)
+    if chunk < 1:
+        raise InputError(f"chunk must be >= 1 period; got {chunk}")
+    n = cond.sizes["time"]
+    los = sorted({int(i) for i in los_periods})
+    bad = [i for i in los if not 0 <= i < n]
+    if bad:
+        raise InputError(f"los_periods {bad} outside the {n} periods of {source}")
+    model_dict = model.to_dict()
+    checksum = cond.attrs["lidarcal_conditions_checksum"]
+    arrays = {name: cond[name].values[:, hidx] for name in INPUTS}
+    # a calm period (0 m/s) is valid input but has no turbulence box to simulate: skip it too
+    with np.errstate(invalid="ignore"):
+        valid = cond["input_complete"].values[:, hidx].astype(bool) & (arrays["wind_speed"] > 0)
+    if workdir is not None:
+        os.makedirs(workdir, exist_ok=True)
+
+    results: dict[int, dict] = {}
+    tasks: list[tuple[str, dict]] = []
+    bounds: dict[str, tuple[int, int]] = {}
+    for start in range(0, n, chunk):
+        stop = min(start + chunk, n)
+        key = chunk_key(checksum, model_dict, base_seed, start, stop, z, duration, tuple(los))
+        if workdir is not None:
+            cached = load_chunk(chunk_path(workdir, start, stop, key), key, stop - start, z.size)
+            if cached is not None:
+                results[start] = unflatten_los(cached)
+                continue
+        name = f"lidarcal-chunk-{key[:16]}-{start}-{stop}"
+        bounds[name] = (start, stop)
+        tasks.append(
+            (
+                name,
+                {
+                    "model": model_dict,
+                    "heights": z,
+                    **{k: v[start:stop] for k, v in arrays.items()},
+                    "valid": valid[start:stop],
+                    "period_index": np.arange(start, stop),
+                    "los": np.isin(np.arange(start, stop), los),
+                    "base_seed": int(base_seed),
+                    "duration": float(duration),
+                    "workdir": os.fspath(workdir) if workdir is not None else None,
+                    "key": key,
+                    "start": start,
+                    "stop": stop,
+                },
+            )
+        )
+    for name, result in _execute(tasks, scheduler, workers, progress, connect_timeout):
+        results[bounds[name][0]] = result
+
+    out = {name: np.concatenate([results[s][name] for s in sorted(results)], axis=0) for name in OUTPUTS}
+    los_data = {p: v for s in sorted(results) for p, v in results[s]["los"].items()}
+    ds = _assemble(cond, hidx, out, valid, los_data)
+    ds.attrs["lidarcal_base_seed"] = int(base_seed)
+    ds.attrs["lidarcal_lidar_model"] = model.to_json()
+    ds.attrs["lidarcal_conditions_checksum"] = checksum
+    ds.attrs["lidarcal_skipped_count"] = int((~valid).sum())
+    config = {
+        "model": model_dict,
+        "heights": z.tolist(),
+        "chunk": chunk,
+        "duration": duration,
+        "scheduler": scheduler if isinstance(scheduler, str | type(None)) else "distributed.Client",
+        "workers": workers,
+        "los_periods": los,
+        "conditions_checksum": checksum,
+    }
+    return stamp(
+        ds,
+        "simulated_rtd",
+        title="Simulated 10-minute records of a virtual DBS lidar and a virtual point reference",
+        summary=(
+            f"Monte Carlo simulation of {n} ten-minute periods at {z.size} height(s): virtual lidar "
+            f"({model.description}) in synthetic turbulence driven by the conditions time series, "
+            f"compared with a virtual cup-like point reference."
+        ),
+        call=call or f"lidarcal.campaign.simulate_campaign({source!r}, base_seed={base_seed}, chunk={chunk})",
+        inputs={"conditions": path} if path else None,
+        input_datasets={"conditions": cond},
+        config=config,
+        seeds={
+            "base_seed": int(base_seed),
+            "scheme": "numpy SeedSequence([base_seed, period_index, round(height_m * 1000)])",
+        },
+        keywords="Doppler lidar, wind speed, Monte Carlo, calibration, simulation",
+    )
+
+
+def _assemble(
+    cond: xr.Dataset,
+    hidx: np.ndarray,
+    out: dict[str, np.ndarray],
+    valid: np.ndarray,
+    los_data: dict[int, dict],
+) -> xr.Dataset:
+    dims = ("time", "height")
+    ds = xr.Dataset(
+        coords={"time": time_coord(cond.time.values), "height": height_coord(cond.height.values[hidx])}
+    )
+    for name in CONDITION_VARIABLES:
+        ds[name] = (
+            dims,
+            cond[name].values[:, hidx],
+            {**cond[name].attrs, "coverage_content_type": "modelResult"},
+        )
+    for name in OUTPUTS:
+        ds[name] = (dims, out[name], dict(_OUTPUT_ATTRS[name]))
+    ds["simulated"] = (
+        dims,
+        valid.astype(np.int8),
+        {
+            "long_name": "period simulated at this height (0: skipped, a needed input was missing)",
+            "flag_values": np.array([0, 1], dtype=np.int8),
+            "flag_meanings": "skipped_missing_input simulated",
+            "coverage_content_type": "qualityInformation",
+        },
+    )
+    ds["period_index"] = (
+        "time",
+        np.arange(cond.sizes["time"], dtype=np.int64),
+        var_attrs(
+            "position of the period in the conditions input (seed entropy)",
+            "1",
+            coverage_content_type="auxiliaryInformation",
+        ),
+    )
+    if los_data:
+        from lidarcal.campaign.los import los_variables
+
+        ds = ds.merge(los_variables(los_data, ds.height.values))
+    return ds

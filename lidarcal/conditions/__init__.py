@@ -1,0 +1,46 @@
+"""The ``conditions`` / ``field_campaign`` input contract (DESIGN.md 3.1) and its generators.
+
+- :func:`load_conditions` — open, convert to canonical units, check, flag missing periods.
+- :func:`nominal_lidar` — the ideal lidar described by a field campaign's ``lidar_*`` attributes.
+- :func:`synthetic_conditions` — seeded synthetic conditions, or a real record extrapolated
+  to more heights with each period's shear (Eq. 10).
+- :mod:`lidarcal.conditions.kernels` — shear exponent and CNR gradient from neighbouring
+  heights (paper §3.3), the CNR model used where no lidar CNR was measured.
+"""
+
+from lidarcal.conditions.kernels import cnr_model, shear_exponent, vertical_gradient
+from lidarcal.conditions.load import (
+    CONDITION_VARIABLES,
+    FIELD_VARIABLES,
+    LIDAR_ATTRIBUTES,
+    SkippedPeriodsWarning,
+    conditions_checksum,
+    load_conditions,
+    nominal_lidar,
+    nominal_lidar_parameters,
+)
+from lidarcal.conditions.synthetic import conditions_dataset, synthetic_conditions
+
+__all__ = [
+    "CONDITION_VARIABLES",
+    "FIELD_VARIABLES",
+    "LIDAR_ATTRIBUTES",
+    "SkippedPeriodsWarning",
+    "conditions_checksum",
+    "conditions_dataset",
+    "cnr_model",
+    "load_conditions",
+    "nominal_lidar",
+    "nominal_lidar_parameters",
+    "sample_conditions_path",
+    "shear_exponent",
+    "synthetic_conditions",
+    "vertical_gradient",
+]
+
+
+def sample_conditions_path():
+    """Path of the embedded real sample (brightwind demo mast, 3 months, 40/60/80 m)."""
+    from lidarcal.data import sample_file
+
+    return sample_file("conditions/conditions.nc")

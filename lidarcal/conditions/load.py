@@ -1,0 +1,288 @@
+"""Loading and checking ``conditions`` / ``field_campaign`` inputs (DESIGN.md 3.1).
+
+:func:`load_conditions` returns the contract in canonical units with one extra variable,
+``input_complete`` (time, height): 1 where every variable the simulation (or, for a field
+campaign, the comparison) needs is present, 0 where the period is skipped at that height.
+Skipped periods are reported with a :class:`SkippedPeriodsWarning`; they are not an error.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.cf import height_coord, var_attrs
+from lidarcal.errors import InputError, MissingVariableError
+from lidarcal.io import open_artefact
+from lidarcal.schema import validate_dataset
+from lidarcal.units import convert_values, convert_variable
+
+__all__ = [
+    "CONDITION_VARIABLES",
+    "FIELD_VARIABLES",
+    "LIDAR_ATTRIBUTES",
+    "SkippedPeriodsWarning",
+    "load_conditions",
+    "conditions_checksum",
+    "nominal_lidar_parameters",
+    "nominal_lidar",
+]
+
+#: The six variables of the contract: canonical unit, long name, CF standard name.
+CONDITION_VARIABLES: dict[str, tuple[str, str, str | None]] = {
+    "wind_speed": ("m s-1", "10-minute mean horizontal wind speed", "wind_speed"),
+    "wind_from_direction": (
+        "degree",
+        "10-minute mean wind direction (meteorological, from)",
+        "wind_from_direction",
+    ),
+    "turbulence_intensity": ("1", "turbulence intensity (sigma_u / mean wind speed)", None),
+    "wind_shear_exponent": ("1", "power-law wind shear exponent from neighbouring heights (Eq. 10)", None),
+    "cnr": ("dB", "carrier-to-noise ratio", None),
+    "cnr_gradient": ("dB m-1", "carrier-to-noise ratio gradient along the beam", None),
+}
+
+#: The measured pair a ``field_campaign`` adds.
+FIELD_VARIABLES: dict[str, tuple[str, str, str | None]] = {
+    "lidar_wind_speed": ("m s-1", "lidar 10-minute horizontal wind speed (measured)", "wind_speed"),
+    "reference_wind_speed": (
+        "m s-1",
+        "reference anemometer 10-minute mean wind speed (measured)",
+        "wind_speed",
+    ),
+}
+
+#: Optional global attributes of a field campaign giving the lidar's nominal configuration.
+LIDAR_ATTRIBUTES: dict[str, tuple[float, str, float, float]] = {
+    # name: (default, meaning, lower bound (exclusive unless 0 allowed), upper bound)
+    "lidar_cone_angle": (28.0, "cone angle from vertical (degree)", 0.0, 90.0),
+    "lidar_hybrid_weight": (2.0 / 3.0, "hybrid weight p", 0.0, 1.0),
+    "lidar_rwf_fwhm": (30.0, "Gaussian RWF full width at half maximum (m)", 0.0, 1000.0),
+    "lidar_los_noise_std": (0.1, "LOS noise standard deviation (m s-1)", 0.0, 10.0),
+    "lidar_beam_period": (1.0, "time per LOS (s)", 0.0, 60.0),
+}
+
+
+class SkippedPeriodsWarning(UserWarning):
+    """Some periods lack a needed value at some height and will be skipped there."""
+
+
+def _source_of(obj: str | os.PathLike | xr.Dataset) -> str:
+    if isinstance(obj, xr.Dataset):
+        return str(obj.attrs.get("lidarcal_source_file") or obj.encoding.get("source") or "<dataset>")
+    return str(obj)
+
+
+def _where_first(mask: np.ndarray, ds: xr.Dataset) -> str:
+    t, h = np.argwhere(mask)[0]
+    return f"time={ds.time.values[t]!s} (index {t}), height={float(ds.height.values[h]):g} m"
+
+
+def _check_height(ds: xr.Dataset, source: str) -> np.ndarray:
+    if "height" not in ds.dims:
+        raise MissingVariableError(
+            f"{source}: dimension 'height' is missing; found dims {sorted(map(str, ds.dims))}"
+        )
+    if "height" not in ds.coords:
+        raise MissingVariableError(f"{source}: coordinate 'height' is missing (heights in m are required)")
+    h = ds["height"]
+    values = convert_values(h.values, h.attrs.get("units"), "m", where=f"{source}: coordinate 'height'")
+    std = h.attrs.get("standard_name", "height")
+    if std != "height":
+        raise InputError(f"{source}: coordinate 'height' has standard_name {std!r}; expected 'height'")
+    if str(h.attrs.get("positive", "up")).lower() != "up":
+        raise InputError(f"{source}: coordinate 'height' has positive={h.attrs['positive']!r}; expected 'up'")
+    if not np.all(np.isfinite(values)) or np.any(values <= 0):
+        raise InputError(f"{source}: coordinate 'height' must be finite and > 0 m; found {values.tolist()}")
+    if np.unique(values).size != values.size:
+        raise InputError(f"{source}: coordinate 'height' has repeated values {values.tolist()}")
+    return values
+
+
+def conditions_checksum(ds: xr.Dataset, names: tuple[str, ...] | None = None) -> str:
+    """SHA-256 of the canonical content (time, height and the condition variables).
+
+    Identical for a file and for the same data passed as a Dataset, so it can key cached
+    simulation chunks independently of file metadata.
+    """
+    digest = hashlib.sha256()
+    digest.update(np.ascontiguousarray(ds["height"].values, dtype=float).tobytes())
+    digest.update(np.ascontiguousarray(ds["time"].values).view(np.uint8).tobytes())
+    for name in names or tuple(CONDITION_VARIABLES):
+        digest.update(name.encode())
+        digest.update(np.ascontiguousarray(ds[name].values, dtype=float).tobytes())
+    return digest.hexdigest()
+
+
+def load_conditions(
+    path_or_dataset: str | os.PathLike | xr.Dataset,
+    kind: str = "conditions",
+    *,
+    warn: bool = True,
+) -> xr.Dataset:
+    """Open, convert and check a ``conditions`` or ``field_campaign`` input.
+
+    Parameters
+    ----------
+    path_or_dataset : path or xarray.Dataset
+        The netCDF file (or an already opened dataset) following DESIGN.md 3.1.
+    kind : {"conditions", "field_campaign"}
+        ``field_campaign`` additionally requires ``lidar_wind_speed`` and
+        ``reference_wind_speed``.
+    warn : bool
+        Emit a :class:`SkippedPeriodsWarning` when periods have missing values.
+
+    Returns
+    -------
+    xarray.Dataset
+        Dims ``(time, height)``, heights ascending, every variable in canonical units
+        (``m s-1``, ``degree`` in [0, 360), ``1``, ``dB``, ``dB m-1``) with CF attributes,
+        plus ``input_complete`` (time, height; 1 = usable, 0 = skipped) and the global
+        attributes ``lidarcal_conditions_checksum``, ``lidarcal_skipped_count`` and the
+        input's own attributes.
+
+    Raises
+    ------
+    MissingVariableError, UnitError, InputError
+        Missing variable or dimension, units not convertible (wind speed in kelvin),
+        negative wind speed, turbulence intensity outside [0, 1], values outside the
+        schema's physical range.  Messages name the file, the variable, what was expected
+        and what was found (with counts and the first offending time and height).
+    """
+    if kind not in ("conditions", "field_campaign"):
+        raise InputError(f"kind must be 'conditions' or 'field_campaign'; got {kind!r}")
+    source = _source_of(path_or_dataset)
+    if isinstance(path_or_dataset, xr.Dataset):
+        raw = path_or_dataset
+    else:
+        raw = open_artefact(Path(path_or_dataset))
+    if "time" not in raw.dims:
+        raise MissingVariableError(
+            f"{source}: dimension 'time' is missing; found dims {sorted(map(str, raw.dims))}"
+        )
+    heights = _check_height(raw, source)
+    specs = dict(CONDITION_VARIABLES)
+    if kind == "field_campaign":
+        specs.update(FIELD_VARIABLES)
+    missing = [n for n in specs if n not in raw.variables]
+    if missing:
+        raise MissingVariableError(
+            f"{source}: required variable(s) {missing} missing for a {kind!r} input; "
+            f"found {sorted(map(str, raw.data_vars))}"
+        )
+    order = np.argsort(heights, kind="stable")
+    data = {}
+    for name, (unit, _long_name, _std) in specs.items():
+        var = raw[name]
+        if set(var.dims) != {"time", "height"}:
+            raise InputError(
+                f"{source}: variable {name!r} has dims {tuple(var.dims)}; expected ('time', 'height')"
+            )
+        da = convert_variable(raw, name, unit, source=source).transpose("time", "height")
+        values = np.asarray(da.values, dtype=float)[:, order]
+        data[name] = values
+    ds_shape = xr.Dataset(coords={"time": raw["time"].values, "height": heights[order]})
+    for name in (
+        "wind_speed",
+        *(("lidar_wind_speed", "reference_wind_speed") if kind == "field_campaign" else ()),
+    ):
+        bad = data[name] < 0
+        if bad.any():
+            raise InputError(
+                f"{source}: variable {name!r} has {int(bad.sum())} negative value(s) (min "
+                f"{np.nanmin(data[name]):.4g} m s-1, first at {_where_first(bad, ds_shape)}); "
+                f"expected wind speeds >= 0 m s-1"
+            )
+    ti = data["turbulence_intensity"]
+    bad = (ti > 1) | (ti < 0)
+    if bad.any():
+        raise InputError(
+            f"{source}: variable 'turbulence_intensity' has {int(bad.sum())} value(s) outside [0, 1] "
+            f"(max {np.nanmax(ti):.4g}, first at {_where_first(bad, ds_shape)}); expected a "
+            f"fraction sigma_u / U in [0, 1] (percent must carry units '%')"
+        )
+    data["wind_from_direction"] = np.mod(data["wind_from_direction"], 360.0)
+
+    needed = list(CONDITION_VARIABLES) + (list(FIELD_VARIABLES) if kind == "field_campaign" else [])
+    complete = np.all([np.isfinite(data[n]) for n in needed], axis=0)
+
+    dims = ("time", "height")
+    out = xr.Dataset(coords={"time": raw["time"].copy(), "height": height_coord(heights[order])})
+    for name, (unit, long_name, std) in specs.items():
+        content = "physicalMeasurement" if name in FIELD_VARIABLES else "modelResult"
+        out[name] = (dims, data[name], var_attrs(long_name, unit, std, coverage_content_type=content))
+    out["input_complete"] = (
+        dims,
+        complete.astype(np.int8),
+        {
+            "long_name": "all needed input values present (period simulated at this height)",
+            "flag_values": np.array([0, 1], dtype=np.int8),
+            "flag_meanings": "skipped_missing_input complete",
+            "coverage_content_type": "qualityInformation",
+        },
+    )
+    attrs = {k: v for k, v in raw.attrs.items() if not k.startswith("lidarcal_conditions_")}
+    out.attrs = attrs
+    out.attrs["lidarcal_conditions_checksum"] = conditions_checksum(out, tuple(needed))
+    n_skip = int((~complete).sum())
+    out.attrs["lidarcal_skipped_count"] = n_skip
+    problems = validate_dataset(out, kind, source=source)
+    problems = [p for p in problems if "lidarcal_artefact" not in p]
+    if problems:
+        from lidarcal.errors import ValidationError
+
+        raise ValidationError(problems, source)
+    if n_skip and warn:
+        rows = np.unique(np.argwhere(~complete)[:, 0])
+        warnings.warn(
+            f"{source}: {n_skip} (period, height) value(s) in {rows.size} period(s) lack a needed variable "
+            f"(NaN) and will be skipped; first at {_where_first(~complete, out)}",
+            SkippedPeriodsWarning,
+            stacklevel=2,
+        )
+    return out
+
+
+def nominal_lidar_parameters(ds: xr.Dataset) -> dict[str, float]:
+    """Return the lidar configuration in a field campaign's global attributes, defaults filled in."""
+    source = _source_of(ds)
+    out = {}
+    for name, (default, meaning, lo, hi) in LIDAR_ATTRIBUTES.items():
+        raw = ds.attrs.get(name, default)
+        try:
+            value = float(np.asarray(raw).item())
+        except (TypeError, ValueError):
+            raise InputError(
+                f"{source}: global attribute {name!r} ({meaning}) is {raw!r}; expected a number"
+            ) from None
+        zero_ok = name in ("lidar_hybrid_weight", "lidar_los_noise_std")
+        if not np.isfinite(value) or value > hi or value < lo or (value == lo and not zero_ok):
+            raise InputError(
+                f"{source}: global attribute {name!r} ({meaning}) is {value!r}; expected a value in "
+                f"{'[' if zero_ok else '('}{lo:g}, {hi:g}]"
+            )
+        out[name] = value
+    return out
+
+
+def nominal_lidar(ds: xr.Dataset):
+    """Build the ideal :class:`lidarcal.lidar.LidarModel` described by ``ds``'s ``lidar_*`` attributes.
+
+    Defaults (DESIGN.md 3.1): cone angle 28°, hybrid weight 2/3, Gaussian RWF of 30 m FWHM,
+    LOS noise 0.1 m s-1, 1 s per LOS; zero LOS bias, beams at 0°, 90°, 180°, 270°.
+    """
+    from lidarcal.lidar import LidarModel
+
+    p = nominal_lidar_parameters(ds)
+    return LidarModel.ideal(
+        cone_angle=p["lidar_cone_angle"],
+        hybrid_weight=p["lidar_hybrid_weight"],
+        rwf_fwhm=p["lidar_rwf_fwhm"],
+        los_noise_std=p["lidar_los_noise_std"],
+        beam_period=p["lidar_beam_period"],
+    )
