@@ -1,0 +1,287 @@
+"""The virtual DBS lidar's configuration: :class:`LidarModel` and its bench noise table.
+
+A :class:`LidarModel` is a frozen, JSON-serialisable dataclass holding everything the virtual
+lidar needs: the beam geometry, the beam period, the hybrid weight, the RWF as K quadrature
+nodes, the LOS noise (ideal Gaussian or a bench ``ℓcv`` table), the availability, and the
+effects the ``diagnose`` stage can switch on (``zero_distance_offset``, ``beam_angle_offset``,
+``cnr_weighting_scale``, ``hybrid_weight``, ``reference_overspeeding``).
+
+Conventions
+-----------
+* Azimuths are clockwise from the lidar's north mark (degree); the cone angle is measured
+  from the vertical (degree, 28° for a WindCube: elevation 62°).
+* Radial velocities are positive *away from* the lidar (as the bench cube's ``velocity`` and
+  the RWF's ``range_offset``).
+* ``hybrid_weight`` p multiplies the *scalar* average: V = p V_scalar + (1 - p) V_vector
+  (WindCube v2.1: p = 2/3; WindCube XP: p = 1/2; see :mod:`lidarcal.lidar.wfr`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.errors import InputError, MissingVariableError
+from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes
+from lidarcal.units import convert_variable
+
+__all__ = ["LidarModel", "NoiseTable"]
+
+
+def _tuplify(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, list | tuple):
+        return tuple(_tuplify(v) for v in value)
+    return float(value) if isinstance(value, np.floating | np.integer) else value
+
+
+def _listify(value: Any) -> Any:
+    if isinstance(value, tuple | list):
+        return [_listify(v) for v in value]
+    return value
+
+
+@dataclasses.dataclass(frozen=True)
+class NoiseTable:
+    """Per-beam LOS error table from the bench cube: bias and std on (beam, CNR, velocity).
+
+    ``cnr`` (dB) and ``velocity`` (m s-1, radial, positive away from the lidar) are the bin
+    centres; ``bias`` and ``std`` (m s-1) have shape ``(n_beams, n_cnr, n_velocity)`` with the
+    beams in the order of :attr:`LidarModel.azimuths`.  Empty bins have already been filled from
+    the nearest populated bin (see :meth:`LidarModel.from_artefacts`).
+
+    Lookup (:meth:`lookup`) is bilinear in (CNR, velocity) between bin centres and clamped to
+    the edge bins outside the table.
+    """
+
+    cnr: tuple[float, ...]
+    velocity: tuple[float, ...]
+    bias: tuple[tuple[tuple[float, ...], ...], ...]
+    std: tuple[tuple[tuple[float, ...], ...], ...]
+
+    def __post_init__(self) -> None:
+        for name in ("cnr", "velocity", "bias", "std"):
+            object.__setattr__(self, name, _tuplify(getattr(self, name)))
+        bias, std = np.asarray(self.bias, float), np.asarray(self.std, float)
+        shape = (bias.shape[0], len(self.cnr), len(self.velocity)) if bias.ndim == 3 else None
+        if shape is None or bias.shape != shape or std.shape != shape:
+            raise InputError(f"noise table: bias and std must have shape (beam, {len(self.cnr)} CNR, "
+                             f"{len(self.velocity)} velocity); found {bias.shape} and {std.shape}")
+        if not (np.all(np.isfinite(bias)) and np.all(np.isfinite(std)) and np.all(std >= 0)):
+            raise InputError("noise table: bias and std must be finite and std >= 0 in every bin")
+        for name in ("cnr", "velocity"):
+            axis = np.asarray(getattr(self, name))
+            if axis.size > 1 and np.any(np.diff(axis) <= 0):
+                raise InputError(f"noise table: {name} bin centres must be strictly increasing")
+        object.__setattr__(self, "_arrays", (np.asarray(self.cnr), np.asarray(self.velocity), bias, std))
+
+    def lookup(self, beam: int, cnr: float, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bias and std (m s-1) for one beam at one CNR (dB) and many radial velocities."""
+        cnr_axis, vel_axis, bias, std = self._arrays
+        if cnr_axis.size == 1:
+            i0 = i1 = 0
+            t = 0.0
+        else:
+            pos = np.interp(cnr, cnr_axis, np.arange(cnr_axis.size))  # clamped fractional index
+            i0 = int(np.floor(pos))
+            i1 = min(i0 + 1, cnr_axis.size - 1)
+            t = pos - i0
+        rows_b = (1.0 - t) * bias[beam, i0] + t * bias[beam, i1]
+        rows_s = (1.0 - t) * std[beam, i0] + t * std[beam, i1]
+        if vel_axis.size == 1:
+            return np.full_like(velocity, rows_b[0]), np.full_like(velocity, rows_s[0])
+        return np.interp(velocity, vel_axis, rows_b), np.interp(velocity, vel_axis, rows_s)
+
+
+@dataclasses.dataclass(frozen=True)
+class LidarModel:
+    """Configuration of the virtual DBS lidar (see module docstring for conventions)."""
+
+    cone_angle: float = 28.0  #: nominal cone angle from vertical (degree)
+    azimuths: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)  #: beam azimuths (degree)
+    beam_period: float = 1.0  #: seconds per LOS (vertical beam ignored)
+    hybrid_weight: float = 2.0 / 3.0  #: p: V = p V_scalar + (1 - p) V_vector
+    rwf_offsets: tuple[float, ...] = tuple(gauss_hermite_rwf(30.0, 5)[0].tolist())  #: nodes (m)
+    rwf_weights: tuple[float, ...] = tuple(gauss_hermite_rwf(30.0, 5)[1].tolist())  #: sum 1
+    los_noise_std: float = 0.1  #: ideal Gaussian LOS noise (m s-1), used when no table
+    noise_table: NoiseTable | None = None  #: bench cube (overrides ``los_noise_std``)
+    availability: float = 1.0  #: probability that a LOS sample is kept
+    zero_distance_offset: float = 0.0  #: gates sit this far (m) beyond nominal along the beam
+    beam_angle_offset: float = 0.0  #: true cone = cone_angle + offset (degree)
+    cnr_weighting_scale: float = 0.0  #: 0 = no CNR weighting, 1 = Eq. 2 as written
+    reference_overspeeding: float = 0.0  #: reference over-reading per unit TI
+    description: str = "ideal"  #: free text: where the configuration came from
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "azimuths", _tuplify(self.azimuths))
+        object.__setattr__(self, "rwf_offsets", _tuplify(self.rwf_offsets))
+        object.__setattr__(self, "rwf_weights", _tuplify(self.rwf_weights))
+        if isinstance(self.noise_table, Mapping):
+            object.__setattr__(self, "noise_table", NoiseTable(**self.noise_table))
+        problems = []
+        if len(self.azimuths) != 4:
+            problems.append(f"azimuths must list 4 oblique beams; got {self.azimuths}")
+        else:
+            az = np.mod(np.asarray(self.azimuths) - self.azimuths[0], 360.0)
+            if not np.allclose(az, [0.0, 90.0, 180.0, 270.0], atol=1e-9):
+                problems.append(f"azimuths must be 90° apart in clockwise order; got {self.azimuths}")
+        if not 0.0 < self.cone_angle < 90.0:
+            problems.append(f"cone_angle must be in (0, 90) degree; got {self.cone_angle}")
+        if not 0.0 < self.cone_angle + self.beam_angle_offset < 90.0:
+            problems.append(f"cone_angle + beam_angle_offset must be in (0, 90) degree; got "
+                            f"{self.cone_angle + self.beam_angle_offset}")
+        if not self.beam_period > 0:
+            problems.append(f"beam_period must be > 0 s; got {self.beam_period}")
+        if len(self.rwf_offsets) != len(self.rwf_weights) or not self.rwf_offsets:
+            problems.append("rwf_offsets and rwf_weights must be non-empty and of equal length")
+        elif abs(sum(self.rwf_weights) - 1.0) > 1e-9 or min(self.rwf_weights) < 0:
+            problems.append(f"rwf_weights must be >= 0 and sum to 1; sum is {sum(self.rwf_weights)}")
+        if not self.los_noise_std >= 0:
+            problems.append(f"los_noise_std must be >= 0 m s-1; got {self.los_noise_std}")
+        if not 0.0 < self.availability <= 1.0:
+            problems.append(f"availability must be in (0, 1]; got {self.availability}")
+        if self.noise_table is not None and len(self.noise_table.bias) != 4:
+            problems.append(f"noise_table must have 4 beams; has {len(self.noise_table.bias)}")
+        if problems:
+            raise InputError("LidarModel: " + "; ".join(problems))
+
+    # -- construction -------------------------------------------------------------------
+    @classmethod
+    def ideal(cls, cone_angle: float = 28.0, hybrid_weight: float = 2.0 / 3.0, rwf_fwhm: float = 30.0,
+              los_noise_std: float = 0.1, beam_period: float = 1.0, *, n_nodes: int = 5,
+              **overrides: Any) -> LidarModel:
+        """Build the DESIGN 3.1 ideal lidar: zero bias, Gaussian noise, Gaussian RWF of ``rwf_fwhm`` (m)."""
+        offsets, weights = gauss_hermite_rwf(rwf_fwhm, n_nodes)
+        return cls(cone_angle=float(cone_angle), hybrid_weight=float(hybrid_weight),
+                   rwf_offsets=offsets, rwf_weights=weights, los_noise_std=float(los_noise_std),
+                   beam_period=float(beam_period),
+                   description=f"ideal: Gaussian RWF FWHM {float(rwf_fwhm):g} m, {n_nodes} nodes",
+                   **overrides)
+
+    @classmethod
+    def from_artefacts(cls, cube: xr.Dataset | None = None, rwf: xr.Dataset | None = None, *,
+                       n_nodes: int = 5, **overrides: Any) -> LidarModel:
+        """Configure the lidar from a ``bench_cube`` and/or ``rwf`` artefact (CONTRIBUTING.md).
+
+        Without an RWF the ideal Gaussian RWF (``rwf_fwhm`` override, default 30 m) is used.
+        With an RWF, its ``cnr_gradient = 0`` column is reduced to ``n_nodes`` Gauss nodes and
+        ``cnr_weighting_scale`` defaults to 1 (Eq. 2 applied by the simulator, as in the paper's
+        simulation); pass ``cnr_weighting_scale=0`` to switch it off.  Without a cube the ideal
+        Gaussian noise (``los_noise_std``) is used.  Remaining ``overrides`` set fields.
+        """
+        fields = {"description": []}
+        base = cls.ideal(rwf_fwhm=overrides.pop("rwf_fwhm", 30.0), n_nodes=n_nodes,
+                         cone_angle=overrides.get("cone_angle", 28.0))
+        kw: dict[str, Any] = {"rwf_offsets": base.rwf_offsets, "rwf_weights": base.rwf_weights}
+        if rwf is not None:
+            offsets, weights = _rwf_nodes(rwf, n_nodes)
+            kw.update(rwf_offsets=offsets, rwf_weights=weights, cnr_weighting_scale=1.0)
+            fields["description"].append(f"RWF {_source(rwf)} ({n_nodes} nodes)")
+        if cube is not None:
+            azimuths = tuple(overrides.get("azimuths", base.azimuths))
+            kw["noise_table"] = _noise_table(cube, azimuths)
+            fields["description"].append(f"bench cube {_source(cube)}")
+        kw["description"] = "; ".join(fields["description"]) or base.description
+        kw.update(overrides)
+        return cls(**kw)
+
+    # -- serialisation ------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe dictionary (lists and floats only); inverse of :meth:`from_dict`."""
+        out = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, NoiseTable):
+                value = {g.name: _listify(getattr(value, g.name)) for g in dataclasses.fields(value)}
+            out[f.name] = _listify(value)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any] | str) -> LidarModel:
+        """Rebuild a model from :meth:`to_dict` output (or its JSON text)."""
+        if isinstance(data, str):
+            data = json.loads(data)
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = set(data) - known
+        if unknown:
+            raise InputError(f"LidarModel.from_dict: unknown field(s) {sorted(unknown)}; "
+                             f"known {sorted(known)}")
+        return cls(**dict(data))
+
+    def to_json(self) -> str:
+        """Compact JSON text of :meth:`to_dict` (for the ``lidarcal_lidar_model`` attribute)."""
+        return json.dumps(self.to_dict(), sort_keys=True)
+
+    def replace(self, **changes: Any) -> LidarModel:
+        """Return a copy with some fields changed (``dataclasses.replace``)."""
+        return dataclasses.replace(self, **changes)
+
+
+def _source(ds: xr.Dataset) -> str:
+    return str(ds.attrs.get("lidarcal_source_file") or ds.attrs.get("id") or "<dataset>")
+
+
+def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+    src = _source(rwf)
+    if "rwf" not in rwf.variables:
+        raise MissingVariableError(f"{src}: rwf artefact has no variable 'rwf'; "
+                                   f"found {sorted(map(str, rwf.variables))}")
+    values = convert_variable(rwf, "rwf", "m-1", source=src)
+    offsets = convert_variable(rwf, "range_offset", "m", source=src)
+    if "cnr_gradient" in values.dims:
+        grad = convert_variable(rwf, "cnr_gradient", "dB m-1", source=src).values
+        values = values.isel(cnr_gradient=int(np.argmin(np.abs(grad))))
+        if abs(grad).min() > 1e-9:
+            raise InputError(f"{src}: variable 'cnr_gradient' has no 0 dB m-1 column; found {grad.tolist()}")
+    values = values.transpose("range_offset")
+    order = np.argsort(offsets.values)
+    try:
+        return gauss_rwf_nodes(offsets.values[order], values.values[order], n_nodes)
+    except ValueError as exc:
+        raise InputError(f"{src}: variable 'rwf' cannot be reduced to {n_nodes} nodes: {exc}") from None
+
+
+def _fill_nearest(values: np.ndarray) -> np.ndarray:
+    """Fill NaN bins of a 2-D (cnr, velocity) table from the nearest populated bin (index space)."""
+    from scipy.ndimage import distance_transform_edt
+
+    missing = ~np.isfinite(values)
+    if not missing.any():
+        return values
+    _, (ii, jj) = distance_transform_edt(missing, return_indices=True)
+    return values[ii, jj]
+
+
+def _noise_table(cube: xr.Dataset, azimuths: tuple[float, ...]) -> NoiseTable:
+    src = _source(cube)
+    bias = convert_variable(cube, "los_bias", "m s-1", source=src)
+    std = convert_variable(cube, "los_std", "m s-1", source=src)
+    cnr = convert_variable(cube, "cnr", "dB", source=src).values
+    vel = convert_variable(cube, "velocity", "m s-1", source=src).values
+    az = convert_variable(cube, "los_azimuth", "degree", source=src).values
+    el = convert_variable(cube, "los_elevation", "degree", source=src).values
+    bias = bias.transpose("los", "cnr", "velocity").values
+    std = std.transpose("los", "cnr", "velocity").values
+    ci, vi = np.argsort(cnr), np.argsort(vel)
+    out_b, out_s = [], []
+    for a in azimuths:
+        diff = np.abs((az - a + 180.0) % 360.0 - 180.0)
+        cand = np.flatnonzero((diff < 0.5) & (el < 89.0))
+        if cand.size != 1:
+            raise InputError(f"{src}: coordinate 'los_azimuth' should hold exactly one oblique beam at "
+                             f"{a}°; found azimuths {az.tolist()} with elevations {el.tolist()}")
+        b, s = bias[cand[0]][np.ix_(ci, vi)], std[cand[0]][np.ix_(ci, vi)]
+        ok = np.isfinite(b) & np.isfinite(s)
+        if not ok.any():
+            raise InputError(f"{src}: variables 'los_bias'/'los_std' are empty (all NaN) "
+                             f"for the beam at {a}°")
+        b, s = np.where(ok, b, np.nan), np.where(ok, s, np.nan)
+        out_b.append(_fill_nearest(b))
+        out_s.append(_fill_nearest(s))
+    return NoiseTable(cnr=cnr[ci], velocity=vel[vi], bias=np.array(out_b), std=np.array(out_s))

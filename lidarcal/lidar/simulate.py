@@ -1,0 +1,214 @@
+"""The virtual DBS lidar and the virtual reference inside simulated turbulence (paper §2.3).
+
+:func:`simulate_period` simulates one 10-minute period at several heights.  Each height is an
+independent problem with its own random streams, ``SeedSequence([*seed, round(height*1000)])``
+spawned into (turbulence, LOS noise, availability), so a height's result never depends on
+which other heights are simulated.
+
+Per height ``h`` (all angles in the lidar frame: x east, y north, z up; azimuth clockwise
+from north):
+
+* **Geometry.** Beam ``b`` points along ``n_b = (sin φ sin θ_b, sin φ cos θ_b, cos φ)`` with the
+  *true* cone ``φ = cone_angle + beam_angle_offset``.  The range gate's nominal centre is at
+  ``r = h / cos(cone_angle)``; it actually sits ``zero_distance_offset`` further out, and the
+  RWF quadrature nodes are at ``r + zero_distance_offset + s_k``.
+* **Wind.** The mean wind blows *toward* ``θ_w + 180°`` (``θ_w`` = meteorological
+  ``wind_from_direction``) with speed ``U_h (z / h)^α`` at height ``z``; the vertical mean is
+  zero.  Turbulence (u along-wind, v cross-wind to the left, w up) comes from
+  :func:`lidarcal.turbulence.generate_points` at exactly the 4 K nodes plus the reference point,
+  in one small box per height (cross-height coherence is not modelled; every per-height
+  statistic is exact).  Taylor's frozen turbulence links points that differ along the wind.
+* **Sampling.** LOS ``k`` (time ``k · beam_period``) belongs to beam ``k mod 4``: 150 samples
+  per beam per 10 minutes at 1 s per LOS; the vertical beam is ignored.
+* **Radial velocity** ``v_r = V · n_b``, positive away from the lidar.  The LOS value is
+  ``Σ_k w_k v_r(node_k)`` with the CNR-weighted node weights of Eq. 2
+  (``w_k ∝ w_k^0 10^(scale · g · s_k / 20)``, ``scale = cnr_weighting_scale``, ``g`` the period's
+  CNR gradient), plus a Gaussian error ``N(μ, σ)``: ``μ, σ`` from the bench table for this beam,
+  the period's CNR and this sample's noise-free radial velocity (bilinear, clamped), or
+  ``μ = 0, σ = los_noise_std`` for the ideal lidar.  Samples are kept with probability
+  ``availability``.
+* **Reconstruction** (:mod:`lidarcal.lidar.wfr`): sliding, nominal cone angle, scalar / vector /
+  hybrid with ``p = hybrid_weight`` multiplying the scalar average.
+* **Virtual reference**: the point (0, 0, h) at every simulation time step (1 Hz for a 1-s beam
+  period), 10-min mean of ``sqrt((U_h + u)^2 + v^2)`` (a cup's scalar mean), times
+  ``1 + reference_overspeeding · TI``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from lidarcal.errors import InputError
+from lidarcal.lidar.model import LidarModel
+from lidarcal.lidar.quadrature import cnr_weights
+from lidarcal.lidar.wfr import reconstruct
+from lidarcal.turbulence.kernels import generate_points, sigma_components
+
+__all__ = ["simulate_period", "beam_geometry", "height_points", "height_seed"]
+
+OUTPUTS = ("lidar_wind_speed", "lidar_wind_speed_scalar", "lidar_wind_speed_vector",
+           "reference_wind_speed", "availability")
+
+
+def height_seed(seed: Sequence[int] | int, height: float) -> np.random.SeedSequence:
+    """Return the seed sequence of one height: ``SeedSequence([*seed, round(height * 1000)])``."""
+    seed = (seed,) if np.isscalar(seed) else tuple(seed)
+    return np.random.SeedSequence([*(int(s) for s in seed), int(round(float(height) * 1000))])
+
+
+def beam_geometry(model: LidarModel) -> tuple[np.ndarray, float, float]:
+    """Return the beams' unit vectors ``(4, 3)`` (true cone) and the true and nominal cone (radians)."""
+    phi_true = np.radians(model.cone_angle + model.beam_angle_offset)
+    theta = np.radians(np.asarray(model.azimuths))
+    units = np.stack([np.sin(phi_true) * np.sin(theta), np.sin(phi_true) * np.cos(theta),
+                      np.full(4, np.cos(phi_true))], axis=-1)
+    return units, phi_true, np.radians(model.cone_angle)
+
+
+def height_points(model: LidarModel, height: float) -> np.ndarray:
+    """Lidar-frame positions ``(4, K, 3)`` (east, north, up; m) of the RWF nodes of every beam."""
+    units, _, phi_nom = beam_geometry(model)
+    ranges = height / np.cos(phi_nom) + model.zero_distance_offset + np.asarray(model.rwf_offsets)
+    return ranges[None, :, None] * units[:, None, :]
+
+
+def _wind_axes(wind_from_direction: float) -> tuple[np.ndarray, np.ndarray]:
+    """Horizontal unit vectors (east, north) of the downwind direction and of the cross-wind (left)."""
+    th = np.radians(wind_from_direction)
+    down = np.array([-np.sin(th), -np.cos(th)])
+    return down, np.array([-down[1], down[0]])
+
+
+def _simulate_height(model: LidarModel, height: float, U: float, direction: float, ti: float,
+                     alpha: float, cnr: float, gradient: float, seed: Sequence[int], duration: float,
+                     n_times: int) -> dict[str, np.ndarray | float]:
+    turb_ss, noise_ss, avail_ss = height_seed(seed, height).spawn(3)
+    units, phi_true, phi_nom = beam_geometry(model)
+    pts = height_points(model, height)  # (4, K, 3)
+    n_nodes = pts.shape[1]
+    if np.any(pts[..., 2] <= 0):
+        raise InputError(f"height {height:g} m: the RWF nodes reach below the ground "
+                         f"(lowest node z = {pts[..., 2].min():.3g} m); the RWF is too wide for this height")
+    down, cross = _wind_axes(direction)
+    flat = np.concatenate([pts.reshape(-1, 3), [[0.0, 0.0, height]]])  # + the reference point
+    x_w, y_w = flat[:, :2] @ down, flat[:, :2] @ cross
+    turb = generate_points(x_w, y_w, flat[:, 2], wind_speed=U, sigma=sigma_components(ti, U),
+                           rng=np.random.default_rng(turb_ss), duration=duration, dt=model.beam_period)
+    beam_of_time = np.arange(n_times) % 4
+    # radial velocity of every node at its own beam's sampling times
+    node_turb = turb[:, :-1].reshape(3, 4, n_nodes, n_times)
+    mean_speed = U * (pts[..., 2] / height) ** alpha  # (4, K)
+    along = units[:, :2] @ down  # (4,) horizontal projections of the beams on the wind axes
+    across = units[:, :2] @ cross
+    weights = cnr_weights(model.rwf_offsets, model.rwf_weights, gradient, model.cnr_weighting_scale)
+    los_true = np.empty(n_times)
+    for b in range(4):
+        sel = beam_of_time == b
+        u, v, w = node_turb[:, b][:, :, sel]
+        vr = (mean_speed[b][:, None] + u) * along[b] + v * across[b] + w * units[b, 2]
+        los_true[sel] = weights @ vr
+    noise = np.random.default_rng(noise_ss).standard_normal(n_times)
+    if model.noise_table is None:
+        los = los_true + model.los_noise_std * noise
+    else:
+        los = np.empty(n_times)
+        for b in range(4):
+            sel = beam_of_time == b
+            bias, std = model.noise_table.lookup(b, cnr, los_true[sel])
+            los[sel] = los_true[sel] + bias + std * noise[sel]
+    keep = np.random.default_rng(avail_ss).random(n_times) < model.availability
+    los = np.where(keep, los, np.nan)
+    wfr = reconstruct(los, beam_of_time, model.cone_angle, model.hybrid_weight)
+    ref_u, ref_v = turb[0, -1], turb[1, -1]
+    reference = np.mean(np.hypot(U + ref_u, ref_v)) * (1.0 + model.reference_overspeeding * ti)
+    return {"lidar_wind_speed": wfr["hybrid"], "lidar_wind_speed_scalar": wfr["scalar"],
+            "lidar_wind_speed_vector": wfr["vector"], "reference_wind_speed": reference,
+            "availability": keep.mean(), "los": los}
+
+
+def simulate_period(
+    model: LidarModel,
+    *,
+    heights,
+    wind_speed,
+    wind_from_direction,
+    turbulence_intensity,
+    wind_shear_exponent,
+    cnr,
+    cnr_gradient,
+    seed: Sequence[int] | int,
+    duration: float = 600.0,
+    return_los: bool = False,
+) -> dict[str, np.ndarray]:
+    """Simulate one period: the virtual lidar's and the virtual reference's 10-min speeds.
+
+    Parameters
+    ----------
+    model : LidarModel
+        The virtual lidar.
+    heights : array_like
+        Measurement heights (m, > 0).
+    wind_speed, wind_from_direction, turbulence_intensity, wind_shear_exponent, cnr, cnr_gradient : array_like
+        The period's conditions over ``heights`` (m s-1, degree, 1, 1, dB, dB m-1), SI floats;
+        scalars broadcast.  A height with any NaN condition gets NaN outputs.
+    seed : tuple of int
+        ``(base_seed, period_index)`` from the campaign; each height draws from
+        ``SeedSequence([*seed, round(height * 1000)])``.
+    duration : float
+        Period length (s); a whole number of ``model.beam_period`` steps.
+    return_los : bool
+        Also return ``los`` (heights, n_times; m s-1, NaN = dropped), ``los_beam`` (n_times;
+        index into ``model.azimuths``) and ``los_time`` (n_times; s).
+
+    Returns
+    -------
+    dict of str to ndarray
+        ``lidar_wind_speed`` (hybrid), ``lidar_wind_speed_scalar``, ``lidar_wind_speed_vector``,
+        ``reference_wind_speed`` (m s-1) and ``availability`` (fraction of LOS samples kept),
+        each of shape ``(len(heights),)``.
+    """
+    if not isinstance(model, LidarModel):
+        raise InputError(f"simulate_period: model must be a LidarModel; got {type(model).__name__}")
+    heights = np.atleast_1d(np.asarray(heights, dtype=float))
+    if heights.ndim != 1 or np.any(~np.isfinite(heights)) or np.any(heights <= 0):
+        raise InputError(f"simulate_period: argument 'heights' must be a 1-D array of finite heights > 0 m; "
+                         f"got {heights.tolist()}")
+    conditions = {}
+    for name, value in (("wind_speed", wind_speed), ("wind_from_direction", wind_from_direction),
+                        ("turbulence_intensity", turbulence_intensity),
+                        ("wind_shear_exponent", wind_shear_exponent), ("cnr", cnr),
+                        ("cnr_gradient", cnr_gradient)):
+        try:
+            conditions[name] = np.broadcast_to(np.asarray(value, dtype=float), heights.shape)
+        except ValueError:
+            raise InputError(f"simulate_period: argument {name!r} has shape {np.shape(value)}; expected a "
+                             f"scalar or one value per height {heights.shape}") from None
+    bad = conditions["wind_speed"] <= 0
+    if bad.any():
+        raise InputError(f"simulate_period: argument 'wind_speed' must be > 0 m s-1 (or NaN); found "
+                         f"{conditions['wind_speed'][bad].tolist()} at heights {heights[bad].tolist()} m")
+    bad = conditions["turbulence_intensity"] < 0
+    if bad.any():
+        raise InputError(f"simulate_period: argument 'turbulence_intensity' must be >= 0; found "
+                         f"{conditions['turbulence_intensity'][bad].tolist()}")
+    n_times = int(round(duration / model.beam_period))
+    if n_times < 4 or abs(n_times * model.beam_period - duration) > 1e-9 * duration:
+        raise InputError(f"simulate_period: duration {duration} s must be a whole number (>= 4) of beam "
+                         f"periods ({model.beam_period} s)")
+    out = {name: np.full(heights.shape, np.nan) for name in OUTPUTS}
+    los = np.full((heights.size, n_times), np.nan)
+    for i, h in enumerate(heights):
+        values = [float(conditions[n][i]) for n in conditions]
+        if not np.all(np.isfinite(values)):
+            continue
+        res = _simulate_height(model, float(h), *values, seed=seed, duration=duration, n_times=n_times)
+        for name in OUTPUTS:
+            out[name][i] = res[name]
+        los[i] = res["los"]
+    if return_los:
+        out["los"] = los
+        out["los_beam"] = np.arange(n_times) % 4
+        out["los_time"] = np.arange(n_times) * model.beam_period
+    return out

@@ -1,0 +1,228 @@
+"""Pure-numpy turbulence kernels reproducing PyConTurb's models, and a fast point generator.
+
+Nothing here knows about files or metadata; every argument is an SI float (m, s, m s-1, Hz).
+
+Models (PyConTurb 2.7.4, ``spectral_models.kaimal_spectrum``, ``coherence.get_iec3d_cor_mat``,
+``magnitudes.spc_to_mag``):
+
+* Kaimal one-sided PSD ``S_k(f) = 4 tau / (1 + 6 tau f)^(5/3)`` with ``tau = L_k / U``,
+  ``L_k = Lambda_1 * (8.1, 2.7, 0.66)[k]`` and ``Lambda_1 = 0.7 z`` below 60 m, 42 m above.
+  The spectrum is only a shape: magnitudes are rescaled so that the discrete spectrum
+  carries exactly ``sigma_k**2`` (the ddof=1 variance of a fixed-amplitude realisation).
+* Standard deviations (paper Table 2): ``sigma_u = TI * U``, ``sigma_v = 0.8 sigma_u``,
+  ``sigma_w = 0.5 sigma_u``.
+* Exponential (IEC) coherence on all three components (PyConTurb's ``iec3d``):
+  ``coh_k(f, r) = exp(-12 r sqrt((f / U)^2 + (0.12 / L_c,k)^2))`` with ``r`` the y-z
+  separation and ``L_c,k = l_c * (1, 2.7/8.1, 0.66/8.1)[k]`` (``l_c = 340.2`` m).
+
+The generator (:func:`generate_points`) differs from ``gen_turb`` in three documented ways:
+it draws with a caller-supplied :class:`numpy.random.Generator`; it handles along-wind
+separation by Taylor's frozen turbulence (every point's Fourier coefficients carry the phase
+``exp(-2 pi i f x / U)``, i.e. the signal at ``x`` is the ``x = 0`` signal delayed by ``x / U``),
+which also removes the singular matrices ``gen_turb`` builds for points sharing (y, z); and it
+scales the correlated coefficients by each point's own magnitude (rows), giving the exact
+cross-spectrum ``m_i m_j coh_ij``, where ``gen_turb`` scales columns (identical whenever the
+points of a component share one spectrum, i.e. everywhere above 60 m).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "L_C",
+    "LENGTH_SCALE_FACTORS",
+    "SIGMA_RATIOS",
+    "sigma_components",
+    "kaimal_psd",
+    "iec3d_coherence",
+    "frequencies",
+    "spectral_magnitudes",
+    "unique_planar_points",
+    "coherence_factors",
+    "generate_points",
+    "CellSize",
+    "cell_size",
+]
+
+#: PyConTurb's default coherence length ``l_c`` (m) = 8.1 * 42 m (IEC 61400-1 Ed. 3).
+L_C = 340.2
+#: Kaimal integral length scales of u, v, w relative to Lambda_1 (IEC 61400-1 Ed. 3).
+LENGTH_SCALE_FACTORS = np.array([8.1, 2.7, 0.66])
+#: sigma_v / sigma_u and sigma_w / sigma_u (paper Table 2; IEC 61400-1 Ed. 4, 6.3.1).
+SIGMA_RATIOS = np.array([1.0, 0.8, 0.5])
+
+
+def sigma_components(turbulence_intensity: float, wind_speed: float) -> np.ndarray:
+    """Return the standard deviations (sigma_u, sigma_v, sigma_w) in m s-1 (paper Table 2)."""
+    return SIGMA_RATIOS * float(turbulence_intensity) * float(wind_speed)
+
+
+def kaimal_psd(f: np.ndarray, z: np.ndarray, wind_speed: float, component: int) -> np.ndarray:
+    """Unscaled Kaimal one-sided PSD as PyConTurb defines it, shape ``(len(f), len(z))``."""
+    z = np.atleast_1d(np.asarray(z, dtype=float))
+    lambda_1 = np.where(z < 60.0, 0.7 * z, 42.0)
+    tau = lambda_1 * LENGTH_SCALE_FACTORS[component] / wind_speed
+    f = np.asarray(f, dtype=float)[:, None]
+    return 4.0 * tau / (1.0 + 6.0 * tau * f) ** (5.0 / 3.0)
+
+
+def iec3d_coherence(f: np.ndarray, r: np.ndarray, wind_speed: float, component: int,
+                    l_c: float = L_C) -> np.ndarray:
+    """PyConTurb ``iec3d`` coherence for y-z separations ``r``; shape ``f.shape + r.shape``."""
+    lc = l_c * LENGTH_SCALE_FACTORS[component] / LENGTH_SCALE_FACTORS[0]
+    a = np.sqrt((np.asarray(f, dtype=float) / wind_speed) ** 2 + (0.12 / lc) ** 2)
+    a = a.reshape(a.shape + (1,) * np.ndim(r))
+    return np.exp(-12.0 * a * np.asarray(r, dtype=float))
+
+
+def frequencies(duration: float, dt: float) -> tuple[int, np.ndarray]:
+    """Return the number of time steps and the rFFT frequency grid (Hz) of a ``duration``-long series."""
+    nt = int(round(duration / dt))
+    if nt < 2 or abs(nt * dt - duration) > 1e-9 * duration:
+        raise ValueError(f"duration {duration} s is not a whole number (>= 2) of time steps dt={dt} s")
+    return nt, np.arange(nt // 2 + 1) / duration
+
+
+def spectral_magnitudes(f: np.ndarray, z: np.ndarray, wind_speed: float, sigma: np.ndarray,
+                        nt: int) -> np.ndarray:
+    """Fourier magnitudes ``(3, n_f, n_points)`` scaled exactly as ``magnitudes.spc_to_mag``.
+
+    ``|m|^2 = S df / 2`` with the DC term zeroed, then rescaled per point so that
+    ``nt/(nt-1) * (2 sum |m|^2 - |m_Nyquist|^2 [nt even]) = sigma^2``.
+    """
+    df = f[1]
+    out = np.empty((3, f.size, np.size(z)))
+    for k in range(3):
+        mags = np.sqrt(kaimal_psd(f, z, wind_speed, k) * df / 2.0)
+        mags[0] = 0.0
+        power = 2.0 * np.sum(mags**2, axis=0) - ((nt + 1) % 2) * mags[-1] ** 2
+        out[k] = mags * (sigma[k] / np.sqrt(nt / (nt - 1) * power))
+    return out
+
+
+def unique_planar_points(y: np.ndarray, z: np.ndarray, tol: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """De-duplicate (y, z) pairs to ``tol`` metres: returns ``(unique_yz (n_u, 2), index (n,))``."""
+    yz = np.stack([np.asarray(y, float), np.asarray(z, float)], axis=-1)
+    keys = np.round(yz / tol).astype(np.int64)
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    return yz[first], inverse.reshape(-1)
+
+
+def coherence_factors(f: np.ndarray, yz: np.ndarray, wind_speed: float, l_c: float = L_C,
+                      jitter: float = 1e-10) -> np.ndarray:
+    """Square-root factors ``(3, n_f, n, n)`` of the ``iec3d`` coherence matrices of points ``yz``.
+
+    Batched Cholesky over components and frequencies of ``C + jitter I``; if any matrix is
+    still not positive definite (near-duplicate points), the whole batch falls back to the
+    symmetric eigen-decomposition ``V sqrt(max(lambda, 0))``, which reproduces ``C`` exactly.
+    """
+    n = yz.shape[0]
+    iu = np.triu_indices(n, 1)
+    r = np.hypot(yz[iu[0], 0] - yz[iu[1], 0], yz[iu[0], 1] - yz[iu[1], 1])
+    mats = np.empty((3, f.size, n, n))
+    for k in range(3):
+        vals = iec3d_coherence(f, r, wind_speed, k, l_c)  # (n_f, n_pairs), unique pairs only
+        mats[k][:, iu[0], iu[1]] = vals
+        mats[k][:, iu[1], iu[0]] = vals
+    diag = np.arange(n)
+    mats[..., diag, diag] = 1.0 + jitter
+    try:
+        return np.linalg.cholesky(mats)
+    except np.linalg.LinAlgError:
+        lam, vec = np.linalg.eigh(mats)
+        return vec * np.sqrt(np.clip(lam, 0.0, None))[..., None, :]
+
+
+def _standard_coefficients(rng: np.random.Generator, shape: tuple[int, ...], nt: int,
+                           amplitude: str) -> np.ndarray:
+    """Unit-power random Fourier coefficients; the Nyquist bin is real when ``nt`` is even."""
+    if amplitude == "rayleigh":  # circular complex Gaussian, E|xi|^2 = 1
+        xi = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) / np.sqrt(2.0)
+        if nt % 2 == 0:
+            xi[..., -1, :] = np.sqrt(2.0) * xi[..., -1, :].real
+    elif amplitude == "fixed":  # PyConTurb: unit amplitude, uniform phase
+        xi = np.exp(2j * np.pi * rng.random(shape))
+        if nt % 2 == 0:
+            xi[..., -1, :] = np.exp(1j * np.pi * np.round(xi[..., -1, :].real))
+    else:
+        raise ValueError(f"amplitude must be 'rayleigh' or 'fixed'; got {amplitude!r}")
+    return xi
+
+
+def generate_points(
+    x: np.ndarray,
+    y: np.ndarray,
+    z: np.ndarray,
+    *,
+    wind_speed: float,
+    sigma: np.ndarray,
+    rng: np.random.Generator,
+    duration: float = 600.0,
+    dt: float = 1.0,
+    l_c: float = L_C,
+    amplitude: str = "rayleigh",
+) -> np.ndarray:
+    """Turbulent fluctuations ``(3, n_points, nt)`` (u along-wind, v cross-wind, w up) in m s-1.
+
+    Parameters
+    ----------
+    x, y, z : array_like
+        Point positions in the wind frame (m): along-wind, cross-wind (to the left of the
+        downwind direction), up.  ``z`` must be > 0.
+    wind_speed : float
+        Mean wind speed U (m s-1) used by the spectra, the coherence and the frozen shift.
+    sigma : array_like
+        (sigma_u, sigma_v, sigma_w) in m s-1.
+    rng : numpy.random.Generator
+        The only source of randomness.
+    duration, dt : float
+        Series length and time step (s); the series is periodic in ``duration``.
+    amplitude : {"rayleigh", "fixed"}
+        ``"rayleigh"`` draws circular complex Gaussian coefficients (a Gaussian process);
+        ``"fixed"`` uses PyConTurb's unit amplitude with uniform random phase.
+    """
+    x, y, z = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (x, y, z))
+    sigma = np.asarray(sigma, dtype=float)
+    if not (x.shape == y.shape == z.shape and x.ndim == 1):
+        raise ValueError(f"x, y, z must be 1-D of equal length; got {x.shape}, {y.shape}, {z.shape}")
+    if np.any(~np.isfinite(z)) or np.any(z <= 0):
+        raise ValueError(f"every point needs z > 0 m; found min z = {np.nanmin(z):.6g} m")
+    if not (np.isfinite(wind_speed) and wind_speed > 0):
+        raise ValueError(f"wind_speed must be > 0 m s-1; got {wind_speed}")
+    nt, f = frequencies(duration, dt)
+    if not np.any(sigma > 0):
+        return np.zeros((3, x.size, nt))
+    yz, index = unique_planar_points(y, z)
+    fp = f[1:]  # the DC coefficient is zero
+    factors = coherence_factors(fp, yz, wind_speed, l_c)  # (3, nf-1, n_u, n_u)
+    xi = _standard_coefficients(rng, (3, fp.size, yz.shape[0]), nt, amplitude)
+    corr = np.matmul(factors, np.stack([xi.real, xi.imag], axis=-1))  # real BLAS, (3, nf-1, n_u, 2)
+    coef_u = corr[..., 0] + 1j * corr[..., 1]
+    mags = spectral_magnitudes(f, z, wind_speed, sigma, nt)  # (3, nf, n)
+    coef = np.zeros((3, f.size, x.size), dtype=complex)
+    shift = np.exp(-2j * np.pi * fp[:, None] * (x[None, :] / wind_speed))  # frozen turbulence
+    coef[:, 1:, :] = coef_u[:, :, index] * mags[:, 1:, :] * shift
+    return np.moveaxis(np.fft.irfft(coef, n=nt, axis=1) * nt, 1, 2)
+
+
+class CellSize(NamedTuple):
+    """Maximum turbulence-box cell sizes (m) for DBS beams not to share a random draw (§2.3)."""
+
+    opposite: float  #: ``a``: distance between opposite beams' points, 2 h tan(phi)
+    adjacent: float  #: ``b``: distance between adjacent beams' points, sqrt(2) h tan(phi)
+    longitudinal: float  #: distance the wind travels between two samples of one beam
+
+
+def cell_size(height: float, cone_angle: float, wind_speed: float, sampling_period: float) -> CellSize:
+    """Apply the §2.3 cell-size rule (heights in m, cone angle from vertical in degree, speed m s-1, s).
+
+    At height ``h`` the four beams hit a circle of radius ``h tan(phi)``: opposite beams are
+    ``a = 2 h tan(phi)`` apart and adjacent ones ``b = sqrt(2) h tan(phi)``; consecutive samples
+    of one beam are ``U * sampling_period`` apart along the wind.  At 80 m with a 28° cone,
+    a = 85.07 m and b = 60.15 m (paper: 85.1 m and 60.2 m); at 4 m s-1 and 4 s, 16 m.
+    """
+    radius = float(height) * np.tan(np.radians(float(cone_angle)))
+    return CellSize(2.0 * radius, np.sqrt(2.0) * radius, float(wind_speed) * float(sampling_period))

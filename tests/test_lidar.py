@@ -1,0 +1,248 @@
+"""Physics tests of the virtual DBS lidar and the virtual reference (lidarcal.lidar)."""
+
+import json
+
+import numpy as np
+import pytest
+import xarray as xr
+from scipy.integrate import quad
+
+from lidarcal.errors import InputError, UnitError
+from lidarcal.lidar import LidarModel, NoiseTable, simulate_period
+from lidarcal.lidar.quadrature import gaussian_rwf_sigma
+
+PHI = np.radians(28.0)
+CALM = dict(turbulence_intensity=0.0, wind_shear_exponent=0.0, cnr=-15.0, cnr_gradient=0.0)
+
+
+def run(model, heights=(100.0,), **kw):
+    args = dict(wind_speed=10.0, wind_from_direction=0.0, seed=(7, 3), **CALM)
+    args.update(kw)
+    return simulate_period(model, heights=np.asarray(heights, float), **args)
+
+
+def make_cube(bias=0.0, std=0.0, nan_bins=()):
+    """A small bench_cube Dataset with the CONTRIBUTING.md names; bias may be per LOS (5,)."""
+    cnr = np.arange(-28.0, -4.0, 2.0)
+    vel = np.arange(-18.0, 19.0, 1.0)
+    shape = (5, cnr.size, vel.size)
+    b = np.broadcast_to(np.asarray(bias, float).reshape(-1, 1, 1) if np.ndim(bias) else bias, shape).copy()
+    s = np.full(shape, float(std))
+    for idx in nan_bins:
+        b[idx] = np.nan
+        s[idx] = np.nan
+    return xr.Dataset(
+        {"los_bias": (("los", "cnr", "velocity"), b, {"units": "m s-1"}),
+         "los_std": (("los", "cnr", "velocity"), s, {"units": "m s-1"}),
+         "sample_count": (("los", "cnr", "velocity"), np.full(shape, 500, np.int32), {"units": "1"})},
+        coords={"los": ["0", "90", "180", "270", "V"],
+                "los_azimuth": ("los", [0.0, 90.0, 180.0, 270.0, 0.0], {"units": "degree"}),
+                "los_elevation": ("los", [62.0, 62.0, 62.0, 62.0, 90.0], {"units": "degree"}),
+                "cnr": ("cnr", cnr, {"units": "dB"}), "velocity": ("velocity", vel, {"units": "m s-1"})},
+        attrs={"lidarcal_artefact": "bench_cube", "lidarcal_source_file": "cube.nc"},
+    )
+
+
+def make_rwf(sigma_left=12.0, sigma_right=12.0):
+    s = np.linspace(-120.0, 120.0, 2401)
+    g = np.where(s < 0, np.exp(-0.5 * (s / sigma_left) ** 2), np.exp(-0.5 * (s / sigma_right) ** 2))
+    grads = np.array([-0.1, 0.0, 0.1])
+    table = g[:, None] * 10 ** (grads[None, :] * s[:, None] / 20)
+    table /= np.trapezoid(table, s, axis=0)
+    return xr.Dataset({"rwf": (("range_offset", "cnr_gradient"), table, {"units": "m-1"}),
+                       "zero_distance": ((), 0.0, {"units": "m"})},
+                      coords={"range_offset": ("range_offset", s, {"units": "m"}),
+                              "cnr_gradient": ("cnr_gradient", grads, {"units": "dB m-1"})},
+                      attrs={"lidarcal_artefact": "rwf", "lidarcal_source_file": "rwf.nc"})
+
+
+def test_calm_uniform_noiseless_lidar_equals_reference():
+    out = run(LidarModel.ideal(los_noise_std=0.0), heights=(40.0, 100.0, 200.0), wind_from_direction=33.0)
+    # no turbulence, shear or noise: every LOS is exact, only rounding remains
+    np.testing.assert_allclose(out["lidar_wind_speed"], 10.0, atol=1e-12, rtol=0)
+    ref = out["reference_wind_speed"]
+    np.testing.assert_allclose(out["lidar_wind_speed_scalar"], ref, atol=1e-12, rtol=0)
+    np.testing.assert_allclose(out["lidar_wind_speed_vector"], ref, atol=1e-12, rtol=0)
+    np.testing.assert_array_equal(out["availability"], 1.0)
+
+
+@pytest.mark.parametrize(("height", "alpha"), [(100.0, 0.2), (40.0, 0.3), (60.0, 0.14)])
+def test_shear_bias_equals_rwf_average_of_power_law(height, alpha):
+    out = run(LidarModel.ideal(los_noise_std=0.0), heights=(height,), wind_shear_exponent=alpha,
+              wind_from_direction=250.0)
+    # independent prediction: Gaussian RWF (FWHM 30 m) averaging of U (z/h)^alpha along the beam,
+    # z = (R + s) cos(phi), integrated adaptively (not with the simulator's quadrature nodes)
+    sig, rng = gaussian_rwf_sigma(30.0), height / np.cos(PHI)
+    pdf = lambda s: np.exp(-0.5 * (s / sig) ** 2) / (np.sqrt(2 * np.pi) * sig)  # noqa: E731
+    mean = quad(lambda s: pdf(s) * ((rng + s) / rng) ** alpha, -rng + 1e-9, 12 * sig,
+                epsabs=1e-13, limit=200)[0]
+    predicted = 10.0 * (mean - 1.0)
+    assert abs(predicted) > 0.005  # the effect is real: several mm/s to 10 cm/s
+    # 5 Gauss nodes reproduce the RWF average to < 1 mm/s (quadrature contract)
+    assert out["lidar_wind_speed"][0] - out["reference_wind_speed"][0] == pytest.approx(predicted, abs=1e-3)
+
+
+def test_cone_angle_error_bias_first_order():
+    delta = 1.0
+    out = run(LidarModel.ideal(los_noise_std=0.0, beam_angle_offset=delta))
+    rel = out["lidar_wind_speed"][0] / out["reference_wind_speed"][0] - 1
+    # exact: sin(phi + d) / sin(phi) - 1 (true cone wider than the reconstruction assumes -> over-reads)
+    assert rel == pytest.approx(np.sin(PHI + np.radians(delta)) / np.sin(PHI) - 1, abs=1e-12)
+    # first order U cot(phi) dphi (Eq. 9), positive for a positive offset; second-order term
+    # -dphi^2/2 = -1.5e-4 bounds the difference
+    assert rel == pytest.approx(np.radians(delta) / np.tan(PHI), abs=2e-4)
+    # with shear the gate also drops by h tan(phi) dphi: (cot(phi) - alpha tan(phi)) dphi
+    base = run(LidarModel.ideal(los_noise_std=0.0), wind_shear_exponent=0.2)
+    tilted = run(LidarModel.ideal(los_noise_std=0.0, beam_angle_offset=delta), wind_shear_exponent=0.2)
+    rel = tilted["lidar_wind_speed"][0] / base["lidar_wind_speed"][0] - 1
+    assert rel == pytest.approx((1 / np.tan(PHI) - 0.2 * np.tan(PHI)) * np.radians(delta), abs=3e-4)
+
+
+@pytest.mark.parametrize("height", [60.0, 100.0])
+def test_zero_distance_offset_follows_eq11(height):
+    alpha, dz = 0.2, 2.0
+    base = run(LidarModel.ideal(los_noise_std=0.0), heights=(height,), wind_shear_exponent=alpha)
+    moved = run(LidarModel.ideal(los_noise_std=0.0, zero_distance_offset=dz), heights=(height,),
+                wind_shear_exponent=alpha)
+    rel = moved["lidar_wind_speed"][0] / base["lidar_wind_speed"][0] - 1
+    # Eq. 11 with the height shift dz cos(phi): alpha dz cos(phi) / h.  Eq. 11 is for a point; the
+    # RWF averages z^(alpha-1) over sigma_z = sigma cos(phi), which changes the slope by
+    # (1-alpha)(2-alpha)/2 (sigma_z/h)^2 (3.3 % at 60 m, 1.2 % at 100 m): relative tolerance 1.2x that
+    sigma_z = gaussian_rwf_sigma(30.0) * np.cos(PHI)
+    tol = 1.2 * (1 - alpha) * (2 - alpha) / 2 * (sigma_z / height) ** 2
+    assert rel == pytest.approx(alpha * dz * np.cos(PHI) / height, rel=tol)
+    # the reference does not move
+    assert moved["reference_wind_speed"][0] == base["reference_wind_speed"][0]
+
+
+def test_hybrid_between_vector_and_scalar():
+    model = LidarModel.ideal(hybrid_weight=2 / 3)
+    out = run(model, heights=(40.0, 80.0, 140.0), turbulence_intensity=0.15, wind_shear_exponent=0.2)
+    s, v, h = out["lidar_wind_speed_scalar"], out["lidar_wind_speed_vector"], out["lidar_wind_speed"]
+    assert np.all(v < s)  # turbulence spreads the direction: |mean vector| < mean |vector|
+    assert np.all((v <= h) & (h <= s))
+    np.testing.assert_allclose(h, 2 / 3 * s + 1 / 3 * v, rtol=1e-14)  # p multiplies the scalar mean
+
+
+def test_constant_los_bias_cancels_and_single_beam_bias_shifts_u():
+    b = 0.2
+    clean = run(LidarModel.from_artefacts(cube=make_cube(0.0), cnr_weighting_scale=0.0))
+    everywhere = run(LidarModel.from_artefacts(cube=make_cube(b)))
+    # the same bias on all beams cancels in S1 - S3 and S2 - S4 (to rounding)
+    np.testing.assert_allclose(everywhere["lidar_wind_speed"], clean["lidar_wind_speed"], atol=1e-12)
+    one = run(LidarModel.from_artefacts(cube=make_cube([b, 0, 0, 0, 0])), wind_from_direction=180.0)
+    # wind from the south blows toward azimuth 0: u (toward 0 deg) shifts by b / (2 sin phi)
+    assert one["lidar_wind_speed"][0] == pytest.approx(10.0 + b / (2 * np.sin(PHI)), abs=1e-12)
+    cross = run(LidarModel.from_artefacts(cube=make_cube([b, 0, 0, 0, 0])), wind_from_direction=270.0)
+    assert cross["lidar_wind_speed"][0] == pytest.approx(np.hypot(10.0, b / (2 * np.sin(PHI))), abs=1e-12)
+
+
+def test_cube_noise_std_propagates_to_los():
+    out = run(LidarModel.from_artefacts(cube=make_cube(0.05, 0.3)), return_los=True, heights=(100.0,))
+    los, beam = out["los"][0], out["los_beam"]
+    # wind from 0 deg blows toward 180 deg: v_r = -U sin(phi) cos(azimuth), positive away from the lidar
+    expected = np.array([-10.0 * np.sin(PHI) * np.cos(np.radians(a)) for a in (0, 90, 180, 270)])[beam]
+    resid = los - expected  # calm uniform wind: the only error is the bench noise
+    # 600 draws: mean within 4 * 0.3 / sqrt(600) = 0.049, std within 4 * 0.3 / sqrt(1200) = 0.035
+    assert resid.mean() == pytest.approx(0.05, abs=0.049)
+    assert resid.std(ddof=1) == pytest.approx(0.3, abs=0.035)
+
+
+def test_noise_table_lookup_bilinear_clamped_and_nan_filled():
+    cube = make_cube(0.0, 0.1, nan_bins=[(1, 3, 10), (1, 4, 10)])
+    vel = cube.velocity.values
+    cube["los_bias"][:] = (0.01 * vel)[None, None, :] + 0.001 * cube.cnr.values[None, :, None]
+    cube["los_bias"][1, 3, 10] = np.nan
+    table = LidarModel.from_artefacts(cube=cube).noise_table
+    bias, std = table.lookup(0, -15.0, np.array([-30.0, 0.5, 30.0]))
+    # linear in velocity between centres, clamped to the +/-18 m/s edge bins; linear in CNR
+    np.testing.assert_allclose(bias, [-0.18 - 0.015, 0.005 - 0.015, 0.18 - 0.015], atol=1e-12)
+    np.testing.assert_allclose(std, 0.1)
+    # the empty bins of beam 90 take the nearest populated bin's values: no NaN anywhere
+    assert np.all(np.isfinite(np.asarray(table.bias))) and np.all(np.isfinite(np.asarray(table.std)))
+
+
+def test_seed_reproducible_and_heights_independent():
+    model = LidarModel.ideal()
+    kw = dict(wind_speed=[7.0, 9.0, 11.0], turbulence_intensity=0.12, wind_shear_exponent=0.15,
+              wind_from_direction=[10.0, 20.0, 30.0], seed=(5, 11))
+    a = run(model, heights=(60.0, 100.0, 160.0), **kw)
+    b = run(model, heights=(60.0, 100.0, 160.0), **kw)
+    alone = run(model, heights=(100.0,), **{**kw, "wind_speed": 9.0, "wind_from_direction": 20.0})
+    for name in a:
+        np.testing.assert_array_equal(a[name], b[name])  # bit-identical
+        assert a[name][1] == alone[name][0]
+    other = run(model, heights=(100.0,),
+                **{**kw, "wind_speed": 9.0, "wind_from_direction": 20.0, "seed": (5, 12)})
+    assert other["lidar_wind_speed"][0] != alone["lidar_wind_speed"][0]
+
+
+def test_availability_drops_samples_and_nan_conditions_give_nan():
+    out = run(LidarModel.ideal(availability=0.5), heights=(80.0, 120.0), wind_speed=[8.0, np.nan],
+              turbulence_intensity=0.1)
+    # binomial(600, 0.5): 4 sigma = 0.082
+    assert out["availability"][0] == pytest.approx(0.5, abs=0.082)
+    assert np.isfinite(out["lidar_wind_speed"][0])
+    assert all(np.isnan(out[name][1]) for name in out)
+
+
+def test_reference_overspeeding_scales_reference():
+    base = run(LidarModel.ideal(), turbulence_intensity=0.1)
+    over = run(LidarModel.ideal(reference_overspeeding=0.05), turbulence_intensity=0.1)
+    ref = base["reference_wind_speed"][0]
+    assert over["reference_wind_speed"][0] == pytest.approx(ref * 1.005, rel=1e-14)
+    assert over["lidar_wind_speed"][0] == base["lidar_wind_speed"][0]
+
+
+def test_cnr_gradient_weighting_shifts_speed_under_shear():
+    alpha, g, h = 0.2, 0.1, 100.0
+    off = run(LidarModel.ideal(los_noise_std=0.0), wind_shear_exponent=alpha, cnr_gradient=g)
+    on = run(LidarModel.ideal(los_noise_std=0.0, cnr_weighting_scale=1.0), wind_shear_exponent=alpha,
+             cnr_gradient=g)
+    # Eq. 2 tilts a Gaussian RWF: its centroid moves by sigma^2 * ln(10) g / 20 along the beam,
+    # i.e. the height by that times cos(phi); first order alpha * dz / h (Eq. 11)
+    shift = gaussian_rwf_sigma(30.0) ** 2 * np.log(10) * g / 20 * np.cos(PHI)
+    rel = on["lidar_wind_speed"][0] / off["lidar_wind_speed"][0] - 1
+    assert rel == pytest.approx(alpha * shift / h, rel=0.02)  # curvature of z^alpha: ~1 %
+
+
+def test_from_artefacts_rwf_nodes_and_units():
+    model = LidarModel.from_artefacts(rwf=make_rwf(12.0, 12.0))
+    sig = 12.0
+    x, w = np.polynomial.hermite.hermgauss(5)
+    np.testing.assert_allclose(model.rwf_offsets, np.sqrt(2) * sig * x, atol=1e-6)  # tabulated Gaussian
+    np.testing.assert_allclose(model.rwf_weights, w / np.sqrt(np.pi), atol=1e-8)
+    assert model.cnr_weighting_scale == 1.0  # a bench RWF is CNR-weighted by default (Eq. 2)
+    skew = LidarModel.from_artefacts(rwf=make_rwf(10.0, 16.0))
+    assert np.dot(skew.rwf_offsets, skew.rwf_weights) == pytest.approx(6 * np.sqrt(2 / np.pi), rel=1e-3)
+    bad = make_rwf()
+    bad["range_offset"].attrs["units"] = "s"
+    with pytest.raises(UnitError, match=r"rwf.nc: variable 'range_offset' has units 's'"):
+        LidarModel.from_artefacts(rwf=bad)
+    cube = make_cube().drop_sel(los="90")
+    with pytest.raises(InputError, match="cube.nc.*los_azimuth.*90"):
+        LidarModel.from_artefacts(cube=cube)
+
+
+def test_model_roundtrip_json():
+    model = LidarModel.from_artefacts(cube=make_cube(0.01, 0.1), rwf=make_rwf(10, 14), hybrid_weight=0.5,
+                                      beam_angle_offset=0.3)
+    text = json.dumps(model.to_dict())
+    back = LidarModel.from_dict(json.loads(text))
+    assert back == model and isinstance(back.noise_table, NoiseTable)
+    assert LidarModel.from_dict(model.to_json()) == model
+    with pytest.raises(InputError, match="unknown field"):
+        LidarModel.from_dict({"cone": 28})
+
+
+def test_bad_inputs_raise_named_errors():
+    with pytest.raises(InputError, match="'wind_speed' must be > 0"):
+        run(LidarModel.ideal(), wind_speed=0.0)
+    with pytest.raises(InputError, match="'cnr' has shape"):
+        run(LidarModel.ideal(), heights=(60.0, 80.0), cnr=[-10.0, -12.0, -14.0])
+    with pytest.raises(InputError, match="heights"):
+        run(LidarModel.ideal(), heights=(-5.0,))
+    with pytest.raises(InputError, match="availability"):
+        LidarModel.ideal(availability=0.0)
+    with pytest.raises(InputError, match="below the ground"):
+        run(LidarModel.ideal(n_nodes=7), heights=(40.0,))
