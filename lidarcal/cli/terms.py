@@ -1,0 +1,109 @@
+"""``lidarcal terms``: uncertainty terms not modelled by Monte Carlo (Eqs. 6–11, Table 4).
+
+Defaults are the paper's inputs.  s-bar_s, s-bar_delta and the run count can come from a
+``repeatability`` artefact (``--repeatability``); an explicit option overrides the file.
+Prints the table on stdout.  Examples::
+
+    lidarcal terms -o terms.nc                                  # Eq. 9 as a formula (0.00286 U)
+    lidarcal terms --beam-angle-coefficient 0.00248 -o t4.nc    # Table 4 as printed
+    lidarcal terms --repeatability rep.nc --height 120 --shear 0.14 -o terms.nc
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+from lidarcal.io import check_writable, write_artefact
+from lidarcal.terms import PAPER_INPUTS, format_table, repeatability_inputs, uncertainty_terms
+from lidarcal.units import Q_
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``terms`` subcommand."""
+    p = sub.add_parser("terms", help="non-simulated uncertainty terms (Eqs. 6-11, Table 4)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--repeatability", metavar="REP.nc",
+                   help="repeatability artefact giving s-bar_s, s-bar_delta and n_runs")
+    p.add_argument("--wind-speed", type=float, nargs="+", default=[4, 6, 8, 10, 12, 14, 16],
+                   metavar="M_S", help="wind speeds in m/s (default: Table 4's 4 6 ... 16)")
+    p.add_argument("--height", type=float, default=100.0, metavar="M", help="measurement height z, m (100)")
+    p.add_argument("--shear", type=float, default=0.2, metavar="ALPHA", help="power-law shear exponent (0.2)")
+    p.add_argument("--cone-angle", type=float, default=28.0, metavar="DEG",
+                   help="beam angle from vertical, degree (28; Table 1's polar 62 is the elevation)")
+    p.add_argument("--std-repeatability", type=float, metavar="M_S",
+                   help="s-bar_s, m/s (default: from --repeatability, else 0.027)")
+    p.add_argument("--bias-repeatability", type=float, metavar="M_S",
+                   help="s-bar_delta, m/s (default: from --repeatability, else 0.021)")
+    p.add_argument("--n-runs", type=int, help="bench runs (default: from --repeatability, else 4)")
+    p.add_argument("--n-los-samples", type=int, default=150,
+                   help="radial velocities per LOS per 10 min (150)")
+    p.add_argument("--eq7-n", choices=("los_samples", "runs"), default="los_samples",
+                   help="N of Eq. 7: los_samples reproduces Table 4's 0.0026, runs follows the text "
+                        "(default los_samples)")
+    p.add_argument("--bench-uncertainty", type=float, default=0.0145, metavar="M_S",
+                   help="dv_SAFO as stated, m/s (0.0145)")
+    p.add_argument("--bench-coverage-factor", type=float, default=1.0, metavar="K",
+                   help="k dividing dv_SAFO (1 reproduces Table 4; 2 converts the stated k=2 value)")
+    p.add_argument("--beam-angle-uncertainty", type=float, default=0.087, metavar="DEG",
+                   help="beam angle standard uncertainty, degree (0.087)")
+    p.add_argument("--beam-angle-coefficient", type=float, metavar="C",
+                   help="use C*U for Eq. 9 (Table 4 prints 0.00248; the formula gives 0.00286)")
+    p.add_argument("--zero-distance-uncertainty", type=float, default=0.45, metavar="M",
+                   help="Zd standard uncertainty, m (0.45)")
+    p.add_argument("-o", "--output", required=True, metavar="TERMS.nc")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compute the terms, write the artefact and print the table."""
+    check_writable(args.output, overwrite=args.overwrite)
+    rep = None
+    source = {k: PAPER_INPUTS[k] for k in ("mean_between_run_std_std", "mean_between_run_std_bias", "n_runs")}
+    if args.repeatability:
+        found, rep = repeatability_inputs(args.repeatability)
+        source.update(found)
+    if args.std_repeatability is not None:
+        source["mean_between_run_std_std"] = Q_(args.std_repeatability, "m/s")
+    if args.bias_repeatability is not None:
+        source["mean_between_run_std_bias"] = Q_(args.bias_repeatability, "m/s")
+    if args.n_runs is not None:
+        source["n_runs"] = args.n_runs
+    ds = uncertainty_terms(
+        Q_(np.asarray(args.wind_speed, dtype=float), "m/s"),
+        **source,
+        n_los_samples=args.n_los_samples,
+        bench_uncertainty=Q_(args.bench_uncertainty, "m/s"),
+        beam_angle_uncertainty=Q_(args.beam_angle_uncertainty, "degree"),
+        zero_distance_uncertainty=Q_(args.zero_distance_uncertainty, "m"),
+        shear_exponent=args.shear,
+        height=Q_(args.height, "m"),
+        cone_angle=Q_(args.cone_angle, "degree"),
+        beam_angle_coefficient=args.beam_angle_coefficient,
+        bias_repeatability_n=args.eq7_n,
+        bench_coverage_factor=args.bench_coverage_factor,
+        repeatability=rep,
+        call="lidarcal " + " ".join(_argv(args)),
+    )
+    path = write_artefact(ds, args.output, overwrite=args.overwrite)
+    print(format_table(ds))
+    print(f"written: {path}")
+    return 0
+
+
+def _argv(args: argparse.Namespace) -> list[str]:
+    """Reconstruct the command line for the history attribute."""
+    out = ["terms"]
+    for key, value in sorted(vars(args).items()):
+        if key in ("handler", "command") or value is None or value is False:
+            continue
+        flag = "--" + key.replace("_", "-")
+        if value is True:
+            out.append(flag)
+        elif isinstance(value, list):
+            out += [flag, *map(str, value)]
+        else:
+            out += [flag, str(value)]
+    return out

@@ -1,0 +1,210 @@
+"""Tests of the non-simulated uncertainty terms (paper §2.4, Eqs. 6–11, Table 4)."""
+
+import json
+from decimal import ROUND_HALF_UP, Decimal
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from lidarcal.cf import var_attrs
+from lidarcal.cli import main
+from lidarcal.compliance import check_compliance
+from lidarcal.errors import InputError, MissingVariableError, UnitError
+from lidarcal.io import open_artefact, write_artefact
+from lidarcal.schema import validate_dataset
+from lidarcal.terms import (
+    CONTRIBUTORS,
+    PAPER_INPUTS,
+    TABLE4_WIND_SPEEDS,
+    format_table,
+    repeatability_inputs,
+    table4_kernel,
+    uncertainty_terms,
+)
+from lidarcal.units import Q_
+
+# Table 4 of the paper, exactly as printed (U = 4, 6, ..., 16 m/s)
+TABLE4 = {
+    "bench_std_repeatability": ["0.041"] * 7,
+    "bench_bias_repeatability": ["0.0026"] * 7,
+    "bench_uncertainty": ["0.0018"] * 7,
+    "beam_angle": ["0.0099", "0.0149", "0.0198", "0.0248", "0.0298", "0.0347", "0.0397"],
+    "zero_distance": ["0.0036", "0.0054", "0.0072", "0.009", "0.0108", "0.0126", "0.0144"],
+}
+TOTAL_MS = ["0.0424", "0.0441", "0.0462", "0.0489", "0.0519", "0.0553", "0.0589"]
+TOTAL_PCT = ["1.06", "0.74", "0.58", "0.49", "0.43", "0.40", "0.37"]
+
+
+def to_printed(value, printed):
+    """Round ``value`` half-up to as many decimals as the printed string has."""
+    exp = Decimal(printed).as_tuple().exponent
+    return Decimal(repr(float(value))).quantize(Decimal(1).scaleb(exp), rounding=ROUND_HALF_UP)
+
+
+@pytest.fixture(scope="module")
+def table4():
+    return uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, beam_angle_coefficient=0.00248)
+
+
+def test_table4_rows_reproduced_to_printed_digits(table4):
+    assert list(table4.contributor.values) == list(TABLE4)
+    for name, row in TABLE4.items():
+        values = table4.uncertainty.sel(contributor=name).values
+        got = [to_printed(v, p) for v, p in zip(values, row, strict=True)]
+        assert got == [Decimal(p) for p in row], name
+
+
+def test_table4_totals_reproduced_to_printed_digits(table4):
+    # The paper's totals are the quadrature sum of the rows *as printed* (Eq. 6 rounded to 0.041)
+    # and its % row is that rounded total / U, rounded half-up: apply exactly that arithmetic to
+    # lidarcal's rows and every printed total comes out.
+    for j, u in enumerate(table4.wind_speed.values):
+        rows = [to_printed(table4.uncertainty.sel(contributor=n).values[j], TABLE4[n][j]) for n in TABLE4]
+        total = Decimal(sum(float(r) ** 2 for r in rows) ** 0.5)
+        total = total.quantize(Decimal("0.0001"), rounding=ROUND_HALF_UP)
+        assert total == Decimal(TOTAL_MS[j]), u
+        pct = (total / Decimal(str(float(u))) * 100).quantize(Decimal("0.01"), rounding=ROUND_HALF_UP)
+        assert pct == Decimal(TOTAL_PCT[j]), u
+    # lidarcal's own total sums the unrounded terms: lower by at most 0.0003 m/s (documented)
+    diff = np.array([float(t) for t in TOTAL_MS]) - table4.total.values
+    assert np.all((diff > 0) & (diff < 0.0004)), diff
+    pct_diff = np.array([float(t) for t in TOTAL_PCT]) - table4.total_relative.values
+    assert np.all(np.abs(pct_diff) < 0.011), pct_diff  # 1.053 % vs printed 1.06 % at 4 m/s
+
+
+def test_quadrature_total_and_relative_values(table4):
+    np.testing.assert_allclose(table4.total, np.sqrt((table4.uncertainty**2).sum("contributor")), rtol=1e-14)
+    np.testing.assert_allclose(table4.relative_uncertainty, 100 * table4.uncertainty / table4.wind_speed,
+                               rtol=1e-14)
+    assert table4.relative_uncertainty.attrs["units"] == "%" and table4.total.attrs["units"] == "m s-1"
+    # analysts select a term by name and wind speed
+    assert float(table4.uncertainty.sel(wind_speed=8, contributor="zero_distance")) == pytest.approx(0.0072)
+    # exact Eq. 6: 0.027 / (sqrt(2) sin 28 deg) = 0.040667 m/s (printed 0.041)
+    assert float(table4.uncertainty.sel(wind_speed=4, contributor="bench_std_repeatability")) == \
+        pytest.approx(0.027 / (np.sqrt(2) * np.sin(np.radians(28))), rel=1e-12)
+
+
+def test_eq9_formula_gives_0_00286_not_0_00248():
+    ds = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS)
+    coeff = ds.uncertainty.sel(contributor="beam_angle") / ds.wind_speed
+    expected = np.radians(0.087) / np.tan(np.radians(28))  # cot 28 deg x 0.087 deg in rad
+    np.testing.assert_allclose(coeff, expected, rtol=1e-12)
+    assert round(expected, 5) == 0.00286
+    # the printed 0.00248 would need dphi = 0.0755 deg with phi = 28 deg
+    assert np.degrees(0.00248 * np.tan(np.radians(28))) == pytest.approx(0.07555, abs=1e-5)
+    assert ds.attrs["beam_angle_method"].startswith("cot") and "beam_angle_coefficient" not in ds
+
+
+def test_which_n_in_eq7_and_coverage_factor_in_eq8():
+    def term(name, **kw):
+        ds = uncertainty_terms(Q_([8.0], "m/s"), **PAPER_INPUTS, **kw)
+        return float(ds.uncertainty.sel(wind_speed=8.0, contributor=name)), ds.attrs
+
+    # N = 150 LOS samples: 0.021 / (sqrt 2 sqrt 150 sin 28) = 0.00258 -> printed 0.0026
+    printed, attrs = term("bench_bias_repeatability")
+    assert printed == pytest.approx(0.0025826, abs=1e-7) and attrs["eq7_sample_count"] == 150
+    # N = 4 runs, as the text says: 0.0158 m/s, six times the printed value
+    runs, attrs = term("bench_bias_repeatability", bias_repeatability_n="runs")
+    assert runs == pytest.approx(0.0158148, abs=1e-7) and attrs["eq7_sample_count"] == 4
+    # 0.0145 used as printed gives 0.00178 (Table 4's 0.0018); removing k = 2 halves it
+    assert term("bench_uncertainty")[0] == pytest.approx(0.0017832, abs=1e-7)
+    assert term("bench_uncertainty", bench_coverage_factor=2.0)[0] == pytest.approx(0.0008916, abs=1e-7)
+
+
+def test_kernel_scaling():
+    base = dict(std_repeatability=0.027, bias_repeatability=0.021, n_bias=150, n_los_samples=150,
+                bench_uncertainty=0.0145, beam_angle_uncertainty=np.radians(0.087),
+                zero_distance_uncertainty=0.45, shear_exponent=0.2, height=100.0, cone_angle=np.radians(28))
+    a = table4_kernel(np.array([10.0]), **base)
+    b = table4_kernel(np.array([10.0]), **{**base, "height": 200.0, "shear_exponent": 0.4})
+    assert a.shape == (1, len(CONTRIBUTORS))
+    assert a[0, 4] == pytest.approx(0.2 * 10 * 0.45 / 100)  # Eq. 11: 0.009 m/s
+    assert b[0, 4] == pytest.approx(a[0, 4])  # alpha / z unchanged
+    np.testing.assert_array_equal(a[0, :4], b[0, :4])
+
+
+def test_units_and_bad_values_refused():
+    with pytest.raises(UnitError, match="argument 'height'"):
+        uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "height": 100.0})
+    with pytest.raises(UnitError, match="argument 'bench_uncertainty'.*'m'"):
+        uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "bench_uncertainty": Q_(1, "m")})
+    with pytest.raises(UnitError, match="argument 'wind_speed'"):
+        uncertainty_terms([4.0, 8.0], **PAPER_INPUTS)
+    with pytest.raises(InputError, match="argument 'zero_distance_uncertainty'.*found -0.1 m"):
+        uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "zero_distance_uncertainty": Q_(-0.1, "m")})
+    with pytest.raises(InputError, match="argument 'n_runs'.*found 0"):
+        uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "n_runs": 0})
+    with pytest.raises(InputError, match="argument 'cone_angle'.*found 95"):
+        uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "cone_angle": Q_(95, "degree")})
+    with pytest.raises(InputError, match="argument 'wind_speed'.*positive"):
+        uncertainty_terms(Q_([0.0, 4.0], "m/s"), **PAPER_INPUTS)
+    # convertible units are converted: 14.4 km/h = 4 m/s, 1.566 mrad ~ 0.0897 deg
+    kmh = uncertainty_terms(Q_([14.4], "km/h"), **PAPER_INPUTS)
+    ms = uncertainty_terms(Q_([4.0], "m/s"), **PAPER_INPUTS)
+    np.testing.assert_allclose(kmh.uncertainty.values, ms.uncertainty.values, rtol=1e-12)
+
+
+def make_repeatability(path, s_bias=0.03, s_std=0.05, n_runs=3, drop=None):
+    ds = xr.Dataset({
+        "mean_between_run_std_bias": ((), s_bias, var_attrs("s-bar_delta", "m s-1")),
+        "mean_between_run_std_std": ((), s_std * 100, var_attrs("s-bar_s", "cm s-1")),  # converted on read
+        "n_runs": ((), np.int32(n_runs), var_attrs("runs", "1")),
+    }, attrs={"lidarcal_artefact": "repeatability", "history": "[2025-03-10T00:00:00Z] bench"})
+    if drop:
+        ds = ds.drop_vars(drop)
+    ds.to_netcdf(path)
+    return path
+
+
+def test_repeatability_inputs_are_read_and_converted(tmp_path):
+    path = make_repeatability(tmp_path / "rep.nc")
+    kwargs, ds = repeatability_inputs(path)
+    assert kwargs["mean_between_run_std_std"].to("m/s").magnitude == pytest.approx(0.05)
+    assert kwargs["mean_between_run_std_bias"].magnitude == pytest.approx(0.03) and kwargs["n_runs"] == 3
+    bad = make_repeatability(tmp_path / "bad.nc", drop="n_runs")
+    with pytest.raises(MissingVariableError, match=r"bad.nc: required variable 'n_runs' is missing"):
+        repeatability_inputs(bad)
+
+
+def test_cli_terms_with_repeatability(tmp_path, capsys):
+    rep = make_repeatability(tmp_path / "rep.nc")
+    out = tmp_path / "terms.nc"
+    argv = ["terms", "--repeatability", str(rep), "--n-runs", "5", "--height", "120", "--eq7-n", "runs",
+            "--wind-speed", "5", "10", "-o", str(out)]
+    assert main(argv) == 0
+    printed = capsys.readouterr().out
+    assert "Total (m/s)" in printed and "z = 120 m" in printed
+    ds = open_artefact(out, "uncertainty_terms")
+    assert float(ds.mean_between_run_std_std) == pytest.approx(0.05)  # from the file (given in cm s-1)
+    assert int(ds.n_runs) == 5  # explicit option overrides the file's 3
+    # Eq. 7 with N = 5 runs: 0.03 / (sqrt 2 sqrt 5 sin 28)
+    expected = 0.03 / (np.sqrt(2) * np.sqrt(5) * np.sin(np.radians(28)))
+    got = ds.uncertainty.sel(contributor="bench_bias_repeatability")
+    np.testing.assert_allclose(got, expected, rtol=1e-12)
+    assert float(ds.height) == 120.0 and ds.height.attrs["standard_name"] == "height"
+    inputs = json.loads(ds.attrs["lidarcal_inputs"])
+    assert inputs[0]["role"] == "repeatability" and inputs[0]["file"] == "rep.nc"
+    assert ds.attrs["history"].startswith("[2025-03-10T00:00:00Z] bench")
+    assert validate_dataset(ds, "uncertainty_terms") == []
+    report = check_compliance(out)
+    assert report.passed, report.failures
+    assert main(argv) == 2  # no silent overwrite
+
+
+def test_cli_bad_repeatability_writes_nothing(tmp_path, capsys):
+    rep = make_repeatability(tmp_path / "rep.nc", drop="mean_between_run_std_bias")
+    out = tmp_path / "terms.nc"
+    assert main(["terms", "--repeatability", str(rep), "-o", str(out)]) == 2
+    assert "rep.nc: required variable 'mean_between_run_std_bias' is missing" in capsys.readouterr().err
+    assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["rep.nc"]
+
+
+def test_table_text_and_roundtrip(tmp_path, table4):
+    text = format_table(table4)
+    assert "0.0248" in text and "1.05%" in text  # exact-sum total at 4 m/s (printed table: 1.06 %)
+    path = write_artefact(table4, tmp_path / "t4.nc")
+    back = open_artefact(path, "uncertainty_terms")
+    xr.testing.assert_allclose(back.uncertainty, table4.uncertainty)
+    assert list(back.contributor.values) == list(CONTRIBUTORS)
+    assert float(back.beam_angle_coefficient) == 0.00248
