@@ -301,6 +301,10 @@ def range_weighting_function(
     >>> abs(float(ds.zero_distance)) < 1e-9
     True
     """
+    offset = _si(pulse_offset, 0.0, "m", "pulse_offset")
+    if pulse_file is not None and (asymmetry != 0 or offset != 0):
+        raise InputError(f"{pulse_file}: a measured pulse carries its own shape and timing; "
+                         "'asymmetry' and 'pulse_offset' apply to synthetic pulses only (expected 0)")
     measured = read_pulse_csv(pulse_file) if pulse_file is not None else None
     if measured is not None:
         shape = "measured"
@@ -310,7 +314,7 @@ def range_weighting_function(
         pulse_shape=shape,
         pulse_length=_si(pulse_length, 25.0, "m", "pulse_length"),
         asymmetry=float(asymmetry),
-        pulse_offset=_si(pulse_offset, 0.0, "m", "pulse_offset"),
+        pulse_offset=offset,
         fft_size=int(fft_size),
         sampling_frequency=_si(sampling_frequency, 250e6, "Hz", "sampling_frequency"),
         window_std_fraction=float(window_std_fraction),

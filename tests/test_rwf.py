@@ -3,6 +3,8 @@
 import numpy as np
 import pytest
 import xarray as xr
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from lidarcal import _rwf_kernels as k
 from lidarcal.cli import main
@@ -78,6 +80,22 @@ def test_asymmetric_pulse_shifts_zero_distance(asymmetry):
     assert abs(out["zero_distance"]) > 3.0  # far from zero: an asymmetric pulse biases the range
     # FWHM of the pulse itself is kept at 25 m whatever the asymmetry (grid 0.1 m)
     assert k.full_width_half_maximum(pulse, z) == pytest.approx(25.0, abs=0.1)
+
+
+@settings(max_examples=15, deadline=None)
+@given(fwhm=st.floats(10.0, 40.0), asymmetry=st.floats(-0.6, 0.6), fft=st.sampled_from([64, 128]),
+       fraction=st.floats(0.1, 0.3))
+def test_properties_of_any_synthetic_rwf(fwhm, asymmetry, fft, fraction):
+    grads = (-0.1, -0.02, 0.03, 0.1)
+    out = compute_rwf(RwfConfig(pulse_length=fwhm, asymmetry=asymmetry, fft_size=fft,
+                                window_std_fraction=fraction, cnr_gradient=grads))
+    z, pulse = out["range_offset"], out["pulse"]
+    # the symmetric window^2 never moves the barycenter: Zd = first moment of the pulse
+    assert out["zero_distance"] == pytest.approx(np.sum(z * pulse) / np.sum(pulse), abs=1e-8)
+    # a CNR increasing away from the lidar pulls the barycenter outwards, monotonically
+    assert np.all(np.diff(out["barycenter"]) > 0)
+    np.testing.assert_allclose(out["rwf"].sum(axis=0) * 0.1, 1.0, atol=1e-12)
+    assert np.all(out["rwf"] >= 0)
 
 
 def test_pulse_offset_moves_zero_distance_by_the_offset():
@@ -173,6 +191,8 @@ def test_units_are_checked_at_the_boundary():
         range_weighting_function(pulse_length=25.0)
     with pytest.raises(UnitError, match="argument 'cnr_gradient' has units 'm s-1'"):
         range_weighting_function(cnr_gradient=Q_([0.1], "m/s"))
+    with pytest.raises(InputError, match="synthetic pulses only"):
+        range_weighting_function(pulse_file=sample_file("rwf/pulse_example.csv"), asymmetry=0.2)
     with pytest.raises(InputError, match="fft_size.*64 or 128.*found 100"):
         range_weighting_function(fft_size=100)
     # 1 km of pulse length is fine as long as the units convert
