@@ -108,15 +108,25 @@ def to_magnitude(value: Any, expected: str, *, name: str) -> float | np.ndarray:
     Accepts a pint quantity or a string such as ``"100 m"``.  Bare numbers are refused for
     dimensional quantities (their unit would be a guess) but accepted for dimensionless ones.
     """
+    where = f"argument {name!r}"
     if isinstance(value, str):
+        number, _, unit = value.strip().partition(" ")
+        if unit.strip() in {alias for a in LOG_UNITS.values() for alias in a}:
+            # pint would evaluate "0.1 dB m-1" logarithmically; split the number off instead
+            try:
+                return convert_values(float(number), unit.strip(), expected, where=where).item()
+            except ValueError as exc:
+                if isinstance(exc, UnitError):
+                    raise
+                raise UnitError(f"{where}: cannot parse {value!r} as a quantity") from None
         try:
             value = ureg.Quantity(value)
         except Exception as exc:
-            raise UnitError(f"argument {name!r}: cannot parse {value!r} as a quantity ({exc})") from None
+            raise UnitError(f"{where}: cannot parse {value!r} as a quantity ({exc})") from None
     if isinstance(value, pint.Quantity):
-        where = f"argument {name!r}"
-        return convert_values(value.magnitude, f"{value.units:~cf}" or "1", expected, where=where) \
-            if expected not in LOG_UNITS else np.asarray(value.magnitude, dtype=float)
+        found = cf_units(value.units)
+        out = convert_values(value.magnitude, found, expected, where=where)
+        return out.item() if out.ndim == 0 else out
     dimensionless = _parse(expected, where="expected unit").dimensionless if expected not in LOG_UNITS else False
     if isinstance(value, numbers.Number | np.ndarray | list | tuple) and dimensionless:
         return np.asarray(value, dtype=float) if not isinstance(value, numbers.Number) else float(value)

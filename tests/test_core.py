@@ -152,3 +152,11 @@ def test_compliance_checker_real_run(tmp_path):
     ds.wind_speed.attrs["units"] = "furlongs"
     path2 = write_artefact(ds, tmp_path / "bad.nc", validate=False)
     assert not check_compliance(path2).passed
+
+
+def test_to_magnitude_log_units_are_checked_not_evaluated():
+    # pint would read "0.1 dB m-1" logarithmically (1.023); lidarcal keeps the number
+    assert to_magnitude("0.1 dB m-1", "dB m-1", name="g") == pytest.approx(0.1)
+    assert to_magnitude("-20 dB", "dB", name="cnr") == pytest.approx(-20.0)
+    with pytest.raises(UnitError, match="argument 'g' has units 'm s-1'; expected 'dB m-1'"):
+        to_magnitude(Q_(0.1, "m/s"), "dB m-1", name="g")
