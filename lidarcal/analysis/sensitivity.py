@@ -114,6 +114,7 @@ def sensitivity(
     heights: Iterable[float] | None = None,
     reference_range: tuple[Any, Any] | None = DEFAULT_REFERENCE_RANGE,
     source: str | None = None,
+    call: str | None = None,
 ) -> xr.Dataset:
     """Sensitivity of the lidar–reference difference to one environmental variable.
 
@@ -139,6 +140,9 @@ def sensitivity(
     reference_range : (low, high), optional
         Reference wind-speed range of the periods used, in m s-1 (default 4–16 m s-1);
         ``None`` uses every period with a positive reference speed.
+    source, call : str, optional
+        File name for messages (default: the records' ``lidarcal_source_file``) and the
+        command recorded in ``history``.
 
     Returns
     -------
@@ -302,7 +306,7 @@ def sensitivity(
         title=f"Sensitivity of lidar wind speed to {xname}",
         summary=(f"IEC 61400-50-2 style sensitivity of the lidar-reference wind speed difference to {xname} "
                  "per height: binned means, unweighted regression on bin centres, Eqs. 12-13 tests."),
-        call=f"lidarcal.analysis.sensitivity(records, {variable!r})",
+        call=call or f"lidarcal.analysis.sensitivity(records, {variable!r})",
         input_datasets={"records": records}, config=config,
     )
 

@@ -1,0 +1,112 @@
+"""``lidarcal budget RECORDS.nc [--terms TERMS.nc] [--approach iec] -o BUDGET.nc``.
+
+Calibration uncertainty budget per height and 0.5 m s-1 reference wind-speed bin (paper
+§3.4, Figure 9), Monte Carlo approach (virtual reference from Table 4 terms, mean and std of
+the difference, sigma/sqrt(N)) or IEC field approach (reference anemometer, mean difference,
+sigma/sqrt(N), mounting, separation, flow inhomogeneity).
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+
+import numpy as np
+
+from lidarcal.analysis.budget import DEFAULT_MIN_SAMPLES, budget
+from lidarcal.io import check_writable, open_artefact, write_artefact
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``budget`` subcommand."""
+    p = sub.add_parser(
+        "budget",
+        help="uncertainty budget per height and wind-speed bin",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("records", metavar="RECORDS.nc", help="simulated_rtd or field_campaign file")
+    p.add_argument("-o", "--output", required=True, metavar="BUDGET.nc")
+    p.add_argument("--approach", choices=("monte_carlo", "iec"), default="monte_carlo")
+    p.add_argument("--terms", metavar="TERMS.nc", help="uncertainty_terms artefact (Monte Carlo approach)")
+    p.add_argument("--bin-width", default="0.5 m s-1", help="wind speed bin width (default '0.5 m s-1')")
+    p.add_argument(
+        "--min-samples",
+        type=int,
+        default=DEFAULT_MIN_SAMPLES,
+        help=f"bins with fewer periods are flagged thin (default {DEFAULT_MIN_SAMPLES})",
+    )
+    p.add_argument(
+        "--height", type=float, action="append", metavar="M", help="height to include (repeatable)"
+    )
+    p.add_argument(
+        "--coverage-factor", type=float, default=2.0, help="k of the expanded uncertainty (default 2)"
+    )
+    p.add_argument(
+        "--reference-uncertainty",
+        metavar="'0.1 m s-1'",
+        help="IEC: standard uncertainty of the reference anemometer (absolute part)",
+    )
+    p.add_argument(
+        "--reference-relative-uncertainty",
+        default="0 %",
+        metavar="'0.5 %'",
+        help="IEC: relative part of the reference uncertainty (added in quadrature)",
+    )
+    for name in ("mounting", "separation", "flow-inhomogeneity"):
+        p.add_argument(
+            f"--{name}",
+            default="0 %",
+            metavar="'0 %'",
+            help=f"IEC: relative standard uncertainty due to {name.replace('-', ' ')} (default 0)",
+        )
+    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compute, write and summarise the budget."""
+    check_writable(args.output, overwrite=args.overwrite)
+    records = open_artefact(args.records)
+    terms = open_artefact(args.terms, "uncertainty_terms") if args.terms else None
+    call = "lidarcal " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else "lidarcal budget"
+    extra = {}
+    if args.approach == "iec":
+        extra = dict(
+            reference_uncertainty=args.reference_uncertainty,
+            reference_relative_uncertainty=args.reference_relative_uncertainty,
+            mounting=args.mounting,
+            separation=args.separation,
+            flow_inhomogeneity=args.flow_inhomogeneity,
+        )
+    ds = budget(
+        records,
+        terms=terms,
+        approach=args.approach,
+        bin_width=args.bin_width,
+        min_samples=args.min_samples,
+        heights=args.height,
+        coverage_factor=args.coverage_factor,
+        source=args.records,
+        call=call,
+        **extra,
+    )
+    write_artefact(ds, args.output, overwrite=args.overwrite)
+    print(
+        f"{args.output}: {args.approach} budget, {ds.sizes['height']} height(s) x "
+        f"{ds.sizes['wind_speed']} wind speed bins"
+    )
+    for h in ds.height.values:
+        sub = ds.sel(height=h)
+        rel = sub.relative_uncertainty.values
+        ok = np.isfinite(rel) & (sub.bin_flag.values == 0)
+        if ok.any():
+            print(
+                f"  {h:g} m: relative standard uncertainty "
+                f"{np.nanmin(rel[ok]):.2f}-{np.nanmax(rel[ok]):.2f} % "
+                f"over {int(ok.sum())} bins with >= {ds.attrs['min_samples']} periods"
+            )
+        else:
+            print(f"  {h:g} m: no bin with >= {ds.attrs['min_samples']} periods")
+    return 0
