@@ -8,13 +8,26 @@ import xarray as xr
 from lidarcal.cf import height_coord, time_coord, var_attrs
 
 CONDITION_UNITS = {
-    "wind_speed": "m s-1", "wind_from_direction": "degree", "turbulence_intensity": "1",
-    "wind_shear_exponent": "1", "cnr": "dB", "cnr_gradient": "dB m-1",
+    "wind_speed": "m s-1",
+    "wind_from_direction": "degree",
+    "turbulence_intensity": "1",
+    "wind_shear_exponent": "1",
+    "cnr": "dB",
+    "cnr_gradient": "dB m-1",
 }
 
 
-def make_records(n=600, heights=(80.0, 120.0), seed=1, *, shear_slope=(2.0, -1.0), ti_slope=0.0,
-                 noise=0.5, bias=0.0, lidar_serial="WLS7-TEST"):
+def make_records(
+    n=600,
+    heights=(80.0, 120.0),
+    seed=1,
+    *,
+    shear_slope=(2.0, -1.0),
+    ti_slope=0.0,
+    noise=0.5,
+    bias=0.0,
+    lidar_serial="WLS7-TEST",
+):
     """Records whose relative difference (%) is ``bias + slope * (alpha - 0.15) + N(0, noise)``.
 
     ``shear_slope`` is the true sensitivity to the shear exponent per height (% per unit alpha).
@@ -25,8 +38,12 @@ def make_records(n=600, heights=(80.0, 120.0), seed=1, *, shear_slope=(2.0, -1.0
     ws = rng.uniform(4.5, 15.5, shape)
     alpha = rng.uniform(0.0, 0.3, shape)
     ti = rng.uniform(0.04, 0.20, shape)
-    rel = (bias + np.asarray(shear_slope)[None, :] * (alpha - 0.15) + ti_slope * (ti - 0.1)
-           + rng.normal(0.0, noise, shape))
+    rel = (
+        bias
+        + np.resize(np.asarray(shear_slope, dtype=float), nh)[None, :] * (alpha - 0.15)
+        + ti_slope * (ti - 0.1)
+        + rng.normal(0.0, noise, shape)
+    )
     ref = ws
     lidar = ref * (1 + rel / 100.0)
     data = {
@@ -38,13 +55,21 @@ def make_records(n=600, heights=(80.0, 120.0), seed=1, *, shear_slope=(2.0, -1.0
         "cnr_gradient": rng.uniform(-0.05, 0.05, shape),
     }
     ds = xr.Dataset(
-        {k: (("time", "height"), v, var_attrs(k.replace("_", " "), CONDITION_UNITS[k])) for k, v in data.items()},
-        coords={"time": time_coord(np.datetime64("2024-01-01") + np.arange(n) * np.timedelta64(600, "s")),
-                "height": height_coord(heights)},
+        {
+            k: (("time", "height"), v, var_attrs(k.replace("_", " "), CONDITION_UNITS[k]))
+            for k, v in data.items()
+        },
+        coords={
+            "time": time_coord(np.datetime64("2024-01-01") + np.arange(n) * np.timedelta64(600, "s")),
+            "height": height_coord(heights),
+        },
     )
     ds["wind_speed"].attrs["standard_name"] = "wind_speed"
     ds["lidar_wind_speed"] = (("time", "height"), lidar, var_attrs("lidar wind speed", "m s-1", "wind_speed"))
-    ds["reference_wind_speed"] = (("time", "height"), ref,
-                                  var_attrs("reference wind speed", "m s-1", "wind_speed"))
+    ds["reference_wind_speed"] = (
+        ("time", "height"),
+        ref,
+        var_attrs("reference wind speed", "m s-1", "wind_speed"),
+    )
     ds.attrs = {"lidarcal_artefact": "simulated_rtd", "lidar_serial": lidar_serial}
     return ds
