@@ -43,6 +43,7 @@ __all__ = [
     "unique_planar_points",
     "coherence_factors",
     "generate_points",
+    "correlate",
     "CellSize",
     "cell_size",
 ]
@@ -113,22 +114,21 @@ def unique_planar_points(y: np.ndarray, z: np.ndarray, tol: float = 1e-6) -> tup
 
 def coherence_factors(f: np.ndarray, yz: np.ndarray, wind_speed: float, l_c: float = L_C,
                       jitter: float = 1e-10) -> np.ndarray:
-    """Square-root factors ``(3, n_f, n, n)`` of the ``iec3d`` coherence matrices of points ``yz``.
+    """Return square-root factors ``(3, n_f, n, n)`` of the ``iec3d`` coherence matrices of points ``yz``.
 
-    Batched Cholesky over components and frequencies of ``C + jitter I``; if any matrix is
-    still not positive definite (near-duplicate points), the whole batch falls back to the
-    symmetric eigen-decomposition ``V sqrt(max(lambda, 0))``, which reproduces ``C`` exactly.
+    The matrices are built whole (``r = 0`` on the diagonal gives 1) in one ``exp`` call, then
+    factorised by a batched Cholesky over components and frequencies of ``C + jitter I``; if
+    any matrix is still not positive definite (near-duplicate points), the batch falls back
+    to the symmetric eigen-decomposition ``V sqrt(max(lambda, 0))``, which reproduces ``C``.
     """
     n = yz.shape[0]
-    iu = np.triu_indices(n, 1)
-    r = np.hypot(yz[iu[0], 0] - yz[iu[1], 0], yz[iu[0], 1] - yz[iu[1], 1])
-    mats = np.empty((3, f.size, n, n))
-    for k in range(3):
-        vals = iec3d_coherence(f, r, wind_speed, k, l_c)  # (n_f, n_pairs), unique pairs only
-        mats[k][:, iu[0], iu[1]] = vals
-        mats[k][:, iu[1], iu[0]] = vals
+    r = np.hypot(yz[:, None, 0] - yz[None, :, 0], yz[:, None, 1] - yz[None, :, 1])
+    lc = l_c * LENGTH_SCALE_FACTORS / LENGTH_SCALE_FACTORS[0]
+    a = -12.0 * np.sqrt((np.asarray(f, float)[None, :] / wind_speed) ** 2 + (0.12 / lc[:, None]) ** 2)
+    mats = np.multiply(a[:, :, None, None], r)
+    np.exp(mats, out=mats)
     diag = np.arange(n)
-    mats[..., diag, diag] = 1.0 + jitter
+    mats[..., diag, diag] += jitter
     try:
         return np.linalg.cholesky(mats)
     except np.linalg.LinAlgError:
@@ -184,6 +184,15 @@ def generate_points(
         ``"rayleigh"`` draws circular complex Gaussian coefficients (a Gaussian process);
         ``"fixed"`` uses PyConTurb's unit amplitude with uniform random phase.
     """
+    x, y, z, sigma, nt, f = _check_points(x, y, z, sigma, wind_speed, duration, dt)
+    if not np.any(sigma > 0):
+        return np.zeros((3, x.size, nt))
+    yz, index = unique_planar_points(y, z)
+    xi = _standard_coefficients(rng, (3, f.size - 1, yz.shape[0]), nt, amplitude)
+    return correlate(x, y, z, xi, wind_speed=wind_speed, sigma=sigma, duration=duration, dt=dt, l_c=l_c)
+
+
+def _check_points(x, y, z, sigma, wind_speed, duration, dt):
     x, y, z = (np.atleast_1d(np.asarray(a, dtype=float)) for a in (x, y, z))
     sigma = np.asarray(sigma, dtype=float)
     if not (x.shape == y.shape == z.shape and x.ndim == 1):
@@ -192,19 +201,33 @@ def generate_points(
         raise ValueError(f"every point needs z > 0 m; found min z = {np.nanmin(z):.6g} m")
     if not (np.isfinite(wind_speed) and wind_speed > 0):
         raise ValueError(f"wind_speed must be > 0 m s-1; got {wind_speed}")
+    if sigma.shape != (3,) or np.any(~np.isfinite(sigma)) or np.any(sigma < 0):
+        raise ValueError(f"sigma must be three finite values >= 0 (u, v, w); got {sigma}")
     nt, f = frequencies(duration, dt)
-    if not np.any(sigma > 0):
-        return np.zeros((3, x.size, nt))
+    return x, y, z, sigma, nt, f
+
+
+def correlate(x, y, z, xi: np.ndarray, *, wind_speed: float, sigma, duration: float = 600.0,
+              dt: float = 1.0, l_c: float = L_C) -> np.ndarray:
+    """Turn unit-power coefficients into turbulence ``(3, n_points, nt)`` (deterministic part).
+
+    ``xi`` has shape ``(3, n_f - 1, n_unique)``: one coefficient per component, non-zero
+    frequency and de-duplicated (y, z) point, in the order of :func:`unique_planar_points`.
+    Point ``p`` gets ``m_p(f) (L(f) xi(f))_p exp(-2 pi i f x_p / U)`` with ``L L^T`` the ``iec3d``
+    coherence and ``m_p`` its Kaimal magnitude; the DC term is zero.
+    """
+    x, y, z, sigma, nt, f = _check_points(x, y, z, sigma, wind_speed, duration, dt)
     yz, index = unique_planar_points(y, z)
-    fp = f[1:]  # the DC coefficient is zero
+    fp = f[1:]
+    if xi.shape != (3, fp.size, yz.shape[0]):
+        raise ValueError(f"xi must have shape {(3, fp.size, yz.shape[0])}; got {xi.shape}")
     factors = coherence_factors(fp, yz, wind_speed, l_c)  # (3, nf-1, n_u, n_u)
-    xi = _standard_coefficients(rng, (3, fp.size, yz.shape[0]), nt, amplitude)
     corr = np.matmul(factors, np.stack([xi.real, xi.imag], axis=-1))  # real BLAS, (3, nf-1, n_u, 2)
-    coef_u = corr[..., 0] + 1j * corr[..., 1]
     mags = spectral_magnitudes(f, z, wind_speed, sigma, nt)  # (3, nf, n)
     coef = np.zeros((3, f.size, x.size), dtype=complex)
-    shift = np.exp(-2j * np.pi * fp[:, None] * (x[None, :] / wind_speed))  # frozen turbulence
-    coef[:, 1:, :] = coef_u[:, :, index] * mags[:, 1:, :] * shift
+    coef[:, 1:, :] = (corr[..., 0] + 1j * corr[..., 1])[:, :, index] * mags[:, 1:, :]
+    if np.any(x != 0):  # Taylor's frozen turbulence: delay x / U
+        coef[:, 1:, :] *= np.exp(-2j * np.pi * fp[:, None] * (x[None, :] / wind_speed))
     return np.moveaxis(np.fft.irfft(coef, n=nt, axis=1) * nt, 1, 2)
 
 
