@@ -57,7 +57,8 @@ def test_regression_equals_scipy_linregress(points):
     np.testing.assert_allclose(slope, ref.slope, rtol=1e-7, atol=1e-9)
     np.testing.assert_allclose(intercept, ref.intercept, rtol=1e-7, atol=1e-7)
     np.testing.assert_allclose(r, ref.rvalue, rtol=1e-7, atol=1e-9)
-    np.testing.assert_allclose(stderr, ref.stderr, rtol=1e-6, atol=1e-9)
+    # near-perfect fits: both stderrs are cancellation noise ~1e-8 relative to the slope scale
+    np.testing.assert_allclose(stderr, ref.stderr, rtol=1e-6, atol=1e-6 * (abs(ref.slope) + 1))
 
 
 def test_regression_ignores_nan_and_needs_two_points():
