@@ -1,0 +1,222 @@
+"""Uncertainty budget (paper §3.4) against values computed by hand on tiny record sets."""
+
+import math
+
+import numpy as np
+import pytest
+import xarray as xr
+from analysis_factories import make_records
+
+from lidarcal.analysis import budget
+from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.cli import main
+from lidarcal.errors import InputError
+from lidarcal.io import open_artefact, write_artefact
+from lidarcal.schema import validate_dataset
+from lidarcal.terms import PAPER_INPUTS, uncertainty_terms
+from lidarcal.units import Q_
+
+# Seven periods at one height: four in the 8 m/s bin [7.75, 8.25), none in 8.5, one in 9.0,
+# two in 9.5.  Differences chosen so the statistics are easy by hand.
+REF = [7.9, 8.0, 8.1, 8.2, 9.1, 9.4, 9.6]
+DIFF = [0.1, -0.1, 0.2, 0.0, 0.3, 0.05, 0.15]
+
+
+def tiny_records(heights=(120.0,)):
+    ref = np.array(REF)[:, None] * np.ones(len(heights))
+    lid = ref + np.array(DIFF)[:, None]
+    n = len(REF)
+    return xr.Dataset(
+        {
+            "reference_wind_speed": (("time", "height"), ref, var_attrs("ref", "m s-1", "wind_speed")),
+            "lidar_wind_speed": (("time", "height"), lid, var_attrs("lidar", "m s-1", "wind_speed")),
+        },
+        coords={
+            "time": time_coord(np.datetime64("2024-01-01") + np.arange(n) * np.timedelta64(600, "s")),
+            "height": height_coord(heights),
+        },
+        attrs={"lidarcal_source_file": "tiny.nc", "lidarcal_artefact": "simulated_rtd"},
+    )
+
+
+def linear_terms():
+    """An uncertainty_terms-like dataset whose total is 0.04 + 0.001 U m/s (easy to evaluate)."""
+    ws = np.arange(2.0, 21.0)
+    return xr.Dataset(
+        {"total": ("wind_speed", 0.04 + 0.001 * ws, var_attrs("total", "m s-1"))},
+        coords={"wind_speed": ("wind_speed", ws, {"units": "m s-1"})},
+        attrs={"lidarcal_source_file": "terms.nc"},
+    )
+
+
+def test_monte_carlo_budget_matches_hand_computation():
+    b = budget(tiny_records(), terms=linear_terms())
+    assert b.wind_speed.values.tolist() == [8.0, 8.5, 9.0, 9.5]
+    np.testing.assert_allclose(b.wind_speed_bounds.values[0], [7.75, 8.25])
+    assert b.contributor.values.tolist() == [
+        "virtual_reference",
+        "mean_difference",
+        "std_difference",
+        "statistical",
+    ]
+    bin8 = b.sel(height=120, wind_speed=8)
+    # by hand: diffs 0.1, -0.1, 0.2, 0.0 -> mean 0.05; deviations 0.05 -0.15 0.15 -0.05,
+    # sum of squares 0.05, sample variance 0.05/3, std 0.129099; sigma/sqrt(4) = 0.0645497
+    std = math.sqrt(0.05 / 3)
+    expected = [0.04 + 0.001 * 8.0, 0.05, std, std / 2]
+    # float64 sums of four numbers: 1e-12 relative
+    np.testing.assert_allclose(bin8.contribution.values, expected, rtol=1e-12)
+    combined = math.sqrt(0.048**2 + 0.05**2 + std**2 + (std / 2) ** 2)  # = 0.16033...
+    np.testing.assert_allclose(float(bin8.uncertainty), combined, rtol=1e-12)
+    mean_ref = (7.9 + 8.0 + 8.1 + 8.2) / 4  # 8.05
+    np.testing.assert_allclose(float(bin8.relative_uncertainty), 100 * combined / mean_ref, rtol=1e-12)
+    np.testing.assert_allclose(float(bin8.expanded_uncertainty), 2 * combined, rtol=1e-12)
+    np.testing.assert_allclose(
+        float(bin8.relative_expanded_uncertainty), 200 * combined / mean_ref, rtol=1e-12
+    )
+    np.testing.assert_allclose(
+        bin8.relative_contribution.values, 100 * np.array(expected) / mean_ref, rtol=1e-12
+    )
+    assert int(bin8.sample_count) == 4 and int(bin8.bin_flag) == 0
+    # 9.5 bin: diffs 0.05, 0.15 -> mean 0.1, std sqrt(0.005) (2 periods: thin, but defined)
+    bin95 = b.sel(height=120, wind_speed=9.5)
+    s95 = math.sqrt(2 * 0.05**2 / 1)
+    np.testing.assert_allclose(bin95.contribution.values, [0.0495, 0.1, s95, s95 / math.sqrt(2)], rtol=1e-12)
+    assert int(bin95.bin_flag) == 1 and int(bin95.sample_count) == 2
+    # 9.0 bin: one period -> std undefined, combined NaN, flagged thin, not dropped
+    bin9 = b.sel(height=120, wind_speed=9.0)
+    assert int(bin9.sample_count) == 1 and int(bin9.bin_flag) == 1
+    np.testing.assert_allclose(float(bin9.mean_difference), 0.3, rtol=1e-12)
+    assert np.isnan(float(bin9.uncertainty))
+    # 8.5 bin: empty
+    bin85 = b.sel(height=120, wind_speed=8.5)
+    assert int(bin85.sample_count) == 0 and int(bin85.bin_flag) == 2
+    assert b.bin_flag.attrs["flag_meanings"] == "ok thin empty"
+
+
+def test_iec_budget_matches_hand_computation():
+    b = budget(
+        tiny_records(),
+        approach="iec",
+        reference_uncertainty="0.1 m s-1",
+        reference_relative_uncertainty="0.5 %",
+        mounting=Q_(0.2, "%"),
+        separation=0.003,
+    )
+    assert b.contributor.values.tolist() == [
+        "reference_sensor",
+        "mean_difference",
+        "statistical",
+        "mounting",
+        "separation",
+        "flow_inhomogeneity",
+    ]
+    bin8 = b.sel(height=120, wind_speed=8.0)
+    u = 8.05
+    std = math.sqrt(0.05 / 3)
+    expected = [math.sqrt(0.1**2 + (0.005 * u) ** 2), 0.05, std / 2, 0.002 * u, 0.003 * u, 0.0]
+    np.testing.assert_allclose(bin8.contribution.values, expected, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(float(bin8.uncertainty), math.sqrt(sum(e * e for e in expected)), rtol=1e-12)
+    assert b.attrs["approach"] == "iec"
+    with pytest.raises(InputError, match="reference_uncertainty"):
+        budget(tiny_records(), approach="iec")
+    with pytest.raises(InputError, match="fraction"):
+        budget(tiny_records(), approach="iec", reference_uncertainty="0.1 m s-1", mounting=2.0)
+
+
+def test_default_terms_follow_table4_at_each_height():
+    b = budget(tiny_records(heights=(100.0, 50.0)))
+    vref = b.contribution.sel(contributor="virtual_reference")
+    for h in (100.0, 50.0):
+        expected = uncertainty_terms(
+            Q_(b.wind_speed.values, "m s-1"), **{**PAPER_INPUTS, "height": Q_(h, "m")}
+        )
+        np.testing.assert_allclose(vref.sel(height=h).values, expected.total.values, rtol=1e-12)
+    # Eq. 11 grows as 1/z, so the lower height has the larger virtual reference term
+    assert (vref.sel(height=50.0) > vref.sel(height=100.0)).all()
+
+
+def test_selection_and_plotting_interface():
+    b = budget(make_records(n=800, heights=(80.0, 120.0)))
+    point = b.sel(height=121, wind_speed=8.1, method="nearest")
+    assert float(point.height) == 120.0 and float(point.wind_speed) == 8.0
+    assert point.uncertainty.attrs["units"] == "m s-1" and b.relative_uncertainty.attrs["units"] == "%"
+    import hvplot.xarray  # noqa: F401
+
+    plot = b.sel(height=120).uncertainty.hvplot()
+    assert [d.name for d in plot.kdims] == ["wind_speed"]
+    assert len(plot.data) == b.sizes["wind_speed"]
+
+
+def test_height_not_simulated_is_refused():
+    with pytest.raises(
+        InputError, match=r"tiny.nc: height\(s\) 100 m not in the records; available heights: 120"
+    ):
+        budget(tiny_records(), terms=linear_terms(), heights=[100.0])
+
+
+def test_terms_must_cover_the_bins():
+    terms = linear_terms().sel(wind_speed=slice(2, 9))
+    with pytest.raises(
+        InputError,
+        match=r"terms.nc: variable 'total' covers wind speeds 2-9 m s-1; the budget "
+        r"needs 8-9.5 m s-1",
+    ):
+        budget(tiny_records(), terms=terms)
+
+
+def test_real_terms_artefact_and_cli(tmp_path, capsys):
+    from lidarcal.terms import TABLE4_WIND_SPEEDS
+
+    terms_path = write_artefact(uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS), tmp_path / "terms.nc")
+    rec = tmp_path / "rec.nc"
+    make_records(n=600).to_netcdf(rec)
+    out = tmp_path / "budget.nc"
+    assert main(["budget", str(rec), "--terms", str(terms_path), "-o", str(out)]) == 0
+    assert "monte_carlo budget" in capsys.readouterr().out
+    b = open_artefact(out, "uncertainty_budget")
+    assert validate_dataset(b) == []
+    roles = {r["role"]: r for r in __import__("json").loads(b.attrs["lidarcal_inputs"])}
+    assert set(roles) == {"records", "terms"} and roles["terms"]["file"] == "terms.nc"
+    t = open_artefact(terms_path)
+    np.testing.assert_allclose(
+        b.contribution.sel(contributor="virtual_reference", height=80).values,
+        np.interp(b.wind_speed.values, t.wind_speed.values, t.total.values),
+        rtol=1e-12,
+    )
+    # refuses to overwrite; IEC without the reference uncertainty is a clear error (exit 2, no file)
+    assert main(["budget", str(rec), "-o", str(out)]) == 2
+    assert main(["budget", str(rec), "--approach", "iec", "-o", str(tmp_path / "iec.nc")]) == 2
+    assert not (tmp_path / "iec.nc").exists()
+    assert (
+        main(
+            [
+                "budget",
+                str(rec),
+                "--approach",
+                "iec",
+                "--reference-uncertainty",
+                "0.1 m s-1",
+                "--mounting",
+                "0.5 %",
+                "-o",
+                str(tmp_path / "iec.nc"),
+            ]
+        )
+        == 0
+    )
+
+
+def test_budget_file_passes_compliance(tmp_path):
+    from lidarcal.compliance import check_compliance
+
+    path = write_artefact(budget(make_records(n=300)), tmp_path / "b.nc")
+    report = check_compliance(path)
+    assert report.passed, report.failures
+
+
+def test_dask_records_same_budget():
+    recs = make_records(n=500)
+    a = budget(recs)
+    b = budget(recs.chunk(time=128, height=1))
+    xr.testing.assert_identical(a.drop_attrs(), b.drop_attrs())
