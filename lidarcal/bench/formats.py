@@ -87,6 +87,7 @@ class ControlLog:
     cnr: np.ndarray
     metadata: dict = field(default_factory=dict)
     source: str = "<control>"
+    columns: dict = field(default_factory=dict)  #: actual column names of "velocity" and "cnr"
 
     def __len__(self) -> int:
         return len(self.start_ns)
@@ -253,10 +254,10 @@ def read_control_log(path: str | os.PathLike) -> ControlLog:
         i = int(np.argmax(overlap)) + 1
         raise InputError(f"{path}: control log row {i + 1} starts at {_iso(start[i])}, before the previous "
                          f"bin ends ({_iso(end[i - 1])}); programmed bins must not overlap")
-    velocity, _ = _unit_column(df, "programmed_velocity", "m s-1", path, what)
-    cnr, _ = _unit_column(df, "programmed_cnr", "dB", path, what)
+    velocity, vname = _unit_column(df, "programmed_velocity", "m s-1", path, what)
+    cnr, cname = _unit_column(df, "programmed_cnr", "dB", path, what)
     los = _los(df["los"], path, what)
-    return ControlLog(start, end, los, velocity, cnr, meta, str(path))
+    return ControlLog(start, end, los, velocity, cnr, meta, str(path), {"velocity": vname, "cnr": cname})
 
 
 def _iso_column(t_ns: np.ndarray) -> np.ndarray:

@@ -84,14 +84,16 @@ def cube_template() -> xr.Dataset:
 
 def _cells(control: ControlLog) -> np.ndarray:
     ci, vi = grid_index(control.cnr, CNR_EDGES), grid_index(control.velocity, VELOCITY_EDGES)
-    checks = (("programmed_cnr", ci, control.cnr, CNR_EDGES, "dB"),
-              ("programmed_velocity", vi, control.velocity, VELOCITY_EDGES, "m s-1"))
+    names = {"cnr": "programmed_cnr_dB", "velocity": "programmed_velocity_m_s", **control.columns}
+    checks = ((names["cnr"], ci, control.cnr, CNR_EDGES, "dB"),
+              (names["velocity"], vi, control.velocity, VELOCITY_EDGES, "m s-1"))
     for name, idx, values, edges, unit in checks:
         bad = idx < 0
         if bad.any():
             i = int(np.argmax(bad))
             raise InputError(
-                f"{control.source}: control log column {name!r} row {i + 1} is {values[i]:g} {unit}; "
+                f"{control.source}: control log column {name!r} row {i + 1} is {values[i]:g} {unit} "
+                f"(after unit conversion); "
                 f"expected values within the Table 1 grid [{edges[0]:g}, {edges[-1]:g}) {unit}")
     return np.ravel_multi_index((control.los, ci, vi), _SHAPE)
 

@@ -120,7 +120,7 @@ def simulate_rtd(
     start, end = control.start_ns, control.end_ns
     dt_ns = round(sample_s * 1e9)
     lead_ns = round(_LEAD_S * 1e9)
-    t0 = start[0] - lead_ns + int(rng.integers(0, dt_ns))
+    t0 = start[0] - lead_ns + int(rng.integers(0, max(dt_ns // 10**6, 1))) * 10**6  # whole ms phase
     n = int((end[-1] + lead_ns - t0) // dt_ns)
     t = t0 + np.arange(n, dtype=np.int64) * dt_ns
     los = (np.arange(n) + int(rng.integers(0, 5))) % 5              # DBS cycle
