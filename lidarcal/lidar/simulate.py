@@ -46,7 +46,7 @@ from lidarcal.lidar.quadrature import cnr_weights
 from lidarcal.lidar.wfr import reconstruct
 from lidarcal.turbulence.kernels import generate_points, sigma_components
 
-__all__ = ["simulate_period", "beam_geometry", "height_points", "height_seed"]
+__all__ = ["simulate_period", "beam_geometry", "height_points", "height_seed", "period_points"]
 
 OUTPUTS = ("lidar_wind_speed", "lidar_wind_speed_scalar", "lidar_wind_speed_vector",
            "reference_wind_speed", "availability")
@@ -81,20 +81,35 @@ def _wind_axes(wind_from_direction: float) -> tuple[np.ndarray, np.ndarray]:
     return down, np.array([-down[1], down[0]])
 
 
+def period_points(model: LidarModel, height: float, wind_from_direction: float) -> dict[str, np.ndarray]:
+    """Return the points one height needs: the 4 x K RWF nodes (beam-major) and the reference.
+
+    Keys: ``label`` (``"beam<azimuth>_node<k>"``, ``"reference"``), ``lidar`` (n, 3; east,
+    north, up in m) and ``wind`` (n, 3; along-wind, cross-wind to the left, up in m), in the
+    order :func:`simulate_period` passes them to the turbulence generator.
+    """
+    pts = height_points(model, height)
+    if np.any(pts[..., 2] <= 0):
+        raise InputError(f"height {height:g} m: the RWF nodes reach below the ground "
+                         f"(lowest node z = {pts[..., 2].min():.3g} m); the RWF is too wide for this height")
+    down, cross = _wind_axes(wind_from_direction)
+    flat = np.concatenate([pts.reshape(-1, 3), [[0.0, 0.0, height]]])
+    wind = np.stack([flat[:, :2] @ down, flat[:, :2] @ cross, flat[:, 2]], axis=-1)
+    labels = [f"beam{a:g}_node{k}" for a in model.azimuths for k in range(pts.shape[1])] + ["reference"]
+    return {"label": np.array(labels), "lidar": flat, "wind": wind}
+
+
 def _simulate_height(model: LidarModel, height: float, U: float, direction: float, ti: float,
                      alpha: float, cnr: float, gradient: float, seed: Sequence[int], duration: float,
                      n_times: int) -> dict[str, np.ndarray | float]:
     turb_ss, noise_ss, avail_ss = height_seed(seed, height).spawn(3)
     units, phi_true, phi_nom = beam_geometry(model)
-    pts = height_points(model, height)  # (4, K, 3)
+    points = period_points(model, height, direction)
+    pts = points["lidar"][:-1].reshape(4, -1, 3)
     n_nodes = pts.shape[1]
-    if np.any(pts[..., 2] <= 0):
-        raise InputError(f"height {height:g} m: the RWF nodes reach below the ground "
-                         f"(lowest node z = {pts[..., 2].min():.3g} m); the RWF is too wide for this height")
     down, cross = _wind_axes(direction)
-    flat = np.concatenate([pts.reshape(-1, 3), [[0.0, 0.0, height]]])  # + the reference point
-    x_w, y_w = flat[:, :2] @ down, flat[:, :2] @ cross
-    turb = generate_points(x_w, y_w, flat[:, 2], wind_speed=U, sigma=sigma_components(ti, U),
+    x_w, y_w, z_w = points["wind"].T
+    turb = generate_points(x_w, y_w, z_w, wind_speed=U, sigma=sigma_components(ti, U),
                            rng=np.random.default_rng(turb_ss), duration=duration, dt=model.beam_period)
     beam_of_time = np.arange(n_times) % 4
     # radial velocity of every node at its own beam's sampling times
