@@ -36,6 +36,8 @@ from typing import Any
 
 import numpy as np
 
+from lidarcal.errors import InputError
+
 __all__ = ["Parameter", "Effect", "EFFECTS", "CONDITION_VARIABLES", "get_effect"]
 
 #: The conditions variables of DESIGN 3.1 (the only legal drivers).
@@ -120,22 +122,22 @@ class Effect:
 
         Raises
         ------
-        ValueError
+        InputError
             If a parameter is missing, unknown or outside its bounds.
         """
         names = {p.name for p in self.parameters}
         unknown = set(params) - names
         if unknown:
-            raise ValueError(f"effect {self.id!r}: unknown parameter(s) {sorted(unknown)}; "
+            raise InputError(f"effect {self.id!r}: unknown parameter(s) {sorted(unknown)}; "
                              f"expected {sorted(names)}")
         changes = {}
         for p in self.parameters:
             if p.name not in params:
-                raise ValueError(f"effect {self.id!r}: parameter {p.name!r} is missing")
+                raise InputError(f"effect {self.id!r}: parameter {p.name!r} is missing")
             value = float(params[p.name])
             lo, hi = p.bounds
             if not lo <= value <= hi:
-                raise ValueError(f"effect {self.id!r}: parameter {p.name!r} = {value:g} {p.units} "
+                raise InputError(f"effect {self.id!r}: parameter {p.name!r} = {value:g} {p.units} "
                                  f"is outside its bounds [{lo:g}, {hi:g}]")
             changes[p.model_field] = value
         return dataclasses.replace(model, **changes) if changes else model
@@ -214,4 +216,4 @@ def get_effect(effect_id: str) -> Effect:
     try:
         return EFFECTS[effect_id]
     except KeyError:
-        raise ValueError(f"unknown effect {effect_id!r}; catalogue ids: {', '.join(EFFECTS)}") from None
+        raise InputError(f"unknown effect {effect_id!r}; catalogue ids: {', '.join(EFFECTS)}") from None

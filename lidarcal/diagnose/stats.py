@@ -134,23 +134,41 @@ def holm(p: np.ndarray) -> np.ndarray:
     return out.reshape(p.shape)
 
 
-def disagreement_tests(binned: BinnedResiduals, min_bin_count: int = 10) -> dict[str, np.ndarray]:
+def _t_to_z(t: np.ndarray, n: np.ndarray) -> np.ndarray:
+    """Equivalent standard-normal score of a t statistic with n − 1 degrees of freedom."""
+    return np.clip(_st.norm.isf(_st.t.sf(np.abs(t), np.maximum(n - 1, 1))) * np.sign(t), -40, 40)
+
+
+def disagreement_tests(binned: BinnedResiduals, min_bin_count: int = 10,
+                       residual: np.ndarray | None = None) -> dict[str, np.ndarray]:
     """Chi-square test per (variable, height) that all bin means are zero, Holm-adjusted.
 
     Returns ``chi2``, ``dof``, ``p_value`` and ``p_adjusted`` arrays of shape
-    ``(n_variables, n_heights)`` and ``z`` (per bin, NaN for thin bins).
+    ``(n_variables, n_heights)`` and ``z`` (per bin, NaN for thin bins).  With ``residual``
+    (periods × heights) the family also holds one t-test per height that the mean residual
+    is zero (``mean_z``, ``mean_p_value``, ``mean_p_adjusted``): a constant bias is one degree
+    of freedom, which the binned chi-square spreads over all bins.
     """
     n = binned.count
     ok = (n >= min_bin_count) & np.isfinite(binned.se) & (binned.se > 0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = binned.mean / binned.se
-        # equivalent normal score of a t statistic with n − 1 degrees of freedom
-        z = np.where(ok, _st.norm.isf(_st.t.sf(np.abs(t), np.maximum(n - 1, 1))) * np.sign(t), np.nan)
-    z = np.clip(z, -40, 40)
+        z = np.where(ok, _t_to_z(binned.mean / binned.se, n), np.nan)
     chi2 = np.nansum(np.where(ok, z**2, 0.0), axis=1)
     dof = ok.sum(axis=1)
     p = np.where(dof > 0, _st.chi2.sf(chi2, np.maximum(dof, 1)), np.nan)
-    return {"chi2": chi2, "dof": dof, "p_value": p, "p_adjusted": holm(p), "z": z}
+    out = {"chi2": chi2, "dof": dof, "p_value": p, "z": z}
+    if residual is None:
+        out["p_adjusted"] = holm(p)
+        return out
+    cnt = np.isfinite(residual).sum(axis=0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.nanmean(residual, axis=0) / (np.nanstd(residual, axis=0, ddof=1) / np.sqrt(cnt))
+        mz = np.where(cnt >= min_bin_count, _t_to_z(t, cnt), np.nan)
+    mp = np.where(np.isfinite(mz), 2.0 * _st.norm.sf(np.abs(mz)), np.nan)
+    adj = holm(np.concatenate([p.ravel(), mp]))
+    out.update(p_adjusted=adj[: p.size].reshape(p.shape), mean_z=mz, mean_p_value=mp,
+               mean_p_adjusted=adj[p.size:])
+    return out
 
 
 def gap(binned: BinnedResiduals, min_bin_count: int = 10) -> tuple[float, np.ndarray, float]:

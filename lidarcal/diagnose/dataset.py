@@ -1,0 +1,243 @@
+"""The ``diagnosis`` artefact and the ``--json`` summary built from a :class:`DiagnosisResult`.
+
+Layout (``schemas/diagnosis.yaml``): dims ``height``, ``variable`` (the six environmental
+variables the residual is binned by), ``bin`` (quantile bins), ``candidate`` (catalogue ids).
+Per-variable bin limits live in ``<variable>_bin_lower/upper`` (each in its own unit); the
+fitted parameter of each candidate in ``fit_<effect>_<parameter>`` (+ ``_stderr``, ``_nominal``).
+The corrected model is the ``lidarcal_lidar_model`` global attribute (the same attribute a
+``simulated_rtd`` carries), so ``LidarModel.from_dict(ds.attrs["lidarcal_lidar_model"])`` or
+:func:`corrected_model` rebuilds it; the ``--json`` object is in ``diagnosis_json``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.cf import height_coord, var_attrs
+from lidarcal.diagnose.core import DiagnosisResult
+from lidarcal.diagnose.effects import CONDITION_VARIABLES, EFFECTS
+from lidarcal.diagnose.stats import GAP_METRIC
+from lidarcal.errors import InputError
+from lidarcal.provenance import stamp
+
+__all__ = ["summary", "to_dataset", "corrected_model", "records_dataset", "sensitivity_statistics",
+           "UNITS"]
+
+#: Canonical units of the conditions variables (DESIGN 3.1).
+UNITS = {"wind_speed": "m s-1", "wind_from_direction": "degree", "turbulence_intensity": "1",
+         "wind_shear_exponent": "1", "cnr": "dB", "cnr_gradient": "dB m-1"}
+_STANDARD = {"wind_speed": "wind_speed", "wind_from_direction": "wind_from_direction"}
+
+
+def _num(x: float) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def summary(result: DiagnosisResult) -> dict[str, Any]:
+    """Return the ``--json`` object of DESIGN.md 3.2 (listed keys exact; a few documented extras).
+
+    ``score`` of a candidate is its ΔBIC against ``none`` (lower is better; ``none`` is 0).
+    Extras: ``uncertainties`` and ``units`` of the parameters, ``significant`` (step-2 test),
+    ``tied`` (candidates that cannot be told apart from the answer), ``note``,
+    ``gap_noise_floor`` and the per-height gaps.
+    """
+    chosen = result.chosen
+    cands = [{"effect": "none", "score": 0.0}] + [
+        {"effect": c.effect.id, "score": _num(c.delta_bic)} for c in result.candidates]
+    cands.sort(key=lambda c: (c["score"] if c["score"] is not None else math.inf))
+    heights = [float(h) for h in result.heights]
+    out = {
+        "effect": result.effect_id,
+        "parameters": {k: _num(v) for k, v in (chosen.estimate if chosen else {}).items()},
+        "drivers": list(chosen.effect.drivers) if chosen else [],
+        "gap_before": _num(result.gap_before[0]),
+        "gap_after": _num(result.gap_after[0]),
+        "gap_metric": GAP_METRIC,
+        "candidates": cands,
+        "uncertainties": {k: _num(v) for k, v in (chosen.stderr if chosen else {}).items()},
+        "units": {p.name: p.units for p in (chosen.effect.parameters if chosen else ())},
+        "significant": bool(result.significant),
+        "tied": list(result.tied),
+        "note": result.note,
+        "gap_noise_floor": _num(result.gap_before[2]),
+        "gap_before_by_height": dict(zip(map(str, heights), map(_num, result.gap_before[1]), strict=True)),
+        "gap_after_by_height": dict(zip(map(str, heights), map(_num, result.gap_after[1]), strict=True)),
+    }
+    return out
+
+
+def records_dataset(result: DiagnosisResult, which: str) -> xr.Dataset:
+    """Return records (``measured``, ``before``, ``after``) as a Dataset for the analysis stage.
+
+    The lidar speed is rebuilt from the relative difference on the measured reference, so all
+    three share the reference and the usable-period mask.
+    """
+    d = {"measured": result.d_measured, "before": result.d_before, "after": result.d_after}[which]
+    ref = np.asarray(result.field_dataset["reference_wind_speed"].transpose("time", "height").values, float)
+    ref = np.where(result.valid, ref, np.nan)
+    dims = ("time", "height")
+    ds = xr.Dataset(coords={"time": result.times, "height": height_coord(result.heights)})
+    ds["lidar_wind_speed"] = (dims, ref * (1.0 + d), var_attrs("lidar wind speed", "m s-1", "wind_speed"))
+    ds["reference_wind_speed"] = (dims, ref, var_attrs("reference wind speed", "m s-1", "wind_speed"))
+    for name in CONDITION_VARIABLES:
+        ds[name] = (dims, np.where(result.valid, result.conditions[name], np.nan),
+                    var_attrs(name.replace("_", " "), UNITS[name], _STANDARD.get(name)))
+    ds.attrs["lidarcal_artefact"] = "field_campaign" if which == "measured" else "simulated_rtd"
+    return ds
+
+
+def sensitivity_statistics(result: DiagnosisResult) -> dict[str, np.ndarray]:
+    """Eq. 12 statistic m·std (%) per (variable, height): measured, simulated before and after.
+
+    Computed by :func:`lidarcal.analysis.sensitivity` on the diagnosis' own quantile bins.
+    """
+    from lidarcal.analysis.sensitivity import sensitivity
+
+    out = {}
+    nv, nh = len(CONDITION_VARIABLES), len(result.heights)
+    for which in ("measured", "before", "after"):
+        recs = records_dataset(result, which)
+        vals = np.full((nv, nh), np.nan)
+        for i, name in enumerate(CONDITION_VARIABLES):
+            edges = result.binned_before.edges[i]
+            edges = edges[np.isfinite(edges)]
+            try:
+                sens = sensitivity(recs, name, bins=edges, min_samples=result.settings["min_bin_count"],
+                                   reference_range=None, source=result.source)
+            except InputError:
+                continue  # a variable without two populated bins has no slope
+            vals[i] = sens["slope_times_std"].values
+        out[which] = vals
+    return out
+
+
+def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagnose(field)",
+               inputs: dict | None = None, input_datasets: dict | None = None,
+               with_sensitivity: bool = True) -> xr.Dataset:
+    """Build the ``diagnosis`` artefact (stamped with provenance)."""
+    b0, b1 = result.binned_before, result.binned_after
+    nv, nb = b0.count.shape[:2]
+    vbh = ("variable", "bin", "height")
+    vh = ("variable", "height")
+    pct = 100.0
+    valid_r0 = np.where(result.valid, result.d_measured - result.d_before, np.nan)
+    valid_r1 = np.where(result.valid, result.d_measured - result.d_after, np.nan)
+    ds = xr.Dataset(coords={
+        "height": height_coord(result.heights),
+        "variable": ("variable", list(b0.variables), {"long_name": "environmental variable binned by"}),
+        "bin": ("bin", np.arange(nb, dtype=np.int32), {"long_name": "quantile bin index", "units": "1"}),
+        "candidate": ("candidate", ["none"] + [c.effect.id for c in result.candidates],
+                      {"long_name": "catalogue effect tried"}),
+    })
+    ds["gap_before"] = ("height", result.gap_before[1], var_attrs(
+        "gap between field and nominal model", "%", comment=GAP_METRIC))
+    ds["gap_after"] = ("height", result.gap_after[1], var_attrs(
+        "gap between field and corrected model", "%", comment=GAP_METRIC))
+    ds["gap_before_overall"] = ((), result.gap_before[0], var_attrs("overall gap, nominal model", "%"))
+    ds["gap_after_overall"] = ((), result.gap_after[0], var_attrs("overall gap, corrected model", "%"))
+    ds["gap_noise_floor"] = ((), result.gap_before[2], var_attrs(
+        "rms standard error of the bin means: the gap expected from Monte Carlo and sampling noise alone",
+        "%"))
+    ds["mean_residual_before"] = ("height", pct * np.nanmean(valid_r0, axis=0), var_attrs(
+        "mean residual (field minus nominal model relative difference)", "%"))
+    ds["mean_residual_after"] = ("height", pct * np.nanmean(valid_r1, axis=0), var_attrs(
+        "mean residual (field minus corrected model relative difference)", "%"))
+    ds["usable_periods"] = ("height", result.valid.sum(axis=0).astype(np.int32), var_attrs(
+        "number of periods used", "1", coverage_content_type="auxiliaryInformation"))
+    ds["binned_residual_before"] = (vbh, pct * b0.mean, var_attrs(
+        "bin mean of residual (field minus nominal model relative difference)", "%",
+        ancillary_variables="binned_residual_before_stderr bin_count"))
+    ds["binned_residual_before_stderr"] = (vbh, pct * b0.se, var_attrs(
+        "standard error of the bin mean residual, nominal model", "%"))
+    ds["binned_residual_after"] = (vbh, pct * b1.mean, var_attrs(
+        "bin mean of residual (field minus corrected model relative difference)", "%"))
+    ds["binned_residual_after_stderr"] = (vbh, pct * b1.se, var_attrs(
+        "standard error of the bin mean residual, corrected model", "%"))
+    ds["bin_count"] = (vbh, b0.count.astype(np.int32), var_attrs(
+        "number of periods in bin", "1", coverage_content_type="auxiliaryInformation"))
+    for i, name in enumerate(b0.variables):
+        e = b0.edges[i]
+        lower = np.full(nb, np.nan)
+        upper = np.full(nb, np.nan)
+        k = int(np.isfinite(e).sum()) - 1
+        lower[:k], upper[:k] = e[:k], e[1:k + 1]
+        label = name.replace("_", " ")
+        ds[f"{name}_bin_lower"] = ("bin", lower, var_attrs(f"lower limit of {label} bin", UNITS[name],
+                                                           _STANDARD.get(name)))
+        ds[f"{name}_bin_upper"] = ("bin", upper, var_attrs(f"upper limit of {label} bin", UNITS[name],
+                                                           _STANDARD.get(name)))
+        ds[f"{name}_bin_mean"] = (("bin", "height"), b0.center[i], var_attrs(
+            f"mean {label} of the periods in bin", UNITS[name], _STANDARD.get(name)))
+    ds["disagreement_chi2"] = (vh, result.tests["chi2"], var_attrs(
+        "chi-square of bin-mean residual scores (all bin means zero)", "1",
+        coverage_content_type="qualityInformation"))
+    ds["disagreement_dof"] = (vh, result.tests["dof"].astype(np.int32), var_attrs(
+        "degrees of freedom (populated bins) of the chi-square", "1",
+        coverage_content_type="qualityInformation"))
+    ds["disagreement_p_adjusted"] = (vh, result.tests["p_adjusted"], var_attrs(
+        "Holm-adjusted p-value of the disagreement test", "1", coverage_content_type="qualityInformation"))
+    ds["mean_residual_p_adjusted"] = ("height", result.tests["mean_p_adjusted"], var_attrs(
+        "Holm-adjusted p-value of the t-test that the mean residual is zero", "1",
+        coverage_content_type="qualityInformation"))
+    scores = [0.0] + [c.delta_bic for c in result.candidates]
+    explained = [0.0] + [c.explained for c in result.candidates]
+    ds["candidate_score"] = ("candidate", np.asarray(scores, float), var_attrs(
+        "BIC of the fitted candidate minus BIC of none (lower is better)", "1",
+        comment="BIC = n_eff ln(RSS/n) + k ln(n_eff), RSS weighted; n_eff = n / design effect"))
+    ds["candidate_explained_fraction"] = ("candidate", np.asarray(explained, float), var_attrs(
+        "fraction of the weighted residual sum of squares explained by the candidate", "1"))
+    for c in result.candidates:
+        for p in c.effect.parameters:
+            base = f"fit_{c.effect.id}_{p.name}"
+            ds[base] = ((), c.estimate[p.name], var_attrs(f"fitted {p.long_name} ({c.effect.id})", p.units))
+            ds[f"{base}_stderr"] = ((), c.stderr[p.name], var_attrs(
+                f"standard error of fitted {p.long_name} ({c.effect.id})", p.units))
+            ds[f"{base}_nominal"] = ((), c.nominal[p.name], var_attrs(
+                f"nominal {p.long_name} ({c.effect.id})", p.units))
+    if with_sensitivity:
+        sens = sensitivity_statistics(result)
+        for key, label in (("measured", "field records"), ("before", "nominal model"),
+                           ("after", "corrected model")):
+            ds[f"sensitivity_{key}"] = (vh, sens[key], var_attrs(
+                f"sensitivity statistic m*std (Eq. 12) of the relative difference, {label}", "%"))
+    js = summary(result)
+    ds.attrs = {
+        "diagnosis_effect": result.effect_id,
+        "diagnosis_note": result.note,
+        "diagnosis_json": json.dumps(js, sort_keys=False),
+        "gap_metric": GAP_METRIC,
+        "diagnosis_design_effect": float(result.design_effect),
+        "nominal_lidar_model": result.nominal_model.to_json(),
+        "lidarcal_lidar_model": result.corrected_model.to_json(),
+        "lidarcal_base_seed": int(result.settings["base_seed"]),
+        "field_source": str(result.source),
+    }
+    return stamp(
+        ds, "diagnosis",
+        title=f"Model-discrepancy diagnosis: {result.effect_id}",
+        summary=("Residual between a field campaign and the lidarcal Monte Carlo model, binned by height and "
+                 "environmental variables, catalogue effects fitted with common random numbers and ranked "
+                 "by BIC; the corrected lidar model is in lidarcal_lidar_model."),
+        call=call, inputs=inputs, input_datasets=input_datasets,
+        config={**result.settings, "catalogue": sorted(EFFECTS)},
+        seeds={"base_seed": int(result.settings["base_seed"])},
+    )
+
+
+def corrected_model(diagnosis: xr.Dataset | str):
+    """Return the corrected :class:`~lidarcal.lidar.LidarModel` of a diagnosis artefact (or path)."""
+    from lidarcal.io import open_artefact
+    from lidarcal.lidar import LidarModel
+
+    ds = diagnosis if isinstance(diagnosis, xr.Dataset) else open_artefact(diagnosis, "diagnosis")
+    text = ds.attrs.get("lidarcal_lidar_model")
+    if not text:
+        raise InputError(f"{ds.attrs.get('lidarcal_source_file', '<dataset>')}: global attribute "
+                         "'lidarcal_lidar_model' is missing; expected the JSON of a LidarModel")
+    return LidarModel.from_dict(text)

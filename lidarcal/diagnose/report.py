@@ -1,0 +1,100 @@
+"""Offline HTML report of a ``diagnosis`` artefact (hvplot/bokeh with INLINE resources).
+
+Plots: the gap per height before and after the correction; for every environmental variable
+the binned residual before and after; the Eq. 12 sensitivity statistic m·std of the measured
+records against the nominal and the corrected simulations (paper Figure 8 style); the
+candidate scores.  The page embeds bokeh's JavaScript, so it opens without network access.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from lidarcal.io import atomic_path
+
+__all__ = ["write_report", "report_layout"]
+
+
+def _header(ds: xr.Dataset) -> str:
+    js = json.loads(ds.attrs["diagnosis_json"])
+    rows = "".join(
+        f"<tr><td>{html.escape(c['effect'])}</td><td>{c['score']:.1f}</td></tr>"
+        for c in js["candidates"] if c["score"] is not None)
+    unc, units = js["uncertainties"], js["units"]
+    params = ", ".join(f"{k} = {v:.4g} ± {unc.get(k, float('nan')):.2g} {units.get(k, '')}"
+                       for k, v in js["parameters"].items()) or "—"
+    return (
+        f"<h2>lidarcal diagnose: {html.escape(js['effect'])}</h2>"
+        f"<p><b>Parameters:</b> {html.escape(params)}<br>"
+        f"<b>Drivers:</b> {html.escape(', '.join(js['drivers']) or '—')}"
+        f"<br><b>Gap:</b> {js['gap_before']:.3f} % → {js['gap_after']:.3f} % "
+        f"(noise floor {js['gap_noise_floor']:.3f} %)<br><b>Note:</b> {html.escape(js['note'])}"
+        f"<br><small>gap metric: {html.escape(js['gap_metric'])}</small></p>"
+        f"<table><tr><th>candidate</th><th>score (ΔBIC vs none)</th></tr>{rows}</table>"
+    )
+
+
+def report_layout(ds: xr.Dataset):
+    """Build the holoviews layout of the report (header text and plots)."""
+    import holoviews as hv
+    import hvplot.pandas  # noqa: F401  (registers .hvplot)
+
+    hv.extension("bokeh", logo=False)
+    plots = [hv.Div(_header(ds)).opts(width=900, height=330)]
+    gaps = pd.DataFrame({"height": ds.height.values, "before": ds.gap_before.values,
+                         "after": ds.gap_after.values}).melt("height", var_name="model", value_name="gap")
+    plots.append(gaps.hvplot.line(x="height", y="gap", by="model", title="Gap per height (%)",
+                                  xlabel="height (m)", ylabel="gap (%)", width=450, height=300)
+                 * gaps.hvplot.scatter(x="height", y="gap", by="model"))
+    for var in ds.variable.values:
+        var = str(var)
+        centre = ds[f"{var}_bin_mean"]
+        frames = []
+        for when in ("before", "after"):
+            r = ds[f"binned_residual_{when}"].sel(variable=var)
+            for h in ds.height.values:
+                frames.append(pd.DataFrame({"x": centre.sel(height=h).values,
+                                            "residual": r.sel(height=h).values,
+                                            "series": f"{when}, {h:g} m"}))
+        df = pd.concat(frames).dropna()
+        plots.append(df.hvplot.line(x="x", y="residual", by="series", width=450, height=300,
+                                    title=f"Binned residual vs {var} (%)",
+                                    xlabel=f"{var} ({ds[f'{var}_bin_mean'].attrs['units']})",
+                                    ylabel="field − model (%)"))
+    if "sensitivity_measured" in ds:
+        for var in ds.variable.values:
+            var = str(var)
+            df = pd.concat([pd.DataFrame({"height": ds.height.values,
+                                          "m_std": ds[f"sensitivity_{k}"].sel(variable=var).values,
+                                          "source": label})
+                            for k, label in (("measured", "measured"), ("before", "simulated, nominal"),
+                                             ("after", "simulated, corrected"))])
+            plots.append(df.hvplot.line(x="height", y="m_std", by="source", width=450, height=300,
+                                        title=f"Sensitivity m·std to {var} (%)", xlabel="height (m)",
+                                        ylabel="m·std (%)"))
+    scores = pd.DataFrame({"candidate": [str(c) for c in ds.candidate.values],
+                           "score": np.asarray(ds.candidate_score.values, float)})
+    plots.append(scores.hvplot.bar(x="candidate", y="score", rot=30, width=450, height=300,
+                                   title="Candidate score (ΔBIC vs none; lower is better)"))
+    return hv.Layout(plots).cols(2)
+
+
+def write_report(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    """Write the self-contained (INLINE resources) HTML report atomically."""
+    import hvplot
+    from bokeh.resources import INLINE
+
+    layout = report_layout(ds)
+    path = Path(path)
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        html_tmp = tmp.with_suffix(".html")
+        hvplot.save(layout, os.fspath(html_tmp), resources=INLINE, title="lidarcal diagnosis")
+        os.replace(html_tmp, tmp)
+    return path
