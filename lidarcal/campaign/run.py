@@ -211,6 +211,7 @@ def simulate_campaign(
     duration: float = 600.0,
     connect_timeout: float = 5.0,
     call: str | None = None,
+    inputs: dict[str, str | os.PathLike] | None = None,
 ) -> xr.Dataset:
     """Simulate every 10-minute period of ``conditions`` with the virtual lidar ``model``.
 
@@ -242,6 +243,8 @@ def simulate_campaign(
         Seconds to wait for a remote scheduler before raising :class:`~lidarcal.errors.InputError`.
     call : str, optional
         Command line recorded in the history (default: a description of this call).
+    inputs : mapping of role to path, optional
+        Further input files to record with their checksums (e.g. ``cube``, ``rwf``).
 
     Returns
     -------
@@ -343,7 +346,7 @@ def simulate_campaign(
             f"compared with a virtual cup-like point reference."
         ),
         call=call or f"lidarcal.campaign.simulate_campaign({source!r}, base_seed={base_seed}, chunk={chunk})",
-        inputs={"conditions": path} if path else None,
+        inputs={**({"conditions": path} if path else {}), **(inputs or {})},
         input_datasets={"conditions": cond},
         config=config,
         seeds={

@@ -13,7 +13,7 @@ Two modes, both seeded through :class:`numpy.random.SeedSequence` (never the glo
   below the top measured height values are interpolated in log-height; above it the top
   height's speed is extrapolated with that period's shear exponent (Eq. 10), direction and
   ``sigma_u`` are held, so ``TI(z) = sigma_u / U(z)``.  Periods with a missing value stay
-  missing (NaN), they are never invented.
+  missing (NaN), they are never invented; extrapolations giving TI > 1 are set missing too.
 
 In both modes the shear exponent written to the file is recomputed from the generated
 speeds at neighbouring heights (:func:`~lidarcal.conditions.kernels.shear_exponent`), exactly
@@ -112,6 +112,11 @@ def _extrapolated(base: xr.Dataset, n: int, z: np.ndarray) -> dict[str, np.ndarr
     direction = base.wind_from_direction.values[:n][:, nearest]
     with np.errstate(divide="ignore", invalid="ignore"):
         ti = out_sig / out_u
+    # a strongly negative shear carried far above the mast can make U(z) tiny and TI > 1:
+    # not physical, so such (period, height) values are left missing, not clipped
+    unphysical = ti > 1.0
+    out_u[unphysical] = np.nan
+    ti[unphysical] = np.nan
     return {
         "wind_speed": out_u,
         "wind_from_direction": direction,

@@ -1,0 +1,145 @@
+"""``lidarcal conditions``: check a conditions input, or generate synthetic conditions.
+
+Examples::
+
+    lidarcal conditions check field.nc --kind field_campaign
+    lidarcal conditions synthetic -n 13700 --heights 40 60 80 100 120 140 160 200 --seed 1 -o c.nc
+    lidarcal conditions synthetic --from-sample --heights 40 80 120 160 200 -o sample200.nc
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import warnings
+
+import numpy as np
+
+from lidarcal.io import check_writable, open_artefact, write_artefact
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``conditions`` subcommand and its actions."""
+    p = sub.add_parser(
+        "conditions",
+        help="check or generate 10-minute conditions inputs",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    acts = p.add_subparsers(dest="action", metavar="ACTION")
+    chk = acts.add_parser("check", help="load a conditions/field_campaign file and summarise it")
+    chk.add_argument("file", metavar="FILE")
+    chk.add_argument("--kind", choices=("conditions", "field_campaign"), default="conditions")
+    chk.set_defaults(handler=run_check)
+    syn = acts.add_parser(
+        "synthetic", help="seeded synthetic conditions (or the sample extrapolated in height)"
+    )
+    syn.add_argument(
+        "-n",
+        "--periods",
+        type=int,
+        default=None,
+        metavar="N",
+        help="number of 10-minute periods (default 1008 = one week; all with --from-sample)",
+    )
+    syn.add_argument(
+        "--heights",
+        type=float,
+        nargs="+",
+        default=[40, 60, 80, 100, 120, 140, 160, 200],
+        metavar="M",
+        help="heights in m (default 40 60 80 100 120 140 160 200)",
+    )
+    syn.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    src = syn.add_mutually_exclusive_group()
+    src.add_argument(
+        "--from-sample",
+        action="store_true",
+        help="extrapolate the embedded real sample with each period's shear exponent",
+    )
+    src.add_argument("--base", metavar="C.nc", help="extrapolate this conditions file instead")
+    syn.add_argument(
+        "--median-speed",
+        type=float,
+        default=8.0,
+        metavar="M/S",
+        help="stochastic mode: median speed at the reference height (default 8)",
+    )
+    syn.add_argument(
+        "--ref-height",
+        type=float,
+        default=80.0,
+        metavar="M",
+        help="stochastic mode: reference height (default 80)",
+    )
+    syn.add_argument(
+        "--turbulence-reference",
+        type=float,
+        default=0.10,
+        metavar="I_REF",
+        help="stochastic mode: IEC reference turbulence intensity (default 0.10)",
+    )
+    syn.add_argument("-o", "--output", required=True, metavar="C.nc")
+    syn.add_argument("--overwrite", action="store_true")
+    syn.set_defaults(handler=run_synthetic)
+    p.set_defaults(handler=lambda args: p.print_help() or 1)
+
+
+def run_check(args: argparse.Namespace) -> int:
+    """Print the shape, ranges and skipped periods of a conditions input."""
+    from lidarcal.conditions import load_conditions
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ds = load_conditions(args.file, kind=args.kind)
+    print(f"{args.file}: {args.kind} ok, {ds.sizes['time']} periods, heights {ds.height.values.tolist()} m")
+    for name in ds.data_vars:
+        if name == "input_complete":
+            continue
+        v = ds[name].values
+        print(
+            f"  {name:22s} [{ds[name].attrs['units']}]  min {np.nanmin(v):9.4g}"
+            f"  median {np.nanmedian(v):9.4g}  max {np.nanmax(v):9.4g}"
+        )
+    print(f"  skipped (period, height) pairs: {ds.attrs['lidarcal_skipped_count']}")
+    for w in caught:
+        print(f"  note: {w.message}")
+    return 0
+
+
+def run_synthetic(args: argparse.Namespace) -> int:
+    """Generate synthetic conditions and write them with provenance."""
+    from lidarcal.conditions import sample_conditions_path, synthetic_conditions
+    from lidarcal.provenance import stamp
+
+    check_writable(args.output, overwrite=args.overwrite)
+    base_path = args.base or (sample_conditions_path() if args.from_sample else None)
+    base = open_artefact(base_path) if base_path else None
+    n = args.periods or (base.sizes["time"] if base is not None else 1008)
+    ds = synthetic_conditions(
+        n,
+        args.heights,
+        args.seed,
+        base=base,
+        ref_height=args.ref_height,
+        median_speed=args.median_speed,
+        turbulence_reference=args.turbulence_reference,
+    )
+    mode = "extrapolated from " + str(base_path) if base is not None else "stochastic"
+    ds = stamp(
+        ds,
+        "conditions",
+        title=f"Synthetic 10-minute conditions ({mode})",
+        summary=f"{n} ten-minute periods at {len(args.heights)} heights generated by "
+        f"lidarcal.conditions.synthetic_conditions ({mode}).",
+        call="lidarcal conditions " + shlex.join(sys.argv[2:]),
+        inputs={"base": base_path} if base_path else None,
+        config={k: v for k, v in vars(args).items() if k not in ("handler", "output", "overwrite")},
+        seeds={"seed": args.seed},
+    )
+    if base is not None and "source_license" in base.attrs:
+        ds.attrs["license"] = base.attrs.get("license", ds.attrs["license"])
+    write_artefact(ds, args.output, overwrite=args.overwrite)
+    print(f"wrote {args.output}: {n} periods at heights {args.heights} m")
+    return 0
