@@ -228,7 +228,8 @@ def test_sample_data_is_reproducible_and_ingests(tmp_path):
     assert rtd.stat().st_size + control.stat().st_size < 3.1e6
     # the README's command regenerates the sample byte for byte (seeded, deterministic format)
     from lidarcal.cli import main
-    assert main(["bench", "simulate", "-o", str(tmp_path), "--seed", "2023", "--accumulation-time", "18"]) == 0
+    args = ["bench", "simulate", "-o", str(tmp_path), "--seed", "2023", "--accumulation-time", "18"]
+    assert main(args) == 0
     assert (tmp_path / "rtd.csv").read_bytes() == rtd.read_bytes()
     assert (tmp_path / "control_log.csv").read_bytes() == control.read_bytes()
     ds = ingest(rtd, control)
