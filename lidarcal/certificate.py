@@ -1,0 +1,524 @@
+"""The calibration certificate: one flat, self-verifying netCDF file (paper Figure 1, DESIGN §1).
+
+:func:`make_certificate` bundles the uncertainty budget, the sensitivities, the bench cube,
+the RWF (with Zd), the Table 4 terms and a summary of the records into **one flat Dataset**:
+every component's variables, coordinates and dimensions are renamed with a prefix
+(``budget_uncertainty``, ``cube_los_bias``, ``rwf_zero_distance``,
+``sensitivity_wind_shear_exponent_slope`` ...), so that plain netCDF tools (ncdump, netCDF4,
+any language) read it without groups.  :func:`extract_component` gives a component back as
+the Dataset it was.  The full configuration and the provenance chain of every input (file
+name, SHA-256, its own inputs, configuration, seeds and history) are global attributes.
+
+:func:`write_certificate` writes atomically, refuses to replace an existing file unless asked,
+and **seals** it: a global attribute ``lidarcal_integrity`` records the SHA-256 of every
+variable's stored values, of every variable's attributes and of every global attribute.  The
+canonical byte forms are defined on the file as stored (no xarray decoding), so the record
+can be re-checked years later with any netCDF library (:func:`integrity_record` documents
+them); :func:`verify_certificate` (``lidarcal verify``) recomputes them.  The record detects
+alteration, not forgery: whoever can rewrite the file can also rewrite the checksums.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.errors import InputError
+from lidarcal.io import atomic_path, check_writable, write_artefact
+from lidarcal.provenance import stamp
+
+__all__ = [
+    "make_certificate",
+    "write_certificate",
+    "verify_certificate",
+    "integrity_record",
+    "extract_component",
+    "components",
+    "VerificationReport",
+]
+
+INTEGRITY_ATTR = "lidarcal_integrity"
+CANONICAL_FORM = (
+    "data: sha256(json({dims, dtype, shape}) + newline + values), values read without masking or "
+    "scaling, numeric in little-endian C order, strings UTF-8 joined by NUL; attributes: "
+    "sha256(json(sorted {name: value}, strings as is, numbers as {dtype, values})); "
+    "global attributes: one digest each, excluding lidarcal_integrity"
+)
+_ROLE_KINDS = {
+    "budget": "uncertainty_budget",
+    "cube": "bench_cube",
+    "rwf": "rwf",
+    "terms": "uncertainty_terms",
+}
+_RECORD_KINDS = ("simulated_rtd", "field_campaign")
+
+
+# ------------------------------------------------------------------ JSON helpers
+
+
+def _plain(obj: Any) -> Any:
+    if isinstance(obj, Mapping):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, bytes):
+        return obj.decode("utf-8", "replace")
+    if isinstance(obj, os.PathLike):
+        return os.fspath(obj)
+    if isinstance(obj, float) and not np.isfinite(obj):
+        return str(obj)
+    return obj
+
+
+def _json_attr(ds: xr.Dataset, name: str) -> Any:
+    text = ds.attrs.get(name)
+    if text is None:
+        return None
+    try:
+        return json.loads(text)
+    except (TypeError, ValueError):
+        return text
+
+
+# ------------------------------------------------------------------ flattening
+
+
+def _prefixed(ds: xr.Dataset, prefix: str) -> xr.Dataset:
+    """Rename every variable, coordinate and dimension of ``ds`` to ``prefix + name``."""
+    names = {str(n): f"{prefix}{n}" for n in ds.variables}
+    dims = {str(d): f"{prefix}{d}" for d in ds.dims if d not in ds.variables}
+    out = ds.rename({**names, **dims})
+    for var in out.variables.values():
+        for key in ("bounds", "ancillary_variables"):
+            if key in var.attrs:
+                var.attrs[key] = " ".join(names.get(t, t) for t in str(var.attrs[key]).split())
+        var.encoding = {}
+    out.attrs = {}
+    # a scalar coordinate would be attached (``coordinates``) to every variable of the flat
+    # file, e.g. giving all heights a second Z axis; store it as a data variable instead
+    return out.reset_coords(_scalar_coords(out))
+
+
+def _scalar_coords(ds: xr.Dataset) -> list[str]:
+    return [str(n) for n, c in ds.coords.items() if c.ndim == 0]
+
+
+def extract_component(cert: xr.Dataset, name: str) -> xr.Dataset:
+    """Return component ``name`` (``"budget"``, ``"cube"``, ``"sensitivity_cnr"`` ...) as it was.
+
+    Names, dimensions and the component's global attributes are restored.
+    """
+    info = {c["name"]: c for c in components(cert)}
+    if name not in info:
+        raise InputError(f"certificate has no component {name!r}; it has {sorted(info)}")
+    prefix = info[name]["prefix"]
+    keep = [v for v in cert.variables if str(v).startswith(prefix)]
+    sub = cert[[v for v in keep if v in cert.data_vars]]
+    sub = sub.assign_coords({v: cert[v] for v in keep if v in cert.coords and v not in sub.coords})
+    sub = sub.drop_vars([v for v in sub.variables if not str(v).startswith(prefix)])
+    rename = {str(v): str(v)[len(prefix) :] for v in sub.variables}
+    rename.update({str(d): str(d)[len(prefix) :] for d in sub.dims if d not in sub.variables})
+    out = sub.rename(rename)
+    for var in out.variables.values():
+        for key in ("bounds", "ancillary_variables"):
+            if key in var.attrs:
+                var.attrs[key] = " ".join(
+                    t[len(prefix) :] if t.startswith(prefix) else t for t in str(var.attrs[key]).split()
+                )
+    out.attrs = dict(info[name].get("attributes", {}))
+    scalars = [n for n in info[name].get("scalar_coordinates", []) if n in out.variables]
+    return out.set_coords(scalars)
+
+
+def components(cert: xr.Dataset) -> list[dict[str, Any]]:
+    """List the components of a certificate (name, prefix, kind, file, sha256, attributes)."""
+    comps = _json_attr(cert, "lidarcal_components")
+    if not isinstance(comps, list):
+        raise InputError("not a lidarcal certificate: global attribute 'lidarcal_components' is missing")
+    return comps
+
+
+# ------------------------------------------------------------------ consistency
+
+
+def _label(role: str, ds: xr.Dataset) -> str:
+    src = ds.attrs.get("lidarcal_source_file")
+    return f"{role} ({src})" if src else role
+
+
+def _find_key(obj: Any, key: str) -> Any:
+    if isinstance(obj, Mapping):
+        if key in obj:
+            return obj[key]
+        for v in obj.values():
+            found = _find_key(v, key)
+            if found is not None:
+                return found
+    elif isinstance(obj, list):
+        for v in obj:
+            found = _find_key(v, key)
+            if found is not None:
+                return found
+    return None
+
+
+def _serial(ds: xr.Dataset) -> str | None:
+    if ds.attrs.get("lidar_serial"):
+        return str(ds.attrs["lidar_serial"])
+    model = _json_attr(ds, "lidarcal_lidar_model")
+    found = _find_key(model, "lidar_serial") if model is not None else None
+    return str(found) if found else None
+
+
+def _check_consistent(inputs: Mapping[str, xr.Dataset]) -> str | None:
+    """Refuse inputs that describe different lidars or were derived from other files."""
+    serials = {role: s for role, ds in inputs.items() if (s := _serial(ds))}
+    distinct = sorted(set(serials.values()))
+    if len(distinct) > 1:
+        pairs = [f"{_label(r, inputs[r])} has lidar_serial {s!r}" for r, s in serials.items()]
+        raise InputError("inputs disagree on the lidar: " + "; ".join(pairs))
+    known = {role: ds.attrs.get("lidarcal_source_sha256") for role, ds in inputs.items()}
+    for role, ds in inputs.items():
+        recorded = _json_attr(ds, "lidarcal_inputs")
+        for rec in recorded if isinstance(recorded, list) else []:
+            other = rec.get("role")
+            if other in known and known[other] and other != role and rec.get("sha256") != known[other]:
+                raise InputError(
+                    f"inputs disagree: {_label(role, ds)} was computed from {other} "
+                    f"{rec.get('file')!r} (sha256 {str(rec.get('sha256'))[:12]}...), "
+                    f"but the {other} given is "
+                    f"{inputs[other].attrs.get('lidarcal_source_file')!r} (sha256 {known[other][:12]}...)"
+                )
+    return distinct[0] if distinct else None
+
+
+def _check_kind(role: str, ds: xr.Dataset, kinds: Iterable[str]) -> None:
+    kinds = tuple(kinds)
+    found = ds.attrs.get("lidarcal_artefact")
+    if found is not None and found not in kinds:
+        raise InputError(
+            f"{_label(role, ds)}: is a {found!r} artefact; expected {' or '.join(map(repr, kinds))}"
+        )
+
+
+# ------------------------------------------------------------------ building
+
+
+def _provenance(role: str, ds: xr.Dataset) -> dict[str, Any]:
+    return {
+        "role": role,
+        "kind": ds.attrs.get("lidarcal_artefact"),
+        "file": ds.attrs.get("lidarcal_source_file"),
+        "sha256": ds.attrs.get("lidarcal_source_sha256"),
+        "id": ds.attrs.get("id"),
+        "lidarcal_version": ds.attrs.get("lidarcal_version"),
+        "inputs": _json_attr(ds, "lidarcal_inputs"),
+        "config": _json_attr(ds, "lidarcal_config"),
+        "seeds": _json_attr(ds, "lidarcal_seeds"),
+        "history": ds.attrs.get("history"),
+    }
+
+
+def _records_summary(records: xr.Dataset) -> dict[str, Any]:
+    out: dict[str, Any] = {
+        "kind": records.attrs.get("lidarcal_artefact"),
+        "periods": int(records.sizes.get("time", 0)),
+    }
+    if "height" in records.coords:
+        out["heights_m"] = [float(h) for h in np.atleast_1d(records["height"].values)]
+    if "time" in records.coords and records.sizes.get("time", 0):
+        t = records["time"].values
+        out["time_coverage_start"] = str(np.min(t))
+        out["time_coverage_end"] = str(np.max(t))
+    for name in ("lidarcal_base_seed", "lidarcal_lidar_model"):
+        if name in records.attrs:
+            out[name] = _json_attr(records, name)
+    return out
+
+
+def make_certificate(
+    *,
+    budget: xr.Dataset,
+    sensitivities: Mapping[str, xr.Dataset] | Iterable[xr.Dataset],
+    cube: xr.Dataset | None = None,
+    rwf: xr.Dataset | None = None,
+    terms: xr.Dataset | None = None,
+    records: xr.Dataset | None = None,
+    config: Mapping[str, Any] | None = None,
+    call: str = "lidarcal.certificate.make_certificate",
+) -> xr.Dataset:
+    """Bundle a calibration into one flat ``certificate`` Dataset (not yet sealed).
+
+    Parameters
+    ----------
+    budget : xarray.Dataset
+        ``uncertainty_budget`` artefact.
+    sensitivities : mapping or iterable of xarray.Dataset
+        ``sensitivity`` artefacts, one per environmental variable.
+    cube, rwf, terms : xarray.Dataset, optional
+        ``bench_cube``, ``rwf`` and ``uncertainty_terms`` artefacts.
+    records : xarray.Dataset, optional
+        The ``simulated_rtd`` / ``field_campaign`` records the budget came from: summarised
+        (not copied) and checked against the other inputs.
+    config : mapping, optional
+        The full configuration of the calibration run, recorded as JSON.
+
+    Raises
+    ------
+    InputError
+        If inputs describe different lidars (``lidar_serial``), if an input was computed from
+        a different file than the one given, or an input is of the wrong kind.
+    """
+    sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
+    inputs: dict[str, xr.Dataset] = {"budget": budget}
+    for role, ds in (("cube", cube), ("rwf", rwf), ("terms", terms)):
+        if ds is not None:
+            inputs[role] = ds
+    for role, ds in inputs.items():
+        _check_kind(role, ds, [_ROLE_KINDS[role]])
+    sens_roles: dict[str, xr.Dataset] = {}
+    for ds in sens:
+        _check_kind("sensitivity", ds, ["sensitivity"])
+        var = ds.attrs.get("environmental_variable")
+        if not var:
+            raise InputError(f"{_label('sensitivity', ds)}: attribute 'environmental_variable' is missing")
+        role = f"sensitivity_{var}"
+        if role in sens_roles:
+            raise InputError(
+                f"two sensitivity inputs for the same variable {var!r}: "
+                f"{_label(role, sens_roles[role])} and {_label(role, ds)}"
+            )
+        sens_roles[role] = ds
+    everything = {**inputs, **sens_roles}
+    if records is not None:
+        _check_kind("records", records, _RECORD_KINDS)
+        everything["records"] = records
+    # derived artefacts record their records input under the role "records"
+    serial = _check_consistent(everything)
+
+    parts = [_prefixed(ds, f"{role}_") for role, ds in {**inputs, **sens_roles}.items()]
+    cert = xr.merge(parts, compat="no_conflicts", join="exact", combine_attrs="drop_conflicts")
+    comps = []
+    for role, ds in {**inputs, **sens_roles}.items():
+        attrs = {k: _plain(v) for k, v in ds.attrs.items() if not k.startswith("lidarcal_source_")}
+        comps.append(
+            {
+                "name": role,
+                "prefix": f"{role}_",
+                "kind": ds.attrs.get("lidarcal_artefact"),
+                "file": ds.attrs.get("lidarcal_source_file"),
+                "sha256": ds.attrs.get("lidarcal_source_sha256"),
+                "scalar_coordinates": _scalar_coords(ds),
+                "attributes": attrs,
+            }
+        )
+    chain = [_provenance(role, ds) for role, ds in everything.items()]
+    cert.attrs = {
+        "certificate_components": " ".join(c["name"] for c in comps),
+        "lidarcal_components": json.dumps(_plain(comps), sort_keys=True),
+        "lidarcal_provenance_chain": json.dumps(_plain(chain), sort_keys=True),
+        "budget_approach": str(budget.attrs.get("approach", "unknown")),
+    }
+    if serial:
+        cert.attrs["lidar_serial"] = serial
+    if records is not None:
+        cert.attrs["lidarcal_records_summary"] = json.dumps(_plain(_records_summary(records)), sort_keys=True)
+    if rwf is not None and "zero_distance" in rwf:
+        cert.attrs["zero_distance_m"] = float(rwf["zero_distance"])
+    for key in ("bench_id", "operator", "run_id", "time_coverage_start", "time_coverage_end"):
+        if cube is not None and key in cube.attrs:
+            cert.attrs[f"bench_{key}" if not key.startswith("bench") else key] = str(cube.attrs[key])
+    return stamp(
+        cert,
+        "certificate",
+        title=f"Lidar calibration certificate{' for ' + serial if serial else ''}",
+        summary=(
+            "Anemometer-free calibration of a pulsed Doppler wind lidar (SAFO-MV bench + Monte Carlo "
+            "virtual lidar): uncertainty budget, environmental sensitivities, bench cube, range-weighting "
+            "function and zero distance, with the provenance of every input and an integrity record."
+        ),
+        call=call,
+        input_datasets=everything,
+        config=dict(config or {}),
+        keywords="Doppler lidar, wind speed, calibration certificate, uncertainty, traceability",
+    )
+
+
+# ------------------------------------------------------------------ integrity
+
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _canonical_attr(value: Any) -> Any:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace")
+    arr = np.asarray(value)
+    values = arr.tolist()
+    return {
+        "dtype": arr.dtype.newbyteorder("<").str if arr.dtype.kind in "iuf" else arr.dtype.kind,
+        "values": values if not (arr.dtype.kind == "f") else [repr(float(v)) for v in np.ravel(arr)],
+    }
+
+
+def _attrs_digest(obj, names: Iterable[str]) -> str:
+    canon = {n: _canonical_attr(obj.getncattr(n)) for n in sorted(names)}
+    return _sha(json.dumps(canon, sort_keys=True, ensure_ascii=False).encode("utf-8"))
+
+
+def _data_digest(var) -> str:
+    var.set_auto_maskandscale(False)
+    if hasattr(var, "set_auto_chartostring"):
+        var.set_auto_chartostring(False)
+    data = np.asarray(var[...])
+    shape = list(var.shape)
+    if data.dtype.kind in "OU":
+        payload = b"\0".join(str(x).encode("utf-8") for x in data.ravel(order="C"))
+        dtype = "str"
+    else:
+        arr = np.ascontiguousarray(data)
+        if arr.dtype.kind in "iuf" and arr.dtype.byteorder == ">":
+            arr = arr.astype(arr.dtype.newbyteorder("<"))
+        dtype = arr.dtype.newbyteorder("<").str if arr.dtype.kind in "iuf" else arr.dtype.str
+        payload = arr.tobytes(order="C")
+    header = json.dumps({"dims": list(var.dimensions), "dtype": dtype, "shape": shape}, sort_keys=True)
+    return _sha(header.encode("utf-8") + b"\n" + payload)
+
+
+def integrity_record(path: str | os.PathLike) -> dict[str, Any]:
+    """Compute the integrity record of a netCDF file as stored (see :data:`CANONICAL_FORM`)."""
+    import netCDF4
+
+    with netCDF4.Dataset(path, "r") as nc:
+        if nc.groups:
+            raise InputError(f"{path}: has netCDF groups; a lidarcal certificate is flat")
+        variables = {
+            name: {"data": _data_digest(var), "attributes": _attrs_digest(var, var.ncattrs())}
+            for name, var in nc.variables.items()
+        }
+        glob = {n: _attrs_digest(nc, [n]) for n in nc.ncattrs() if n != INTEGRITY_ATTR}
+        dims = {name: len(d) for name, d in nc.dimensions.items()}
+    return {
+        "algorithm": "sha256",
+        "canonical_form": CANONICAL_FORM,
+        "dimensions": dims,
+        "variables": variables,
+        "global_attributes": glob,
+    }
+
+
+def write_certificate(cert: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    """Validate, write atomically and seal a certificate; never replaces a file silently."""
+    import netCDF4
+
+    if cert.attrs.get("lidarcal_artefact") != "certificate":
+        raise InputError(
+            f"{path}: dataset is a {cert.attrs.get('lidarcal_artefact')!r} artefact, not a certificate"
+        )
+    path = check_writable(path, overwrite=overwrite)
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        write_artefact(cert, tmp, overwrite=True)
+        record = integrity_record(tmp)
+        with netCDF4.Dataset(tmp, "a") as nc:
+            nc.setncattr(INTEGRITY_ATTR, json.dumps(record, sort_keys=True))
+    return path
+
+
+@dataclass
+class VerificationReport:
+    """Outcome of :func:`verify_certificate`."""
+
+    path: str
+    problems: list[str] = field(default_factory=list)
+    variables_checked: int = 0
+    attributes_checked: int = 0
+
+    @property
+    def ok(self) -> bool:
+        """True when nothing was altered and the schema is satisfied."""
+        return not self.problems
+
+
+def verify_certificate(path: str | os.PathLike) -> VerificationReport:
+    """Recompute a certificate's checksums and schema; list everything that changed.
+
+    Raises
+    ------
+    InputError
+        If ``path`` is missing, unreadable or not a lidarcal certificate.
+    """
+    import netCDF4
+
+    from lidarcal.io import open_artefact
+    from lidarcal.schema import validate_dataset
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: file not found")
+    try:
+        with netCDF4.Dataset(path, "r") as nc:
+            kind = nc.getncattr("lidarcal_artefact") if "lidarcal_artefact" in nc.ncattrs() else None
+            stored = nc.getncattr(INTEGRITY_ATTR) if INTEGRITY_ATTR in nc.ncattrs() else None
+    except OSError as exc:
+        raise InputError(f"{path}: not a readable netCDF file: {exc}") from None
+    if kind != "certificate":
+        what = (
+            f"a {kind!r} artefact" if kind else "not a lidarcal artefact (no 'lidarcal_artefact' attribute)"
+        )
+        raise InputError(f"{path}: not a lidarcal certificate: it is {what}")
+    report = VerificationReport(str(path))
+    if stored is None:
+        report.problems.append(
+            f"global attribute {INTEGRITY_ATTR!r} is missing: the certificate was never "
+            "sealed or the seal was removed"
+        )
+        return report
+    try:
+        expected = json.loads(stored)
+        exp_vars, exp_glob = expected["variables"], expected["global_attributes"]
+    except (ValueError, KeyError, TypeError):
+        report.problems.append(f"global attribute {INTEGRITY_ATTR!r} is not a valid integrity record")
+        return report
+    found = integrity_record(path)
+    for name in sorted(set(exp_vars) | set(found["variables"])):
+        if name not in found["variables"]:
+            report.problems.append(f"variable {name!r} was removed")
+        elif name not in exp_vars:
+            report.problems.append(f"variable {name!r} was added")
+        else:
+            if exp_vars[name]["data"] != found["variables"][name]["data"]:
+                report.problems.append(f"variable {name!r}: values altered")
+            if exp_vars[name]["attributes"] != found["variables"][name]["attributes"]:
+                report.problems.append(f"variable {name!r}: attributes altered")
+    for name in sorted(set(exp_glob) | set(found["global_attributes"])):
+        if name not in found["global_attributes"]:
+            report.problems.append(f"global attribute {name!r} was removed")
+        elif name not in exp_glob:
+            report.problems.append(f"global attribute {name!r} was added")
+        elif exp_glob[name] != found["global_attributes"][name]:
+            report.problems.append(f"global attribute {name!r} altered")
+    if expected.get("dimensions") not in (None, found["dimensions"]):
+        report.problems.append(f"dimensions changed: {expected['dimensions']} -> {found['dimensions']}")
+    report.variables_checked = len(found["variables"])
+    report.attributes_checked = len(found["global_attributes"])
+    ds = open_artefact(path, load=False, chunks={})
+    try:
+        report.problems.extend(f"schema: {p}" for p in validate_dataset(ds, "certificate", source=str(path)))
+    finally:
+        ds.close()
+    return report

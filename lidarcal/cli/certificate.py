@@ -1,0 +1,82 @@
+"""``lidarcal certificate --budget B.nc --sensitivity S.nc ... -o CERT.nc [--report CERT.html]``.
+
+Bundle a calibration (budget, sensitivities, bench cube, RWF and Zd, Table 4 terms) with the
+provenance of every input into one sealed netCDF certificate; check it later with
+``lidarcal verify CERT.nc``.  An existing certificate is never replaced without ``--overwrite``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+
+from lidarcal.certificate import make_certificate, write_certificate
+from lidarcal.io import check_writable, open_artefact
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``certificate`` subcommand."""
+    p = sub.add_parser(
+        "certificate",
+        help="bundle and seal a calibration certificate",
+        description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--budget", required=True, metavar="BUDGET.nc", help="uncertainty_budget artefact")
+    p.add_argument(
+        "--sensitivity",
+        action="append",
+        default=[],
+        metavar="SENS.nc",
+        help="sensitivity artefact (repeatable, one per variable)",
+    )
+    p.add_argument("--cube", metavar="CUBE.nc", help="bench_cube artefact")
+    p.add_argument("--rwf", metavar="RWF.nc", help="rwf artefact (RWF and zero distance)")
+    p.add_argument("--terms", metavar="TERMS.nc", help="uncertainty_terms artefact (Table 4)")
+    p.add_argument(
+        "--records", metavar="RECORDS.nc", help="simulated_rtd / field_campaign records (summarised)"
+    )
+    p.add_argument("-o", "--output", required=True, metavar="CERT.nc")
+    p.add_argument("--report", metavar="CERT.html", help="also write the HTML report (and its PNGs)")
+    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    p.set_defaults(handler=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Open the inputs, build, seal and (optionally) report."""
+    check_writable(args.output, overwrite=args.overwrite)
+    if args.report:
+        check_writable(args.report, overwrite=args.overwrite)
+    budget = open_artefact(args.budget, "uncertainty_budget")
+    sens = [open_artefact(path, "sensitivity") for path in args.sensitivity]
+    optional = {
+        name: open_artefact(path, kind) if path else None
+        for name, path, kind in (
+            ("cube", args.cube, "bench_cube"),
+            ("rwf", args.rwf, "rwf"),
+            ("terms", args.terms, "uncertainty_terms"),
+            ("records", args.records, None),
+        )
+    }
+    config = {k: v for k, v in vars(args).items() if k != "handler"}
+    call = (
+        "lidarcal " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+        if sys.argv[1:]
+        else "lidarcal certificate"
+    )
+    cert = make_certificate(budget=budget, sensitivities=sens, config=config, call=call, **optional)
+    path = write_certificate(cert, args.output, overwrite=args.overwrite)
+    print(
+        f"{path}: certificate with components {cert.attrs['certificate_components']}; sealed "
+        f"(check with: lidarcal verify {path})"
+    )
+    if args.report:
+        from lidarcal.report import write_report
+
+        written = write_report(args.report, certificate=cert, overwrite=args.overwrite)
+        print(
+            f"{args.report}: HTML report with {len(written['figures'])} interactive plots and "
+            f"{len(written['png'])} PNG files"
+        )
+    return 0
