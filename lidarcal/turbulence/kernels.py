@@ -42,6 +42,7 @@ __all__ = [
     "spectral_magnitudes",
     "unique_planar_points",
     "coherence_factors",
+    "correlated_standard",
     "generate_points",
     "correlate",
     "CellSize",
@@ -112,28 +113,62 @@ def unique_planar_points(y: np.ndarray, z: np.ndarray, tol: float = 1e-6) -> tup
     return yz[first], inverse.reshape(-1)
 
 
-def coherence_factors(f: np.ndarray, yz: np.ndarray, wind_speed: float, l_c: float = L_C,
-                      jitter: float = 1e-10) -> np.ndarray:
-    """Return square-root factors ``(3, n_f, n, n)`` of the ``iec3d`` coherence matrices of points ``yz``.
-
-    The matrices are built whole (``r = 0`` on the diagonal gives 1) in one ``exp`` call, then
-    factorised by a batched Cholesky over components and frequencies of ``C + jitter I``; if
-    any matrix is still not positive definite (near-duplicate points), the batch falls back
-    to the symmetric eigen-decomposition ``V sqrt(max(lambda, 0))``, which reproduces ``C``.
-    """
-    n = yz.shape[0]
+def _coherence_exponents(f: np.ndarray, yz: np.ndarray, wind_speed: float, l_c: float):
+    """Return ``(a, r)``: ``coh_k(f)_ij = exp(a[k, f] * r_ij)`` for the three components."""
     r = np.hypot(yz[:, None, 0] - yz[None, :, 0], yz[:, None, 1] - yz[None, :, 1])
     lc = l_c * LENGTH_SCALE_FACTORS / LENGTH_SCALE_FACTORS[0]
     a = -12.0 * np.sqrt((np.asarray(f, float)[None, :] / wind_speed) ** 2 + (0.12 / lc[:, None]) ** 2)
-    mats = np.multiply(a[:, :, None, None], r)
-    np.exp(mats, out=mats)
-    diag = np.arange(n)
+    return a, r
+
+
+def _factorise(mats: np.ndarray, jitter: float) -> np.ndarray:
+    """Batched square roots of coherence matrices: Cholesky of ``C + jitter I``, eigen fallback."""
+    diag = np.arange(mats.shape[-1])
     mats[..., diag, diag] += jitter
     try:
         return np.linalg.cholesky(mats)
     except np.linalg.LinAlgError:
+        mats[..., diag, diag] -= jitter
         lam, vec = np.linalg.eigh(mats)
         return vec * np.sqrt(np.clip(lam, 0.0, None))[..., None, :]
+
+
+def coherence_factors(f: np.ndarray, yz: np.ndarray, wind_speed: float, l_c: float = L_C,
+                      jitter: float = 1e-10) -> np.ndarray:
+    """Return square-root factors ``(3, n_f, n, n)`` of the ``iec3d`` coherence matrices of points ``yz``.
+
+    The matrices are built whole (``r = 0`` on the diagonal gives 1) in one ``exp`` call and
+    factorised by a batched Cholesky of ``C + jitter I``; if any matrix is still not positive
+    definite (near-duplicate points), the batch falls back to the symmetric
+    eigen-decomposition ``V sqrt(max(lambda, 0))``, which reproduces ``C``.
+    """
+    a, r = _coherence_exponents(f, yz, wind_speed, l_c)
+    mats = np.multiply(a[:, :, None, None], r)
+    np.exp(mats, out=mats)
+    return _factorise(mats, jitter)
+
+
+#: Frequencies factorised per batch: keeps the temporaries ~0.3 MB (measured 2.4x faster
+#: than one 3 MB batch, which the allocator maps and faults in afresh on every call).
+_CHUNK = 100
+
+
+def correlated_standard(f: np.ndarray, yz: np.ndarray, wind_speed: float, xi: np.ndarray,
+                        l_c: float = L_C, jitter: float = 1e-10) -> np.ndarray:
+    """Return ``L(f) xi(f)`` for every component and frequency, shape ``xi.shape`` (complex).
+
+    Same maths as ``coherence_factors(f, yz, ...) @ xi`` but built, factorised and applied in
+    chunks of :data:`_CHUNK` frequencies (real BLAS on the stacked real/imaginary parts).
+    """
+    a, r = _coherence_exponents(f, yz, wind_speed, l_c)
+    xs = np.stack([xi.real, xi.imag], axis=-1)
+    out = np.empty_like(xs)
+    for k in range(3):
+        for s in range(0, f.size, _CHUNK):
+            mats = np.multiply(a[k, s:s + _CHUNK, None, None], r)
+            np.exp(mats, out=mats)
+            np.matmul(_factorise(mats, jitter), xs[k, s:s + _CHUNK], out=out[k, s:s + _CHUNK])
+    return out[..., 0] + 1j * out[..., 1]
 
 
 def _standard_coefficients(rng: np.random.Generator, shape: tuple[int, ...], nt: int,
@@ -221,11 +256,10 @@ def correlate(x, y, z, xi: np.ndarray, *, wind_speed: float, sigma, duration: fl
     fp = f[1:]
     if xi.shape != (3, fp.size, yz.shape[0]):
         raise ValueError(f"xi must have shape {(3, fp.size, yz.shape[0])}; got {xi.shape}")
-    factors = coherence_factors(fp, yz, wind_speed, l_c)  # (3, nf-1, n_u, n_u)
-    corr = np.matmul(factors, np.stack([xi.real, xi.imag], axis=-1))  # real BLAS, (3, nf-1, n_u, 2)
+    corr = correlated_standard(fp, yz, wind_speed, xi, l_c)  # (3, nf-1, n_u)
     mags = spectral_magnitudes(f, z, wind_speed, sigma, nt)  # (3, nf, n)
     coef = np.zeros((3, f.size, x.size), dtype=complex)
-    coef[:, 1:, :] = (corr[..., 0] + 1j * corr[..., 1])[:, :, index] * mags[:, 1:, :]
+    coef[:, 1:, :] = corr[:, :, index] * mags[:, 1:, :]
     if np.any(x != 0):  # Taylor's frozen turbulence: delay x / U
         coef[:, 1:, :] *= np.exp(-2j * np.pi * fp[:, None] * (x[None, :] / wind_speed))
     return np.moveaxis(np.fft.irfft(coef, n=nt, axis=1) * nt, 1, 2)
