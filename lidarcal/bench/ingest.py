@@ -18,7 +18,8 @@ Steps (paper §2.1, §3.1), all vectorised:
    same rise.  Alternatives: a fixed threshold ``|r| > outlier_threshold`` or no rejection.
    Rejections are counted per bin (``outlier_count``) and in total;
 4. per (LOS, CNR, velocity) bin: δ = mean(r) (``los_bias``), s = std(r, ddof=1)
-   (``los_std``; equal to the std of the measured velocity) and N (``sample_count``).
+   (``los_std``; with one programmed value per bin, the std of the measured velocity) and N
+   (``sample_count``).
 
 Programmed values are assigned to the Table 1 grid node they are nearest (bins of ±1 dB,
 ±0.5 m/s); several control rows in the same bin are pooled.

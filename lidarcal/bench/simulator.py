@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from lidarcal.bench.formats import ControlLog, RtdTable, write_control_log, write_rtd
 from lidarcal.bench.grid import CNR_NODES, LOS_LABELS, VELOCITY_NODES, los_index
@@ -205,7 +206,12 @@ def simulate_run(
     bad_los = [x for x in los if x not in LOS_LABELS]
     if bad_los:
         raise InputError(f"argument 'los': unknown LOS id(s) {bad_los}; expected ids from {list(LOS_LABELS)}")
-    start_ns = int(np.datetime64(start.rstrip("Z"), "ns").astype(np.int64))
+    try:
+        stamp0 = pd.Timestamp(start)
+    except ValueError as exc:
+        raise InputError(f"argument 'start': {start!r} is not an ISO 8601 time ({exc})") from None
+    stamp0 = stamp0.tz_localize("UTC") if stamp0.tzinfo is None else stamp0.tz_convert("UTC")
+    start_ns = int(stamp0.value)
     starts, ends, li, vi, ci = sweep_schedule(start_ns, acc, los=tuple(los), cnr=np.asarray(cnr, float),
                                               velocity=vel, switch_s=switch)
     meta = {
