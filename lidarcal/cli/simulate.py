@@ -36,6 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--cube", metavar="CUBE.nc", help="bench_cube artefact (LOS bias and noise)")
     p.add_argument("--rwf", metavar="RWF.nc", help="rwf artefact (range-weighting function)")
+    p.add_argument("--model", metavar="FILE.nc", help="use the LidarModel in FILE's lidarcal_lidar_model "
+                   "attribute, e.g. a diagnosis with its fitted effect added (instead of --cube/--rwf)")
     p.add_argument(
         "--heights",
         type=float,
@@ -93,7 +95,12 @@ def run(args: argparse.Namespace) -> int:
     conditions = args.conditions or sample_conditions_path()
     cond = load_conditions(conditions, warn=False)  # simulate_campaign reports skipped periods
     inputs = {}
-    if args.cube or args.rwf:
+    if args.model:
+        from lidarcal.diagnose import corrected_model
+
+        model = corrected_model(args.model)
+        inputs["model"] = args.model
+    elif args.cube or args.rwf:
         cube = open_artefact(args.cube, "bench_cube") if args.cube else None
         rwf = open_artefact(args.rwf, "rwf") if args.rwf else None
         model = LidarModel.from_artefacts(cube=cube, rwf=rwf)
