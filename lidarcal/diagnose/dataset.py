@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from typing import Any
 
 import numpy as np
@@ -230,14 +231,22 @@ def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagno
     )
 
 
-def corrected_model(diagnosis: xr.Dataset | str):
-    """Return the corrected :class:`~lidarcal.lidar.LidarModel` of a diagnosis artefact (or path)."""
+def corrected_model(diagnosis: xr.Dataset | str | os.PathLike):
+    """Return the corrected :class:`~lidarcal.lidar.LidarModel` of a diagnosis artefact (or path).
+
+    Any artefact with a ``lidarcal_lidar_model`` attribute works (a ``simulated_rtd`` too);
+    ``lidarcal simulate --model DIAGNOSIS.nc`` uses this.
+    """
     from lidarcal.io import open_artefact
     from lidarcal.lidar import LidarModel
 
-    ds = diagnosis if isinstance(diagnosis, xr.Dataset) else open_artefact(diagnosis, "diagnosis")
+    ds = diagnosis if isinstance(diagnosis, xr.Dataset) else open_artefact(diagnosis, load=False, chunks={})
     text = ds.attrs.get("lidarcal_lidar_model")
+    name = diagnosis if isinstance(diagnosis, str | os.PathLike) else ds.attrs.get("lidarcal_source_file",
+                                                                                  "<dataset>")
+    if not isinstance(diagnosis, xr.Dataset):
+        ds.close()
     if not text:
-        raise InputError(f"{ds.attrs.get('lidarcal_source_file', '<dataset>')}: global attribute "
-                         "'lidarcal_lidar_model' is missing; expected the JSON of a LidarModel")
+        raise InputError(f"{os.fspath(name)}: global attribute 'lidarcal_lidar_model' is missing; expected "
+                         f"the JSON of a LidarModel (a diagnosis or simulated_rtd artefact)")
     return LidarModel.from_dict(text)
