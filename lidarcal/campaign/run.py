@@ -99,7 +99,9 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool) -> I
     futures = {client.submit(run_chunk, payload, key=name, pure=False): name for name, payload in tasks}
     bar = _bar(len(tasks), progress)
     try:
-        for fut in as_completed(futures):
+        with client.as_current():  # as_completed looks up the current client
+            completed = as_completed(futures)
+        for fut in completed:
             result = fut.result()
             name = futures[fut]
             fut.release()
