@@ -87,8 +87,12 @@ def ensemble(n_points, n_seeds, amplitude="rayleigh", base=0):
     return np.concatenate(runs, axis=1)  # (3, n_points * n_seeds, nt)
 
 
-def test_std_matches_sigma():
-    series = ensemble(60, 3)
+SLOW = pytest.mark.slow
+
+
+@pytest.mark.parametrize(("n_points", "n_seeds"), [(60, 3), pytest.param(200, 10, marks=SLOW)])
+def test_std_matches_sigma(n_points, n_seeds):
+    series = ensemble(n_points, n_seeds)
     var = series.var(axis=-1, ddof=1).mean(axis=1)
     se = exact_variance_se(series.shape[1])
     # 4 standard errors of the sampling distribution of the variance (derived, see helper)
@@ -106,8 +110,9 @@ def log_bins(n_f):
     return [np.arange(lo, hi) for lo, hi in zip(edges[:-1], edges[1:], strict=True) if hi - lo >= 2]
 
 
-def test_periodogram_matches_kaimal():
-    series = ensemble(100, 4)  # 400 independent realisations
+@pytest.mark.parametrize(("n_points", "n_seeds"), [(100, 4), pytest.param(200, 20, marks=SLOW)])
+def test_periodogram_matches_kaimal(n_points, n_seeds):
+    series = ensemble(n_points, n_seeds, base=1)  # 400 (slow: 4000) independent realisations
     coef = np.fft.rfft(series, axis=-1) / NT
     psd = 2 * np.mean(np.abs(coef) ** 2, axis=1) / DF  # one-sided periodogram (3, nf)
     for k in range(3):
@@ -132,8 +137,10 @@ def binned_coherence(a, b, weights_f):
     return out
 
 
-def test_coherence_matches_iec3d():
-    sep, n_pairs, n_seeds = 12.0, 40, 5
+@pytest.mark.parametrize(("sep", "n_pairs", "n_seeds"),
+                         [(12.0, 40, 5), pytest.param(12.0, 100, 20, marks=SLOW),
+                          pytest.param(40.0, 100, 20, marks=SLOW)])
+def test_coherence_matches_iec3d(sep, n_pairs, n_seeds):
     y = np.repeat(5000.0 * np.arange(n_pairs), 2) + np.tile([0.0, sep], n_pairs)
     x, z = np.zeros_like(y), np.full_like(y, Z)
     runs = [generate_points(x, y, z, wind_speed=U, sigma=SIGMA, rng=np.random.default_rng([9, s]))
@@ -151,8 +158,8 @@ def test_coherence_matches_iec3d():
             # ratio-estimator bias (O(1/N))
             tol = 4 * (1 - expected**2) / np.sqrt(n_eff) + 0.01
             assert est == pytest.approx(expected, abs=tol), (k, idx[0], est, expected)
-    # the u coherence at 12 m is far from both 0 and 1 at mid frequencies: the test discriminates
-    assert 0.2 < iec3d_coherence(0.02, sep, U, 0) < 0.8
+    # the u coherence is far from both 0 and 1 at some frequency: the test discriminates
+    assert 0.2 < iec3d_coherence(0.02 * 12 / sep, sep, U, 0) < 0.8
 
 
 def test_frozen_turbulence_shift_is_exact():
