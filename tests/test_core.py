@@ -160,3 +160,14 @@ def test_to_magnitude_log_units_are_checked_not_evaluated():
     assert to_magnitude("-20 dB", "dB", name="cnr") == pytest.approx(-20.0)
     with pytest.raises(UnitError, match="argument 'g' has units 'm s-1'; expected 'dB m-1'"):
         to_magnitude(Q_(0.1, "m/s"), "dB m-1", name="g")
+
+
+def test_written_files_get_ordinary_permissions(tmp_path):
+    import os
+    import stat
+
+    ds = stamp(make_conditions(), "conditions", title="t", summary="s", call="test")
+    path = write_artefact(ds, tmp_path / "c.nc")
+    umask = os.umask(0)
+    os.umask(umask)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
