@@ -1,0 +1,233 @@
+"""Certificate: bundling, provenance, consistency checks, sealing and `lidarcal verify`."""
+
+import json
+
+import netCDF4
+import numpy as np
+import pytest
+import xarray as xr
+from analysis_factories import make_records
+
+from lidarcal.analysis import budget, sensitivity
+from lidarcal.bench import build_cube, simulate_run
+from lidarcal.certificate import (
+    extract_component,
+    integrity_record,
+    make_certificate,
+    verify_certificate,
+    write_certificate,
+)
+from lidarcal.cli import main
+from lidarcal.errors import InputError, OutputExistsError
+from lidarcal.io import open_artefact, write_artefact
+from lidarcal.provenance import sha256, stamp
+from lidarcal.terms import PAPER_INPUTS, TABLE4_WIND_SPEEDS, uncertainty_terms
+
+SERIAL = "WLS7-TEST"
+
+
+@pytest.fixture(scope="module")
+def artefact_files(tmp_path_factory):
+    """A small but complete set of input files, written as the CLI would find them."""
+    d = tmp_path_factory.mktemp("inputs")
+    rec_path = d / "records.nc"
+    make_records(n=400, lidar_serial=SERIAL).to_netcdf(rec_path)
+    records = open_artefact(rec_path)
+    paths = {"records": rec_path}
+    paths["budget"] = write_artefact(budget(records), d / "budget.nc")
+    paths["sens_shear"] = write_artefact(sensitivity(records, "wind_shear_exponent"), d / "sens_shear.nc")
+    paths["sens_ti"] = write_artefact(sensitivity(records, "turbulence_intensity"), d / "sens_ti.nc")
+    paths["terms"] = write_artefact(uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS), d / "terms.nc")
+    run = simulate_run(seed=3, accumulation_time="20 s", lidar_serial=SERIAL)
+    cube, _ = build_cube(run.rtd, run.control)
+    cube = stamp(cube, "bench_cube", title="cube", summary="test cube", call="test")
+    paths["cube"] = write_artefact(cube, d / "cube.nc")
+    return paths
+
+
+def _open(paths):
+    return {
+        "budget": open_artefact(paths["budget"]),
+        "sensitivities": [open_artefact(paths["sens_shear"]), open_artefact(paths["sens_ti"])],
+        "cube": open_artefact(paths["cube"]),
+        "terms": open_artefact(paths["terms"]),
+        "records": open_artefact(paths["records"]),
+    }
+
+
+def test_certificate_bundles_components_and_provenance(artefact_files):
+    inputs = _open(artefact_files)
+    cert = make_certificate(**inputs, config={"purpose": "test"})
+    assert cert.attrs["lidar_serial"] == SERIAL
+    assert cert.attrs["certificate_components"].split() == [
+        "budget",
+        "cube",
+        "terms",
+        "sensitivity_wind_shear_exponent",
+        "sensitivity_turbulence_intensity",
+    ]
+    # flat prefixed names readable by any netCDF tool
+    for name in (
+        "budget_uncertainty",
+        "cube_los_bias",
+        "terms_total",
+        "sensitivity_wind_shear_exponent_slope",
+    ):
+        assert name in cert.data_vars
+    np.testing.assert_array_equal(cert.budget_uncertainty.values, inputs["budget"].uncertainty.values)
+    assert cert.budget_wind_speed.attrs["bounds"] == "budget_wind_speed_bounds"
+    # round trip of one component
+    back = extract_component(cert, "sensitivity_wind_shear_exponent")
+    xr.testing.assert_identical(back.slope, inputs["sensitivities"][0].slope)
+    assert back.attrs["environmental_variable"] == "wind_shear_exponent"
+    # provenance chain: every input with its file name and SHA-256, and their own inputs
+    chain = {c["role"]: c for c in json.loads(cert.attrs["lidarcal_provenance_chain"])}
+    for role, key in (
+        ("budget", "budget"),
+        ("cube", "cube"),
+        ("records", "records"),
+        ("terms", "terms"),
+        ("sensitivity_wind_shear_exponent", "sens_shear"),
+    ):
+        assert chain[role]["sha256"] == sha256(artefact_files[key])
+        assert chain[role]["file"] == artefact_files[key].name
+    assert [r["role"] for r in chain["budget"]["inputs"]] == ["records"]
+    assert chain["budget"]["inputs"][0]["sha256"] == sha256(artefact_files["records"])
+    recorded = {r["role"]: r["sha256"] for r in json.loads(cert.attrs["lidarcal_inputs"])}
+    assert recorded["cube"] == sha256(artefact_files["cube"])
+    assert json.loads(cert.attrs["lidarcal_config"]) == {"purpose": "test"}
+    assert json.loads(cert.attrs["lidarcal_records_summary"])["periods"] == 400
+
+
+def test_write_seal_verify_and_tamper(artefact_files, tmp_path):
+    cert = make_certificate(**_open(artefact_files))
+    path = write_certificate(cert, tmp_path / "cert.nc")
+    report = verify_certificate(path)
+    assert report.ok, report.problems
+    with netCDF4.Dataset(path) as nc:  # never leave a handle open before writing (HDF5)
+        assert report.variables_checked == len(nc.variables)
+        stored = json.loads(nc.getncattr("lidarcal_integrity"))
+    with pytest.raises(OutputExistsError):
+        write_certificate(cert, path)
+    # the record is defined on the stored bytes: recomputing gives the stored one
+    assert stored["variables"] == integrity_record(path)["variables"]
+    # alter one value of one variable with netCDF4 directly
+    with netCDF4.Dataset(path, "a") as nc:
+        v = nc["budget_uncertainty"]
+        v[0, 3] = v[0, 3] + 1e-9
+    report = verify_certificate(path)
+    assert report.problems == ["variable 'budget_uncertainty': values altered"]
+    # ... and one attribute of another, and a global attribute
+    with netCDF4.Dataset(path, "a") as nc:
+        nc["cube_los_bias"].setncattr("units", "km h-1")
+        nc.setncattr("lidar_serial", "OTHER")
+    problems = verify_certificate(path).problems
+    assert "variable 'cube_los_bias': attributes altered" in problems
+    assert "global attribute 'lidar_serial' altered" in problems
+    assert len(problems) == 3, problems  # the cube's units are not part of the certificate schema
+
+
+def test_verify_cli_exit_codes(artefact_files, tmp_path, capsys):
+    p = artefact_files
+    out = tmp_path / "cert.nc"
+    args = [
+        "certificate",
+        "--budget",
+        str(p["budget"]),
+        "--sensitivity",
+        str(p["sens_shear"]),
+        "--sensitivity",
+        str(p["sens_ti"]),
+        "--cube",
+        str(p["cube"]),
+        "--terms",
+        str(p["terms"]),
+        "--records",
+        str(p["records"]),
+        "-o",
+        str(out),
+    ]
+    assert main(args) == 0
+    assert main(["verify", str(out)]) == 0
+    assert ": OK (" in capsys.readouterr().out
+    # never overwritten silently
+    before = sha256(out)
+    assert main(args) == 2 and sha256(out) == before
+    assert "file exists" in capsys.readouterr().err
+    # the whole configuration is recorded
+    with netCDF4.Dataset(out) as nc:
+        cfg = json.loads(nc.getncattr("lidarcal_config"))
+    assert cfg["sensitivity"] == [str(p["sens_shear"]), str(p["sens_ti"])] and cfg["overwrite"] is False
+    with netCDF4.Dataset(out, "a") as nc:
+        nc["sensitivity_turbulence_intensity_slope"][1] = 42.0
+    assert main(["verify", str(out)]) == 1
+    text = capsys.readouterr().out
+    assert "ALTERED" in text and "'sensitivity_turbulence_intensity_slope': values altered" in text
+    # a non-certificate file: clear error, non-zero
+    assert main(["verify", str(p["budget"])]) == 2
+    err = capsys.readouterr().err
+    assert "budget.nc: not a lidarcal certificate: it is a 'uncertainty_budget' artefact" in err
+    junk = tmp_path / "junk.nc"
+    junk.write_bytes(b"not netcdf")
+    assert main(["verify", str(junk)]) == 2
+    assert "junk.nc: not a readable netCDF" in capsys.readouterr().err
+
+
+def test_written_certificate_passes_validate(artefact_files, tmp_path, capsys):
+    # the compliance-checker's cost grows ~quadratically with the number of variables (15 s for
+    # the full bundle), so the default run checks a lean certificate that still has every
+    # flattening case (bounds, string coordinate, scalar coordinate); the full one is slow-marked
+    inputs = _open(artefact_files)
+    lean = make_certificate(
+        budget=inputs["budget"], sensitivities=inputs["sensitivities"][:1], terms=inputs["terms"]
+    )
+    path = write_certificate(lean, tmp_path / "c.nc")
+    assert main(["validate", str(path)]) == 0, capsys.readouterr().out
+
+
+@pytest.mark.slow
+def test_full_certificate_passes_validate(artefact_files, tmp_path, capsys):
+    path = write_certificate(make_certificate(**_open(artefact_files)), tmp_path / "c.nc")
+    assert main(["validate", str(path)]) == 0, capsys.readouterr().out
+
+
+def test_inputs_that_disagree_are_refused(artefact_files, tmp_path):
+    inputs = _open(artefact_files)
+    other = inputs["cube"].copy()
+    other.attrs["lidar_serial"] = "WLS7-9982"
+    with pytest.raises(
+        InputError,
+        match=r"inputs disagree on the lidar: .*cube \(cube.nc\) has lidar_serial "
+        r"'WLS7-9982'.*records \(records.nc\) has lidar_serial 'WLS7-TEST'",
+    ):
+        make_certificate(**{**inputs, "cube": other})
+    # a budget computed from other records than the ones given
+    rec2_path = tmp_path / "records2.nc"
+    make_records(n=300, seed=9, lidar_serial=SERIAL).to_netcdf(rec2_path)
+    with pytest.raises(
+        InputError,
+        match=r"budget \(budget.nc\) was computed from records 'records.nc'.*"
+        r"but the records given is 'records2.nc'",
+    ):
+        make_certificate(**{**inputs, "records": open_artefact(rec2_path)})
+    # wrong kinds and duplicate variables
+    with pytest.raises(InputError, match="expected 'uncertainty_budget'"):
+        make_certificate(**{**inputs, "budget": inputs["terms"]})
+    with pytest.raises(
+        InputError, match="two sensitivity inputs for the same variable 'wind_shear_exponent'"
+    ):
+        make_certificate(**{**inputs, "sensitivities": [inputs["sensitivities"][0]] * 2})
+    # CLI: nothing written
+    out = tmp_path / "cert.nc"
+    rc = main(
+        [
+            "certificate",
+            "--budget",
+            str(artefact_files["budget"]),
+            "--records",
+            str(rec2_path),
+            "-o",
+            str(out),
+        ]
+    )
+    assert rc == 2 and not out.exists()
