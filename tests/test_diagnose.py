@@ -1,6 +1,8 @@
 """Tests of lidarcal diagnose: the catalogue, bad input, and the JSON/CLI contract end to end."""
 
+import contextlib
 import dataclasses
+import io
 import json
 
 import numpy as np
@@ -185,21 +187,21 @@ def test_cli_bad_input_exits_2_without_output(tmp_path, capsys):
 @pytest.fixture(scope="module")
 def zd_run(tmp_path_factory):
     d = tmp_path_factory.mktemp("diag")
-    field = d / "field.nc"
+    field, out, report = d / "field.nc", d / "diag.nc", d / "diag.html"
     assert main(["diagnose-generate", "--effect", "zero_distance_offset", "--param", "offset=4",
                  "--periods", "150", "--heights", "40", "80", "160", "--scheduler", "synchronous",
                  "-o", str(field)]) == 0
-    return d, field
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = main(["diagnose", str(field), "-o", str(out), "--json", "--report", str(report),
+                     "--scheduler", "synchronous"])
+    assert code == 0, stderr.getvalue()
+    return d, field, out, report, stdout.getvalue(), stderr.getvalue()
 
 
 def test_cli_json_contract_and_recovery(zd_run, capsys):
-    d, field = zd_run
-    capsys.readouterr()
-    out, report = d / "diag.nc", d / "diag.html"
-    assert main(["diagnose", str(field), "-o", str(out), "--json", "--report", str(report),
-                 "--scheduler", "synchronous"]) == 0
-    captured = capsys.readouterr()
-    js = json.loads(captured.out)  # stdout is exactly one JSON object
+    d, field, out, report, stdout, stderr = zd_run
+    js = json.loads(stdout)  # stdout is exactly one JSON object
     assert JSON_KEYS <= set(js) and set(js["candidates"][0]) == {"effect", "score"}
     assert js["effect"] == "zero_distance_offset"
     assert set(js["parameters"]) == {"offset"} and js["drivers"] == ["wind_shear_exponent"]
@@ -208,7 +210,7 @@ def test_cli_json_contract_and_recovery(zd_run, capsys):
     assert js["gap_after"] <= 0.5 * js["gap_before"]
     scores = [c["score"] for c in js["candidates"]]
     assert scores == sorted(scores) and {c["effect"] for c in js["candidates"]} == set(EFFECTS)
-    assert "simulating" in captured.err  # progress went to stderr
+    assert "simulating" in stderr  # progress went to stderr
 
     # the artefact validates (schema + CF/ACDD compliance) and carries the corrected model
     assert main(["validate", str(out)]) == 0
@@ -226,17 +228,14 @@ def test_cli_json_contract_and_recovery(zd_run, capsys):
     # never overwrites silently, and fails before simulating anything
     capsys.readouterr()
     assert main(["diagnose", str(field), "-o", str(out), "--json"]) == 2
-    assert "exists" in capsys.readouterr().err
+    captured = capsys.readouterr()
+    assert "exists" in captured.err and captured.out == ""
 
 
 def test_simulate_reuses_the_corrected_model(zd_run, capsys):
     # `lidarcal simulate --model DIAGNOSIS.nc` re-runs the campaign with the fitted effect added
-    d, field = zd_run
-    diag = d / "diag-reuse.nc"
-    assert main(["diagnose", str(field), "-o", str(diag), "--json", "--scheduler", "synchronous",
-                 "--candidates", "zero_distance_offset", "beam_angle_offset"]) == 0
-    js = json.loads(capsys.readouterr().out)
-    assert [c["effect"] for c in js["candidates"]][-1] == "none"  # only the two asked for, plus none
+    d, field, diag, _, stdout, _ = zd_run
+    js = json.loads(stdout)
     sim, cond = d / "sim.nc", d / "conditions.nc"
     with xr.open_dataset(field) as f:  # the field file's conditions as a plain conditions input
         c = f[list(CONDITION_VARIABLES)].load()
@@ -255,5 +254,6 @@ def test_simulate_reuses_the_corrected_model(zd_run, capsys):
     resid = 100 * float((d_field - d_sim).where(ok).mean())
     assert abs(resid) < 0.1  # mean residual after correction ~0 (noise floor ~0.1 % per bin)
     # an artefact without a model is refused with a clear message
+    capsys.readouterr()
     assert main(["simulate", "--conditions", str(cond), "--model", str(field), "-o", str(d / "x.nc")]) == 2
     assert "lidarcal_lidar_model" in capsys.readouterr().err

@@ -223,7 +223,7 @@ def _fit(effect: Effect, r, d0, d_probe, theta0, theta_probe, conditions, valid,
     """Linearised fit of ``effect`` from one probe; returns (estimate, stderr, ΔBIC, explained, clipped)."""
     p = effect.parameters[0]
     h = theta_probe - theta0
-    J = fit.smooth_response((d_probe - d0) / h, conditions, effect.drivers, valid)
+    J = fit.smooth_response((d_probe - d0) / h, conditions, effect.drivers, valid, weights=w)
     lo, hi = p.bounds
     res = fit.fit_linear(r, J, w, bounds=[(lo - theta0, hi - theta0)])
     dbic = fit.delta_bic(res.rss, res.rss0, effect.n_parameters, n_eff)

@@ -53,14 +53,19 @@ def features(drivers: list[np.ndarray]) -> np.ndarray:
 
 
 def smooth_response(dy: np.ndarray, drivers: dict[str, np.ndarray], names: tuple[str, ...],
-                    valid: np.ndarray) -> np.ndarray:
-    """Per height, the least-squares fit of ``dy`` (periods × heights) on :func:`features`.
+                    valid: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
+    """Per height, the (weighted) least-squares fit of ``dy`` (periods × heights) on :func:`features`.
 
     With no drivers the response is the per-height mean.  Entries outside ``valid`` are NaN.
+    Use the weights of the later parameter fit: the smoothed response is then the projection
+    of the true response on the feature space *in the fit's inner product*, so the fitted
+    parameter stays unbiased even where the features do not capture every dependence.
     """
     out = np.full(dy.shape, np.nan)
     for j in range(dy.shape[1]):
         ok = valid[:, j] & np.isfinite(dy[:, j])
+        if weights is not None:
+            ok &= weights[:, j] > 0
         for name in names:
             ok &= np.isfinite(drivers[name][:, j])
         if not ok.any():
@@ -69,7 +74,8 @@ def smooth_response(dy: np.ndarray, drivers: dict[str, np.ndarray], names: tuple
         X = features(cols) if cols else np.ones((int(ok.sum()), 1))
         if X.shape[1] >= ok.sum():  # too few periods for the quadratic: fall back to the mean
             X = np.ones((int(ok.sum()), 1))
-        beta, *_ = np.linalg.lstsq(X, dy[ok, j], rcond=None)
+        sw = np.sqrt(weights[ok, j]) if weights is not None else np.ones(int(ok.sum()))
+        beta, *_ = np.linalg.lstsq(X * sw[:, None], dy[ok, j] * sw, rcond=None)
         out[ok, j] = X @ beta
     return out
 
