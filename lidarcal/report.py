@@ -256,6 +256,7 @@ def write_report(
         ``{"html": Path, "figures": [names], "png": [Paths]}``.
     """
     from bokeh.embed import components as bokeh_components
+    from bokeh.embed.bundle import Bundle, bundle_for_objs_and_resources
     from bokeh.resources import INLINE
 
     hv = _hv()
@@ -276,6 +277,21 @@ def write_report(
 
     models = [hv.render(fig, backend="bokeh") for fig in figs.values()]
     script, divs = bokeh_components(models)
+    # only the BokehJS bundles these models need, inline.  Importing hvplot imports panel,
+    # which adds URL-loaded files (its ES-module shims) to every Resources object; the plots
+    # here are plain bokeh models, so those URLs are dropped (checked below)
+    foreign = sorted(
+        {
+            type(x).__module__
+            for m in models
+            for x in m.references()
+            if not type(x).__module__.startswith("bokeh.")
+        }
+    )
+    if foreign:
+        raise InputError(f"report plots use non-bokeh models from {foreign}; cannot embed them offline")
+    bundle = bundle_for_objs_and_resources(models, INLINE)
+    resources = "".join(Bundle(js_raw=bundle.js_raw, css_raw=bundle.css_raw, hashes=bundle.hashes))
     title = title or (
         certificate.attrs.get("title") if certificate is not None else "lidarcal calibration report"
     )
@@ -298,7 +314,7 @@ table {{ border-collapse: collapse; margin-bottom: 2em; }}
 th, td {{ text-align: left; padding: 0.2em 1em 0.2em 0; vertical-align: top; font-size: 0.9em; }}
 section {{ margin-bottom: 2em; }}
 </style>
-{INLINE.render()}
+{resources}
 {script}
 </head>
 <body>
