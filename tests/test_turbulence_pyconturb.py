@@ -38,26 +38,30 @@ def test_gen_turb_leaves_global_rng_alone():
     np.random.seed(5)
     before = np.random.random()
     np.random.seed(5)
-    generate_points_pyconturb(X[:2], Y[:2], Z[:2], wind_speed=U, sigma=SIGMA, seed=99)
+    generate_points_pyconturb(X[:2], Y[:2], Z[:2], wind_speed=U, sigma=SIGMA, seed=99, duration=60.0)
     assert np.random.random() == before
 
 
-def compare_ensembles(n_seeds):
+def compare_ensembles(n_seeds, duration=600.0):
     fast, slow = [], []
     for s in range(n_seeds):
         ss = np.random.SeedSequence([2024, s])
-        fast.append(generate_points(X, Y, Z, wind_speed=U, sigma=SIGMA, rng=np.random.default_rng(ss)))
-        slow.append(generate_points_pyconturb(X, Y, Z, wind_speed=U, sigma=SIGMA, seed=ss))
+        fast.append(generate_points(X, Y, Z, wind_speed=U, sigma=SIGMA, rng=np.random.default_rng(ss),
+                                    duration=duration))
+        slow.append(generate_points_pyconturb(X, Y, Z, wind_speed=U, sigma=SIGMA, seed=ss, duration=duration))
     fast, slow = np.array(fast), np.array(slow)  # (seed, 3, point, nt)
     # variance per component and point: difference within 4 combined standard errors
     vf, vs = fast.var(axis=-1, ddof=1), slow.var(axis=-1, ddof=1)
     se = np.sqrt(vf.var(axis=0, ddof=1) / n_seeds + vs.var(axis=0, ddof=1) / n_seeds)
     np.testing.assert_array_less(np.abs(vf.mean(0) - vs.mean(0)), 4 * se + 1e-12)
-    np.testing.assert_allclose(vs.mean(0), np.broadcast_to(SIGMA[:, None] ** 2, vs.shape[1:]), rtol=0.1)
+    # each generator's mean variance is sigma^2 within 4 of its own standard errors
+    for v in (vf, vs):
+        se_own = v.std(axis=0, ddof=1) / np.sqrt(n_seeds)
+        np.testing.assert_array_less(np.abs(v.mean(0) - SIGMA[:, None] ** 2), 4 * se_own + 1e-9)
     # co-coherence of points 0 and 1 (r = 12.8 m) in frequency bands, pooled over seeds
     r = np.hypot(Y[0] - Y[1], Z[0] - Z[1])
     cf, cs = np.fft.rfft(fast, axis=-1), np.fft.rfft(slow, axis=-1)
-    f = np.arange(NT // 2 + 1) / 600.0
+    f = np.arange(fast.shape[-1] // 2 + 1) / duration
     for k in range(3):
         for lo, hi in ((1, 6), (6, 20), (20, 60)):
             ests = []
@@ -71,7 +75,9 @@ def compare_ensembles(n_seeds):
 
 
 def test_statistically_equivalent_to_gen_turb_small():
-    compare_ensembles(6)  # ~1 s per gen_turb call; the deterministic test above is the sharp one
+    # gen_turb costs ~1 s per 600-s call; 300-s series halve it.  The same-phase test above is the
+    # sharp one; this checks the two generators' statistics agree end to end
+    compare_ensembles(6, duration=300.0)
 
 
 @pytest.mark.slow
