@@ -175,25 +175,28 @@ class LidarModel:
         simulation); pass ``cnr_weighting_scale=0`` to switch it off.  Without a cube the ideal
         Gaussian noise (``los_noise_std``) is used.  Remaining ``overrides`` set fields.
         """
-        fields = {"description": []}
-        base = cls.ideal(rwf_fwhm=overrides.pop("rwf_fwhm", 30.0), n_nodes=n_nodes,
-                         cone_angle=overrides.get("cone_angle", 28.0))
-        kw: dict[str, Any] = {"rwf_offsets": base.rwf_offsets, "rwf_weights": base.rwf_weights}
+        rwf_fwhm = float(overrides.pop("rwf_fwhm", 30.0))
+        offsets, weights = gauss_hermite_rwf(rwf_fwhm, n_nodes)
+        kw: dict[str, Any] = {"rwf_offsets": offsets, "rwf_weights": weights}
+        described = []
         if rwf is not None:
             offsets, weights = _rwf_nodes(rwf, n_nodes)
             kw.update(rwf_offsets=offsets, rwf_weights=weights, cnr_weighting_scale=1.0)
-            fields["description"].append(f"RWF {_source(rwf)} ({n_nodes} nodes)")
+            described.append(f"RWF {_source(rwf)} ({n_nodes} nodes)")
+        else:
+            described.append(f"ideal Gaussian RWF FWHM {rwf_fwhm:g} m ({n_nodes} nodes)")
         if cube is not None:
-            azimuths = tuple(overrides.get("azimuths", base.azimuths))
-            kw["noise_table"] = _noise_table(cube, azimuths)
-            fields["description"].append(f"bench cube {_source(cube)}")
-        kw["description"] = "; ".join(fields["description"]) or base.description
+            kw["noise_table"] = _noise_table(cube, tuple(overrides.get("azimuths", cls.azimuths)))
+            described.append(f"bench cube {_source(cube)}")
+        else:
+            described.append("ideal Gaussian LOS noise")
+        kw["description"] = "; ".join(described)
         kw.update(overrides)
         return cls(**kw)
 
     # -- serialisation ------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
-        """JSON-safe dictionary (lists and floats only); inverse of :meth:`from_dict`."""
+        """Return a JSON-safe dictionary (lists and floats only); inverse of :meth:`from_dict`."""
         out = {}
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
