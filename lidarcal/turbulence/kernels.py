@@ -153,38 +153,44 @@ def coherence_factors(f: np.ndarray, yz: np.ndarray, wind_speed: float, l_c: flo
 _CHUNK = 100
 
 
-def correlated_standard(f: np.ndarray, yz: np.ndarray, wind_speed: float, xi: np.ndarray,
+def correlated_standard(f: np.ndarray, yz: np.ndarray, wind_speed: float, xs: np.ndarray,
                         l_c: float = L_C, jitter: float = 1e-10) -> np.ndarray:
-    """Return ``L(f) xi(f)`` for every component and frequency, shape ``xi.shape`` (complex).
+    """Return ``L(f) xi(f)`` for every component and frequency as (real, imag) pairs.
 
+    ``xs`` has shape ``(3, n_f, n, 2)`` (real and imaginary parts of the unit coefficients).
     Same maths as ``coherence_factors(f, yz, ...) @ xi`` but built, factorised and applied in
     chunks of :data:`_CHUNK` frequencies (real BLAS on the stacked real/imaginary parts).
     """
     a, r = _coherence_exponents(f, yz, wind_speed, l_c)
-    xs = np.stack([xi.real, xi.imag], axis=-1)
     out = np.empty_like(xs)
     for k in range(3):
         for s in range(0, f.size, _CHUNK):
             mats = np.multiply(a[k, s:s + _CHUNK, None, None], r)
             np.exp(mats, out=mats)
             np.matmul(_factorise(mats, jitter), xs[k, s:s + _CHUNK], out=out[k, s:s + _CHUNK])
-    return out[..., 0] + 1j * out[..., 1]
+    return out
 
 
-def _standard_coefficients(rng: np.random.Generator, shape: tuple[int, ...], nt: int,
-                           amplitude: str) -> np.ndarray:
-    """Unit-power random Fourier coefficients; the Nyquist bin is real when ``nt`` is even."""
+def _standard_draws(rng: np.random.Generator, shape: tuple[int, ...], nt: int, amplitude: str) -> np.ndarray:
+    """Unit-power random Fourier coefficients as (real, imag) pairs: ``shape + (2,)``.
+
+    The Nyquist bin (last frequency) is real when ``nt`` is even.
+    """
     if amplitude == "rayleigh":  # circular complex Gaussian, E|xi|^2 = 1
-        xi = (rng.standard_normal(shape) + 1j * rng.standard_normal(shape)) / np.sqrt(2.0)
+        xs = rng.standard_normal((*shape, 2))
+        xs *= np.sqrt(0.5)
         if nt % 2 == 0:
-            xi[..., -1, :] = np.sqrt(2.0) * xi[..., -1, :].real
+            xs[..., -1, :, 0] *= np.sqrt(2.0)
+            xs[..., -1, :, 1] = 0.0
     elif amplitude == "fixed":  # PyConTurb: unit amplitude, uniform phase
-        xi = np.exp(2j * np.pi * rng.random(shape))
+        phase = 2.0 * np.pi * rng.random(shape)
         if nt % 2 == 0:
-            xi[..., -1, :] = np.exp(1j * np.pi * np.round(xi[..., -1, :].real))
+            # as gen_turb: exp(i pi round(cos(phase))), i.e. -1 unless round(cos) == 0
+            phase[..., -1, :] = np.pi * (np.round(np.cos(phase[..., -1, :])) != 0.0)
+        xs = np.stack([np.cos(phase), np.sin(phase)], axis=-1)
     else:
         raise ValueError(f"amplitude must be 'rayleigh' or 'fixed'; got {amplitude!r}")
-    return xi
+    return xs
 
 
 def generate_points(
@@ -223,8 +229,8 @@ def generate_points(
     if not np.any(sigma > 0):
         return np.zeros((3, x.size, nt))
     yz, index = unique_planar_points(y, z)
-    xi = _standard_coefficients(rng, (3, f.size - 1, yz.shape[0]), nt, amplitude)
-    return correlate(x, y, z, xi, wind_speed=wind_speed, sigma=sigma, duration=duration, dt=dt, l_c=l_c)
+    xs = _standard_draws(rng, (3, f.size - 1, yz.shape[0]), nt, amplitude)
+    return _synthesise(x, z, yz, index, xs, wind_speed, sigma, nt, f, l_c)
 
 
 def _check_points(x, y, z, sigma, wind_speed, duration, dt):
@@ -246,23 +252,30 @@ def correlate(x, y, z, xi: np.ndarray, *, wind_speed: float, sigma, duration: fl
               dt: float = 1.0, l_c: float = L_C) -> np.ndarray:
     """Turn unit-power coefficients into turbulence ``(3, n_points, nt)`` (deterministic part).
 
-    ``xi`` has shape ``(3, n_f - 1, n_unique)``: one coefficient per component, non-zero
-    frequency and de-duplicated (y, z) point, in the order of :func:`unique_planar_points`.
-    Point ``p`` gets ``m_p(f) (L(f) xi(f))_p exp(-2 pi i f x_p / U)`` with ``L L^T`` the ``iec3d``
-    coherence and ``m_p`` its Kaimal magnitude; the DC term is zero.
+    ``xi`` (complex) has shape ``(3, n_f - 1, n_unique)``: one coefficient per component,
+    non-zero frequency and de-duplicated (y, z) point, in the order of
+    :func:`unique_planar_points`.  Point ``p`` gets ``m_p(f) (L(f) xi(f))_p exp(-2 pi i f x_p / U)``
+    with ``L L^T`` the ``iec3d`` coherence and ``m_p`` its Kaimal magnitude; the DC term is zero.
     """
     x, y, z, sigma, nt, f = _check_points(x, y, z, sigma, wind_speed, duration, dt)
     yz, index = unique_planar_points(y, z)
+    if xi.shape != (3, f.size - 1, yz.shape[0]):
+        raise ValueError(f"xi must have shape {(3, f.size - 1, yz.shape[0])}; got {xi.shape}")
+    xs = np.stack([xi.real, xi.imag], axis=-1)
+    return _synthesise(x, z, yz, index, xs, wind_speed, sigma, nt, f, l_c)
+
+
+def _synthesise(x, z, yz, index, xs, wind_speed, sigma, nt, f, l_c) -> np.ndarray:
     fp = f[1:]
-    if xi.shape != (3, fp.size, yz.shape[0]):
-        raise ValueError(f"xi must have shape {(3, fp.size, yz.shape[0])}; got {xi.shape}")
-    corr = correlated_standard(fp, yz, wind_speed, xi, l_c)  # (3, nf-1, n_u)
-    mags = spectral_magnitudes(f, z, wind_speed, sigma, nt)  # (3, nf, n)
-    coef = np.zeros((3, f.size, x.size), dtype=complex)
-    coef[:, 1:, :] = corr[:, :, index] * mags[:, 1:, :]
+    corr = correlated_standard(fp, yz, wind_speed, xs, l_c).view(np.complex128)[..., 0]  # (3, nf-1, n_u)
+    factor = spectral_magnitudes(f, z, wind_speed, sigma, nt)[:, 1:, :].astype(complex)  # (3, nf-1, n)
     if np.any(x != 0):  # Taylor's frozen turbulence: delay x / U
-        coef[:, 1:, :] *= np.exp(-2j * np.pi * fp[:, None] * (x[None, :] / wind_speed))
-    return np.moveaxis(np.fft.irfft(coef, n=nt, axis=1) * nt, 1, 2)
+        factor *= np.exp(-2j * np.pi * fp[:, None] * (x[None, :] / wind_speed))
+    coef = np.zeros((3, x.size, f.size), dtype=complex)
+    coef[:, :, 1:] = np.swapaxes(corr[:, :, index] * factor, 1, 2)
+    out = np.fft.irfft(coef, n=nt, axis=-1)
+    out *= nt
+    return out
 
 
 class CellSize(NamedTuple):
