@@ -312,7 +312,7 @@ def test_written_artefact_passes_compliance(tmp_path):
     path = write_artefact(s, tmp_path / "s.nc")
     report = check_compliance(path)
     assert report.passed, report.failures
-    assert s.slope.attrs["units"] == "% dB-1 m"  # per (dB m-1): the documented per-dB exception
+    assert s.slope.attrs["units"] == "% m dB-1"  # per (dB m-1): the documented per-dB exception
 
 
 def test_compare_slopes_lines_up_simulated_and_measured():

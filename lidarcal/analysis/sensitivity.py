@@ -73,6 +73,7 @@ def _per_unit(diff_units: str, x_units: str) -> str:
         exp = p[len(base):] or "1"
         e = -int(exp)
         inverse.append(base if e == 1 else f"{base}{e}")
+    inverse.sort(key=lambda part: "-" in part)  # positive powers first: "% s m-1"
     return f"{diff_units} {' '.join(inverse)}"
 
 
