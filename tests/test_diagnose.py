@@ -4,6 +4,8 @@ import contextlib
 import dataclasses
 import io
 import json
+import re
+import shutil
 
 import numpy as np
 import pytest
@@ -223,7 +225,8 @@ def test_cli_json_contract_and_recovery(zd_run, capsys):
     assert ds.binned_residual_before.sizes == {"variable": 6, "bin": 6, "height": 3}
     ds.close()
     html = report.read_text()
-    assert "cdn.bokeh.org" not in html and "Bokeh" in html  # INLINE resources: works offline
+    # INLINE resources: bokeh's JavaScript is embedded and nothing is fetched (CDN or relative)
+    assert "Bokeh" in html and not re.search(r"<(script|link)[^>]+(src|href)=", html)
 
     # never overwrites silently, and fails before simulating anything
     capsys.readouterr()
@@ -257,3 +260,38 @@ def test_simulate_reuses_the_corrected_model(zd_run, capsys):
     capsys.readouterr()
     assert main(["simulate", "--conditions", str(cond), "--model", str(field), "-o", str(d / "x.nc")]) == 2
     assert "lidarcal_lidar_model" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(shutil.which("chromium") is None or shutil.which("chromedriver") is None,
+                    reason="needs Debian's chromium and chromium-driver "
+                           "(apt-get install chromium chromium-driver)")
+def test_report_renders_offline_in_chromium(zd_run):
+    import time
+
+    from selenium import webdriver
+    from selenium.webdriver.chrome.options import Options
+    from selenium.webdriver.chrome.service import Service
+
+    report = zd_run[3]
+    opts = Options()
+    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
+                 "--disable-component-update", "--disable-sync", "--no-first-run"):
+        opts.add_argument(flag)
+    driver = webdriver.Chrome(options=opts, service=Service(shutil.which("chromedriver")))
+    try:
+        driver.get(report.as_uri())
+        deadline = time.time() + 30
+        n_plots = 0
+        while time.time() < deadline and n_plots < 15:
+            time.sleep(0.5)
+            n_plots = driver.execute_script(
+                "if (!(window.Bokeh && Bokeh.documents.length)) return 0;"
+                "let n = 0; for (const m of Bokeh.documents[0].all_models) {"
+                "  if (m.type === 'Figure') n++; }"
+                "return n;")
+        # gap + 6 binned-residual + 6 sensitivity + candidate scores = 14 figures
+        assert n_plots == 14
+        severe = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
+        assert severe == []
+    finally:
+        driver.quit()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import html
 import json
 import os
+import re
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,8 @@ import xarray as xr
 from lidarcal.io import atomic_path
 
 __all__ = ["write_report", "report_layout"]
+
+_EXTERNAL_SCRIPT = re.compile(r'<script src="[^"]*"></script>\n?')
 
 
 def _header(ds: xr.Dataset) -> str:
@@ -42,12 +45,12 @@ def _header(ds: xr.Dataset) -> str:
 
 
 def report_layout(ds: xr.Dataset):
-    """Build the holoviews layout of the report (header text and plots)."""
+    """Build the holoviews layout of the report's plots."""
     import holoviews as hv
     import hvplot.pandas  # noqa: F401  (registers .hvplot)
 
     hv.extension("bokeh", logo=False)
-    plots = [hv.Div(_header(ds)).opts(width=900, height=330)]
+    plots = []
     gaps = pd.DataFrame({"height": ds.height.values, "before": ds.gap_before.values,
                          "after": ds.gap_after.values}).melt("height", var_name="model", value_name="gap")
     plots.append(gaps.hvplot.line(x="height", y="gap", by="model", title="Gap per height (%)",
@@ -63,8 +66,8 @@ def report_layout(ds: xr.Dataset):
                 frames.append(pd.DataFrame({"x": centre.sel(height=h).values,
                                             "residual": r.sel(height=h).values,
                                             "series": f"{when}, {h:g} m"}))
-        df = pd.concat(frames).dropna()
-        plots.append(df.hvplot.line(x="x", y="residual", by="series", width=450, height=300,
+        df = pd.concat(frames).dropna().rename(columns={"x": var})
+        plots.append(df.hvplot.line(x=var, y="residual", by="series", width=450, height=300,
                                     title=f"Binned residual vs {var} (%)",
                                     xlabel=f"{var} ({ds[f'{var}_bin_mean'].attrs['units']})",
                                     ylabel="field − model (%)"))
@@ -83,18 +86,28 @@ def report_layout(ds: xr.Dataset):
                            "score": np.asarray(ds.candidate_score.values, float)})
     plots.append(scores.hvplot.bar(x="candidate", y="score", rot=30, width=450, height=300,
                                    title="Candidate score (ΔBIC vs none; lower is better)"))
-    return hv.Layout(plots).cols(2)
+    return hv.Layout(plots).cols(2).opts(shared_axes=False)
 
 
 def write_report(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-    """Write the self-contained (INLINE resources) HTML report atomically."""
-    import hvplot
+    """Write the self-contained HTML report atomically.
+
+    The layout is rendered to bokeh and written with bokeh's INLINE resources (the JavaScript
+    is embedded).  ``hvplot.save`` would go through panel, whose page template links its CSS
+    from a CDN, so the page would try the network when opened offline.
+    """
+    import holoviews as hv
+    from bokeh.embed import file_html
+    from bokeh.layouts import column
+    from bokeh.models import Div
     from bokeh.resources import INLINE
 
-    layout = report_layout(ds)
+    fig = column(Div(text=_header(ds), width=900), hv.render(report_layout(ds), backend="bokeh"))
+    text = file_html(fig, INLINE, title=f"lidarcal diagnosis: {ds.attrs.get('diagnosis_effect', '')}")
+    # importing hvplot imports panel, which adds a <script src="static/extensions/panel/..."> tag
+    # (relative, unused without panel models) to every bokeh page: drop such external tags
+    text = _EXTERNAL_SCRIPT.sub("", text)
     path = Path(path)
     with atomic_path(path, overwrite=overwrite) as tmp:
-        html_tmp = tmp.with_suffix(".html")
-        hvplot.save(layout, os.fspath(html_tmp), resources=INLINE, title="lidarcal diagnosis")
-        os.replace(html_tmp, tmp)
+        tmp.write_text(text, encoding="utf-8")
     return path
