@@ -295,3 +295,43 @@ def test_report_renders_offline_in_chromium(zd_run):
         assert severe == []
     finally:
         driver.quit()
+
+
+def test_nominal_model_from_rwf_artefact_and_field_attributes():
+    # --rwf: the nominal model takes its RWF nodes from the artefact and applies Eq. 2 (scale 1),
+    # while cone angle and hybrid weight still come from the field file's attributes
+    from lidarcal.diagnose.core import nominal_model
+    from lidarcal.rwf import range_weighting_function
+
+    field = make_field(lidar_cone_angle=30.0, lidar_hybrid_weight=0.5)
+    rwf = range_weighting_function()
+    model = nominal_model(field, rwf=rwf)
+    assert model.cone_angle == 30.0 and model.hybrid_weight == 0.5
+    assert model.cnr_weighting_scale == 1.0
+    assert model.rwf_offsets != LidarModel.ideal().rwf_offsets
+    plain = nominal_model(field)
+    assert plain.cnr_weighting_scale == 0.0 and plain.cone_angle == 30.0
+    # the catalogue's nominal values follow the model (null hypothesis = what the model has)
+    assert EFFECTS["cnr_gradient_weighting"].nominal(model) == {"scale": 1.0}
+    assert EFFECTS["hybrid_weight"].probe(plain) == {"p": pytest.approx(0.5 - 1 / 6)}
+
+
+def test_decision_rule_none_ties_and_threshold():
+    from lidarcal.diagnose.core import CandidateFit, _choose
+
+    def cand(effect, dbic):
+        p = EFFECTS[effect].parameters[0].name
+        return CandidateFit(EFFECTS[effect], {p: 0.0}, {p: 1.0}, {p: 0.1}, dbic, 0.5, {p: 1.0})
+
+    fits = [cand("beam_angle_offset", -40.0), cand("reference_overspeeding", -39.0),
+            cand("zero_distance_offset", -10.0)]
+    chosen, tied, note = _choose(fits, True, 6.0, 2.0)
+    assert chosen.effect.id == "beam_angle_offset" and tied == ["reference_overspeeding"]
+    assert "cannot be told apart" in note and "reference_overspeeding" in note
+    chosen, tied, _ = _choose(fits, False, 6.0, 2.0)  # step 2 found nothing: none
+    assert chosen is None and tied == []
+    chosen, _, note = _choose([cand("hybrid_weight", -5.0)], True, 6.0, 2.0)  # not strong enough
+    assert chosen is None and "no catalogue effect explains" in note
+    chosen, tied, note = _choose([cand("hybrid_weight", -30.0), cand("zero_distance_offset", -3.0)],
+                                 True, 6.0, 2.0)
+    assert chosen.effect.id == "hybrid_weight" and tied == [] and "27.0 BIC units behind" in note

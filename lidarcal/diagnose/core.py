@@ -351,6 +351,7 @@ def diagnose(
             chosen.delta_bic, chosen.explained, chosen.clipped = dbic2, expl2, clipped2
             say(f"refined {eff.id}: {name} = {final:.4g} ± {se2:.2g}")
         corrected = eff.apply(model, chosen.estimate)
+        fits.sort(key=lambda c: c.delta_bic)  # the refined score may reorder the table
     d_after = _d(after)
     r_after = np.where(valid, d_meas - d_after, np.nan)
     binned1 = stats.bin_residuals(r_after, drivers, n_bins, edges)
