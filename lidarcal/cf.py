@@ -30,7 +30,7 @@ def var_attrs(
 
 
 def height_coord(values: Any) -> xr.DataArray:
-    """The ``height`` coordinate of the fixed contract (metres, positive up)."""
+    """Return the ``height`` coordinate of the fixed contract (metres, positive up)."""
     return xr.DataArray(
         np.asarray(values, dtype=float), dims="height",
         attrs={"standard_name": "height", "long_name": "height above ground level", "units": "m",
@@ -52,7 +52,7 @@ def with_bounds(ds: xr.Dataset, coord: str, edges: Any) -> xr.Dataset:
 
 
 def time_coord(values: Any) -> xr.DataArray:
-    """A CF ``time`` coordinate (period start times, UTC)."""
+    """Return a CF ``time`` coordinate (period start times, UTC)."""
     return xr.DataArray(
         np.asarray(values, dtype="datetime64[ns]"), dims="time",
         attrs={"standard_name": "time", "long_name": "start of 10-minute period (UTC)", "axis": "T"},

@@ -76,21 +76,32 @@ def _unit_ok(found: str | None, spec: dict) -> str | None:
     return None if found == expected else f"has units {found!r}; expected {expected!r}"
 
 
-def _check_variable(ds: xr.Dataset, name: str, spec: dict, role: str, problems: list[str]) -> None:
+def _dims_match(found, expected, stackable) -> bool:
+    """Exact match, or ``expected`` preceded only by the schema's ``stackable_dims``."""
+    found, expected = list(found), list(expected)
+    extra = len(found) - len(expected)
+    if extra == 0:
+        return found == expected
+    return extra > 0 and found[extra:] == expected and set(found[:extra]) <= set(stackable)
+
+
+def _check_variable(ds: xr.Dataset, name: str, spec: dict, role: str, problems: list[str],
+                    stackable: tuple[str, ...] = ()) -> None:
     if name not in ds.variables:
         if spec.get("required", True):
             problems.append(f"{role} {name!r} is missing")
         return
     var = ds[name] if name in ds.data_vars or name in ds.coords else ds.variables[name]
     dims = spec.get("dims")
-    if dims is not None and list(var.dims) != list(dims):
+    if dims is not None and not _dims_match(var.dims, dims, stackable):
         problems.append(f"{role} {name!r} has dims {tuple(var.dims)}; expected {tuple(dims)}")
     msg = _unit_ok(var.attrs.get("units"), spec)
     if msg:
         problems.append(f"{role} {name!r} {msg}")
     for attr, value in spec.get("attributes", {}).items():
         if var.attrs.get(attr) != value:
-            problems.append(f"{role} {name!r} attribute {attr!r} is {var.attrs.get(attr)!r}; expected {value!r}")
+            found = var.attrs.get(attr)
+            problems.append(f"{role} {name!r} attribute {attr!r} is {found!r}; expected {value!r}")
     kind = var.dtype.kind
     if kind not in "fiu":
         return
@@ -103,9 +114,11 @@ def _check_variable(ds: xr.Dataset, name: str, spec: dict, role: str, problems: 
         lo, hi = (float(r) if r is not None else None for r in rng)
         finite = values[~nan]
         if lo is not None and finite.min() < lo:
-            problems.append(f"{role} {name!r} has minimum {finite.min():.6g}, below the physical range [{lo}, {hi}]")
+            problems.append(f"{role} {name!r} has minimum {finite.min():.6g}, "
+                            f"below the physical range [{lo}, {hi}]")
         if hi is not None and finite.max() > hi:
-            problems.append(f"{role} {name!r} has maximum {finite.max():.6g}, above the physical range [{lo}, {hi}]")
+            problems.append(f"{role} {name!r} has maximum {finite.max():.6g}, "
+                            f"above the physical range [{lo}, {hi}]")
 
 
 def validate_dataset(
@@ -127,15 +140,16 @@ def validate_dataset(
         problems.append("global attribute 'lidarcal_artefact' is missing; cannot tell which schema applies")
     else:
         schema = load_schema(kind)
+        stackable = tuple(schema.get("stackable_dims") or ())
         if found_kind is not None and found_kind != kind:
             problems.append(f"is a {found_kind!r} artefact; expected {kind!r}")
         for dim in schema["dims"]:
             if dim not in ds.dims:
                 problems.append(f"dimension {dim!r} is missing; found {sorted(map(str, ds.dims))}")
         for name, spec in (schema.get("coordinates") or {}).items():
-            _check_variable(ds, name, spec or {}, "coordinate", problems)
+            _check_variable(ds, name, spec or {}, "coordinate", problems, stackable)
         for name, spec in (schema.get("variables") or {}).items():
-            _check_variable(ds, name, spec or {}, "variable", problems)
+            _check_variable(ds, name, spec or {}, "variable", problems, stackable)
         attrs = list(schema.get("attributes") or [])
         if schema.get("provenance", True):
             attrs = [*COMMON_ATTRIBUTES, *attrs]

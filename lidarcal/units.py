@@ -127,7 +127,7 @@ def to_magnitude(value: Any, expected: str, *, name: str) -> float | np.ndarray:
         found = cf_units(value.units)
         out = convert_values(value.magnitude, found, expected, where=where)
         return out.item() if out.ndim == 0 else out
-    dimensionless = _parse(expected, where="expected unit").dimensionless if expected not in LOG_UNITS else False
+    dimensionless = expected not in LOG_UNITS and _parse(expected, where="expected unit").dimensionless
     if isinstance(value, numbers.Number | np.ndarray | list | tuple) and dimensionless:
         return np.asarray(value, dtype=float) if not isinstance(value, numbers.Number) else float(value)
     raise UnitError(

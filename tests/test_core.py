@@ -171,3 +171,14 @@ def test_written_files_get_ordinary_permissions(tmp_path):
     umask = os.umask(0)
     os.umask(umask)
     assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
+
+
+def test_schema_stackable_dims_accept_a_leading_height_only():
+    from lidarcal.schema import _dims_match
+
+    assert _dims_match(("wind_speed",), ["wind_speed"], ("height",))
+    assert _dims_match(("height", "wind_speed"), ["wind_speed"], ("height",))
+    assert _dims_match(("height",), [], ("height",))
+    assert not _dims_match(("wind_speed", "height"), ["wind_speed"], ("height",))
+    assert not _dims_match(("time", "wind_speed"), ["wind_speed"], ("height",))
+    assert not _dims_match(("height", "wind_speed"), ["wind_speed"], ())
