@@ -205,7 +205,8 @@ def compute_rwf(cfg: RwfConfig, measured: PulseSamples | None = None) -> dict[st
             f"argument 'half_width': the RWF spans [{lo - window_half:.1f}, {hi + window_half:.1f}] m; "
             f"found a grid of only ±{cfg.half_width} m")
     if measured is not None:
-        pulse = k.sampled_pulse(z, measured.range_offset, measured.intensity)
+        clean = k.remove_noise_floor(measured.range_offset, measured.intensity)
+        pulse = k.sampled_pulse(z, measured.range_offset, clean)
     else:
         pulse = k.two_sided_gaussian_pulse(z, cfg.pulse_length, cfg.asymmetry, cfg.pulse_offset)
     window = k.gaussian_window(z, cfg.fft_size, dr, cfg.window_std_fraction)

@@ -137,6 +137,22 @@ def test_measured_gaussian_in_time_matches_synthetic(tmp_path):
     assert ds.attrs["pulse_shape"] == "measured" and ds.attrs["pulse_file"] == "p.csv"
 
 
+def test_noise_floor_of_a_measured_pulse_is_removed(tmp_path):
+    # 0.3 % detector noise clipped at zero leaves a +0.12 % pedestal over the whole recording;
+    # kept, it would put RWF weight 80 m from the gate (and Gauss nodes below ground at 40 m)
+    t = np.arange(-800, 804, 4.0)
+    clean = np.exp(-0.5 * (t / 70.0) ** 2)
+    noisy = np.clip(clean + np.random.default_rng(3).normal(0, 0.003, t.size), 0, None)
+    cleaned = k.remove_noise_floor(t, noisy)
+    assert np.all(cleaned[np.abs(t) > 300] == 0.0)  # beyond 4.3 sigma the pulse is below the noise
+    lines = "\n".join(f"{a:.1f},{b:.8f}" for a, b in zip(t, noisy, strict=True))
+    ds = range_weighting_function(pulse_file=write_csv(tmp_path / "n.csv", "time_ns,intensity\n" + lines))
+    rwf = ds.rwf.sel(cnr_gradient=0.0)
+    assert float(rwf.where(np.abs(ds.range_offset) > 60).max()) == 0.0
+    assert abs(float(ds.zero_distance)) < 0.05  # symmetric pulse; noise moves the barycentre < 5 cm
+    np.testing.assert_allclose(k.remove_noise_floor(t, clean), clean, rtol=0, atol=1e-12)  # noise-free
+
+
 def test_time_is_mapped_to_range_with_reversal(tmp_path):
     # a pulse emitted late (t > 0) samples ranges nearer the lidar: z = -c t / 2
     path = write_csv(tmp_path / "late.csv", "time_ns,intensity\n90,0\n100,1\n110,0\n")
@@ -149,9 +165,10 @@ def test_time_is_mapped_to_range_with_reversal(tmp_path):
 
 def test_sample_pulse_file():
     # make_pulse.py: two-sided Gaussian in time, rise 70 ns, decay 80 ns, peak at +5 ns; its mean
-    # is 5 + sqrt(2/pi) * 10 = 12.98 ns -> z = -1.946 m; the clipped noise floor adds a few cm
+    # is 5 + sqrt(2/pi) * 10 = 12.98 ns -> z = -1.946 m; with the noise floor removed what is
+    # left is 4 ns (0.6 m) sampling and the 3-sigma cut of the lobe's outer edges: < 2 cm
     ds = range_weighting_function(pulse_file=sample_file("rwf/pulse_example.csv"), fft_size=128)
-    assert float(ds.zero_distance) == pytest.approx(-1.946, abs=0.1)
+    assert float(ds.zero_distance) == pytest.approx(-1.946, abs=0.02)
     assert float(ds.barycenter.sel(cnr_gradient=0.1)) > float(ds.zero_distance)
 
 
