@@ -213,8 +213,17 @@ def test_from_artefacts_rwf_nodes_and_units():
     np.testing.assert_allclose(model.rwf_offsets, np.sqrt(2) * sig * x, atol=1e-6)  # tabulated Gaussian
     np.testing.assert_allclose(model.rwf_weights, w / np.sqrt(np.pi), atol=1e-8)
     assert model.cnr_weighting_scale == 1.0  # a bench RWF is CNR-weighted by default (Eq. 2)
-    skew = LidarModel.from_artefacts(rwf=make_rwf(10.0, 16.0))
-    assert np.dot(skew.rwf_offsets, skew.rwf_weights) == pytest.approx(6 * np.sqrt(2 / np.pi), rel=1e-3)
+    # the lidar applies its zero distance (the barycentre, 6*sqrt(2/pi) m for these half-widths),
+    # so the nodes are re-centred on it; the asymmetry stays in the third moment
+    skewed = make_rwf(10.0, 16.0)
+    skewed["zero_distance"] = ((), 6 * np.sqrt(2 / np.pi), {"units": "m"})
+    skew = LidarModel.from_artefacts(rwf=skewed)
+    assert np.dot(skew.rwf_offsets, skew.rwf_weights) == pytest.approx(0.0, abs=1e-6)
+    assert np.dot(np.asarray(skew.rwf_offsets) ** 3, skew.rwf_weights) > 100.0
+    shifted = make_rwf(10.0, 16.0)
+    shifted["zero_distance"] = ((), 6 * np.sqrt(2 / np.pi) - 0.5, {"units": "m"})
+    moved = LidarModel.from_artefacts(rwf=shifted)  # a recorded Zd 0.5 m short of the barycentre
+    assert np.dot(moved.rwf_offsets, moved.rwf_weights) == pytest.approx(0.5, rel=1e-3)
     bad = make_rwf()
     bad["range_offset"].attrs["units"] = "s"
     with pytest.raises(UnitError, match=r"rwf.nc: variable 'range_offset' has units 's'"):

@@ -170,7 +170,8 @@ class LidarModel:
         """Configure the lidar from a ``bench_cube`` and/or ``rwf`` artefact (CONTRIBUTING.md).
 
         Without an RWF the ideal Gaussian RWF (``rwf_fwhm`` override, default 30 m) is used.
-        With an RWF, its ``cnr_gradient = 0`` column is reduced to ``n_nodes`` Gauss nodes and
+        With an RWF, its ``cnr_gradient = 0`` column (re-centred on the recorded
+        zero distance, which the lidar applies) is reduced to ``n_nodes`` Gauss nodes and
         ``cnr_weighting_scale`` defaults to 1 (Eq. 2 applied by the simulator, as in the paper's
         simulation); pass ``cnr_weighting_scale=0`` to switch it off.  Without a cube the ideal
         Gaussian noise (``los_noise_std``) is used.  Remaining ``overrides`` set fields.
@@ -244,10 +245,18 @@ def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
             raise InputError(f"{src}: variable 'cnr_gradient' has no 0 dB m-1 column; found {grad.tolist()}")
     values = values.transpose("range_offset")
     order = np.argsort(offsets.values)
+    s, g = offsets.values[order], values.values[order]
+    # The lidar applies its calibrated zero distance (the barycentre of the full RWF, paper
+    # §3.2): its gates are centred on that barycentre, so the nodes are re-centred on it.
+    if "zero_distance" in rwf.variables:
+        zd = float(convert_variable(rwf, "zero_distance", "m", source=src).values)
+    else:
+        zd = float(np.trapezoid(g * s, s) / np.trapezoid(g, s))
     try:
-        return gauss_rwf_nodes(offsets.values[order], values.values[order], n_nodes)
+        nodes, weights = gauss_rwf_nodes(s, g, n_nodes)
     except ValueError as exc:
         raise InputError(f"{src}: variable 'rwf' cannot be reduced to {n_nodes} nodes: {exc}") from None
+    return nodes - zd, weights
 
 
 def _fill_nearest(values: np.ndarray) -> np.ndarray:
