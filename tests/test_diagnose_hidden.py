@@ -25,6 +25,11 @@ from lidarcal.schema import validate_dataset
 
 def check_recovery(result, effect, params):
     js = summary(result)
+    # one line per campaign (shown with `pytest -s`): the confusion-matrix row
+    print(f"\n[diagnose] hidden {effect} {params} -> {js['effect']} {js['parameters']} "
+          f"+- {js['uncertainties']}; "
+          f"gap {js['gap_before']:.3f} -> {js['gap_after']:.3f} % (floor {js['gap_noise_floor']:.3f} %); "
+          + ", ".join(f"{c['effect']} {c['score']:.1f}" for c in js["candidates"]))
     assert js["effect"] == effect, (js["candidates"], js["note"])
     if effect == "none":
         assert js["parameters"] == {} and js["drivers"] == []
