@@ -271,3 +271,23 @@ def test_turbulent_reference_and_vector_mean_over_periods():
     # the vector mean of a DBS lidar in homogeneous turbulence (no shear) is unbiased: 4 SE
     assert vec.mean() == pytest.approx(0.0, abs=4 * vec.std(ddof=1) / np.sqrt(n))
     assert vec.std(ddof=1) < 0.02
+
+
+def test_cnr_filter_of_a_bench_calibrated_lidar():
+    from lidarcal.lidar import DEFAULT_CNR_THRESHOLD
+
+    model = LidarModel.from_artefacts(cube=make_cube(0.0, 0.05))
+    assert model.cnr_threshold == DEFAULT_CNR_THRESHOLD == -23.0
+    # one height above, one below the filter: the low-CNR one is unavailable, not simulated
+    out = run(model, heights=(80.0, 120.0), cnr=np.array([-15.0, -25.0]))
+    assert np.isfinite(out["lidar_wind_speed"][0]) and out["availability"][0] == 1.0
+    assert np.isnan(out["lidar_wind_speed"][1]) and np.isnan(out["reference_wind_speed"][1])
+    assert out["availability"][1] == 0.0
+    # the height above the filter is unaffected by the other one (its own seed stream)
+    alone = run(model, heights=(80.0,), cnr=-15.0)
+    assert out["lidar_wind_speed"][0] == alone["lidar_wind_speed"][0]
+    everything = run(model.replace(cnr_threshold=None), heights=(120.0,), cnr=-25.0)
+    assert np.isfinite(everything["lidar_wind_speed"][0])
+    assert LidarModel.ideal().cnr_threshold is None  # DESIGN 3.1's ideal lidar keeps every period
+    with pytest.raises(InputError, match="cnr_threshold"):
+        LidarModel.ideal(cnr_threshold=float("nan"))

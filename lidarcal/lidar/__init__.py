@@ -9,9 +9,9 @@ Public API (the contract of CONTRIBUTING.md, "The virtual lidar"):
 * :mod:`lidarcal.lidar.wfr` — the pure reconstruction functions (Eqs. 3-5).
 """
 
-from lidarcal.lidar.model import LidarModel, NoiseTable
+from lidarcal.lidar.model import DEFAULT_CNR_THRESHOLD, LidarModel, NoiseTable
 from lidarcal.lidar.quadrature import cnr_weights, gauss_hermite_rwf, gauss_rwf_nodes
 from lidarcal.lidar.simulate import simulate_period
 
-__all__ = ["LidarModel", "NoiseTable", "simulate_period", "gauss_hermite_rwf", "gauss_rwf_nodes",
-           "cnr_weights"]
+__all__ = ["DEFAULT_CNR_THRESHOLD", "LidarModel", "NoiseTable", "simulate_period", "gauss_hermite_rwf",
+           "gauss_rwf_nodes", "cnr_weights"]

@@ -30,7 +30,7 @@ from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes
 from lidarcal.units import convert_variable
 
-__all__ = ["LidarModel", "NoiseTable"]
+__all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD"]
 
 
 def _tuplify(value: Any) -> Any:
@@ -99,6 +99,11 @@ class NoiseTable:
         return np.interp(velocity, vel_axis, rows_b), np.interp(velocity, vel_axis, rows_s)
 
 
+#: CNR filter (dB) of a bench-calibrated lidar: WindCube-type profilers discard LOS estimates
+#: below about -23 dB by default.
+DEFAULT_CNR_THRESHOLD = -23.0
+
+
 @dataclasses.dataclass(frozen=True)
 class LidarModel:
     """Configuration of the virtual DBS lidar (see module docstring for conventions)."""
@@ -112,6 +117,7 @@ class LidarModel:
     los_noise_std: float = 0.1  #: ideal Gaussian LOS noise (m s-1), used when no table
     noise_table: NoiseTable | None = None  #: bench cube (overrides ``los_noise_std``)
     availability: float = 1.0  #: probability that a LOS sample is kept
+    cnr_threshold: float | None = None  #: CNR filter (dB): periods below it are unavailable
     zero_distance_offset: float = 0.0  #: gates sit this far (m) beyond nominal along the beam
     beam_angle_offset: float = 0.0  #: true cone = cone_angle + offset (degree)
     cnr_weighting_scale: float = 0.0  #: 0 = no CNR weighting, 1 = Eq. 2 as written
@@ -146,6 +152,8 @@ class LidarModel:
             problems.append(f"los_noise_std must be >= 0 m s-1; got {self.los_noise_std}")
         if not 0.0 < self.availability <= 1.0:
             problems.append(f"availability must be in (0, 1]; got {self.availability}")
+        if self.cnr_threshold is not None and not np.isfinite(self.cnr_threshold):
+            problems.append(f"cnr_threshold must be a finite CNR in dB or None; got {self.cnr_threshold}")
         if self.noise_table is not None and len(self.noise_table.bias) != 4:
             problems.append(f"noise_table must have 4 beams; has {len(self.noise_table.bias)}")
         if problems:
@@ -174,7 +182,11 @@ class LidarModel:
         zero distance, which the lidar applies) is reduced to ``n_nodes`` Gauss nodes and
         ``cnr_weighting_scale`` defaults to 1 (Eq. 2 applied by the simulator, as in the paper's
         simulation); pass ``cnr_weighting_scale=0`` to switch it off.  Without a cube the ideal
-        Gaussian noise (``los_noise_std``) is used.  Remaining ``overrides`` set fields.
+        Gaussian noise (``los_noise_std``) is used.  With a cube the lidar's CNR filter
+        ``cnr_threshold`` defaults to :data:`DEFAULT_CNR_THRESHOLD`: below it a real profiler
+        discards its estimates (bench bins there are dominated by bad estimates), so those
+        periods are unavailable rather than simulated with metres-per-second noise; pass
+        ``cnr_threshold=None`` to simulate every period.  Remaining ``overrides`` set fields.
         """
         rwf_fwhm = float(overrides.pop("rwf_fwhm", 30.0))
         offsets, weights = gauss_hermite_rwf(rwf_fwhm, n_nodes)
@@ -188,7 +200,8 @@ class LidarModel:
             described.append(f"ideal Gaussian RWF FWHM {rwf_fwhm:g} m ({n_nodes} nodes)")
         if cube is not None:
             kw["noise_table"] = _noise_table(cube, tuple(overrides.get("azimuths", cls.azimuths)))
-            described.append(f"bench cube {_source(cube)}")
+            kw["cnr_threshold"] = DEFAULT_CNR_THRESHOLD
+            described.append(f"bench cube {_source(cube)}, CNR filter {DEFAULT_CNR_THRESHOLD:g} dB")
         else:
             described.append("ideal Gaussian LOS noise")
         kw["description"] = "; ".join(described)

@@ -218,6 +218,9 @@ def simulate_period(
         values = [float(conditions[n][i]) for n in conditions]
         if not np.all(np.isfinite(values)):
             continue
+        if model.cnr_threshold is not None and conditions["cnr"][i] < model.cnr_threshold:
+            out["availability"][i] = 0.0  # the lidar's CNR filter drops every LOS of the period
+            continue
         res = _simulate_height(model, float(h), *values, seed=seed, duration=duration, n_times=n_times)
         for name in OUTPUTS:
             out[name][i] = res[name]
