@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import warnings
 from collections.abc import Sequence
 
 from lidarcal import __version__
@@ -54,10 +55,17 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Print warnings as one plain line (no source excerpt) on stderr."""
+    name = "warning" if category in (UserWarning,) or issubclass(category, UserWarning) else category.__name__
+    print(f"lidarcal: {name}: {message}", file=sys.stderr)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``lidarcal`` command."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    warnings.showwarning = _show_warning
     if not getattr(args, "handler", None):
         parser.print_help()
         return 1

@@ -1,0 +1,246 @@
+"""The main job: a whole calibration, bench to certificate, as one function.
+
+:func:`calibrate` chains the stages exactly as a user would on the command line and writes
+every artefact into one output directory::
+
+    bench RTD + control log ──ingest──> cube.nc
+    pulse file ───────────────────────> rwf.nc          (Eq. 1-2, Zd)
+    conditions (real, extended) ──────> conditions.nc
+    cube + rwf + conditions ──simulate─> simulated.nc   (virtual lidar vs virtual reference)
+    Table 4 inputs ───────────────────> terms.nc        (Eqs. 6-11, per height)
+    simulated ──────────────────────── > sensitivity_<variable>.nc (Eqs. 12-13)
+    simulated + terms ────────────────> budget.nc       (§3.4, 0.5 m/s bins)
+    everything ───────────────────────> certificate.nc + report.html (+ PNGs)
+
+Every input defaults to the embedded sample data and can be replaced by the user's own file.
+Outputs that already exist are refused before any work starts, unless ``overwrite``.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.data import sample_file
+from lidarcal.io import check_writable, open_artefact, write_artefact
+from lidarcal.units import Q_
+
+__all__ = ["CalibrationConfig", "calibrate", "OUTPUT_NAMES", "DEFAULT_HEIGHTS"]
+
+#: Heights of the default run (m): the mast's 40/60/80 m plus the range a profiler calibrates.
+DEFAULT_HEIGHTS = (40.0, 60.0, 80.0, 100.0, 120.0, 140.0, 160.0, 200.0)
+
+#: File name of each artefact inside the output directory.
+OUTPUT_NAMES = {
+    "cube": "cube.nc",
+    "rwf": "rwf.nc",
+    "conditions": "conditions.nc",
+    "simulated": "simulated.nc",
+    "terms": "terms.nc",
+    "budget": "budget.nc",
+    "certificate": "certificate.nc",
+    "report": "report.html",
+}
+
+SENSITIVITY_VARIABLES = ("wind_shear_exponent", "turbulence_intensity", "cnr_gradient")
+
+
+@dataclass
+class CalibrationConfig:
+    """Everything that shapes a calibration run; recorded in the certificate.
+
+    Paths left as ``None`` use the embedded sample data.  ``periods`` limits the number of
+    10-minute periods taken from the start of the conditions record (``None`` = all).
+    """
+
+    bench_rtd: str | None = None
+    bench_control: str | None = None
+    cube: str | None = None
+    rwf: str | None = None
+    pulse_file: str | None = None
+    conditions: str | None = None
+    heights: tuple[float, ...] = DEFAULT_HEIGHTS
+    periods: int | None = 2016
+    base_seed: int = 20240101
+    chunk: int = 64
+    workers: int | None = None
+    scheduler: str | None = None
+    fft_size: int = 64
+    terms: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form, for provenance."""
+        out = asdict(self)
+        out["heights"] = list(self.heights)
+        return out
+
+
+def _terms_per_height(records: xr.Dataset, overrides: dict[str, Any]) -> xr.Dataset:
+    """Table 4 terms at every simulated height, with that height's median shear exponent."""
+    from lidarcal.terms import PAPER_INPUTS, uncertainty_terms
+
+    speeds = Q_(np.arange(0.25, 40.01, 0.25), "m/s")
+    parts = []
+    for z in records.height.values:
+        # Eq. 11 at this height with the campaign's median shear (Table 4 fixes 100 m, 0.2)
+        alpha = abs(float(np.nanmedian(records.wind_shear_exponent.sel(height=z).values)))
+        inputs = {**PAPER_INPUTS, "height": Q_(float(z), "m"), "shear_exponent": alpha, **overrides}
+        part = uncertainty_terms(speeds, **inputs, call=f"lidarcal calibrate (terms at {z:g} m)")
+        parts.append(part)
+    if len(parts) == 1:
+        return parts[0]
+    return xr.concat(parts, dim="height", data_vars="all", coords="different", compat="equals",
+                     combine_attrs="override")
+
+
+def _conditions(cfg: CalibrationConfig, log: Callable[[str], None]) -> tuple[xr.Dataset, dict]:
+    from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
+
+    if cfg.conditions is not None:
+        path = Path(cfg.conditions)
+        ds = load_conditions(path)
+        if cfg.periods is not None:
+            ds = ds.isel(time=slice(0, cfg.periods))
+        return ds, {"conditions": path}
+    path = sample_file("conditions/conditions.nc")
+    with warnings.catch_warnings():  # gaps in the whole record; those used are reported later
+        warnings.simplefilter("ignore", SkippedPeriodsWarning)
+        base = load_conditions(path)
+    n = base.sizes["time"] if cfg.periods is None else min(cfg.periods, base.sizes["time"])
+    log(f"conditions: {n} periods of the real brightwind sample (40/60/80 m) carried to "
+        f"{', '.join(f'{h:g}' for h in cfg.heights)} m with each period's shear")
+    ds = synthetic_conditions(n, cfg.heights, base=base)
+    return ds, {"conditions_source": path}
+
+
+def calibrate(
+    outdir: str | os.PathLike = "lidarcal-output",
+    config: CalibrationConfig | None = None,
+    *,
+    overwrite: bool = False,
+    progress: bool = False,
+    log: Callable[[str], None] = print,
+) -> dict[str, Path]:
+    """Run the whole calibration and return the path of every artefact written.
+
+    Parameters
+    ----------
+    outdir : path
+        Output directory (created if missing).
+    config : CalibrationConfig, optional
+        Inputs and settings; defaults to the embedded sample data.
+    overwrite : bool
+        Replace existing outputs; otherwise existing files are refused before any work.
+    progress : bool
+        Show a progress bar during the simulation.
+    log : callable
+        Receives one line per finished stage.
+    """
+    from lidarcal.analysis.budget import budget
+    from lidarcal.analysis.sensitivity import sensitivity
+    from lidarcal.bench.ingest import ingest
+    from lidarcal.campaign import simulate_campaign
+    from lidarcal.certificate import make_certificate, write_certificate
+    from lidarcal.lidar import LidarModel
+    from lidarcal.report import write_report
+    from lidarcal.rwf import range_weighting_function
+
+    cfg = config or CalibrationConfig()
+    outdir = Path(outdir)
+    outdir.mkdir(parents=True, exist_ok=True)
+    paths = {key: outdir / name for key, name in OUTPUT_NAMES.items()}
+    for var in SENSITIVITY_VARIABLES:
+        paths[f"sensitivity_{var}"] = outdir / f"sensitivity_{var}.nc"
+    for path in paths.values():  # refuse before doing an hour of work
+        check_writable(path, overwrite=overwrite)
+    t0 = time.perf_counter()
+
+    def done(key: str, what: str) -> None:
+        log(f"[{time.perf_counter() - t0:6.1f} s] {what}: {paths[key]}")
+
+    # 1. bench cube
+    if cfg.cube is not None:
+        cube = open_artefact(cfg.cube, "bench_cube")
+        write_artefact(cube, paths["cube"], overwrite=overwrite)
+    else:
+        rtd = cfg.bench_rtd or sample_file("bench/rtd.csv")
+        control = cfg.bench_control or sample_file("bench/control_log.csv")
+        cube = ingest(rtd, control, call=f"lidarcal calibrate (bench ingest {Path(rtd).name})")
+        write_artefact(cube, paths["cube"], overwrite=overwrite)
+    cube = open_artefact(paths["cube"], "bench_cube")
+    serial = cube.attrs.get("lidar_serial")
+    done("cube", f"bench cube ({int(cube.sample_count.sum())} samples, lidar {serial})")
+
+    # 2. range-weighting function and zero distance
+    if cfg.rwf is not None:
+        rwf = open_artefact(cfg.rwf, "rwf")
+        write_artefact(rwf, paths["rwf"], overwrite=overwrite)
+    else:
+        pulse = cfg.pulse_file or sample_file("rwf/pulse_example.csv")
+        rwf = range_weighting_function(pulse_file=pulse, fft_size=cfg.fft_size,
+                                       call=f"lidarcal calibrate (rwf from {Path(pulse).name})")
+        write_artefact(rwf, paths["rwf"], overwrite=overwrite)
+    rwf = open_artefact(paths["rwf"], "rwf")
+    done("rwf", f"range-weighting function (Zd = {float(rwf.zero_distance):+.3f} m)")
+
+    # 3. conditions
+    cond, cond_inputs = _conditions(cfg, log)
+    if "lidarcal_artefact" not in cond.attrs or cond.attrs.get("lidarcal_artefact") != "conditions":
+        from lidarcal.provenance import stamp
+
+        cond = stamp(cond, "conditions", title="Conditions simulated by lidarcal calibrate",
+                     summary="10-minute conditions (DESIGN.md 3.1) used as Monte Carlo input.",
+                     call="lidarcal calibrate", inputs=cond_inputs)
+    write_artefact(cond, paths["conditions"], overwrite=overwrite)
+    done("conditions", f"conditions ({cond.sizes['time']} periods x {cond.sizes['height']} heights)")
+
+    # 4. Monte Carlo simulation
+    model = LidarModel.from_artefacts(cube=cube, rwf=rwf)
+    records = simulate_campaign(
+        paths["conditions"], model, base_seed=cfg.base_seed, chunk=cfg.chunk,
+        scheduler=cfg.scheduler, workers=cfg.workers, progress=progress,
+        call="lidarcal calibrate (simulate)",
+        inputs={"conditions": paths["conditions"], "cube": paths["cube"], "rwf": paths["rwf"]},
+    )
+    if cube.attrs.get("lidar_serial"):
+        records.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
+    write_artefact(records, paths["simulated"], overwrite=overwrite)
+    records = open_artefact(paths["simulated"], "simulated_rtd")
+    done("simulated", "simulated records")
+
+    # 5. Table 4 terms, sensitivities, budget
+    terms = _terms_per_height(records, cfg.terms)
+    write_artefact(terms, paths["terms"], overwrite=overwrite)
+    terms = open_artefact(paths["terms"], "uncertainty_terms")
+    done("terms", "uncertainty terms not modelled by Monte Carlo (Table 4)")
+    sens = {}
+    for var in SENSITIVITY_VARIABLES:
+        key = f"sensitivity_{var}"
+        ds = sensitivity(records, var, call=f"lidarcal calibrate (sensitivity {var})")
+        write_artefact(ds, paths[key], overwrite=overwrite)
+        sens[var] = open_artefact(paths[key], "sensitivity")
+        done(key, f"sensitivity to {var}")
+    bud = budget(records, terms=terms, call="lidarcal calibrate (budget)")
+    write_artefact(bud, paths["budget"], overwrite=overwrite)
+    bud = open_artefact(paths["budget"], "uncertainty_budget")
+    done("budget", "uncertainty budget (Monte Carlo approach)")
+
+    # 6. certificate and report
+    cert = make_certificate(budget=bud, sensitivities=sens, cube=cube, rwf=rwf, terms=terms,
+                            records=records, config=cfg.to_dict(), call="lidarcal calibrate")
+    write_certificate(cert, paths["certificate"], overwrite=overwrite)
+    done("certificate", "calibration certificate (check with: lidarcal verify)")
+    written = write_report(paths["report"], certificate=cert, overwrite=overwrite)
+    for png in written.get("png", []):
+        paths[f"png:{Path(png).name}"] = Path(png)
+    done("report", f"HTML report ({len(written.get('png', []))} PNG figures beside it)")
+    return paths
+
