@@ -1,5 +1,7 @@
 """Bad bench input: every case fails with a message naming the file and problem, and writes nothing."""
 
+import gzip
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -189,3 +191,32 @@ def test_missing_control_column(case):
     rtd, control = case(control=text)
     with pytest.raises(MissingVariableError, match=r"control_log.csv.*'programmed_cnr_<unit>'"):
         ingest(rtd, control)
+
+
+@pytest.mark.parametrize("damage,expected", [
+    ("truncated", r"not a valid gzip file \(corrupt or truncated\).*EOFError"),
+    ("flipped", r"not a valid gzip file \(corrupt or truncated\).*CRC check failed"),
+    ("not_gzip", r"named '\.gz' but is not gzip-compressed"),
+])
+def test_corrupt_gzip_rtd(case, capsys, damage, expected):
+    rtd, control = case()
+    plain = rtd.read_bytes()
+    data = gzip.compress(plain, mtime=0)
+    mid = len(data) // 2
+    data = {"truncated": data[:mid],
+            "flipped": data[:mid] + bytes(b ^ 0xFF for b in data[mid:mid + 64]) + data[mid + 64:],
+            "not_gzip": plain}[damage]
+    gz = rtd.parent / "rtd.csv.gz"
+    gz.write_bytes(data)
+    err = _run_cli(gz, control, capsys)
+    assert "rtd.csv.gz: RTD file" in err
+    with pytest.raises(InputError, match=r"rtd\.csv\.gz: RTD file .*" + expected):
+        ingest(gz, control)
+
+
+def test_gzip_rtd_ingests_like_plain(case):
+    rtd, control = case()
+    gz = rtd.parent / "rtd.csv.gz"
+    gz.write_bytes(gzip.compress(rtd.read_bytes(), mtime=0))
+    a, b = ingest(rtd, control), ingest(gz, control)
+    np.testing.assert_array_equal(a.los_bias.values, b.los_bias.values)

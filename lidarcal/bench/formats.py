@@ -29,14 +29,23 @@ Control log (one row per programmed ℓcv-bin, in time order, bins may not overl
     bin_index,start_utc,end_utc,los,programmed_velocity_m_s,programmed_cnr_dB
     0,2023-02-17T16:07:00.000Z,2023-02-17T16:17:50.000Z,0,-18.000,-28.00
 
+Either file may be gzip-compressed (``rtd.csv.gz``): readers detect gzip by its magic bytes
+(a ``.gz`` name that is not gzip is refused), and the writers compress when the path ends
+in ``.gz``, byte-reproducibly (gzip header with mtime 0 and the name without ``.gz``).
+
 Readers check everything a later step relies on and raise :mod:`lidarcal.errors`
 exceptions naming the file, the column, what was expected and what was found.
 """
 
 from __future__ import annotations
 
+import contextlib
+import gzip
+import io
 import os
 import re
+import zlib
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -59,6 +68,9 @@ CONTROL_METADATA = (
     "rf_driver_calibration_reference", "rf_driver_relative_uncertainty_percent",
 )
 _CONTROL_COLUMNS = ("start_utc", "end_utc", "los")
+_GZIP_MAGIC = b"\x1f\x8b"
+#: What a damaged gzip stream raises: bad header or CRC, truncated stream, corrupt deflate data.
+_GZIP_ERRORS = (gzip.BadGzipFile, EOFError, zlib.error)
 
 
 @dataclass
@@ -103,26 +115,49 @@ def column_unit(suffix: str) -> str:
     return suffix.replace("_", " ")
 
 
+def _compression(path: Path, what: str) -> str | None:
+    """``"gzip"`` if the file starts with the gzip magic bytes, else None (a ``.gz`` name must be gzip)."""
+    with open(path, "rb") as fh:
+        head = fh.read(2)
+    if head == _GZIP_MAGIC:
+        return "gzip"
+    if path.suffix.lower() == ".gz":
+        raise InputError(f"{path}: {what} file is named '.gz' but is not gzip-compressed; expected the "
+                         f"gzip magic bytes {_GZIP_MAGIC!r}, found {head!r}")
+    return None
+
+
 def _read_table(path: str | os.PathLike, what: str) -> tuple[pd.DataFrame, dict]:
-    """CSV body and the ``# key: value`` metadata of the comment lines before the header."""
+    """CSV body and the ``# key: value`` metadata of the comment lines before the header.
+
+    Plain or gzip-compressed (detected by the magic bytes) UTF-8 text.
+    """
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: {what} file not found")
     if path.stat().st_size == 0:
         raise InputError(f"{path}: {what} file is empty")
+    compression = _compression(path, what)
     meta: dict[str, str] = {}
-    with open(path, encoding="utf-8") as fh:
-        for line in fh:
-            if not line.startswith("#"):
-                break
-            m = re.match(r"#\s*([A-Za-z0-9_]+)\s*:\s*(.*?)\s*$", line)
-            if m:
-                meta[m.group(1)] = m.group(2)
     try:
-        df = pd.read_csv(path, comment="#", dtype=str, skip_blank_lines=True)
+        opener = gzip.open if compression == "gzip" else open
+        with opener(path, "rt", encoding="utf-8") as fh:
+            for line in fh:
+                if not line.startswith("#"):
+                    break
+                m = re.match(r"#\s*([A-Za-z0-9_]+)\s*:\s*(.*?)\s*$", line)
+                if m:
+                    meta[m.group(1)] = m.group(2)
+        df = pd.read_csv(path, comment="#", dtype=str, skip_blank_lines=True, compression=compression)
+    except _GZIP_ERRORS as exc:
+        raise InputError(f"{path}: {what} file is not a valid gzip file (corrupt or truncated); "
+                         f"expected a complete gzip-compressed CSV; {type(exc).__name__}: {exc}") from None
     except pd.errors.EmptyDataError:
         raise InputError(f"{path}: {what} file has no header row and no data") from None
-    except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
+        damaged = " (or its gzip data is corrupt)" if compression else ""
+        raise InputError(f"{path}: {what} file is not UTF-8 text{damaged}: {exc}") from None
+    except pd.errors.ParserError as exc:
         raise InputError(f"{path}: {what} file is not a readable CSV table: {exc}") from None
     df.columns = [str(c).strip() for c in df.columns]
     if len(df) == 0:
@@ -264,8 +299,26 @@ def _iso_column(t_ns: np.ndarray) -> np.ndarray:
     return np.char.add(np.datetime_as_string(np.asarray(t_ns).astype("datetime64[ns]"), unit="ms"), "Z")
 
 
+@contextlib.contextmanager
+def _text_output(path: str | os.PathLike, overwrite: bool) -> Iterator[io.TextIOBase]:
+    """Atomic UTF-8 text output, LF line ends; gzip (mtime 0, level 9) if ``path`` ends in ``.gz``."""
+    path = Path(path)
+    with atomic_path(path, overwrite=overwrite) as tmp, open(tmp, "wb") as raw:
+        if path.suffix.lower() == ".gz":
+            # the header records mtime 0 and the final name (not the temporary one): reproducible bytes
+            with gzip.GzipFile(filename=path.stem, mode="wb", fileobj=raw, mtime=0) as gz, \
+                    io.TextIOWrapper(gz, encoding="utf-8", newline="\n") as fh:
+                yield fh
+        else:
+            with io.TextIOWrapper(raw, encoding="utf-8", newline="\n") as fh:
+                yield fh
+
+
 def write_rtd(rtd: RtdTable, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-    """Write an RTD CSV atomically (m s-1 and dB, three decimals, millisecond timestamps)."""
+    """Write an RTD CSV atomically (m s-1 and dB, three decimals, millisecond timestamps).
+
+    A path ending in ``.gz`` is written gzip-compressed, byte-reproducibly (header mtime 0).
+    """
     df = pd.DataFrame({
         "timestamp_utc": _iso_column(rtd.time_ns),
         "los": np.asarray(LOS_LABELS)[rtd.los],
@@ -273,13 +326,16 @@ def write_rtd(rtd: RtdTable, path: str | os.PathLike, *, overwrite: bool = False
         "cnr_dB": np.round(rtd.cnr, 2),
         "lidar_serial": rtd.lidar_serial,
     })
-    with atomic_path(path, overwrite=overwrite) as tmp:
-        df.to_csv(tmp, index=False, float_format="%.3f", lineterminator="\n")
+    with _text_output(path, overwrite) as fh:
+        df.to_csv(fh, index=False, float_format="%.3f", lineterminator="\n")
     return Path(path)
 
 
 def write_control_log(log: ControlLog, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-    """Write a control log atomically, metadata as ``# key: value`` lines before the header."""
+    """Write a control log atomically, metadata as ``# key: value`` lines before the header.
+
+    A path ending in ``.gz`` is written gzip-compressed, like :func:`write_rtd`.
+    """
     df = pd.DataFrame({
         "bin_index": np.arange(len(log)),
         "start_utc": _iso_column(log.start_ns),
@@ -288,10 +344,9 @@ def write_control_log(log: ControlLog, path: str | os.PathLike, *, overwrite: bo
         "programmed_velocity_m_s": log.velocity,
         "programmed_cnr_dB": log.cnr,
     })
-    with atomic_path(path, overwrite=overwrite) as tmp:
-        with open(tmp, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write("# SAFO-MV control log\n")
-            for key, value in log.metadata.items():
-                fh.write(f"# {key}: {value}\n")
-            df.to_csv(fh, index=False, float_format="%.3f", lineterminator="\n")
+    with _text_output(path, overwrite) as fh:
+        fh.write("# SAFO-MV control log\n")
+        for key, value in log.metadata.items():
+            fh.write(f"# {key}: {value}\n")
+        df.to_csv(fh, index=False, float_format="%.3f", lineterminator="\n")
     return Path(path)

@@ -40,13 +40,14 @@ from lidarcal.io import check_writable
 from lidarcal.units import to_magnitude
 
 __all__ = ["BenchRun", "simulate_run", "sweep_schedule", "simulate_rtd", "RF_DRIVER_REFERENCE",
-           "RF_DRIVER_RELATIVE_UNCERTAINTY_PERCENT", "RTD_NAME", "CONTROL_NAME"]
+           "RF_DRIVER_RELATIVE_UNCERTAINTY_PERCENT", "RTD_NAME", "RTD_NAME_GZ", "CONTROL_NAME"]
 
 #: Relative uncertainty of the RF-driver calibration, percent (paper §2.1).
 RF_DRIVER_RELATIVE_UNCERTAINTY_PERCENT = 5.95622e-8
 RF_DRIVER_REFERENCE = "ASERTI Metrology (COFRAC-accredited) RF-driver calibration certificate, simulated"
 #: File names written by :meth:`BenchRun.write`.
 RTD_NAME = "rtd.csv"
+RTD_NAME_GZ = "rtd.csv.gz"  #: with ``compress=True``
 CONTROL_NAME = "control_log.csv"
 _LEAD_S = 30.0       # lidar running before the first and after the last bin
 _MIX_LIMIT = 2.0     # m s-1: closer programmed velocities blend, farther ones: stronger peak wins
@@ -61,12 +62,18 @@ class BenchRun:
     response: TrueResponse
     config: dict
 
-    def write(self, directory: str | os.PathLike, *, overwrite: bool = False) -> tuple[Path, Path]:
-        """Write ``rtd.csv`` and ``control_log.csv`` into ``directory`` (atomically, no overwrite)."""
+    def write(self, directory: str | os.PathLike, *, overwrite: bool = False,
+              compress: bool = False) -> tuple[Path, Path]:
+        """Write ``rtd.csv`` and ``control_log.csv`` into ``directory`` (atomically, no overwrite).
+
+        ``compress=True`` writes the RTD gzip-compressed as ``rtd.csv.gz`` (byte-reproducible,
+        about a third of the size); the control log stays plain text.
+        """
         directory = Path(directory)
         if not directory.is_dir():
             raise InputError(f"{directory}: output directory does not exist")
-        rtd_path, control_path = directory / RTD_NAME, directory / CONTROL_NAME
+        rtd_path = directory / (RTD_NAME_GZ if compress else RTD_NAME)
+        control_path = directory / CONTROL_NAME
         for path in (rtd_path, control_path):  # fail before writing either file
             check_writable(path, overwrite=overwrite)
         write_control_log(self.control, control_path, overwrite=overwrite)

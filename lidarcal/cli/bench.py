@@ -2,8 +2,8 @@
 
 Subcommands::
 
-    lidarcal bench simulate -o DIR [--seed N] [--accumulation-time S] [--serial ...]
-    lidarcal bench ingest RTD.csv CONTROL.csv -o cube.nc [--settling-time S] [--outlier-rule mad]
+    lidarcal bench simulate -o DIR [--seed N] [--accumulation-time S] [--compress] [--serial ...]
+    lidarcal bench ingest RTD.csv[.gz] CONTROL.csv -o cube.nc [--settling-time S] [--outlier-rule mad]
     lidarcal bench repeatability CUBE.nc CUBE.nc ... [--exclude RUN] -o rep.nc
 """
 
@@ -23,7 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=lambda args: (p.print_help(), 1)[1])
     bsub = p.add_subparsers(dest="bench_command", metavar="SUBCOMMAND")
 
-    s = bsub.add_parser("simulate", help="write a simulated bench run (rtd.csv, control_log.csv)")
+    s = bsub.add_parser("simulate", help="write a simulated bench run (rtd.csv[.gz], control_log.csv)")
     s.add_argument("-o", "--output", required=True, metavar="DIR", help="existing output directory")
     s.add_argument("--seed", type=int, default=0, help="SeedSequence entropy (default 0)")
     s.add_argument("--accumulation-time", type=float, default=650.0, metavar="S",
@@ -34,12 +34,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--bench-id", default="SAFO-MV-01", help="bench identifier")
     s.add_argument("--start", default="2023-02-17T16:07:00Z", help="start of the first bin (ISO 8601 UTC)")
     s.add_argument("--bias-scale", type=float, default=1.0, help="scale of the true-response bias model")
+    s.add_argument("--compress", action="store_true",
+                   help="write the RTD gzip-compressed as rtd.csv.gz (byte-reproducible)")
     s.add_argument("--overwrite", action="store_true", help="replace existing files")
     s.set_defaults(handler=run_simulate)
 
     i = bsub.add_parser("ingest", help="RTD + control log -> bench_cube netCDF")
-    i.add_argument("rtd", metavar="RTD", help="lidar real-time data CSV")
-    i.add_argument("control", metavar="CONTROL", help="SAFO-MV control log CSV")
+    i.add_argument("rtd", metavar="RTD", help="lidar real-time data CSV (.csv or gzip-compressed .csv.gz)")
+    i.add_argument("control", metavar="CONTROL", help="SAFO-MV control log CSV (.csv or .csv.gz)")
     i.add_argument("-o", "--output", required=True, metavar="CUBE.nc")
     i.add_argument("--settling-time", type=float, default=5.0, metavar="S",
                    help="seconds after each bin start treated as transition (default 5)")
@@ -78,7 +80,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     run = simulate_run(seed=args.seed, accumulation_time=f"{args.accumulation_time} s",
                        lidar_serial=args.serial, operator=args.operator, run_id=args.run_id,
                        bench_id=args.bench_id, start=args.start, bias_scale=args.bias_scale)
-    rtd, control = run.write(args.output, overwrite=args.overwrite)
+    rtd, control = run.write(args.output, overwrite=args.overwrite, compress=args.compress)
     print(f"wrote {rtd} ({len(run.rtd)} records) and {control} ({len(run.control)} bins)")
     return 0
 
