@@ -1,12 +1,16 @@
 """Tests of the bench stage: grid, kernels, simulator, ingest (statistics, transitions, files)."""
 
+import gzip
+import shlex
+import time
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lidarcal.bench import kernels
-from lidarcal.bench.formats import column_unit, read_control_log, read_rtd
+from lidarcal.bench.formats import column_unit, read_control_log, read_rtd, write_control_log
 from lidarcal.bench.grid import CNR_EDGES, CNR_NODES, LOS_LABELS, VELOCITY_NODES, grid_index, los_index
 from lidarcal.bench.ingest import build_cube, ingest
 from lidarcal.bench.response import TrueResponse
@@ -221,19 +225,73 @@ def test_refuses_bare_numbers_and_bad_rule(full_run):
         build_cube(full_run.rtd, full_run.control, outlier_rule="sigma")
 
 
+def test_gzip_files_round_trip_and_are_reproducible(tmp_path, monkeypatch):
+    run = simulate_run(seed=1, accumulation_time="6 s", los=("0", "V"), cnr=[-12.0, -8.0],
+                       velocity=np.array([-1.0, 1.0]) * _ms())
+    (tmp_path / "plain").mkdir()
+    (tmp_path / "gz").mkdir()
+    (tmp_path / "gz2").mkdir()
+    plain_rtd, plain_control = run.write(tmp_path / "plain")
+    gz_rtd, gz_control = run.write(tmp_path / "gz", compress=True)
+    assert gz_rtd.name == "rtd.csv.gz" and gz_control.name == "control_log.csv"
+    raw = gz_rtd.read_bytes()
+    # gzip magic, header mtime field (bytes 4-7) zero, original name = the final name without .gz
+    assert raw[:2] == b"\x1f\x8b" and raw[4:8] == bytes(4) and raw[10:18] == b"rtd.csv\0"
+    assert gzip.decompress(raw) == plain_rtd.read_bytes()
+    # written again with another clock (and another random temporary name): the same bytes
+    monkeypatch.setattr(time, "time", lambda: 2.0e9)
+    assert run.write(tmp_path / "gz2", compress=True)[0].read_bytes() == raw
+    a, b = read_rtd(plain_rtd), read_rtd(gz_rtd)
+    np.testing.assert_array_equal(a.time_ns, b.time_ns)
+    np.testing.assert_array_equal(a.velocity, b.velocity)
+    np.testing.assert_array_equal(a.cnr, b.cnr)
+    # gzip is recognised by its magic bytes whatever the name; a control log may be compressed too
+    renamed = tmp_path / "rtd_without_suffix.csv"
+    renamed.write_bytes(raw)
+    np.testing.assert_array_equal(read_rtd(renamed).velocity, a.velocity)
+    control_gz = write_control_log(run.control, tmp_path / "control_log.csv.gz")
+    assert gzip.decompress(control_gz.read_bytes()) == plain_control.read_bytes()
+    assert read_control_log(control_gz).metadata == read_control_log(plain_control).metadata
+    x, y = ingest(plain_rtd, plain_control), ingest(gz_rtd, control_gz)
+    np.testing.assert_array_equal(x.los_bias.values, y.los_bias.values)
+    np.testing.assert_array_equal(x.sample_count.values, y.sample_count.values)
+    with pytest.raises(FileExistsError):
+        run.write(tmp_path / "gz", compress=True)
+
+
+def _readme_command(readme):
+    """Arguments of the README's ``lidarcal bench simulate -o sample_data/bench ...`` line."""
+    lines = [line.strip() for line in readme.read_text().splitlines()
+             if line.strip().startswith("lidarcal bench simulate -o sample_data/bench")]
+    assert len(lines) == 1, lines
+    return shlex.split(lines[0])[1:]
+
+
 def test_sample_data_is_reproducible_and_ingests(tmp_path):
     from lidarcal.data import sample_file
 
-    rtd, control = sample_file("bench/rtd.csv"), sample_file("bench/control_log.csv")
-    assert rtd.stat().st_size + control.stat().st_size < 3.1e6
-    # the README's command regenerates the sample byte for byte (seeded, deterministic format)
+    rtd, control = sample_file("bench/rtd.csv.gz"), sample_file("bench/control_log.csv")
+    assert not (rtd.parent / "rtd.csv").exists()  # replaced by the compressed file
+    assert rtd.stat().st_size + control.stat().st_size < 5e6
+    # the README's command regenerates the sample byte for byte (seeded, deterministic format,
+    # gzip header without a time stamp); ~5 s, most of it CSV formatting and deflate level 9
     from lidarcal.cli import main
-    args = ["bench", "simulate", "-o", str(tmp_path), "--seed", "2023", "--accumulation-time", "18"]
-    assert main(args) == 0
-    assert (tmp_path / "rtd.csv").read_bytes() == rtd.read_bytes()
+    args = _readme_command(rtd.parent / "README.md")
+    assert args[args.index("--accumulation-time") + 1] == "60" and "--compress" in args
+    args[args.index("-o") + 1] = str(tmp_path)
+    assert main([a for a in args if a != "--overwrite"]) == 0
+    new = (tmp_path / "rtd.csv.gz").read_bytes()
+    assert gzip.decompress(new) == gzip.decompress(rtd.read_bytes())  # the same CSV text
+    assert new == rtd.read_bytes()  # and the same compressed bytes
     assert (tmp_path / "control_log.csv").read_bytes() == control.read_bytes()
     ds = ingest(rtd, control)
     assert validate_dataset(ds, "bench_cube") == []
-    # 18 s x 1.25 Hz / 5 beams = 4 or 5 records per bin, of which the 5 s settling removes 1 or 2
+    # 2220 bins x 60 s + 2 x 30 s lead/tail at 1.25 Hz = 166,575 records (random 0.8 s clock phase)
+    assert abs(ds.attrs["ingest_records_total"] - 166_575) <= 1
+    # 60 s x 1.25 Hz / 5 beams = 15 records per bin, of which the 5 s settling removes 1 or 2
     n = ds.attrs["ingest_records_used"] + ds.attrs["ingest_records_rejected_bad_estimate"]
-    assert 3 * 2220 <= n <= 4 * 2220
+    assert 13 * 2220 <= n <= 14 * 2220
+    count = ds.sample_count.values
+    assert count.min() >= 1 and count.max() <= 14  # no empty bin
+    # at CNR >= -22 dB bad estimates are rare (< 4 %): almost every bin keeps 13-14 samples
+    assert np.median(count[:, 3:]) == 14 and count[:, 3:].min() >= 8
