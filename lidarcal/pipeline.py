@@ -171,7 +171,7 @@ def calibrate(
         cube = open_artefact(cfg.cube, "bench_cube")
         write_artefact(cube, paths["cube"], overwrite=overwrite)
     else:
-        rtd = cfg.bench_rtd or sample_file("bench/rtd.csv")
+        rtd = cfg.bench_rtd or sample_file("bench/rtd.csv.gz")
         control = cfg.bench_control or sample_file("bench/control_log.csv")
         cube = ingest(rtd, control, call=f"lidarcal calibrate (bench ingest {Path(rtd).name})")
         write_artefact(cube, paths["cube"], overwrite=overwrite)
