@@ -102,6 +102,33 @@ def memory(lengths: tuple[int, ...], chunk: int) -> dict[int, tuple[float, float
     return out
 
 
+def _spin(_):
+    t0 = time.perf_counter()
+    acc = 0
+    for i in range(10_000_000):
+        acc += i
+    return time.perf_counter() - t0
+
+
+def control_parallelism() -> float:
+    """Speed-up of trivially parallel pure-Python work on 2 processes, measured now.
+
+    On a shared machine other jobs take cores; this control tells what speed-up is
+    available at all while the benchmark runs (2.0 on an idle 2-core machine).
+    """
+    import multiprocessing as mp
+
+    with mp.get_context("spawn").Pool(2) as pool:
+        pool.map(_spin, [0, 1])  # warm-up
+        t0 = time.perf_counter()
+        pool.map(_spin, [0])
+        one = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        pool.map(_spin, [0, 1])
+        two = time.perf_counter() - t0
+    return 2 * one / two
+
+
 # -- MoCaLUM-style baseline ----------------------------------------------------------------------
 
 
@@ -211,7 +238,9 @@ def main(argv=None) -> int:
         f"machine: {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.2f} (others' jobs slow this down)"
     )
     print(f"throughput, 8 heights {HEIGHTS} m, {args.periods} periods, chunk {args.chunk}:")
+    control_before = control_parallelism()
     rate = throughput(args.periods, args.repeats, args.chunk)
+    control_after = control_parallelism()
     speedup = rate[2] / rate[1]
     print("memory (2 workers):")
     mem = memory((args.periods, 4 * args.periods), args.chunk)
@@ -224,6 +253,8 @@ def main(argv=None) -> int:
     print(f"  lidarcal 1 worker : {rate[1]:8.2f} periods/s")
     print(f"  lidarcal 2 workers: {rate[2]:8.2f} periods/s   target >= 20")
     print(f"  speed-up 1 -> 2   : {speedup:8.2f} x          target >= 1.7")
+    print(f"  control: 2 spinning processes ran {control_before:.2f}x / {control_after:.2f}x faster than 1 "
+          f"(before / after; 2.0 = two free cores)")
     (n1, (r1, c1)), (n2, (r2, c2)) = sorted(mem.items())
     print(
         f"  worker peak RSS   : {r1:.1f} MB ({n1} periods) vs {r2:.1f} MB ({n2} periods): ratio {r2 / r1:.2f}"
