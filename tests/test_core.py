@@ -182,3 +182,14 @@ def test_schema_stackable_dims_accept_a_leading_height_only():
     assert not _dims_match(("wind_speed", "height"), ["wind_speed"], ("height",))
     assert not _dims_match(("time", "wind_speed"), ["wind_speed"], ("height",))
     assert not _dims_match(("height", "wind_speed"), ["wind_speed"], ())
+
+
+def test_history_records_the_command_as_typed(tmp_path, capsys):
+    from lidarcal.cli import main
+
+    out = tmp_path / "t.nc"
+    assert main(["terms", "--height", "120", "-o", str(out)]) == 0
+    history = open_artefact(out).attrs["history"]
+    # the call given to main(), not the test runner's sys.argv
+    assert f"lidarcal terms --height 120 -o {out}" in history
+    assert "pytest" not in history

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import shlex
 import sys
 import warnings
 from collections.abc import Sequence
@@ -55,6 +56,14 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def command_line(args: argparse.Namespace) -> str:
+    """Return the command as the user typed it, for an artefact's ``history`` line."""
+    argv = getattr(args, "argv", None)
+    if argv is None:
+        return f"lidarcal {getattr(args, 'command', '')}".strip()
+    return "lidarcal " + shlex.join(argv)
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Print warnings as one plain line (no source excerpt) on stderr."""
     name = "warning" if category in (UserWarning,) or issubclass(category, UserWarning) else category.__name__
@@ -64,7 +73,9 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``lidarcal`` command."""
     parser = build_parser()
+    argv = list(sys.argv[1:] if argv is None else argv)
     args = parser.parse_args(argv)
+    args.argv = argv
     warnings.showwarning = _show_warning
     if not getattr(args, "handler", None):
         parser.print_help()

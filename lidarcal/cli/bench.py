@@ -10,9 +10,8 @@ Subcommands::
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 
+from lidarcal.cli import command_line
 from lidarcal.io import check_writable, write_artefact
 
 
@@ -69,10 +68,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.set_defaults(handler=run_repeatability)
 
 
-def _call() -> str:
-    return "lidarcal " + shlex.join(sys.argv[1:]) if sys.argv[1:] else "lidarcal bench"
-
-
 def run_simulate(args: argparse.Namespace) -> int:
     """Simulate a run and write its two CSV files."""
     from lidarcal.bench.simulator import simulate_run
@@ -92,7 +87,7 @@ def run_ingest(args: argparse.Namespace) -> int:
     check_writable(args.output, overwrite=args.overwrite)
     ds = ingest(args.rtd, args.control, settling_time=f"{args.settling_time} s",
                 outlier_rule=args.outlier_rule, outlier_k=args.outlier_k,
-                outlier_threshold=f"{args.outlier_threshold} m s-1", call=_call())
+                outlier_threshold=f"{args.outlier_threshold} m s-1", call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: {ds.attrs['ingest_records_used']} of {ds.attrs['ingest_records_total']} "
           f"records used, {ds.attrs['ingest_records_rejected_bad_estimate']} bad estimates rejected")
@@ -107,7 +102,7 @@ def run_repeatability(args: argparse.Namespace) -> int:
     ds = repeatability(args.cubes, exclude=args.exclude, min_samples=args.min_samples,
                        cnr_window=tuple(args.cnr_window),
                        velocity_window=tuple(f"{v} m s-1" for v in args.velocity_window),
-                       inclusive=not args.exclusive, call=_call())
+                       inclusive=not args.exclusive, call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: n_runs={int(ds.n_runs)}, bins={int(ds.n_bins_used)}, "
           f"s_delta={float(ds.mean_between_run_std_bias):.4f} m/s, "

@@ -9,12 +9,11 @@ sigma/sqrt(N), mounting, separation, flow inhomogeneity).
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 
 import numpy as np
 
 from lidarcal.analysis.budget import DEFAULT_MIN_SAMPLES, budget
+from lidarcal.cli import command_line
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
 
@@ -70,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.output, overwrite=args.overwrite)
     records = open_artefact(args.records)
     terms = open_artefact(args.terms, "uncertainty_terms") if args.terms else None
-    call = "lidarcal " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else "lidarcal budget"
+    call = command_line(args)
     extra = {}
     if args.approach == "iec":
         extra = dict(

@@ -8,10 +8,9 @@ provenance of every input into one sealed netCDF certificate; check it later wit
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 
 from lidarcal.certificate import make_certificate, write_certificate
+from lidarcal.cli import command_line
 from lidarcal.io import check_writable, open_artefact
 
 
@@ -60,11 +59,7 @@ def run(args: argparse.Namespace) -> int:
         )
     }
     config = {k: v for k, v in vars(args).items() if k != "handler"}
-    call = (
-        "lidarcal " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-        if sys.argv[1:]
-        else "lidarcal certificate"
-    )
+    call = command_line(args)
     cert = make_certificate(budget=budget, sensitivities=sens, config=config, call=call, **optional)
     path = write_certificate(cert, args.output, overwrite=args.overwrite)
     print(

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import shlex
 import sys
 
+from lidarcal.cli import command_line
 from lidarcal.errors import InputError
 
 
@@ -99,8 +99,7 @@ def run(args: argparse.Namespace) -> int:
         min_wind_speed=args.min_wind_speed, simulate_options=_sim_options(args), progress=_say)
     inputs = {"field": args.field, **({"cube": args.cube} if args.cube else {}),
               **({"rwf": args.rwf} if args.rwf else {})}
-    call = "lidarcal diagnose " + " ".join(shlex.quote(a) for a in sys.argv[2:]) if len(sys.argv) > 2 \
-        else f"lidarcal diagnose {args.field}"
+    call = command_line(args)
     ds = to_dataset(result, call=call, inputs=inputs)
     write_artefact(ds, args.output, overwrite=args.overwrite)
     if args.report:
@@ -145,7 +144,7 @@ def _generate(args: argparse.Namespace) -> int:
         cond = hidden_effect_conditions(args.periods, args.heights, args.conditions_seed)
     ds = generate_field_campaign(cond, args.effect, _parse_params(args.param), base_seed=args.seed,
                                  simulate_options=_sim_options(args),
-                                 call="lidarcal " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
+                                 call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: {ds.sizes['time']} periods x {ds.sizes['height']} heights, hidden effect "
           f"{ds.attrs['lidarcal_hidden_effect']}", file=sys.stderr)

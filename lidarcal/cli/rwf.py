@@ -13,6 +13,7 @@ import argparse
 
 import numpy as np
 
+from lidarcal.cli import command_line
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.rwf import range_weighting_function
 from lidarcal.units import Q_
@@ -66,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
         cnr_gradient=None if args.cnr_gradient is None else Q_(np.asarray(args.cnr_gradient), "dB m-1"),
         resolution=Q_(args.resolution, "m"),
         half_width=None if args.half_width is None else Q_(args.half_width, "m"),
-        call="lidarcal " + " ".join(_argv(args)),
+        call=command_line(args),
     )
     path = write_artefact(ds, args.output, overwrite=args.overwrite)
     g = ds.cnr_gradient.values
@@ -77,18 +78,3 @@ def run(args: argparse.Namespace) -> int:
           f"{float(ds.barycenter[0]):+.3f} / {float(ds.barycenter[-1]):+.3f} m")
     return 0
 
-
-def _argv(args: argparse.Namespace) -> list[str]:
-    """Reconstruct the command line for the history attribute."""
-    out = ["rwf"]
-    for key, value in sorted(vars(args).items()):
-        if key in ("handler", "command") or value is None or value is False:
-            continue
-        flag = "--" + key.replace("_", "-")
-        if value is True:
-            out.append(flag)
-        elif isinstance(value, list):
-            out += [flag, *map(str, value)]
-        else:
-            out += [flag, str(value)]
-    return out

@@ -8,13 +8,12 @@ variables (paper §3.3, Eqs. 12-13).  One ``sensitivity`` artefact per variable:
 from __future__ import annotations
 
 import argparse
-import shlex
-import sys
 
 import numpy as np
 
 from lidarcal.analysis._records import CANONICAL_UNITS
 from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES, sensitivity
+from lidarcal.cli import command_line
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
@@ -107,11 +106,7 @@ def run(args: argparse.Namespace) -> int:
         check_writable(path, overwrite=args.overwrite)
     widths = _widths(args.bin_width, variables)
     records = open_artefact(args.records)
-    call = (
-        "lidarcal " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-        if sys.argv[1:]
-        else "lidarcal sensitivity"
-    )
+    call = command_line(args)
     results = {}
     for v in variables:  # compute everything first: nothing is written if one variable fails
         results[v] = sensitivity(

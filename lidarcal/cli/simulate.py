@@ -15,9 +15,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import shlex
-import sys
 
+from lidarcal.cli import command_line
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
 
@@ -122,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
         duration=args.duration,
         connect_timeout=args.timeout,
         inputs=inputs,
-        call="lidarcal simulate " + shlex.join(sys.argv[2:] if len(sys.argv) > 2 else []),
+        call=command_line(args),
     )
     write_artefact(ds, args.output, overwrite=args.overwrite)
     skipped = int(ds.attrs["lidarcal_skipped_count"])

@@ -9,13 +9,13 @@ sensitivity slopes over the whole parameter space.  Grid values: ``START:STOP:ST
 from __future__ import annotations
 
 import argparse
-import shlex
 import sys
 
 import numpy as np
 
 from lidarcal.analysis._records import CANONICAL_UNITS
 from lidarcal.analysis.sweep import DEFAULT_GRID, SWEEP_VARIABLES, sweep
+from lidarcal.cli import command_line
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.units import Q_
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     rwf = open_artefact(args.rwf, "rwf") if args.rwf else None
     model = LidarModel.from_artefacts(cube=cube, rwf=rwf)
     inputs = {k: v for k, v in (("cube", args.cube), ("rwf", args.rwf)) if v}
-    call = "lidarcal " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv[1:] else "lidarcal sweep"
+    call = command_line(args)
     ds, records = sweep(
         model,
         grid=grid,

@@ -15,6 +15,7 @@ import argparse
 
 import numpy as np
 
+from lidarcal.cli import command_line
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.terms import PAPER_INPUTS, format_table, repeatability_inputs, uncertainty_terms
 from lidarcal.units import Q_
@@ -85,25 +86,10 @@ def run(args: argparse.Namespace) -> int:
         bias_repeatability_n=args.eq7_n,
         bench_coverage_factor=args.bench_coverage_factor,
         repeatability=rep,
-        call="lidarcal " + " ".join(_argv(args)),
+        call=command_line(args),
     )
     path = write_artefact(ds, args.output, overwrite=args.overwrite)
     print(format_table(ds))
     print(f"written: {path}")
     return 0
 
-
-def _argv(args: argparse.Namespace) -> list[str]:
-    """Reconstruct the command line for the history attribute."""
-    out = ["terms"]
-    for key, value in sorted(vars(args).items()):
-        if key in ("handler", "command") or value is None or value is False:
-            continue
-        flag = "--" + key.replace("_", "-")
-        if value is True:
-            out.append(flag)
-        elif isinstance(value, list):
-            out += [flag, *map(str, value)]
-        else:
-            out += [flag, str(value)]
-    return out

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 
+from lidarcal.cli import command_line
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.lidar import LidarModel
 from lidarcal.turbulence.box import GENERATORS, lidar_turbulence_box
@@ -53,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         model, height=Q_(args.height, "m"), wind_speed=Q_(args.wind_speed, "m/s"),
         turbulence_intensity=args.ti, wind_from_direction=Q_(args.direction, "degree"), seed=tuple(args.seed),
         wind_shear_exponent=args.shear, duration=Q_(args.duration, "s"), generator=args.generator,
-        call="lidarcal turbulence " + " ".join(_argv(args)))
+        call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     std = ds[["u", "v", "w"]].std("time")
     print(f"{args.output}: {ds.sizes['point']} points x {ds.sizes['time']} steps; mean std over points "
