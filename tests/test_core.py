@@ -192,4 +192,4 @@ def test_history_records_the_command_as_typed(tmp_path, capsys):
     history = open_artefact(out).attrs["history"]
     # the call given to main(), not the test runner's sys.argv
     assert f"lidarcal terms --height 120 -o {out}" in history
-    assert "pytest" not in history
+    assert "-m pytest" not in history and "-q" not in history.split()
