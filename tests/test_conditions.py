@@ -287,3 +287,17 @@ def test_cli_conditions_synthetic_and_check(tmp_path):
         [*LIDARCAL, "conditions", "check", str(out)], capture_output=True, text=True, check=True
     )
     assert "50 periods" in res.stdout and "skipped (period, height) pairs: 0" in res.stdout
+
+
+def test_a_field_campaign_artefact_is_accepted_as_conditions(tmp_path):
+    # `lidarcal simulate --conditions FIELD.nc`: a field campaign is a superset of conditions
+    from lidarcal.diagnose import generate_field_campaign, hidden_effect_conditions
+    from lidarcal.io import write_artefact
+
+    cond = hidden_effect_conditions(8, (80.0, 120.0), 1)
+    field = generate_field_campaign(cond, "none", {}, base_seed=5, simulate_options={"scheduler": "synchronous"})
+    path = write_artefact(field, tmp_path / "field.nc")
+    assert field.attrs["lidarcal_artefact"] == "field_campaign"
+    loaded = load_conditions(path)
+    assert loaded.sizes == {"time": 8, "height": 2}
+    assert load_conditions(path, kind="field_campaign").sizes == {"time": 8, "height": 2}
