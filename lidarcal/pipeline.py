@@ -19,6 +19,7 @@ Outputs that already exist are refused before any work starts, unless ``overwrit
 from __future__ import annotations
 
 import os
+import shutil
 import time
 import warnings
 from collections.abc import Callable
@@ -49,6 +50,9 @@ OUTPUT_NAMES = {
     "certificate": "certificate.nc",
     "report": "report.html",
 }
+
+#: Scratch directory (inside the output directory) for finished simulation chunks.
+CHUNK_DIR = ".simulation-chunks"
 
 SENSITIVITY_VARIABLES = ("wind_shear_exponent", "turbulence_intensity", "cnr_gradient")
 
@@ -204,15 +208,20 @@ def calibrate(
 
     # 4. Monte Carlo simulation
     model = LidarModel.from_artefacts(cube=cube, rwf=rwf)
+    # finished chunks are kept here until the simulation completes, so a killed run re-started
+    # with --overwrite resumes instead of starting again (chunk files are keyed by their inputs)
+    workdir = outdir / CHUNK_DIR
+    workdir.mkdir(exist_ok=True)
     records = simulate_campaign(
         paths["conditions"], model, base_seed=cfg.base_seed, chunk=cfg.chunk,
-        scheduler=cfg.scheduler, workers=cfg.workers, progress=progress,
+        scheduler=cfg.scheduler, workers=cfg.workers, progress=progress, workdir=workdir,
         call="lidarcal calibrate (simulate)",
         inputs={"conditions": paths["conditions"], "cube": paths["cube"], "rwf": paths["rwf"]},
     )
     if cube.attrs.get("lidar_serial"):
         records.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
     write_artefact(records, paths["simulated"], overwrite=overwrite)
+    shutil.rmtree(workdir)
     records = open_artefact(paths["simulated"], "simulated_rtd")
     done("simulated", "simulated records")
 

@@ -104,3 +104,33 @@ def test_sample_lidar_reproduces_the_papers_findings(tmp_path):
     rel = budget.relative_uncertainty.where(ok & (budget.sample_count >= 20)).sel(wind_speed=slice(4, 16))
     assert float(rel.min()) >= 0.4 and float(rel.max()) <= 2.0
     assert os.path.exists(tmp_path / "report.html")
+
+
+def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    ref_dir, _, _ = small_run
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "lidarcal", "calibrate", "-o", str(out), "--periods", "48",
+           "--heights", "60", "120", "--workers", "1", "--chunk", "16", "--no-progress"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    chunks = out / ".simulation-chunks"
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and proc.poll() is None:
+        if chunks.is_dir() and any(chunks.glob("chunk-*")):
+            break
+        time.sleep(0.05)
+    if proc.poll() is None:
+        proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (out / "certificate.nc").exists()  # killed before the end
+    assert main(["calibrate", "-o", str(out), "--periods", "48", "--heights", "60", "120",
+                 "--workers", "1", "--chunk", "16", "--no-progress", "--overwrite"]) == 0
+    assert not chunks.exists()  # scratch removed once the simulation is written
+    resumed = xr.open_dataset(out / "simulated.nc")
+    reference = xr.open_dataset(ref_dir / "simulated.nc")
+    for name in ("lidar_wind_speed", "reference_wind_speed", "lidar_wind_speed_scalar"):
+        np.testing.assert_array_equal(resumed[name].values, reference[name].values)  # bit-identical

@@ -10,6 +10,9 @@ Examples::
     lidarcal calibrate                              # sample data -> ./lidarcal-output
     lidarcal calibrate -o run1 --periods 500        # quicker
     lidarcal calibrate --rtd rtd.csv --control control_log.csv --conditions site.nc -o run2
+
+A run that is killed during the simulation keeps its finished chunks in
+OUTDIR/.simulation-chunks; run the same command again with --overwrite to resume.
 """
 
 from __future__ import annotations
@@ -39,6 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "0 = all)")
     p.add_argument("--seed", type=int, default=20240101, help="base seed of the Monte Carlo")
     p.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: CPU count)")
+    p.add_argument("--chunk", type=int, default=64, metavar="N", help="periods per simulation task")
     p.add_argument("--scheduler", metavar="ADDRESS", help="dask.distributed scheduler address")
     p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -51,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         bench_rtd=args.rtd, bench_control=args.control, cube=args.cube, rwf=args.rwf,
         pulse_file=args.pulse_file, conditions=args.conditions, heights=tuple(args.heights),
         periods=None if args.periods == 0 else args.periods, base_seed=args.seed,
-        workers=args.workers, scheduler=args.scheduler, fft_size=args.fft_size,
+        workers=args.workers, scheduler=args.scheduler, fft_size=args.fft_size, chunk=args.chunk,
     )
     paths = calibrate(args.outdir, cfg, overwrite=args.overwrite,
                       progress=not args.no_progress and sys.stderr.isatty())
