@@ -379,3 +379,15 @@ def test_lost_worker_costs_time_not_data(cluster, model, tmp_path):
     assert len(client.scheduler_info()["workers"]) == 1  # really one worker fewer
     assert_same_results(box["ds"], expected)
     assert len(list(work.glob("chunk-*.npz"))) == 50
+
+
+def test_periods_below_the_cnr_filter_are_flagged_not_silently_nan(cond):
+    filtered = LidarModel.ideal(cnr_threshold=-18.5)
+    ds = simulate_campaign(cond, filtered, scheduler="synchronous", chunk=8)
+    low = cond.cnr.values < -18.5
+    assert low.any() and (~low).any()  # the fixture's CNR spans the threshold
+    np.testing.assert_array_equal(ds.simulated.values == 2, low)
+    assert np.isnan(ds.lidar_wind_speed.values[low]).all()
+    assert np.isfinite(ds.lidar_wind_speed.values[~low]).all()
+    assert ds.attrs["lidarcal_filtered_count"] == int(low.sum())
+    assert validate_dataset(ds, "simulated_rtd") == []

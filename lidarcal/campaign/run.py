@@ -328,6 +328,7 @@ def simulate_campaign(
     ds.attrs["lidarcal_lidar_model"] = model.to_json()
     ds.attrs["lidarcal_conditions_checksum"] = checksum
     ds.attrs["lidarcal_skipped_count"] = int((~valid).sum())
+    ds.attrs["lidarcal_filtered_count"] = int((ds["simulated"].values == 2).sum())
     config = {
         "model": model_dict,
         "heights": z.tolist(),
@@ -378,13 +379,16 @@ def _assemble(
         )
     for name in OUTPUTS:
         ds[name] = (dims, out[name], dict(_OUTPUT_ATTRS[name]))
+    flag = valid.astype(np.int8)
+    flag[valid & (out["availability"] == 0)] = 2  # the lidar's CNR filter dropped every LOS
     ds["simulated"] = (
         dims,
-        valid.astype(np.int8),
+        flag,
         {
-            "long_name": "period simulated at this height (0: skipped, a needed input was missing)",
-            "flag_values": np.array([0, 1], dtype=np.int8),
-            "flag_meanings": "skipped_missing_input simulated",
+            "long_name": "period simulated at this height (0: skipped, a needed input was missing; "
+            "2: simulated but below the lidar's CNR threshold, so no lidar value)",
+            "flag_values": np.array([0, 1, 2], dtype=np.int8),
+            "flag_meanings": "skipped_missing_input simulated filtered_low_cnr",
             "coverage_content_type": "qualityInformation",
         },
     )

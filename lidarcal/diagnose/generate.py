@@ -124,7 +124,7 @@ def generate_field_campaign(
     truth = eff.apply(nominal, params)
     sim = simulate_campaign(conditions, truth, base_seed=int(base_seed), **dict(simulate_options or {}))
     out = sim[list(CONDITION_VARIABLES)].copy()
-    simulated = (sim["simulated"].values.astype(bool) if "simulated" in sim
+    simulated = (sim["simulated"].values == 1 if "simulated" in sim
                  else np.ones(out.wind_speed.shape, bool))
     for name, label in (("lidar_wind_speed", "lidar 10-minute horizontal wind speed (hybrid reconstruction)"),
                         ("reference_wind_speed", "reference anemometer 10-minute mean wind speed")):
