@@ -94,6 +94,10 @@ def write_artefact(
     from lidarcal.schema import validate_dataset
 
     path = check_writable(path, overwrite=overwrite)
+    # open_artefact's in-memory notes on where a dataset was read from describe that file,
+    # not this one: never persist them
+    ds = ds.copy(deep=False)
+    ds.attrs = {k: v for k, v in ds.attrs.items() if not k.startswith("lidarcal_source_")}
     if validate:
         validate_dataset(ds, source=str(path), raise_on_error=True)
     with atomic_path(path, overwrite=overwrite) as tmp:

@@ -199,3 +199,17 @@ def test_history_records_the_command_as_typed(tmp_path, capsys):
     # the call given to main(), not the test runner's sys.argv
     assert f"lidarcal terms --height 120 -o {out}" in history
     assert "-m pytest" not in history and "-q" not in history.split()
+
+
+def test_copying_an_opened_artefact_does_not_persist_its_source_notes(tmp_path):
+    ds = stamp(make_conditions(), "conditions", title="t", summary="s", call="test")
+    first = write_artefact(ds, tmp_path / "a.nc")
+    opened = open_artefact(first)
+    assert opened.attrs["lidarcal_source_file"] == "a.nc"
+    copy = write_artefact(opened, tmp_path / "b.nc")
+    import netCDF4
+
+    with netCDF4.Dataset(copy) as nc:
+        assert not [a for a in nc.ncattrs() if a.startswith("lidarcal_source_")]
+    assert open_artefact(copy).attrs["lidarcal_source_file"] == "b.nc"
+    assert opened.attrs["lidarcal_source_file"] == "a.nc"  # the caller's dataset is untouched
