@@ -170,6 +170,8 @@ def calibrate(
     def done(key: str, what: str) -> None:
         log(f"[{time.perf_counter() - t0:6.1f} s] {what}: {paths[key]}")
 
+    # Each artefact is written, then read back with open_artefact: downstream stages then
+    # record the checksum of the file on disk as their input (the certificate's chain).
     # 1. bench cube
     if cfg.cube is not None:
         cube = open_artefact(cfg.cube, "bench_cube")
