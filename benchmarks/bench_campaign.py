@@ -141,7 +141,7 @@ def _baseline_period(model: LidarModel, U: float, direction: float, ti: float, a
     from pyconturb.wind_profiles import power_profile
     from scipy.interpolate import RegularGridInterpolator
 
-    from lidarcal.lidar.simulate import beam_geometry, height_points
+    from lidarcal.lidar.geometry import beam_geometry, height_points
     from lidarcal.lidar.wfr import reconstruct
 
     z_ref = 80.0

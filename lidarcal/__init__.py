@@ -5,7 +5,7 @@ Stages (one module or sub-package each; imports flow from kernels to datasets to
 - :mod:`lidarcal.bench` — fiber-optic bench (SAFO-MV): simulated runs, ingest to the
   ℓcv-bin cube, repeatability (ISO 5725-4).
 - :mod:`lidarcal.rwf` — range-weighting function and zero distance (Eqs. 1–2).
-- :mod:`lidarcal.terms` — uncertainty terms not modelled by Monte Carlo (Eqs. 6–11, Table 4).
+- :mod:`lidarcal.analysis.terms` — uncertainty terms not modelled by Monte Carlo (Eqs. 6–11, Table 4).
 - :mod:`lidarcal.conditions` — the ``conditions`` / ``field_campaign`` input contract.
 - :mod:`lidarcal.turbulence` — Kaimal/coherence turbulence at the points the lidar needs.
 - :mod:`lidarcal.lidar` — virtual DBS lidar, wind-field reconstruction, virtual reference.

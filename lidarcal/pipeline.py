@@ -89,7 +89,7 @@ class CalibrationConfig:
 
 def _terms_per_height(records: xr.Dataset, overrides: dict[str, Any]) -> xr.Dataset:
     """Table 4 terms at every simulated height, with that height's median shear exponent."""
-    from lidarcal.terms import PAPER_INPUTS, uncertainty_terms
+    from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 
     speeds = Q_(np.arange(0.25, 40.01, 0.25), "m/s")
     parts = []

@@ -8,12 +8,12 @@ import xarray as xr
 from analysis_factories import make_records
 
 from lidarcal.analysis import budget
+from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.cli import main
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.schema import validate_dataset
-from lidarcal.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.units import Q_
 
 # Seven periods at one height: four in the 8 m/s bin [7.75, 8.25), none in 8.5, one in 9.0,
@@ -166,7 +166,7 @@ def test_terms_must_cover_the_bins():
 
 
 def test_real_terms_artefact_and_cli(tmp_path, capsys):
-    from lidarcal.terms import TABLE4_WIND_SPEEDS
+    from lidarcal.analysis.terms import TABLE4_WIND_SPEEDS
 
     terms_path = write_artefact(uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS), tmp_path / "terms.nc")
     rec = tmp_path / "rec.nc"

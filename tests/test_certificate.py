@@ -9,6 +9,7 @@ import xarray as xr
 from analysis_factories import make_records
 
 from lidarcal.analysis import budget, sensitivity
+from lidarcal.analysis.terms import PAPER_INPUTS, TABLE4_WIND_SPEEDS, uncertainty_terms
 from lidarcal.bench import build_cube, simulate_run
 from lidarcal.certificate import (
     extract_component,
@@ -21,7 +22,6 @@ from lidarcal.cli import main
 from lidarcal.errors import InputError, OutputExistsError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.provenance import sha256, stamp
-from lidarcal.terms import PAPER_INPUTS, TABLE4_WIND_SPEEDS, uncertainty_terms
 
 SERIAL = "WLS7-TEST"
 

@@ -12,8 +12,6 @@ from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.conditions import (
     SkippedPeriodsWarning,
     load_conditions,
-    nominal_lidar,
-    nominal_lidar_parameters,
     sample_conditions_path,
     shear_exponent,
     synthetic_conditions,
@@ -21,6 +19,7 @@ from lidarcal.conditions import (
 )
 from lidarcal.conditions.kernels import neighbour_pairs
 from lidarcal.errors import InputError, MissingVariableError, UnitError
+from lidarcal.lidar import LidarModel, lidar_attributes
 
 LIDARCAL = [sys.executable, "-c", "import sys; from lidarcal.cli import main; sys.exit(main())"]
 
@@ -167,7 +166,7 @@ def test_height_coordinate_checks():
     np.testing.assert_allclose(out.height, np.array([40.0, 60.0, 80.0]) * 0.3048)
 
 
-def test_field_campaign_and_nominal_lidar():
+def test_field_campaign_and_lidar_from_attrs():
     ds = make_conditions()
     ds["lidar_wind_speed"] = ds.wind_speed * 1.01
     ds["reference_wind_speed"] = ds.wind_speed.copy()
@@ -176,7 +175,7 @@ def test_field_campaign_and_nominal_lidar():
         out = load_conditions(ds, kind="field_campaign")
     assert out.input_complete.values[0, 0] == 0 and out.lidar_wind_speed.attrs["units"] == "m s-1"
     # DESIGN 3.1 defaults
-    assert nominal_lidar_parameters(out) == {
+    assert lidar_attributes(out) == {
         "lidar_cone_angle": 28.0,
         "lidar_hybrid_weight": 2 / 3,
         "lidar_rwf_fwhm": 30.0,
@@ -184,7 +183,7 @@ def test_field_campaign_and_nominal_lidar():
         "lidar_beam_period": 1.0,
     }
     out.attrs.update(lidar_cone_angle=30.0, lidar_hybrid_weight=0.5, lidar_los_noise_std=0.2)
-    model = nominal_lidar(out)
+    model = LidarModel.from_attrs(out)
     assert (model.cone_angle, model.hybrid_weight, model.los_noise_std) == (30.0, 0.5, 0.2)
     assert model.azimuths == (0.0, 90.0, 180.0, 270.0)
     # a Gaussian RWF of FWHM 30 m: node spread std = 30 / (2 sqrt(2 ln 2)) = 12.74 m
@@ -192,7 +191,7 @@ def test_field_campaign_and_nominal_lidar():
     assert np.sqrt(np.sum(w * s**2)) == pytest.approx(30 / (2 * np.sqrt(2 * np.log(2))), rel=1e-9)
     out.attrs["lidar_hybrid_weight"] = 1.5
     with pytest.raises(InputError, match=r"'lidar_hybrid_weight'.*1\.5; expected a value in \[0, 1\]"):
-        nominal_lidar_parameters(out)
+        lidar_attributes(out)
 
 
 # -- synthetic ---------------------------------------------------------------------------------

@@ -6,13 +6,13 @@ import xarray as xr
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidarcal import _rwf_kernels as k
 from lidarcal.cli import main
 from lidarcal.compliance import check_compliance
 from lidarcal.data import sample_file
 from lidarcal.errors import InputError, MissingVariableError, UnitError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.rwf import RwfConfig, compute_rwf, range_weighting_function, read_pulse_csv
+from lidarcal.rwf import kernels as k
 from lidarcal.schema import validate_dataset
 from lidarcal.units import Q_
 

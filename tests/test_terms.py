@@ -7,13 +7,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from lidarcal.cf import var_attrs
-from lidarcal.cli import main
-from lidarcal.compliance import check_compliance
-from lidarcal.errors import InputError, MissingVariableError, UnitError
-from lidarcal.io import open_artefact, write_artefact
-from lidarcal.schema import validate_dataset
-from lidarcal.terms import (
+from lidarcal.analysis.terms import (
     CONTRIBUTORS,
     PAPER_INPUTS,
     TABLE4_WIND_SPEEDS,
@@ -22,6 +16,12 @@ from lidarcal.terms import (
     table4_kernel,
     uncertainty_terms,
 )
+from lidarcal.cf import var_attrs
+from lidarcal.cli import main
+from lidarcal.compliance import check_compliance
+from lidarcal.errors import InputError, MissingVariableError, UnitError
+from lidarcal.io import open_artefact, write_artefact
+from lidarcal.schema import validate_dataset
 from lidarcal.units import Q_
 
 # Table 4 of the paper, exactly as printed (U = 4, 6, ..., 16 m/s)

@@ -10,8 +10,9 @@ from lidarcal.compliance import check_compliance
 from lidarcal.errors import UnitError
 from lidarcal.io import open_artefact
 from lidarcal.lidar import LidarModel, simulate_period
+from lidarcal.lidar.box import lidar_turbulence_box
 from lidarcal.schema import validate_dataset
-from lidarcal.turbulence.box import lidar_turbulence_box, turbulence_box
+from lidarcal.turbulence.box import turbulence_box
 from lidarcal.units import Q_
 
 

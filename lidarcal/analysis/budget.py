@@ -7,7 +7,7 @@ contributors are, for the two approaches of Figure 9:
 
 ``monte_carlo`` (SAFO-MV + virtual lidar)
     ``virtual_reference`` — Table 4 total (Eqs. 6–11) at the bin centre, from an
-    ``uncertainty_terms`` artefact (interpolated) or computed with :mod:`lidarcal.terms`;
+    ``uncertainty_terms`` artefact (interpolated) or computed with :mod:`lidarcal.analysis.terms`;
     ``mean_difference`` — \\|mean(lidar − reference)\\|;
     ``std_difference`` — standard deviation σ_diff of lidar − reference (ddof = 1);
     ``statistical`` — σ_diff / √N.
@@ -77,19 +77,19 @@ def _terms_total(
 ) -> tuple[np.ndarray, str]:
     """Table 4 total (m s-1) on (height, bin centre) and a description of where it came from.
 
-    Without ``terms`` the paper's inputs (:data:`lidarcal.terms.PAPER_INPUTS`) are used with
+    Without ``terms`` the paper's inputs (:data:`lidarcal.analysis.terms.PAPER_INPUTS`) are used with
     the measurement height of each budget height (Eq. 11 scales with 1/z).  Bin centres at
     or below 0 m s-1 get NaN (Table 4 is defined for U > 0).
     """
     positive = centres > 0
     if terms is None:
-        from lidarcal.terms import PAPER_INPUTS, uncertainty_terms
+        from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 
         out = np.full((len(heights), len(centres)), np.nan)
         for i, h in enumerate(heights):
             inputs = {**PAPER_INPUTS, "height": f"{h} m"}
             out[i, positive] = uncertainty_terms(Q_(centres[positive], "m s-1"), **inputs).total.values
-        return out, "lidarcal.terms.uncertainty_terms(**PAPER_INPUTS) at each budget height"
+        return out, "lidarcal.analysis.terms.uncertainty_terms(**PAPER_INPUTS) at each budget height"
     src = source_name(terms, "<terms>")
     name = next((n for n in TERMS_TOTAL_NAMES if n in terms.data_vars), None)
     if name is None:
@@ -158,7 +158,7 @@ def budget(
         records with ``lidar_wind_speed`` and ``reference_wind_speed`` on (time, height).
     terms : xarray.Dataset, optional
         ``uncertainty_terms`` artefact (Table 4 total on a ``wind_speed`` dim, optionally also
-        ``height``); Monte Carlo approach only.  Default: :mod:`lidarcal.terms` defaults.
+        ``height``); Monte Carlo approach only.  Default: :mod:`lidarcal.analysis.terms` defaults.
     approach : {"monte_carlo", "iec"}
     bin_width : quantity or str
         Wind-speed bin width (default 0.5 m s-1).

@@ -5,7 +5,6 @@
 :mod:`lidarcal.campaign.run` for scheduling, seeding and resuming.
 """
 
-from lidarcal.campaign.chunks import check_reachable
 from lidarcal.campaign.run import BLAS_ENV, DEFAULT_BASE_SEED, simulate_campaign
 
-__all__ = ["simulate_campaign", "check_reachable", "DEFAULT_BASE_SEED", "BLAS_ENV"]
+__all__ = ["simulate_campaign", "DEFAULT_BASE_SEED", "BLAS_ENV"]

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["OUTPUTS", "chunk_key", "chunk_path", "load_chunk", "run_chunk", "check_reachable"]
+__all__ = ["OUTPUTS", "chunk_key", "chunk_path", "load_chunk", "run_chunk"]
 
 #: Per-height outputs of :func:`lidarcal.lidar.simulate_period` stored by the campaign.
 OUTPUTS = (
@@ -103,31 +103,6 @@ def _save_atomic(path: Path, key: str, result: dict[str, np.ndarray]) -> None:
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
-
-
-def check_reachable(model, heights: np.ndarray) -> list[str]:
-    """Problems with measuring at ``heights`` (m) with ``model``; empty when all are reachable.
-
-    Each RWF quadrature node of each beam must sit at a positive range and height: the gate is
-    placed at range ``h / cos(cone)`` (nominal cone), moved by ``zero_distance_offset`` and
-    the node offset, and seen along the true cone ``cone + beam_angle_offset``.
-    """
-    problems = []
-    cone = np.radians(model.cone_angle)
-    true_cone = np.radians(model.cone_angle + model.beam_angle_offset)
-    offsets = np.asarray(model.rwf_offsets, dtype=float)
-    for h in np.asarray(heights, dtype=float):
-        if not np.isfinite(h) or h <= 0:
-            problems.append(f"height {h:g} m is not > 0")
-            continue
-        ranges = h / np.cos(cone) + model.zero_distance_offset + offsets
-        if ranges.min() <= 0 or (ranges * np.cos(true_cone)).min() <= 0:
-            problems.append(
-                f"height {h:g} m needs range {ranges.min():.4g} m for the nearest RWF node "
-                f"(gate {h / np.cos(cone):.4g} m, zero-distance offset {model.zero_distance_offset:g} m, "
-                f"RWF reaching {offsets.min():.4g} m); the RWF would extend below the lidar"
-            )
-    return problems
 
 
 def run_chunk(task: dict[str, Any]) -> dict[str, Any]:

@@ -31,7 +31,6 @@ import xarray as xr
 from lidarcal.campaign.chunks import (
     INPUTS,
     OUTPUTS,
-    check_reachable,
     chunk_key,
     chunk_path,
     load_chunk,
@@ -41,6 +40,7 @@ from lidarcal.campaign.chunks import (
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.conditions import CONDITION_VARIABLES, load_conditions
 from lidarcal.errors import InputError
+from lidarcal.lidar.geometry import check_reachable
 from lidarcal.provenance import stamp
 
 __all__ = ["simulate_campaign", "DEFAULT_BASE_SEED", "BLAS_ENV"]

@@ -87,7 +87,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Load inputs, build the lidar model, run the campaign and write the ``simulated_rtd`` file."""
     from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
-    from lidarcal.conditions import load_conditions, nominal_lidar, sample_conditions_path
+    from lidarcal.conditions import load_conditions, sample_conditions_path
     from lidarcal.lidar import LidarModel
 
     check_writable(args.output, overwrite=args.overwrite)
@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         model = LidarModel.from_artefacts(cube=cube, rwf=rwf)
         inputs.update({k: v for k, v in (("cube", args.cube), ("rwf", args.rwf)) if v})
     else:
-        model = nominal_lidar(cond)
+        model = LidarModel.from_attrs(cond)
     base_seed = DEFAULT_BASE_SEED if args.seed is None else args.seed
     ds = simulate_campaign(
         conditions,

@@ -15,9 +15,9 @@ import argparse
 
 import numpy as np
 
+from lidarcal.analysis.terms import PAPER_INPUTS, format_table, repeatability_inputs, uncertainty_terms
 from lidarcal.cli import command_line
 from lidarcal.io import check_writable, write_artefact
-from lidarcal.terms import PAPER_INPUTS, format_table, repeatability_inputs, uncertainty_terms
 from lidarcal.units import Q_
 
 

@@ -16,7 +16,8 @@ import argparse
 from lidarcal.cli import command_line
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.lidar import LidarModel
-from lidarcal.turbulence.box import GENERATORS, lidar_turbulence_box
+from lidarcal.lidar.box import lidar_turbulence_box
+from lidarcal.turbulence.box import GENERATORS
 from lidarcal.units import Q_
 
 

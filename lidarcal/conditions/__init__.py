@@ -1,7 +1,6 @@
 """The ``conditions`` / ``field_campaign`` input contract (DESIGN.md 3.1) and its generators.
 
 - :func:`load_conditions` — open, convert to canonical units, check, flag missing periods.
-- :func:`nominal_lidar` — the ideal lidar described by a field campaign's ``lidar_*`` attributes.
 - :func:`synthetic_conditions` — seeded synthetic conditions, or a real record extrapolated
   to more heights with each period's shear (Eq. 10).
 - :mod:`lidarcal.conditions.kernels` — shear exponent and CNR gradient from neighbouring
@@ -12,26 +11,20 @@ from lidarcal.conditions.kernels import cnr_model, shear_exponent, vertical_grad
 from lidarcal.conditions.load import (
     CONDITION_VARIABLES,
     FIELD_VARIABLES,
-    LIDAR_ATTRIBUTES,
     SkippedPeriodsWarning,
     conditions_checksum,
     load_conditions,
-    nominal_lidar,
-    nominal_lidar_parameters,
 )
 from lidarcal.conditions.synthetic import conditions_dataset, synthetic_conditions
 
 __all__ = [
     "CONDITION_VARIABLES",
     "FIELD_VARIABLES",
-    "LIDAR_ATTRIBUTES",
     "SkippedPeriodsWarning",
     "conditions_checksum",
     "conditions_dataset",
     "cnr_model",
     "load_conditions",
-    "nominal_lidar",
-    "nominal_lidar_parameters",
     "sample_conditions_path",
     "shear_exponent",
     "synthetic_conditions",

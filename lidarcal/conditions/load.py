@@ -25,12 +25,9 @@ from lidarcal.units import convert_values, convert_variable
 __all__ = [
     "CONDITION_VARIABLES",
     "FIELD_VARIABLES",
-    "LIDAR_ATTRIBUTES",
     "SkippedPeriodsWarning",
     "load_conditions",
     "conditions_checksum",
-    "nominal_lidar_parameters",
-    "nominal_lidar",
 ]
 
 #: The six variables of the contract: canonical unit, long name, CF standard name.
@@ -56,17 +53,6 @@ FIELD_VARIABLES: dict[str, tuple[str, str, str | None]] = {
         "wind_speed",
     ),
 }
-
-#: Optional global attributes of a field campaign giving the lidar's nominal configuration.
-LIDAR_ATTRIBUTES: dict[str, tuple[float, str, float, float]] = {
-    # name: (default, meaning, lower bound (exclusive unless 0 allowed), upper bound)
-    "lidar_cone_angle": (28.0, "cone angle from vertical (degree)", 0.0, 90.0),
-    "lidar_hybrid_weight": (2.0 / 3.0, "hybrid weight p", 0.0, 1.0),
-    "lidar_rwf_fwhm": (30.0, "Gaussian RWF full width at half maximum (m)", 0.0, 1000.0),
-    "lidar_los_noise_std": (0.1, "LOS noise standard deviation (m s-1)", 0.0, 10.0),
-    "lidar_beam_period": (1.0, "time per LOS (s)", 0.0, 60.0),
-}
-
 
 class SkippedPeriodsWarning(UserWarning):
     """Some periods lack a needed value at some height and will be skipped there."""
@@ -249,43 +235,3 @@ def load_conditions(
             stacklevel=2,
         )
     return out
-
-
-def nominal_lidar_parameters(ds: xr.Dataset) -> dict[str, float]:
-    """Return the lidar configuration in a field campaign's global attributes, defaults filled in."""
-    source = _source_of(ds)
-    out = {}
-    for name, (default, meaning, lo, hi) in LIDAR_ATTRIBUTES.items():
-        raw = ds.attrs.get(name, default)
-        try:
-            value = float(np.asarray(raw).item())
-        except (TypeError, ValueError):
-            raise InputError(
-                f"{source}: global attribute {name!r} ({meaning}) is {raw!r}; expected a number"
-            ) from None
-        zero_ok = name in ("lidar_hybrid_weight", "lidar_los_noise_std")
-        if not np.isfinite(value) or value > hi or value < lo or (value == lo and not zero_ok):
-            raise InputError(
-                f"{source}: global attribute {name!r} ({meaning}) is {value!r}; expected a value in "
-                f"{'[' if zero_ok else '('}{lo:g}, {hi:g}]"
-            )
-        out[name] = value
-    return out
-
-
-def nominal_lidar(ds: xr.Dataset):
-    """Build the ideal :class:`lidarcal.lidar.LidarModel` described by ``ds``'s ``lidar_*`` attributes.
-
-    Defaults (DESIGN.md 3.1): cone angle 28°, hybrid weight 2/3, Gaussian RWF of 30 m FWHM,
-    LOS noise 0.1 m s-1, 1 s per LOS; zero LOS bias, beams at 0°, 90°, 180°, 270°.
-    """
-    from lidarcal.lidar import LidarModel
-
-    p = nominal_lidar_parameters(ds)
-    return LidarModel.ideal(
-        cone_angle=p["lidar_cone_angle"],
-        hybrid_weight=p["lidar_hybrid_weight"],
-        rwf_fwhm=p["lidar_rwf_fwhm"],
-        los_noise_std=p["lidar_los_noise_std"],
-        beam_period=p["lidar_beam_period"],
-    )

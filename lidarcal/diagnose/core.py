@@ -31,6 +31,7 @@ import xarray as xr
 from lidarcal.diagnose import fit, stats
 from lidarcal.diagnose.effects import CONDITION_VARIABLES, EFFECTS, Effect, get_effect
 from lidarcal.errors import InputError, MissingVariableError
+from lidarcal.lidar import LidarModel
 
 __all__ = ["diagnose", "DiagnosisResult", "CandidateFit", "DEFAULT_SEED", "RECORD_NAMES",
            "min_periods"]
@@ -155,25 +156,12 @@ def load_field(field: str | os.PathLike | xr.Dataset, *, n_bins: int, min_bin_co
 
 def nominal_model(ds: xr.Dataset, *, cube: xr.Dataset | None = None, rwf: xr.Dataset | None = None):
     """Return the nominal lidar: the file's ``lidar_*`` attributes, configured from cube/RWF if given."""
-    from lidarcal.conditions import nominal_lidar
-    from lidarcal.conditions.load import nominal_lidar_parameters
-    from lidarcal.lidar import LidarModel
-
-    if cube is None and rwf is None:
-        return nominal_lidar(ds)
-    p = nominal_lidar_parameters(ds)
-    overrides = {"cone_angle": p["lidar_cone_angle"], "hybrid_weight": p["lidar_hybrid_weight"],
-                 "beam_period": p["lidar_beam_period"]}
-    if rwf is None:
-        overrides["rwf_fwhm"] = p["lidar_rwf_fwhm"]
-    if cube is None:
-        overrides["los_noise_std"] = p["lidar_los_noise_std"]
-    return LidarModel.from_artefacts(cube=cube, rwf=rwf, **overrides)
+    return LidarModel.from_attrs(ds, cube=cube, rwf=rwf)
 
 
 def _check_reachable(model, heights: np.ndarray, source: str) -> None:
     """Refuse heights whose range gate (with the RWF's extent) would reach below the lidar."""
-    from lidarcal.campaign.chunks import check_reachable
+    from lidarcal.lidar.geometry import check_reachable
 
     problems = check_reachable(model, heights)
     if problems:

@@ -1,17 +1,29 @@
-"""The virtual DBS lidar: configuration, RWF quadrature, wind field reconstruction, simulation.
+"""The virtual DBS lidar: configuration, geometry, RWF quadrature, reconstruction, simulation.
 
-Public API (the contract of CONTRIBUTING.md, "The virtual lidar"):
+Public API (see ``docs/contracts.md``, "The virtual lidar"):
 
 * :class:`LidarModel` — frozen, JSON-serialisable configuration (``ideal``, ``from_artefacts``,
-  ``to_dict``, ``from_dict``);
+  ``from_attrs``, ``to_dict``, ``from_dict``); :data:`LIDAR_ATTRIBUTES` and
+  :func:`lidar_attributes` read a conditions file's ``lidar_*`` attributes;
+* :mod:`lidarcal.lidar.geometry` — beams, range gates, sample points, reachability;
 * :func:`simulate_period` — one 10-minute period at several heights, lidar (hybrid, scalar,
   vector) and reference speeds;
-* :mod:`lidarcal.lidar.wfr` — the pure reconstruction functions (Eqs. 3-5).
+* :mod:`lidarcal.lidar.wfr` — the pure reconstruction functions (Eqs. 3-5);
+* :func:`lidarcal.lidar.box.lidar_turbulence_box` — the turbulence one simulated height saw.
 """
 
-from lidarcal.lidar.model import DEFAULT_CNR_THRESHOLD, LidarModel, NoiseTable
+from lidarcal.lidar.geometry import check_reachable
+from lidarcal.lidar.model import (
+    DEFAULT_CNR_THRESHOLD,
+    DEFAULT_RWF_FWHM,
+    LIDAR_ATTRIBUTES,
+    LidarModel,
+    NoiseTable,
+    lidar_attributes,
+)
 from lidarcal.lidar.quadrature import cnr_weights, gauss_hermite_rwf, gauss_rwf_nodes
 from lidarcal.lidar.simulate import simulate_period
 
-__all__ = ["DEFAULT_CNR_THRESHOLD", "LidarModel", "NoiseTable", "simulate_period", "gauss_hermite_rwf",
-           "gauss_rwf_nodes", "cnr_weights"]
+__all__ = ["DEFAULT_CNR_THRESHOLD", "DEFAULT_RWF_FWHM", "LIDAR_ATTRIBUTES", "LidarModel", "NoiseTable",
+           "check_reachable", "lidar_attributes", "simulate_period", "gauss_hermite_rwf", "gauss_rwf_nodes",
+           "cnr_weights"]

@@ -99,6 +99,11 @@ class NoiseTable:
         return np.interp(velocity, vel_axis, rows_b), np.interp(velocity, vel_axis, rows_s)
 
 
+#: Full width at half maximum (m) of the ideal lidar's Gaussian RWF.
+DEFAULT_RWF_FWHM = 30.0
+#: Gauss quadrature nodes per beam.
+DEFAULT_RWF_NODES = 5
+
 #: CNR filter (dB) of a bench-calibrated lidar: WindCube-type profilers discard LOS estimates
 #: below about -23 dB by default.
 DEFAULT_CNR_THRESHOLD = -23.0
@@ -112,8 +117,8 @@ class LidarModel:
     azimuths: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)  #: beam azimuths (degree)
     beam_period: float = 1.0  #: seconds per LOS (vertical beam ignored)
     hybrid_weight: float = 2.0 / 3.0  #: p: V = p V_scalar + (1 - p) V_vector
-    rwf_offsets: tuple[float, ...] = tuple(gauss_hermite_rwf(30.0, 5)[0].tolist())  #: nodes (m)
-    rwf_weights: tuple[float, ...] = tuple(gauss_hermite_rwf(30.0, 5)[1].tolist())  #: sum 1
+    rwf_offsets: tuple[float, ...] = tuple(gauss_hermite_rwf(DEFAULT_RWF_FWHM, DEFAULT_RWF_NODES)[0].tolist())
+    rwf_weights: tuple[float, ...] = tuple(gauss_hermite_rwf(DEFAULT_RWF_FWHM, DEFAULT_RWF_NODES)[1].tolist())
     los_noise_std: float = 0.1  #: ideal Gaussian LOS noise (m s-1), used when no table
     noise_table: NoiseTable | None = None  #: bench cube (overrides ``los_noise_std``)
     availability: float = 1.0  #: probability that a LOS sample is kept
@@ -161,20 +166,49 @@ class LidarModel:
 
     # -- construction -------------------------------------------------------------------
     @classmethod
-    def ideal(cls, cone_angle: float = 28.0, hybrid_weight: float = 2.0 / 3.0, rwf_fwhm: float = 30.0,
-              los_noise_std: float = 0.1, beam_period: float = 1.0, *, n_nodes: int = 5,
+    def ideal(cls, cone_angle: float | None = None, hybrid_weight: float | None = None,
+              rwf_fwhm: float = DEFAULT_RWF_FWHM, los_noise_std: float | None = None,
+              beam_period: float | None = None, *, n_nodes: int = DEFAULT_RWF_NODES,
               **overrides: Any) -> LidarModel:
-        """Build the DESIGN 3.1 ideal lidar: zero bias, Gaussian noise, Gaussian RWF of ``rwf_fwhm`` (m)."""
+        """Build the ideal lidar: zero bias, Gaussian noise, Gaussian RWF of ``rwf_fwhm`` (m).
+
+        Arguments left ``None`` take the field defaults of :class:`LidarModel` (28°, p = 2/3,
+        0.1 m s-1, 1 s per LOS); see ``docs/contracts.md``.
+        """
+        given = {"cone_angle": cone_angle, "hybrid_weight": hybrid_weight, "los_noise_std": los_noise_std,
+                 "beam_period": beam_period}
+        kw = {name: float(value) for name, value in given.items() if value is not None}
         offsets, weights = gauss_hermite_rwf(rwf_fwhm, n_nodes)
-        return cls(cone_angle=float(cone_angle), hybrid_weight=float(hybrid_weight),
-                   rwf_offsets=offsets, rwf_weights=weights, los_noise_std=float(los_noise_std),
-                   beam_period=float(beam_period),
+        return cls(rwf_offsets=offsets, rwf_weights=weights,
                    description=f"ideal: Gaussian RWF FWHM {float(rwf_fwhm):g} m, {n_nodes} nodes",
-                   **overrides)
+                   **kw, **overrides)
+
+    @classmethod
+    def from_attrs(cls, ds: xr.Dataset, *, cube: xr.Dataset | None = None, rwf: xr.Dataset | None = None,
+                   source: str | None = None) -> LidarModel:
+        """Build the nominal lidar a ``conditions`` / ``field_campaign`` dataset describes.
+
+        Its optional ``lidar_*`` global attributes (:data:`LIDAR_ATTRIBUTES`) give the
+        configuration; missing ones take the defaults.  With ``cube`` and/or ``rwf`` the lidar is
+        configured from those artefacts (:meth:`from_artefacts`) and the attributes fill in the
+        rest (cone, p, beam period; RWF width without ``rwf``; LOS noise without ``cube``).
+        """
+        p = lidar_attributes(ds, source=source)
+        if cube is None and rwf is None:
+            return cls.ideal(cone_angle=p["lidar_cone_angle"], hybrid_weight=p["lidar_hybrid_weight"],
+                             rwf_fwhm=p["lidar_rwf_fwhm"], los_noise_std=p["lidar_los_noise_std"],
+                             beam_period=p["lidar_beam_period"])
+        overrides = {"cone_angle": p["lidar_cone_angle"], "hybrid_weight": p["lidar_hybrid_weight"],
+                     "beam_period": p["lidar_beam_period"]}
+        if rwf is None:
+            overrides["rwf_fwhm"] = p["lidar_rwf_fwhm"]
+        if cube is None:
+            overrides["los_noise_std"] = p["lidar_los_noise_std"]
+        return cls.from_artefacts(cube=cube, rwf=rwf, **overrides)
 
     @classmethod
     def from_artefacts(cls, cube: xr.Dataset | None = None, rwf: xr.Dataset | None = None, *,
-                       n_nodes: int = 5, **overrides: Any) -> LidarModel:
+                       n_nodes: int = DEFAULT_RWF_NODES, **overrides: Any) -> LidarModel:
         """Configure the lidar from a ``bench_cube`` and/or ``rwf`` artefact (CONTRIBUTING.md).
 
         Without an RWF the ideal Gaussian RWF (``rwf_fwhm`` override, default 30 m) is used.
@@ -188,7 +222,7 @@ class LidarModel:
         periods are unavailable rather than simulated with metres-per-second noise; pass
         ``cnr_threshold=None`` to simulate every period.  Remaining ``overrides`` set fields.
         """
-        rwf_fwhm = float(overrides.pop("rwf_fwhm", 30.0))
+        rwf_fwhm = float(overrides.pop("rwf_fwhm", DEFAULT_RWF_FWHM))
         offsets, weights = gauss_hermite_rwf(rwf_fwhm, n_nodes)
         kw: dict[str, Any] = {"rwf_offsets": offsets, "rwf_weights": weights}
         described = []
@@ -238,6 +272,47 @@ class LidarModel:
     def replace(self, **changes: Any) -> LidarModel:
         """Return a copy with some fields changed (``dataclasses.replace``)."""
         return dataclasses.replace(self, **changes)
+
+
+_FIELD_DEFAULTS = {f.name: f.default for f in dataclasses.fields(LidarModel)}
+
+#: Optional global attributes of a ``conditions`` / ``field_campaign`` file giving the lidar's
+#: nominal configuration: ``name: (default, meaning, lower bound, upper bound, zero allowed)``.
+#: The defaults are :class:`LidarModel`'s own.
+LIDAR_ATTRIBUTES: dict[str, tuple[float, str, float, float, bool]] = {
+    "lidar_cone_angle": (_FIELD_DEFAULTS["cone_angle"], "cone angle from vertical (degree)", 0.0, 90.0,
+                         False),
+    "lidar_hybrid_weight": (_FIELD_DEFAULTS["hybrid_weight"], "hybrid weight p", 0.0, 1.0, True),
+    "lidar_rwf_fwhm": (DEFAULT_RWF_FWHM, "Gaussian RWF full width at half maximum (m)", 0.0, 1000.0, False),
+    "lidar_los_noise_std": (_FIELD_DEFAULTS["los_noise_std"], "LOS noise standard deviation (m s-1)", 0.0,
+                            10.0, True),
+    "lidar_beam_period": (_FIELD_DEFAULTS["beam_period"], "time per LOS (s)", 0.0, 60.0, False),
+}
+
+
+def lidar_attributes(ds: xr.Dataset, *, source: str | None = None) -> dict[str, float]:
+    """Return the ``lidar_*`` configuration in ``ds``'s global attributes, defaults filled in.
+
+    Raises :class:`~lidarcal.errors.InputError` naming the file and attribute when a value is
+    not a number or outside its range.
+    """
+    source = source or _source(ds)
+    out = {}
+    for name, (default, meaning, lo, hi, zero_ok) in LIDAR_ATTRIBUTES.items():
+        raw = ds.attrs.get(name, default)
+        try:
+            value = float(np.asarray(raw).item())
+        except (TypeError, ValueError):
+            raise InputError(
+                f"{source}: global attribute {name!r} ({meaning}) is {raw!r}; expected a number"
+            ) from None
+        if not np.isfinite(value) or value > hi or value < lo or (value == lo and not zero_ok):
+            raise InputError(
+                f"{source}: global attribute {name!r} ({meaning}) is {value!r}; expected a value in "
+                f"{'[' if zero_ok else '('}{lo:g}, {hi:g}]"
+            )
+        out[name] = value
+    return out
 
 
 def _source(ds: xr.Dataset) -> str:

@@ -41,12 +41,13 @@ from collections.abc import Sequence
 import numpy as np
 
 from lidarcal.errors import InputError
+from lidarcal.lidar.geometry import beam_geometry, period_points, wind_axes
 from lidarcal.lidar.model import LidarModel
 from lidarcal.lidar.quadrature import cnr_weights
 from lidarcal.lidar.wfr import reconstruct
 from lidarcal.turbulence.kernels import generate_points, sigma_components
 
-__all__ = ["simulate_period", "beam_geometry", "height_points", "height_seed", "period_points"]
+__all__ = ["simulate_period", "height_seed"]
 
 OUTPUTS = ("lidar_wind_speed", "lidar_wind_speed_scalar", "lidar_wind_speed_vector",
            "reference_wind_speed", "availability")
@@ -58,47 +59,6 @@ def height_seed(seed: Sequence[int] | int, height: float) -> np.random.SeedSeque
     return np.random.SeedSequence([*(int(s) for s in seed), int(round(float(height) * 1000))])
 
 
-def beam_geometry(model: LidarModel) -> tuple[np.ndarray, float, float]:
-    """Return the beams' unit vectors ``(4, 3)`` (true cone) and the true and nominal cone (radians)."""
-    phi_true = np.radians(model.cone_angle + model.beam_angle_offset)
-    theta = np.radians(np.asarray(model.azimuths))
-    units = np.stack([np.sin(phi_true) * np.sin(theta), np.sin(phi_true) * np.cos(theta),
-                      np.full(4, np.cos(phi_true))], axis=-1)
-    return units, phi_true, np.radians(model.cone_angle)
-
-
-def height_points(model: LidarModel, height: float) -> np.ndarray:
-    """Lidar-frame positions ``(4, K, 3)`` (east, north, up; m) of the RWF nodes of every beam."""
-    units, _, phi_nom = beam_geometry(model)
-    ranges = height / np.cos(phi_nom) + model.zero_distance_offset + np.asarray(model.rwf_offsets)
-    return ranges[None, :, None] * units[:, None, :]
-
-
-def _wind_axes(wind_from_direction: float) -> tuple[np.ndarray, np.ndarray]:
-    """Horizontal unit vectors (east, north) of the downwind direction and of the cross-wind (left)."""
-    th = np.radians(wind_from_direction)
-    down = np.array([-np.sin(th), -np.cos(th)])
-    return down, np.array([-down[1], down[0]])
-
-
-def period_points(model: LidarModel, height: float, wind_from_direction: float) -> dict[str, np.ndarray]:
-    """Return the points one height needs: the 4 x K RWF nodes (beam-major) and the reference.
-
-    Keys: ``label`` (``"beam<azimuth>_node<k>"``, ``"reference"``), ``lidar`` (n, 3; east,
-    north, up in m) and ``wind`` (n, 3; along-wind, cross-wind to the left, up in m), in the
-    order :func:`simulate_period` passes them to the turbulence generator.
-    """
-    pts = height_points(model, height)
-    if np.any(pts[..., 2] <= 0):
-        raise InputError(f"height {height:g} m: the RWF nodes reach below the ground "
-                         f"(lowest node z = {pts[..., 2].min():.3g} m); the RWF is too wide for this height")
-    down, cross = _wind_axes(wind_from_direction)
-    flat = np.concatenate([pts.reshape(-1, 3), [[0.0, 0.0, height]]])
-    wind = np.stack([flat[:, :2] @ down, flat[:, :2] @ cross, flat[:, 2]], axis=-1)
-    labels = [f"beam{a:g}_node{k}" for a in model.azimuths for k in range(pts.shape[1])] + ["reference"]
-    return {"label": np.array(labels), "lidar": flat, "wind": wind}
-
-
 def _simulate_height(model: LidarModel, height: float, U: float, direction: float, ti: float,
                      alpha: float, cnr: float, gradient: float, seed: Sequence[int], duration: float,
                      n_times: int) -> dict[str, np.ndarray | float]:
@@ -107,7 +67,7 @@ def _simulate_height(model: LidarModel, height: float, U: float, direction: floa
     points = period_points(model, height, direction)
     pts = points["lidar"][:-1].reshape(4, -1, 3)
     n_nodes = pts.shape[1]
-    down, cross = _wind_axes(direction)
+    down, cross = wind_axes(direction)
     x_w, y_w, z_w = points["wind"].T
     turb = generate_points(x_w, y_w, z_w, wind_speed=U, sigma=sigma_components(ti, U),
                            rng=np.random.default_rng(turb_ss), duration=duration, dt=model.beam_period)

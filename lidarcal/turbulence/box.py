@@ -2,9 +2,8 @@
 
 :func:`turbulence_box` simulates the u, v, w fluctuations at given points (wind frame) with
 the fast generator or PyConTurb's ``gen_turb`` and returns a CF/ACDD dataset with dims
-``time`` and ``point``.  :func:`lidar_turbulence_box` does so at exactly the points and with
-exactly the random stream that :func:`lidarcal.lidar.simulate_period` uses for one height, so
-the file shows the turbulence the virtual lidar sampled.
+``time`` and ``point``.  The lidar-specific box (the points and random stream of one simulated height) is
+:func:`lidarcal.lidar.box.lidar_turbulence_box`.
 """
 
 from __future__ import annotations
@@ -21,7 +20,7 @@ from lidarcal.provenance import stamp
 from lidarcal.turbulence.kernels import L_C, cell_size, generate_points, sigma_components
 from lidarcal.units import to_magnitude
 
-__all__ = ["turbulence_box", "lidar_turbulence_box", "GENERATORS"]
+__all__ = ["turbulence_box", "GENERATORS"]
 
 GENERATORS = ("fast", "pyconturb")
 _EPOCH = np.datetime64("2000-01-01T00:00:00", "ns")
@@ -55,6 +54,8 @@ def turbulence_box(
     duration: Any = "600 s",
     time_step: Any = "1 s",
     generator: str = "fast",
+    cone_angle: Any | None = None,
+    sampling_period: Any | None = None,
     call: str = "lidarcal.turbulence.turbulence_box",
     extra_attrs: dict | None = None,
 ) -> xr.Dataset:
@@ -64,7 +65,10 @@ def turbulence_box(
     and ``wind_shear_exponent`` are dimensionless.  The random stream is
     ``seed_sequence`` if given, else ``SeedSequence(seed)``.  ``mean_wind_speed`` follows the
     power law ``U (z / reference_height)^alpha`` (``reference_height`` defaults to the highest
-    point).
+    point).  Given the ``cone_angle`` of the lidar the points belong to and the
+    ``sampling_period`` of one beam (time between two LOS of the same beam), the box also
+    records the largest cell sizes a grid box could have used at ``reference_height`` (§2.3,
+    :func:`~lidarcal.turbulence.kernels.cell_size`).
     """
     points = np.asarray(points, dtype=float)
     if points.ndim != 2 or points.shape[1] != 3 or points.shape[0] < 1:
@@ -119,15 +123,17 @@ def turbulence_box(
         "point_label": ("point", np.array(labels, dtype=object), {"long_name": "point label"}),
     }
     ds = xr.Dataset(data, coords=coords)
-    a, b, longitudinal = cell_size(z_ref, 28.0, U, 4.0)
     attrs = {
         "wind_speed": U, "turbulence_intensity": ti, "wind_shear_exponent": alpha,
         "reference_height": z_ref, "generator": generator, "coherence_model": "iec3d",
         "coherence_length": L_C, "spectral_model": "Kaimal (PyConTurb kaimal_spectrum)",
         "sigma_u": float(sigma[0]), "sigma_v": float(sigma[1]), "sigma_w": float(sigma[2]),
-        "cell_size_opposite_beams": a, "cell_size_adjacent_beams": b,
-        "cell_size_longitudinal_max": longitudinal,
     }
+    if cone_angle is not None and sampling_period is not None:
+        a, b, longitudinal = cell_size(z_ref, float(to_magnitude(cone_angle, "degree", name="cone_angle")), U,
+                                       float(to_magnitude(sampling_period, "s", name="sampling_period")))
+        attrs.update(cell_size_opposite_beams=a, cell_size_adjacent_beams=b,
+                     cell_size_longitudinal_max=longitudinal)
     if direction is not None:
         attrs["wind_from_direction"] = direction
     attrs = {k: v for k, v in attrs.items() if v is not None}
@@ -145,26 +151,3 @@ def turbulence_box(
                          "wind_from_direction": direction,
                          "reference_height": z_ref},
                  seeds=seeds)
-
-
-def lidar_turbulence_box(model, *, height: Any, wind_speed: Any, turbulence_intensity: float,
-                         wind_from_direction: Any, seed: Sequence[int] | int,
-                         wind_shear_exponent: float = 0.0, duration: Any = "600 s", generator: str = "fast",
-                         call: str = "lidarcal.turbulence.lidar_turbulence_box") -> xr.Dataset:
-    """Simulate the turbulence at the points ``simulate_period(model, ..., seed=seed)`` samples at one height.
-
-    With the fast generator the series are identical to the ones the virtual lidar used
-    (same points, same ``SeedSequence([*seed, round(height * 1000)])`` turbulence stream).
-    """
-    from lidarcal.lidar.simulate import height_seed, period_points
-
-    h = float(to_magnitude(height, "m", name="height"))
-    direction = float(to_magnitude(wind_from_direction, "degree", name="wind_from_direction"))
-    seed = (int(seed),) if np.isscalar(seed) else tuple(int(s) for s in seed)
-    pts = period_points(model, h, direction)
-    return turbulence_box(pts["wind"], labels=pts["label"], wind_speed=wind_speed,
-                          turbulence_intensity=turbulence_intensity, seed=seed,
-                          seed_sequence=height_seed(seed, h).spawn(3)[0], reference_height=f"{h} m",
-                          wind_shear_exponent=wind_shear_exponent, wind_from_direction=f"{direction} degree",
-                          duration=duration, time_step=f"{model.beam_period} s", generator=generator,
-                          call=call, extra_attrs={"lidar_model": model.to_json(), "height": h})

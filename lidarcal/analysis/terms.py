@@ -152,7 +152,7 @@ def uncertainty_terms(
     bias_repeatability_n: Literal["los_samples", "runs"] = "los_samples",
     bench_coverage_factor: float = 1.0,
     repeatability: xr.Dataset | None = None,
-    call: str = "lidarcal.terms.uncertainty_terms",
+    call: str = "lidarcal.analysis.terms.uncertainty_terms",
 ) -> xr.Dataset:
     """Build the ``uncertainty_terms`` artefact: Table 4 for any inputs and wind speeds.
 

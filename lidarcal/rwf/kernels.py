@@ -2,7 +2,7 @@
 
 Everything here works on plain SI floats on a uniform ``range_offset`` grid ``z`` (metres
 along the beam from the nominal range-gate centre, positive away from the lidar).  Nothing
-here knows about files, units or metadata; :mod:`lidarcal.rwf` wraps these functions.
+here knows about files, units or metadata; :mod:`lidarcal.rwf.dataset` wraps these functions.
 
 Conventions
 -----------

@@ -54,10 +54,10 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal import _rwf_kernels as k
 from lidarcal.cf import var_attrs
 from lidarcal.errors import InputError, MissingVariableError, UnitError
 from lidarcal.provenance import stamp
+from lidarcal.rwf import kernels as k
 from lidarcal.units import cf_units, convert_values, to_magnitude
 
 __all__ = [
