@@ -10,6 +10,7 @@ simulations it ran), the answer, the recovered parameter and the gap before/afte
 """
 
 import argparse
+import logging
 import os
 import time
 
@@ -43,8 +44,8 @@ def main() -> None:
     cond = hidden_effect_conditions(args.periods, args.heights, seed=2024)
     field = generate_field_campaign(cond, args.effect, simulate_options=opts)
     t1 = time.perf_counter()
-    result = diagnose(field, simulate_options=opts,
-                      progress=lambda m: print(f"  [{time.perf_counter() - t1:6.1f} s] {m}", flush=True))
+    logging.basicConfig(level=logging.INFO, format="  [%(relativeCreated)8.0f ms] %(message)s")
+    result = diagnose(field, simulate_options=opts)
     t2 = time.perf_counter()
     to_dataset(result)
     t3 = time.perf_counter()

@@ -14,15 +14,21 @@ every artefact into one output directory::
 
 Every input defaults to the embedded sample data and can be replaced by the user's own file.
 Outputs that already exist are refused before any work starts, unless ``overwrite``.
+One line per finished stage is logged at INFO level on the ``lidarcal.pipeline`` logger (the
+command line prints it on stderr).  :func:`calibrate` returns a :class:`CalibrationResult`
+holding the path and the (re-read) dataset of every artefact::
+
+    result = calibrate("run1", CalibrationConfig(periods=144))
+    result.datasets["budget"].sel(height=120).relative_uncertainty
 """
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 import time
 import warnings
-from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,11 +36,14 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.campaign import DEFAULT_BASE_SEED
 from lidarcal.data import sample_file
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.units import Q_
 
-__all__ = ["CalibrationConfig", "calibrate", "OUTPUT_NAMES", "DEFAULT_HEIGHTS"]
+__all__ = ["CalibrationConfig", "CalibrationResult", "calibrate", "OUTPUT_NAMES", "DEFAULT_HEIGHTS"]
+
+log = logging.getLogger(__name__)
 
 #: Heights of the default run (m): the mast's 40/60/80 m plus the range a profiler calibrates.
 DEFAULT_HEIGHTS = (40.0, 60.0, 80.0, 100.0, 120.0, 140.0, 160.0, 200.0)
@@ -73,7 +82,7 @@ class CalibrationConfig:
     conditions: str | None = None
     heights: tuple[float, ...] = DEFAULT_HEIGHTS
     periods: int | None = 2016
-    base_seed: int = 20240101
+    base_seed: int = DEFAULT_BASE_SEED
     chunk: int = 64
     workers: int | None = None
     scheduler: str | None = None
@@ -105,7 +114,25 @@ def _terms_per_height(records: xr.Dataset, overrides: dict[str, Any]) -> xr.Data
                      combine_attrs="override")
 
 
-def _conditions(cfg: CalibrationConfig, log: Callable[[str], None]) -> tuple[xr.Dataset, dict]:
+@dataclass(frozen=True)
+class CalibrationResult:
+    """What :func:`calibrate` wrote: the path and the dataset of every artefact.
+
+    ``paths`` maps each artefact key (``cube``, ``rwf``, ``conditions``, ``simulated``,
+    ``terms``, ``sensitivity_<variable>``, ``budget``, ``certificate``, ``report`` and one
+    ``png:<name>`` per figure) to its file.  ``datasets`` maps the netCDF artefacts' keys to
+    the dataset as read back from that file with :func:`lidarcal.io.open_artefact`.
+    """
+
+    paths: dict[str, Path]
+    datasets: dict[str, xr.Dataset]
+
+    def __repr__(self) -> str:
+        outdir = self.paths["certificate"].parent
+        return f"CalibrationResult(outdir={outdir}, datasets={sorted(self.datasets)})"
+
+
+def _conditions(cfg: CalibrationConfig) -> tuple[xr.Dataset, dict]:
     from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
 
     if cfg.conditions is not None:
@@ -119,8 +146,8 @@ def _conditions(cfg: CalibrationConfig, log: Callable[[str], None]) -> tuple[xr.
         warnings.simplefilter("ignore", SkippedPeriodsWarning)
         base = load_conditions(path)
     n = base.sizes["time"] if cfg.periods is None else min(cfg.periods, base.sizes["time"])
-    log(f"conditions: {n} periods of the real brightwind sample (40/60/80 m) carried to "
-        f"{', '.join(f'{h:g}' for h in cfg.heights)} m with each period's shear")
+    log.info("conditions: %d periods of the real brightwind sample (40/60/80 m) carried to %s m with "
+             "each period's shear", n, ", ".join(f"{h:g}" for h in cfg.heights))
     ds = synthetic_conditions(n, cfg.heights, base=base)
     return ds, {"conditions_source": path}
 
@@ -131,9 +158,8 @@ def calibrate(
     *,
     overwrite: bool = False,
     progress: bool = False,
-    log: Callable[[str], None] = print,
-) -> dict[str, Path]:
-    """Run the whole calibration and return the path of every artefact written.
+) -> CalibrationResult:
+    """Run the whole calibration; return the path and dataset of every artefact written.
 
     Parameters
     ----------
@@ -144,9 +170,13 @@ def calibrate(
     overwrite : bool
         Replace existing outputs; otherwise existing files are refused before any work.
     progress : bool
-        Show a progress bar during the simulation.
-    log : callable
-        Receives one line per finished stage.
+        Show a progress bar (tqdm, stderr) during the simulation.
+
+    Returns
+    -------
+    CalibrationResult
+        ``.paths`` and ``.datasets`` of every artefact.  Each finished stage is also logged at
+        INFO level on the ``lidarcal.pipeline`` logger.
     """
     from lidarcal.analysis.budget import budget
     from lidarcal.analysis.sensitivity import sensitivity
@@ -168,7 +198,7 @@ def calibrate(
     t0 = time.perf_counter()
 
     def done(key: str, what: str) -> None:
-        log(f"[{time.perf_counter() - t0:6.1f} s] {what}: {paths[key]}")
+        log.info("[%6.1f s] %s: %s", time.perf_counter() - t0, what, paths[key])
 
     # Each artefact is written, then read back with open_artefact: downstream stages then
     # record the checksum of the file on disk as their input (the certificate's chain).
@@ -198,7 +228,7 @@ def calibrate(
     done("rwf", f"range-weighting function (Zd = {float(rwf.zero_distance):+.3f} m)")
 
     # 3. conditions
-    cond, cond_inputs = _conditions(cfg, log)
+    cond, cond_inputs = _conditions(cfg)
     if "lidarcal_artefact" not in cond.attrs or cond.attrs.get("lidarcal_artefact") != "conditions":
         from lidarcal.provenance import stamp
 
@@ -253,5 +283,8 @@ def calibrate(
     for png in written.get("png", []):
         paths[f"png:{Path(png).name}"] = Path(png)
     done("report", f"HTML report ({len(written.get('png', []))} PNG figures beside it)")
-    return paths
+    datasets = {"cube": cube, "rwf": rwf, "conditions": open_artefact(paths["conditions"], "conditions"),
+                "simulated": records, "terms": terms, **{f"sensitivity_{v}": d for v, d in sens.items()},
+                "budget": bud, "certificate": open_artefact(paths["certificate"], "certificate")}
+    return CalibrationResult(paths=paths, datasets=datasets)
 

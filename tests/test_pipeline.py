@@ -1,6 +1,7 @@
 """The main job end to end: ``lidarcal calibrate`` on the embedded sample data."""
 
 import json
+import logging
 import os
 
 import numpy as np
@@ -15,17 +16,37 @@ from lidarcal.pipeline import OUTPUT_NAMES, CalibrationConfig, calibrate
 from lidarcal.schema import validate_dataset
 
 
+class _Lines(logging.Handler):
+    """Collect the messages of the ``lidarcal.pipeline`` logger (caplog is function-scoped)."""
+
+    def __init__(self):
+        super().__init__(level=logging.INFO)
+        self.lines = []
+
+    def emit(self, record):
+        self.lines.append(record.getMessage())
+
+
 @pytest.fixture(scope="module")
 def small_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("cal")
-    lines = []
-    cfg = CalibrationConfig(periods=48, heights=(60.0, 120.0), workers=1, chunk=16)
-    paths = calibrate(out, cfg, log=lines.append)
-    return out, paths, lines
+    handler = _Lines()
+    logger = logging.getLogger("lidarcal.pipeline")
+    logger.addHandler(handler)
+    level = logger.level
+    logger.setLevel(logging.INFO)
+    try:
+        cfg = CalibrationConfig(periods=48, heights=(60.0, 120.0), workers=1, chunk=16)
+        result = calibrate(out, cfg)
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
+    return out, result, handler.lines
 
 
 def test_calibrate_writes_every_artefact_valid_and_sealed(small_run):
-    out, paths, lines = small_run
+    out, result, lines = small_run
+    paths = result.paths
     for key, name in OUTPUT_NAMES.items():
         assert (out / name).exists(), key
     kinds = {}
@@ -69,7 +90,7 @@ def test_calibrate_refuses_existing_outputs_before_any_work(small_run):
     out, _, _ = small_run
     before = {p.name: p.stat().st_mtime_ns for p in out.iterdir()}
     with pytest.raises(OutputExistsError, match="cube.nc"):
-        calibrate(out, CalibrationConfig(periods=4, heights=(80.0,)), log=lambda s: None)
+        calibrate(out, CalibrationConfig(periods=4, heights=(80.0,)))
     assert {p.name: p.stat().st_mtime_ns for p in out.iterdir()} == before
 
 
@@ -78,7 +99,11 @@ def test_cli_calibrate_runs_from_any_directory(tmp_path, capsys, monkeypatch):
     code = main(["calibrate", "--periods", "48", "--heights", "80", "100", "--workers", "1", "--no-progress"])
     assert code == 0
     assert (tmp_path / "lidarcal-output" / "certificate.nc").exists()
-    assert "certificate" in capsys.readouterr().out
+    captured = capsys.readouterr()
+    assert "certificate" in captured.out
+    # the stage lines go to stderr through logging, one per artefact, none to stdout
+    assert captured.err.count("lidarcal calibrate: [") >= len(OUTPUT_NAMES)
+    assert "lidarcal calibrate: [" not in captured.out
     assert main(["calibrate", "--periods", "48", "--heights", "80", "100"]) == 2  # exists: refused
     assert "file exists" in capsys.readouterr().err
 
@@ -91,7 +116,7 @@ def test_sample_lidar_reproduces_the_papers_findings(tmp_path):
     magnitude shrinks with height (Figure 8); the Monte Carlo budget between 4 and 16 m/s lies
     in the paper's 0.5-2.0 % range, except in bins with few periods (see README).
     """
-    calibrate(tmp_path, CalibrationConfig(), log=lambda s: None)
+    calibrate(tmp_path, CalibrationConfig())
     shear = xr.open_dataset(tmp_path / "sensitivity_wind_shear_exponent.nc")
     slope = shear.slope.values
     assert np.nanmedian(slope) < 0
@@ -134,3 +159,19 @@ def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
     reference = xr.open_dataset(ref_dir / "simulated.nc")
     for name in ("lidar_wind_speed", "reference_wind_speed", "lidar_wind_speed_scalar"):
         np.testing.assert_array_equal(resumed[name].values, reference[name].values)  # bit-identical
+
+
+def test_calibrate_returns_the_datasets_it_wrote(small_run):
+    out, result, _ = small_run
+    netcdf = {k for k, p in result.paths.items() if p.suffix == ".nc"}
+    assert set(result.datasets) == netcdf  # every netCDF artefact, nothing else
+    for key, ds in result.datasets.items():
+        assert ds.attrs["lidarcal_source_file"] == result.paths[key].name
+        # the dataset is the file's content: same checksum as the bytes on disk
+        on_disk = open_artefact(result.paths[key])
+        assert ds.attrs["lidarcal_source_sha256"] == on_disk.attrs["lidarcal_source_sha256"], key
+    budget = result.datasets["budget"]
+    assert budget.attrs["lidarcal_artefact"] == "uncertainty_budget"
+    np.testing.assert_array_equal(budget.relative_uncertainty.values,
+                                  xr.open_dataset(out / "budget.nc").relative_uncertainty.values)
+    assert result.datasets["simulated"].sizes == {"time": 48, "height": 2}

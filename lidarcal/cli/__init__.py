@@ -3,13 +3,17 @@
 Each subcommand lives in a small module exposing ``register(subparsers)``; the module's
 handler parses arguments, calls the dataset-level function and writes the artefact.
 Errors derived from :class:`~lidarcal.errors.LidarcalError` are printed as one clear line
-(exit status 2); anything else is a bug and shows its traceback.
+(exit status 2); anything else is a bug and shows its traceback.  The library reports its
+progress through :mod:`logging` (``lidarcal.*`` loggers); the command prints those INFO
+messages on stderr, so stdout carries only the command's result.  Shared options are
+declared once in :mod:`lidarcal.cli.options`.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import logging
 import shlex
 import sys
 import warnings
@@ -70,6 +74,14 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print(f"lidarcal: {name}: {message}", file=sys.stderr)
 
 
+class _StderrHandler(logging.StreamHandler):
+    """A handler writing to whatever ``sys.stderr`` is at the time (pytest swaps it)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.setStream(sys.stderr)
+        super().emit(record)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``lidarcal`` command."""
     parser = build_parser()
@@ -80,6 +92,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "handler", None):
         parser.print_help()
         return 1
+    logger = logging.getLogger("lidarcal")
+    handler = _StderrHandler()
+    handler.setFormatter(logging.Formatter(f"lidarcal {args.command}: %(message)s"))
+    level = logger.level
+    logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
     try:
         return int(args.handler(args) or 0)
     except LidarcalError as exc:
@@ -88,6 +106,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(level)
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -18,9 +18,26 @@ OUTDIR/.simulation-chunks; run the same command again with --overwrite to resume
 from __future__ import annotations
 
 import argparse
-import sys
 
+from lidarcal.cli.options import (
+    add_heights_option,
+    add_overwrite_option,
+    add_parallel_options,
+    add_progress_option,
+    add_seed_option,
+    progress_enabled,
+)
 from lidarcal.pipeline import DEFAULT_HEIGHTS, CalibrationConfig, calibrate
+
+
+def _periods(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"--periods expects a whole number >= 0; got {text!r}")
+    return value
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,17 +52,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pulse-file", metavar="PULSE.csv", help="measured pulse (default: sample pulse)")
     p.add_argument("--fft-size", type=int, choices=(64, 128), default=64, help="apodization FFT size")
     p.add_argument("--conditions", metavar="C.nc", help="conditions file (default: real sample, 40-200 m)")
-    p.add_argument("--heights", type=float, nargs="+", metavar="M", default=list(DEFAULT_HEIGHTS),
-                   help="heights for the sample conditions (m)")
-    p.add_argument("--periods", type=int, default=2016, metavar="N",
+    add_heights_option(p, default=DEFAULT_HEIGHTS, help="heights for the sample conditions, m "
+                       f"(default {' '.join(f'{h:g}' for h in DEFAULT_HEIGHTS)})")
+    p.add_argument("--periods", type=_periods, default=2016, metavar="N",
                    help="10-minute periods from the start of the record (default %(default)s = 2 weeks; "
                    "0 = all)")
-    p.add_argument("--seed", type=int, default=20240101, help="base seed of the Monte Carlo")
-    p.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: CPU count)")
-    p.add_argument("--chunk", type=int, default=64, metavar="N", help="periods per simulation task")
-    p.add_argument("--scheduler", metavar="ADDRESS", help="dask.distributed scheduler address")
-    p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_seed_option(p)
+    add_parallel_options(p, workdir=False)  # chunks are cached in OUTDIR/.simulation-chunks
+    add_overwrite_option(p)
+    add_progress_option(p)
     p.set_defaults(handler=run)
 
 
@@ -57,7 +72,6 @@ def run(args: argparse.Namespace) -> int:
         periods=None if args.periods == 0 else args.periods, base_seed=args.seed,
         workers=args.workers, scheduler=args.scheduler, fft_size=args.fft_size, chunk=args.chunk,
     )
-    paths = calibrate(args.outdir, cfg, overwrite=args.overwrite,
-                      progress=not args.no_progress and sys.stderr.isatty())
-    print(f"done: certificate {paths['certificate']}, report {paths['report']}")
+    result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args))
+    print(f"done: certificate {result.paths['certificate']}, report {result.paths['report']}")
     return 0

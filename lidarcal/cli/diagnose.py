@@ -14,28 +14,34 @@ import json
 import sys
 
 from lidarcal.cli import command_line
+from lidarcal.cli.options import (
+    add_heights_option,
+    add_lidar_options,
+    add_output_options,
+    add_parallel_options,
+    add_progress_option,
+    add_seed_option,
+    progress_enabled,
+    simulation_options,
+)
 from lidarcal.errors import InputError
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``diagnose`` and ``diagnose-generate`` subcommands."""
-    from lidarcal.diagnose.core import DEFAULT_SEED
     from lidarcal.diagnose.effects import EFFECTS
     from lidarcal.diagnose.generate import GENERATOR_SEED
 
     p = sub.add_parser("diagnose", help="name the model effect that explains a field campaign's gap",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("field", metavar="FIELD.nc", help="field_campaign netCDF (DESIGN.md 3.1)")
-    p.add_argument("--cube", metavar="CUBE.nc", help="bench_cube artefact configuring the LOS noise")
-    p.add_argument("--rwf", metavar="RWF.nc", help="rwf artefact configuring the range weighting")
-    p.add_argument("-o", "--output", required=True, metavar="DIAGNOSIS.nc",
-                   help="diagnosis artefact to write")
+    add_lidar_options(p, default="the field file's lidar_* attributes")
+    add_output_options(p, "DIAGNOSIS.nc", help="diagnosis artefact to write")
     p.add_argument("--json", action="store_true", help="print only the JSON summary on stdout")
     p.add_argument("--report", metavar="REPORT.html", help="also write an offline HTML report")
-    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.add_argument("--candidates", nargs="+", choices=[e for e in EFFECTS if e != "none"], metavar="EFFECT",
                    help="catalogue effects to try (default: all)")
-    p.add_argument("--seed", type=int, default=DEFAULT_SEED, help="base seed of the simulations")
+    add_seed_option(p, help="base seed of the simulations")
     p.add_argument("--bins", type=int, default=6, help="quantile bins per environmental variable")
     p.add_argument("--min-bin-count", type=int, default=10, help="periods a bin needs to count")
     p.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm rate")
@@ -51,35 +57,26 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="effect parameter (default: a realistic strength)")
     g.add_argument("--conditions", metavar="C.nc", help="conditions to simulate (default: synthetic)")
     g.add_argument("--periods", type=int, default=300, help="synthetic periods (without --conditions)")
-    g.add_argument("--heights", type=float, nargs="+", default=[40.0, 80.0, 120.0, 160.0],
-                   help="synthetic heights in m (without --conditions)")
+    add_heights_option(g, default=(40.0, 80.0, 120.0, 160.0),
+                       help="synthetic heights, m (without --conditions)")
     g.add_argument("--conditions-seed", type=int, default=11, help="seed of the synthetic conditions")
-    g.add_argument("--seed", type=int, default=GENERATOR_SEED, help="base seed of the measurement simulation")
-    g.add_argument("-o", "--output", required=True, metavar="FIELD.nc")
-    g.add_argument("--overwrite", action="store_true")
+    # not the diagnosis' seed: the hidden effect must be found through independent noise
+    add_seed_option(g, default=GENERATOR_SEED, help="base seed of the measurement simulation")
+    add_output_options(g, "FIELD.nc")
     _sim_args(g)
     g.set_defaults(handler=_generate)
 
 
 def _sim_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--scheduler", help="dask scheduler: processes (default), threads, synchronous, local, "
-                                       "or a tcp:// address")
-    p.add_argument("--workers", type=int, help="local worker processes")
-    p.add_argument("--chunk", type=int, default=64, help="periods per Dask task")
-    p.add_argument("--progress", action="store_true", help="show simulation progress bars (stderr)")
+    add_parallel_options(p, workdir=False)
+    add_progress_option(p)
 
 
 def _sim_options(args: argparse.Namespace) -> dict:
-    opts = {"chunk": args.chunk, "progress": bool(args.progress)}
-    if args.scheduler:
-        opts["scheduler"] = args.scheduler
-    if args.workers:
-        opts["workers"] = args.workers
-    return opts
-
-
-def _say(msg: str) -> None:
-    print(f"lidarcal diagnose: {msg}", file=sys.stderr, flush=True)
+    """Return the simulation options without the progress switch (passed on its own)."""
+    opts = simulation_options(args)
+    del opts["progress"]
+    return {k: v for k, v in opts.items() if v is not None}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -96,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
     result = diagnose(
         args.field, cube=cube, rwf=rwf, candidates=args.candidates, base_seed=args.seed, n_bins=args.bins,
         min_bin_count=args.min_bin_count, alpha=args.alpha, bic_threshold=args.bic_threshold,
-        min_wind_speed=args.min_wind_speed, simulate_options=_sim_options(args), progress=_say)
+        min_wind_speed=args.min_wind_speed, simulate_options=_sim_options(args),
+        progress=progress_enabled(args))
     inputs = {"field": args.field, **({"cube": args.cube} if args.cube else {}),
               **({"rwf": args.rwf} if args.rwf else {})}
     call = command_line(args)
@@ -143,7 +141,7 @@ def _generate(args: argparse.Namespace) -> int:
     else:
         cond = hidden_effect_conditions(args.periods, args.heights, args.conditions_seed)
     ds = generate_field_campaign(cond, args.effect, _parse_params(args.param), base_seed=args.seed,
-                                 simulate_options=_sim_options(args),
+                                 simulate_options={**_sim_options(args), "progress": progress_enabled(args)},
                                  call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: {ds.sizes['time']} periods x {ds.sizes['height']} heights, hidden effect "

@@ -17,6 +17,15 @@ import argparse
 import os
 
 from lidarcal.cli import command_line
+from lidarcal.cli.options import (
+    add_heights_option,
+    add_lidar_options,
+    add_output_options,
+    add_parallel_options,
+    add_progress_option,
+    add_seed_option,
+    simulation_options,
+)
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
 
@@ -33,33 +42,12 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="C.nc",
         help="conditions or field_campaign input (default: the embedded brightwind sample)",
     )
-    p.add_argument("--cube", metavar="CUBE.nc", help="bench_cube artefact (LOS bias and noise)")
-    p.add_argument("--rwf", metavar="RWF.nc", help="rwf artefact (range-weighting function)")
+    add_lidar_options(p, default="the ideal lidar, or the conditions' lidar_* attributes")
     p.add_argument("--model", metavar="FILE.nc", help="use the LidarModel in FILE's lidarcal_lidar_model "
                    "attribute, e.g. a diagnosis with its fitted effect added (instead of --cube/--rwf)")
-    p.add_argument(
-        "--heights",
-        type=float,
-        nargs="+",
-        metavar="M",
-        help="heights to simulate, m (default: all heights of the conditions)",
-    )
-    p.add_argument(
-        "--scheduler",
-        metavar="ADDRESS",
-        help="'processes' (default), 'threads', 'synchronous', 'local' (LocalCluster) or the "
-        "address of a dask.distributed scheduler, e.g. tcp://127.0.0.1:8786",
-    )
-    p.add_argument("--workers", type=int, metavar="N", help="local worker processes (default: CPU count)")
-    p.add_argument("--chunk", type=int, default=64, metavar="N", help="periods per task (default 64)")
-    p.add_argument(
-        "--seed",
-        type=int,
-        default=None,
-        metavar="N",
-        help="base seed; period i uses SeedSequence([seed, i, height_mm]) (default 20240101)",
-    )
-    p.add_argument("--workdir", metavar="DIR", help="cache finished chunks here; rerun to resume")
+    add_heights_option(p, help="heights to simulate, m (default: all heights of the conditions)")
+    add_seed_option(p, help="base seed; period i uses SeedSequence([seed, i, height_mm])")
+    add_parallel_options(p)
     p.add_argument(
         "--los-periods",
         type=int,
@@ -78,15 +66,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="seconds to wait for a remote scheduler (default 5)",
     )
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
-    p.add_argument("-o", "--output", required=True, metavar="SIM.nc")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    add_progress_option(p)
+    add_output_options(p, "SIM.nc")
     p.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
     """Load inputs, build the lidar model, run the campaign and write the ``simulated_rtd`` file."""
-    from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
+    from lidarcal.campaign import simulate_campaign
     from lidarcal.conditions import load_conditions, sample_conditions_path
     from lidarcal.lidar import LidarModel
 
@@ -106,17 +93,13 @@ def run(args: argparse.Namespace) -> int:
         inputs.update({k: v for k, v in (("cube", args.cube), ("rwf", args.rwf)) if v})
     else:
         model = LidarModel.from_attrs(cond)
-    base_seed = DEFAULT_BASE_SEED if args.seed is None else args.seed
+    base_seed = args.seed
     ds = simulate_campaign(
         conditions,
         model,
         heights=args.heights,
         base_seed=base_seed,
-        chunk=args.chunk,
-        scheduler=args.scheduler,
-        workers=args.workers,
-        workdir=args.workdir,
-        progress=not args.no_progress,
+        **simulation_options(args),
         los_periods=args.los_periods,
         duration=args.duration,
         connect_timeout=args.timeout,

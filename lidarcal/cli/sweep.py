@@ -9,13 +9,22 @@ sensitivity slopes over the whole parameter space.  Grid values: ``START:STOP:ST
 from __future__ import annotations
 
 import argparse
-import sys
 
 import numpy as np
 
 from lidarcal.analysis._records import CANONICAL_UNITS
 from lidarcal.analysis.sweep import DEFAULT_GRID, SWEEP_VARIABLES, sweep
 from lidarcal.cli import command_line
+from lidarcal.cli.options import (
+    add_heights_option,
+    add_lidar_options,
+    add_output_options,
+    add_parallel_options,
+    add_progress_option,
+    add_seed_option,
+    positive_int,
+    simulation_options,
+)
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.units import Q_
@@ -53,20 +62,15 @@ def register(sub: argparse._SubParsersAction) -> None:
             metavar="VALUES",
             help=f"grid of {name} in {CANONICAL_UNITS[name]} (default {default})",
         )
-    p.add_argument(
-        "--height", type=float, action="append", metavar="M", help="height (repeatable; default 100)"
-    )
-    p.add_argument("--repeats", type=int, default=1, help="Monte Carlo replicates per grid point (default 1)")
-    p.add_argument("--cube", metavar="CUBE.nc", help="bench_cube artefact (default: ideal Gaussian noise)")
-    p.add_argument("--rwf", metavar="RWF.nc", help="rwf artefact (default: ideal Gaussian RWF)")
-    p.add_argument("--seed", type=int, help="base seed")
-    p.add_argument("--scheduler", help="dask scheduler (default: local processes)")
-    p.add_argument("--workers", type=int, metavar="N")
-    p.add_argument("--chunk", type=int, default=64, metavar="N", help="periods per task (default 64)")
-    p.add_argument("--workdir", metavar="DIR", help="resumable chunk cache")
+    add_heights_option(p, default=(100.0,), help="heights, m (default 100)")
+    p.add_argument("--repeats", type=positive_int("--repeats"), default=1, metavar="N",
+                   help="Monte Carlo replicates per grid point (default 1)")
+    add_lidar_options(p, default="the ideal Gaussian lidar")
+    add_seed_option(p)
+    add_parallel_options(p)
+    add_progress_option(p)
     p.add_argument("--records-output", metavar="SIM.nc", help="also write the simulated records")
-    p.add_argument("-o", "--output", required=True, metavar="SWEEP.nc")
-    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
+    add_output_options(p, "SWEEP.nc")
     p.set_defaults(handler=run)
 
 
@@ -92,14 +96,10 @@ def run(args: argparse.Namespace) -> int:
     ds, records = sweep(
         model,
         grid=grid,
-        heights=args.height or (100.0,),
+        heights=args.heights,
         repeats=args.repeats,
         base_seed=args.seed,
-        scheduler=args.scheduler,
-        workers=args.workers,
-        chunk=args.chunk,
-        workdir=args.workdir,
-        progress=sys.stderr.isatty(),
+        **simulation_options(args),
         call=call,
         inputs=inputs,
     )

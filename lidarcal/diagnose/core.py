@@ -234,7 +234,7 @@ def diagnose(
     tie_threshold: float = 2.0,
     min_wind_speed: float = 3.0,
     simulate_options: Mapping[str, Any] | None = None,
-    progress: Callable[[str], None] | None = None,
+    progress: bool = False,
 ) -> DiagnosisResult:
     """Diagnose the discrepancy between a field campaign and the nominal model.
 
@@ -265,10 +265,11 @@ def diagnose(
     simulate_options : mapping, optional
         Extra keyword arguments of :func:`lidarcal.campaign.simulate_campaign`
         (``chunk``, ``scheduler``, ``workdir`` ...).
-    progress : callable, optional
-        Called with one-line progress messages (the CLI prints them on stderr).
+    progress : bool
+        Show a progress bar (tqdm, stderr) during each simulation.  Each step is also
+        logged at INFO level on the ``lidarcal.diagnose`` logger.
     """
-    say = progress or (lambda msg: log.info(msg))
+    say = log.info
     ds, usable, source = load_field(field, n_bins=n_bins, min_bin_count=min_bin_count,
                                     min_wind_speed=min_wind_speed)
     if model is None:
@@ -281,7 +282,7 @@ def diagnose(
     cond_ds.attrs = {"lidarcal_source_file": os.path.basename(source)}  # a plain conditions input
     conditions = {n: np.asarray(ds[n].transpose("time", "height").values, dtype=float)
                   for n in CONDITION_VARIABLES}
-    simulate = _Simulator(cond_ds, base_seed, simulate_options or {}, say)
+    simulate = _Simulator(cond_ds, base_seed, {"progress": progress, **(simulate_options or {})}, say)
     base = simulate(model, "nominal model")
     d_meas = stats.relative_difference(ds["lidar_wind_speed"].values, ds["reference_wind_speed"].values)
     d0 = _d(base)

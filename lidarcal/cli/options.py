@@ -1,0 +1,125 @@
+"""Option groups shared by the subcommands: one spelling, one default and one check each.
+
+Every command that runs simulations takes the same parallel options, every command that
+configures the virtual lidar takes the same ``--cube``/``--rwf``, and so on.  Each function
+here adds one argparse group to a subcommand's parser; the ``*_from_args`` helpers turn the
+parsed options back into library keyword arguments.
+
+* progress: on when stderr is a terminal; ``--progress`` / ``--no-progress`` force it.
+* heights: ``--heights M [M ...]`` (metres).
+* seed: ``--seed N``, default :data:`lidarcal.campaign.DEFAULT_BASE_SEED` (docs/seeds.md).
+* numbers are checked at parse time (``--workers 0`` is refused by argparse, exit 2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from lidarcal.campaign import DEFAULT_BASE_SEED
+
+__all__ = [
+    "positive_int",
+    "add_parallel_options",
+    "add_lidar_options",
+    "add_progress_option",
+    "add_seed_option",
+    "add_heights_option",
+    "add_output_options",
+    "add_overwrite_option",
+    "progress_enabled",
+    "simulation_options",
+]
+
+SCHEDULER_HELP = (
+    "'processes' (default), 'threads', 'synchronous', 'local' (LocalCluster) or the address of a "
+    "dask.distributed scheduler, e.g. tcp://127.0.0.1:8786"
+)
+
+
+def positive_int(option: str) -> Callable[[str], int]:
+    """Return an argparse ``type`` accepting integers >= 1 and naming ``option`` otherwise."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{option} expects a whole number >= 1; got {text!r}") from None
+        if value < 1:
+            raise argparse.ArgumentTypeError(f"{option} expects a whole number >= 1; got {value}")
+        return value
+
+    parse.__name__ = f"{option} value"
+    return parse
+
+
+def add_parallel_options(parser: argparse.ArgumentParser, *, workdir: bool = True) -> argparse._ArgumentGroup:
+    """``--scheduler``, ``--workers``, ``--chunk`` and (if ``workdir``) ``--workdir``."""
+    g = parser.add_argument_group("parallel execution (the result does not depend on these)")
+    g.add_argument("--scheduler", metavar="NAME|ADDRESS", help=SCHEDULER_HELP)
+    g.add_argument("--workers", type=positive_int("--workers"), metavar="N",
+                   help="local worker processes (default: CPU count)")
+    g.add_argument("--chunk", type=positive_int("--chunk"), default=64, metavar="N",
+                   help="periods per simulation task (default %(default)s)")
+    if workdir:
+        g.add_argument("--workdir", metavar="DIR", help="cache finished chunks here; rerun to resume")
+    return g
+
+
+def add_lidar_options(parser: argparse.ArgumentParser, *,
+                      default: str = "the ideal lidar") -> argparse._ArgumentGroup:
+    """``--cube`` and ``--rwf``: the bench cube and range-weighting function configuring the lidar."""
+    g = parser.add_argument_group("virtual lidar")
+    g.add_argument("--cube", metavar="CUBE.nc",
+                   help=f"bench_cube artefact: LOS bias and noise (default: {default})")
+    g.add_argument("--rwf", metavar="RWF.nc",
+                   help=f"rwf artefact: range-weighting function (default: {default})")
+    return g
+
+
+def add_progress_option(parser: argparse.ArgumentParser) -> None:
+    """``--progress`` / ``--no-progress``; unset means "when stderr is a terminal"."""
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="progress bar on stderr (default: when stderr is a terminal)")
+
+
+def progress_enabled(args: argparse.Namespace) -> bool:
+    """Return the ``--progress`` choice, or whether stderr is a terminal when none was given."""
+    choice = getattr(args, "progress", None)
+    return sys.stderr.isatty() if choice is None else bool(choice)
+
+
+def add_seed_option(parser: argparse.ArgumentParser, *, default: int = DEFAULT_BASE_SEED,
+                    help: str = "base seed of the Monte Carlo; see docs/seeds.md") -> None:
+    """``--seed N`` with the project's base seed as default."""
+    parser.add_argument("--seed", type=int, default=default, metavar="N",
+                        help=f"{help} (default %(default)s)")
+
+
+def add_heights_option(parser: argparse.ArgumentParser, *, default: Sequence[float] | None = None,
+                       help: str = "heights, m") -> None:
+    """``--heights M [M ...]``."""
+    parser.add_argument("--heights", type=float, nargs="+", metavar="M",
+                        default=None if default is None else list(default), help=help)
+
+
+def add_output_options(parser: argparse.ArgumentParser, metavar: str, *, help: str | None = None) -> None:
+    """``-o/--output FILE`` (required) and ``--overwrite``."""
+    parser.add_argument("-o", "--output", required=True, metavar=metavar, help=help)
+    add_overwrite_option(parser)
+
+
+def add_overwrite_option(parser: argparse.ArgumentParser) -> None:
+    """``--overwrite``: replace existing outputs (otherwise they are refused before any work)."""
+    parser.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+
+
+def simulation_options(args: argparse.Namespace) -> dict[str, Any]:
+    """Keyword arguments of :func:`lidarcal.campaign.simulate_campaign` from the shared options."""
+    opts: dict[str, Any] = {"chunk": args.chunk, "scheduler": args.scheduler, "workers": args.workers,
+                            "progress": progress_enabled(args)}
+    if getattr(args, "workdir", None) is not None:
+        opts["workdir"] = args.workdir
+    return opts
