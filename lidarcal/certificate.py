@@ -1,4 +1,4 @@
-"""The calibration certificate: one flat, self-verifying netCDF file (paper Figure 1, DESIGN §1).
+"""The calibration certificate: one flat, self-verifying netCDF file (paper Figure 1).
 
 :func:`make_certificate` bundles the uncertainty budget, the sensitivities, the bench cube,
 the RWF (with Zd), the Table 4 terms and a summary of the records into **one flat Dataset**:

@@ -233,7 +233,7 @@ def calibrate(
         from lidarcal.provenance import stamp
 
         cond = stamp(cond, "conditions", title="Conditions simulated by lidarcal calibrate",
-                     summary="10-minute conditions (DESIGN.md 3.1) used as Monte Carlo input.",
+                     summary="10-minute conditions (lidarcal docs/contracts.md) used as Monte Carlo input.",
                      call="lidarcal calibrate", inputs=cond_inputs)
     write_artefact(cond, paths["conditions"], overwrite=overwrite)
     done("conditions", f"conditions ({cond.sizes['time']} periods x {cond.sizes['height']} heights)")

@@ -12,7 +12,7 @@ import xarray as xr
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.units import LOG_UNITS, convert_values
 
-#: Canonical units of the variables an analysis may use (DESIGN.md 3.1).
+#: Canonical units of the variables an analysis may use (docs/contracts.md).
 CANONICAL_UNITS = {
     "wind_speed": "m s-1",
     "wind_from_direction": "degree",

@@ -46,7 +46,7 @@ from lidarcal.provenance import stamp
 __all__ = ["simulate_campaign", "DEFAULT_BASE_SEED", "BLAS_ENV"]
 
 DEFAULT_BASE_SEED = 20240101
-#: Environment of every simulation worker: one BLAS/OpenMP thread (DESIGN.md section 5).
+#: Environment of every simulation worker: one BLAS/OpenMP thread (docs/performance.md).
 BLAS_ENV = {"OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 
 _OUTPUT_ATTRS = {

@@ -1,7 +1,7 @@
 """``lidarcal diagnose``: find, name and add the effect that explains a field–model gap.
 
 ``lidarcal diagnose FIELD.nc [--cube CUBE.nc] [--rwf RWF.nc] -o DIAGNOSIS.nc [--json] [--report R.html]``
-(DESIGN.md 3.2).  With ``--json`` only the JSON object goes to stdout; progress goes to stderr.
+(``docs/diagnose.md``).  With ``--json`` only the JSON object goes to stdout; progress goes to stderr.
 
 ``lidarcal diagnose-generate --effect ID [--param NAME=VALUE] -o FIELD.nc`` writes a synthetic
 ``field_campaign`` with one hidden catalogue effect (for tests, demos and benchmarks).
@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser("diagnose", help="name the model effect that explains a field campaign's gap",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("field", metavar="FIELD.nc", help="field_campaign netCDF (DESIGN.md 3.1)")
+    p.add_argument("field", metavar="FIELD.nc", help="field_campaign netCDF (docs/contracts.md)")
     add_lidar_options(p, default="the field file's lidar_* attributes")
     add_output_options(p, "DIAGNOSIS.nc", help="diagnosis artefact to write")
     p.add_argument("--json", action="store_true", help="print only the JSON summary on stdout")

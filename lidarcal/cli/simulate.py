@@ -7,7 +7,7 @@ Examples::
     lidarcal simulate --conditions c.nc --workdir run1/ -o sim.nc  # resumable: rerun after a crash
     lidarcal simulate --conditions c.nc --scheduler tcp://10.0.0.5:8786 -o sim.nc
 
-Without ``--cube``/``--rwf`` the ideal lidar of DESIGN.md 3.1 is used, configured by the
+Without ``--cube``/``--rwf`` the ideal lidar of ``docs/contracts.md`` is used, configured by the
 conditions file's ``lidar_*`` global attributes when present.
 """
 

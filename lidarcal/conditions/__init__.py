@@ -1,4 +1,4 @@
-"""The ``conditions`` / ``field_campaign`` input contract (DESIGN.md 3.1) and its generators.
+"""The ``conditions`` / ``field_campaign`` input contract (``docs/contracts.md``) and its generators.
 
 - :func:`load_conditions` — open, convert to canonical units, check, flag missing periods.
 - :func:`synthetic_conditions` — seeded synthetic conditions, or a real record extrapolated

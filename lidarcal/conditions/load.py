@@ -1,4 +1,4 @@
-"""Loading and checking ``conditions`` / ``field_campaign`` inputs (DESIGN.md 3.1).
+"""Loading and checking ``conditions`` / ``field_campaign`` inputs (``docs/contracts.md``).
 
 :func:`load_conditions` returns the contract in canonical units with one extra variable,
 ``input_complete`` (time, height): 1 where every variable the simulation (or, for a field
@@ -116,7 +116,7 @@ def load_conditions(
     Parameters
     ----------
     path_or_dataset : path or xarray.Dataset
-        The netCDF file (or an already opened dataset) following DESIGN.md 3.1.
+        The netCDF file (or an already opened dataset) following ``docs/contracts.md``.
     kind : {"conditions", "field_campaign"}
         ``field_campaign`` additionally requires ``lidar_wind_speed`` and
         ``reference_wind_speed``.

@@ -162,7 +162,7 @@ def synthetic_conditions(
     Returns
     -------
     xarray.Dataset
-        A ``conditions`` input (DESIGN.md 3.1) with the generator's settings in
+        A ``conditions`` input (``docs/contracts.md``) with the generator's settings in
         ``lidarcal_synthetic`` global attributes.
     """
     n = int(n_periods)

@@ -1,4 +1,4 @@
-"""Find, name and fix model–field discrepancies (``lidarcal diagnose``, DESIGN.md 3.2).
+"""Find, name and fix model–field discrepancies (``lidarcal diagnose``, ``docs/diagnose.md``).
 
 - :mod:`lidarcal.diagnose.effects` — the catalogue of effects (data).
 - :mod:`lidarcal.diagnose.stats` — residuals, binning, significance tests, the gap metric.

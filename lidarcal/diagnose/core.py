@@ -1,4 +1,4 @@
-"""The diagnose workflow: find the gap, name the effect, add it, re-run (DESIGN.md 3.2).
+"""The diagnose workflow: find the gap, name the effect, add it, re-run (``docs/diagnose.md``).
 
 :func:`diagnose` takes a ``field_campaign`` (measured lidar/reference pair + conditions) and
 
@@ -241,7 +241,7 @@ def diagnose(
     Parameters
     ----------
     field : path or xarray.Dataset
-        A ``field_campaign`` (DESIGN.md 3.1).
+        A ``field_campaign`` (``docs/contracts.md``).
     cube, rwf : xarray.Dataset, optional
         Bench cube / RWF artefacts configuring the nominal model (else the file's attributes).
     model : LidarModel, optional

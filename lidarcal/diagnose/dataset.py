@@ -29,7 +29,7 @@ from lidarcal.provenance import stamp
 __all__ = ["summary", "to_dataset", "corrected_model", "records_dataset", "sensitivity_statistics",
            "UNITS"]
 
-#: Canonical units of the conditions variables (DESIGN 3.1).
+#: Canonical units of the conditions variables (docs/contracts.md).
 UNITS = {"wind_speed": "m s-1", "wind_from_direction": "degree", "turbulence_intensity": "1",
          "wind_shear_exponent": "1", "cnr": "dB", "cnr_gradient": "dB m-1"}
 _STANDARD = {"wind_speed": "wind_speed", "wind_from_direction": "wind_from_direction"}
@@ -41,7 +41,7 @@ def _num(x: float) -> float | None:
 
 
 def summary(result: DiagnosisResult) -> dict[str, Any]:
-    """Return the ``--json`` object of DESIGN.md 3.2 (listed keys exact; a few documented extras).
+    """Return the ``--json`` object of ``docs/diagnose.md`` (listed keys exact; a few documented extras).
 
     ``score`` of a candidate is its ΔBIC against ``none`` (lower is better; ``none`` is 0).
     Extras: ``uncertainties`` and ``units`` of the parameters, ``significant`` (step-2 test),

@@ -1,7 +1,7 @@
 """The catalogue of model effects that ``lidarcal diagnose`` can name, fit and add.
 
-The catalogue is data (STYLE.md, "registries are data"): :data:`EFFECTS` maps each catalogue id
-of DESIGN.md 3.2 to a small frozen :class:`Effect` that states
+The catalogue is data: :data:`EFFECTS` maps each catalogue id of ``docs/diagnose.md`` to a small
+frozen :class:`Effect` that states
 
 - its parameters (name, unit, physical bounds, the ``LidarModel`` field each one sets, and the
   probe step used to measure the model's response to it),
@@ -13,8 +13,9 @@ of DESIGN.md 3.2 to a small frozen :class:`Effect` that states
   sampled (the hybrid weight p only re-weights the scalar and vector reconstructions the
   simulator already returns; the reference over-speeding only scales the virtual reference),
   the records of the modified model follow exactly from the baseline records, so no
-  re-simulation is needed.  ``tests/test_diagnose_engine.py`` checks each shortcut against a
-  full re-simulation.
+  re-simulation is needed.  ``tests/test_diagnose.py``
+  (``test_exact_shortcuts_equal_a_full_resimulation``) checks each shortcut against a full
+  re-simulation.
 
 Expected signatures (first order, cone angle φ from vertical, relative to the reference):
 
@@ -40,7 +41,7 @@ from lidarcal.errors import InputError
 
 __all__ = ["Parameter", "Effect", "EFFECTS", "CONDITION_VARIABLES", "get_effect"]
 
-#: The conditions variables of DESIGN 3.1 (the only legal drivers).
+#: The conditions variables of ``docs/contracts.md`` (the only legal drivers).
 CONDITION_VARIABLES = (
     "wind_speed", "wind_from_direction", "turbulence_intensity", "wind_shear_exponent", "cnr",
     "cnr_gradient",
@@ -57,7 +58,7 @@ class Parameter:
     Attributes
     ----------
     name : str
-        Name in the ``--json`` output (DESIGN 3.2), e.g. ``"offset"``.
+        Name in the ``--json`` output (``docs/diagnose.md``), e.g. ``"offset"``.
     units : str
         UDUNITS spelling (``m``, ``degree``, ``1``).
     bounds : tuple of float

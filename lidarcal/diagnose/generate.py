@@ -2,7 +2,7 @@
 
 :func:`generate_field_campaign` simulates a conditions record with the nominal lidar plus one
 catalogue effect at a chosen strength (or none) and writes the result through the public
-``field_campaign`` contract (DESIGN.md 3.1): the six conditions, the measured pair
+``field_campaign`` contract (``docs/contracts.md``): the six conditions, the measured pair
 ``lidar_wind_speed`` / ``reference_wind_speed`` and the *nominal* ``lidar_*`` attributes — the
 file does not reveal the effect except in ``lidarcal_hidden_effect`` (JSON, for tests and
 benchmarks; :func:`lidarcal.diagnose.diagnose` never reads it).  The simulations use
@@ -35,7 +35,7 @@ __all__ = ["GENERATOR_SEED", "REALISTIC_STRENGTHS", "DIAGNOSIS_CNR_MODEL", "hidd
 #: Base seed of the hidden-effect simulations (the diagnosis uses core.DEFAULT_SEED).
 GENERATOR_SEED = 777_000_001
 
-#: Realistic strengths of each effect (DESIGN 3.2 units).
+#: Realistic strengths of each effect (units of ``docs/diagnose.md``).
 REALISTIC_STRENGTHS: dict[str, dict[str, float]] = {
     "none": {},
     "zero_distance_offset": {"offset": 4.0},        # m, a Zd error of 3-5 m
@@ -108,7 +108,7 @@ def generate_field_campaign(
     params : mapping, optional
         Effect parameters (default :data:`REALISTIC_STRENGTHS`).
     model : LidarModel, optional
-        The nominal lidar (default the DESIGN 3.1 ideal lidar); its configuration is written
+        The nominal lidar (default the ideal lidar of ``docs/contracts.md``); its configuration is written
         to the ``lidar_*`` attributes, the effect is not.
     base_seed : int
         Seed of the "measurement" simulation (default :data:`GENERATOR_SEED`).

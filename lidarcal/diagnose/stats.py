@@ -26,7 +26,7 @@ __all__ = [
     "holm", "disagreement_tests", "gap", "GAP_METRIC",
 ]
 
-#: The definition of the gap reported by ``diagnose`` (DESIGN 3.2 ``gap_metric``).
+#: The definition of the gap reported by ``diagnose`` (``gap_metric`` in ``docs/diagnose.md``).
 GAP_METRIC = (
     "rms, over heights, environmental variables and their quantile bins (bins with at least "
     "min_bin_count periods), of the bin-mean residual r = (L-R)/R measured minus (L-R)/R "

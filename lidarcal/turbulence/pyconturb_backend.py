@@ -1,7 +1,7 @@
 """PyConTurb's ``gen_turb`` behind the same interface as :func:`~lidarcal.turbulence.kernels.generate_points`.
 
 Used by the statistical-equivalence tests and by ``lidarcal turbulence --generator pyconturb``.
-It works around the traps of PyConTurb 2.7.4 (DESIGN.md §5):
+It works around the traps of PyConTurb 2.7.4 (``docs/performance.md``):
 
 * ``gen_turb`` seeds the *global* NumPy RNG.  Calls are serialised by a lock and the global
   RNG state is saved and restored around them, so lidarcal's own code (which never uses the
