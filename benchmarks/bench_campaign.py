@@ -18,7 +18,7 @@ What it measures (medians over ``--repeats``):
    nodes and the reference point (frozen turbulence along the wind), then the same noise and
    reconstruction as lidarcal.  Prints periods/s of both and the ratio.
 
-Targets (DESIGN.md section 7): >= 20 periods/s, >= 10x the baseline, speed-up >= 1.7x.
+Targets (docs/performance.md): >= 20 periods/s, >= 10x the baseline, speed-up >= 1.7x.
 """
 
 from __future__ import annotations

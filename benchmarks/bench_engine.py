@@ -1,4 +1,4 @@
-"""Time ``simulate_period`` for one 8-height period on one core (DESIGN.md §7).
+"""Time ``simulate_period`` for one 8-height period on one core (docs/performance.md).
 
     python benchmarks/bench_engine.py [--periods 60] [--profile]
 

@@ -1,4 +1,4 @@
-"""Tests of lidarcal.conditions: kernels, the DESIGN 3.1 loader, synthetic and real sample data."""
+"""Tests of lidarcal.conditions: kernels, the loader of docs/contracts.md, synthetic and real sample data."""
 
 import subprocess
 import sys
@@ -174,7 +174,7 @@ def test_field_campaign_and_lidar_from_attrs():
     with pytest.warns(SkippedPeriodsWarning):
         out = load_conditions(ds, kind="field_campaign")
     assert out.input_complete.values[0, 0] == 0 and out.lidar_wind_speed.attrs["units"] == "m s-1"
-    # DESIGN 3.1 defaults
+    # the defaults of docs/contracts.md (LidarModel's field defaults)
     assert lidar_attributes(out) == {
         "lidar_cone_angle": 28.0,
         "lidar_hybrid_weight": 2 / 3,

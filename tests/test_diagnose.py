@@ -40,7 +40,7 @@ def test_every_catalogue_entry_is_complete():
         if key == "none":
             assert eff.parameters == () and eff.apply(model, {}) is model
             continue
-        assert [p.name for p in eff.parameters] == [names[key]]  # DESIGN 3.2 parameter names
+        assert [p.name for p in eff.parameters] == [names[key]]  # parameter names of docs/diagnose.md
         assert eff.drivers, f"{key} has no drivers"
         for p in eff.parameters:
             assert p.model_field in model_fields

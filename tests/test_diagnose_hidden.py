@@ -3,7 +3,7 @@
 Fast versions (150 periods x 3 heights, the effect-free campaign and a hidden reference
 over-speeding; a hidden Zd error runs through the CLI in test_diagnose.py) run by default;
 the full catalogue on 600 periods x 4 heights is ``@pytest.mark.slow``.
-Acceptance (issue 5): the hidden effect is named (diagonal of the confusion matrix), its
+Acceptance (docs/diagnose.md): the hidden effect is named (diagonal of the confusion matrix), its
 parameter is recovered within 3 reported standard errors, and the gap at least halves; the
 effect-free campaign gives ``none``.
 """

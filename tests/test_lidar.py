@@ -288,6 +288,6 @@ def test_cnr_filter_of_a_bench_calibrated_lidar():
     assert out["lidar_wind_speed"][0] == alone["lidar_wind_speed"][0]
     everything = run(model.replace(cnr_threshold=None), heights=(120.0,), cnr=-25.0)
     assert np.isfinite(everything["lidar_wind_speed"][0])
-    assert LidarModel.ideal().cnr_threshold is None  # DESIGN 3.1's ideal lidar keeps every period
+    assert LidarModel.ideal().cnr_threshold is None  # the ideal lidar (docs/contracts.md) keeps every period
     with pytest.raises(InputError, match="cnr_threshold"):
         LidarModel.ideal(cnr_threshold=float("nan"))

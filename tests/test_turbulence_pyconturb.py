@@ -1,5 +1,5 @@
-"""The fast generator against PyConTurb's own ``gen_turb`` (DESIGN.md §5: a fast path is welcome
-if it is statistically equivalent)."""
+"""The fast generator against PyConTurb's own ``gen_turb`` (docs/performance.md: the fast path
+must be statistically equivalent)."""
 
 import numpy as np
 import pytest
