@@ -16,9 +16,58 @@ Stages (one module or sub-package each; imports flow from kernels to datasets to
 
 Shared infrastructure: :mod:`lidarcal.units`, :mod:`lidarcal.schema`, :mod:`lidarcal.io`,
 :mod:`lidarcal.provenance`, :mod:`lidarcal.compliance`, :mod:`lidarcal.errors`.
+
+The main entry points are available from the top level, imported on first use so that
+``import lidarcal`` stays fast::
+
+    import lidarcal
+
+    result = lidarcal.calibrate("run1", lidarcal.CalibrationConfig(periods=144))
+    result.datasets["budget"].sel(height=120).relative_uncertainty
+    lidarcal.verify(result.paths["certificate"]).ok
+
+``lidarcal.diagnose`` is the :mod:`lidarcal.diagnose` package; calling it runs
+:func:`lidarcal.diagnose.diagnose`.
 """
 
+from importlib import import_module as _import_module
 from importlib import metadata as _metadata
+
+#: Public name -> (module, attribute); resolved lazily by :func:`__getattr__`.
+_EXPORTS = {
+    "calibrate": ("lidarcal.pipeline", "calibrate"),
+    "CalibrationConfig": ("lidarcal.pipeline", "CalibrationConfig"),
+    "CalibrationResult": ("lidarcal.pipeline", "CalibrationResult"),
+    "open_artefact": ("lidarcal.io", "open_artefact"),
+    "LidarModel": ("lidarcal.lidar", "LidarModel"),
+    "simulate_campaign": ("lidarcal.campaign", "simulate_campaign"),
+    "sensitivity": ("lidarcal.analysis.sensitivity", "sensitivity"),
+    "budget": ("lidarcal.analysis.budget", "budget"),
+    "make_certificate": ("lidarcal.certificate", "make_certificate"),
+    "verify": ("lidarcal.certificate", "verify_certificate"),
+    # the subpackage itself, callable as its diagnose() function (a submodule import would
+    # rebind the attribute to the package anyway)
+    "diagnose": ("lidarcal.diagnose", None),
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+
+def __getattr__(name: str):
+    """Import an entry point on first access (PEP 562)."""
+    try:
+        module, attr = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'lidarcal' has no attribute {name!r}") from None
+    value = _import_module(module)
+    if attr is not None:
+        value = getattr(value, attr)
+    globals()[name] = value  # later accesses skip __getattr__
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})
 
 try:
     __version__ = _metadata.version("lidarcal")

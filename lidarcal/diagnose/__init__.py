@@ -16,6 +16,9 @@ Example
 'zero_distance_offset'
 """
 
+import sys as _sys
+import types as _types
+
 from lidarcal.diagnose.core import DEFAULT_SEED, DiagnosisResult, diagnose
 from lidarcal.diagnose.dataset import corrected_model, summary, to_dataset
 from lidarcal.diagnose.effects import EFFECTS, Effect, Parameter, get_effect
@@ -25,6 +28,16 @@ from lidarcal.diagnose.generate import (
     generate_field_campaign,
     hidden_effect_conditions,
 )
+
+
+class _CallableModule(_types.ModuleType):
+    """The package, callable as :func:`diagnose` (so ``lidarcal.diagnose(field)`` works)."""
+
+    def __call__(self, *args, **kwargs) -> DiagnosisResult:
+        return diagnose(*args, **kwargs)
+
+
+_sys.modules[__name__].__class__ = _CallableModule
 
 __all__ = [
     "EFFECTS", "Effect", "Parameter", "get_effect", "diagnose", "DiagnosisResult", "DEFAULT_SEED",
