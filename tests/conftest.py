@@ -1,6 +1,26 @@
 import os
+import shutil
+
+import pytest
 
 # Simulation kernels are single-threaded by design; oversubscribed BLAS threads on a
 # 2-core machine are 10-100x slower (docs/performance.md).
 for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
+
+
+@pytest.fixture
+def chromium() -> tuple[str, str]:
+    """Paths of Debian's ``chromium`` and ``chromedriver`` for the browser tests.
+
+    Without them the test is skipped on a developer machine, but fails under ``CI=true``: a CI
+    run must not pass by silently skipping the only check that the HTML reports render.
+    """
+    browser, driver = shutil.which("chromium"), shutil.which("chromedriver")
+    if browser is None or driver is None:
+        missing = " and ".join(n for n, p in (("chromium", browser), ("chromedriver", driver)) if p is None)
+        message = f"{missing} not found (apt-get install chromium chromium-driver; .ci/run does it)"
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"CI=true and {message}")
+        pytest.skip(message)
+    return browser, driver

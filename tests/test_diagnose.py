@@ -5,7 +5,6 @@ import dataclasses
 import io
 import json
 import re
-import shutil
 
 import numpy as np
 import pytest
@@ -262,10 +261,7 @@ def test_simulate_reuses_the_corrected_model(zd_run, capsys):
     assert "lidarcal_lidar_model" in capsys.readouterr().err
 
 
-@pytest.mark.skipif(shutil.which("chromium") is None or shutil.which("chromedriver") is None,
-                    reason="needs Debian's chromium and chromium-driver "
-                           "(apt-get install chromium chromium-driver)")
-def test_report_renders_offline_in_chromium(zd_run):
+def test_report_renders_offline_in_chromium(zd_run, chromium):
     import time
 
     from selenium import webdriver
@@ -277,7 +273,7 @@ def test_report_renders_offline_in_chromium(zd_run):
     for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
                  "--disable-component-update", "--disable-sync", "--no-first-run"):
         opts.add_argument(flag)
-    driver = webdriver.Chrome(options=opts, service=Service(shutil.which("chromedriver")))
+    driver = webdriver.Chrome(options=opts, service=Service(chromium[1]))
     try:
         driver.get(report.as_uri())
         deadline = time.time() + 30

@@ -1,6 +1,5 @@
 """HTML report: content of the plots, offline page, PNGs, and rendering in headless Chromium."""
 
-import shutil
 import time
 
 import numpy as np
@@ -131,12 +130,7 @@ def test_report_never_overwrites(report, inputs):
     assert report.stat().st_mtime_ns == before
 
 
-@pytest.mark.skipif(
-    shutil.which("chromium") is None or shutil.which("chromedriver") is None,
-    reason="Debian packages chromium and chromium-driver are not installed "
-    "(apt-get install chromium chromium-driver; .ci/run does it)",
-)
-def test_report_renders_offline_in_headless_chromium(report):
+def test_report_renders_offline_in_headless_chromium(report, chromium):
     from selenium import webdriver
     from selenium.webdriver.chrome.options import Options
     from selenium.webdriver.chrome.service import Service
@@ -144,9 +138,9 @@ def test_report_renders_offline_in_headless_chromium(report):
     opts = Options()
     for flag in CHROMIUM_FLAGS:
         opts.add_argument(flag)
-    opts.binary_location = shutil.which("chromium")
+    opts.binary_location = chromium[0]
     opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
-    driver = webdriver.Chrome(service=Service(shutil.which("chromedriver")), options=opts)
+    driver = webdriver.Chrome(service=Service(chromium[1]), options=opts)
     try:
         # no network at all: anything the page tried to fetch would fail and be logged as SEVERE
         driver.execute_cdp_cmd("Network.enable", {})
