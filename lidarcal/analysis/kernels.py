@@ -15,6 +15,7 @@ __all__ = [
     "bin_statistics",
     "linear_regression",
     "significance",
+    "std_in_kept_bins",
     "quadrature",
 ]
 
@@ -177,6 +178,40 @@ def significance(
         sig_12 = np.abs(m_std) > threshold_12
         sig_13 = np.abs(m_std_r) > threshold_13
     return m_std, m_std_r, sig_12, sig_13
+
+
+def std_in_kept_bins(
+    x: np.ndarray, y: np.ndarray, keep: np.ndarray, edges: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Sample standard deviation (ddof = 1) of ``x`` over the pairs that fall in kept bins.
+
+    Parameters
+    ----------
+    x, y : array, shape (..., n)
+        Binning variable and values; a pair counts only if ``y`` is finite and ``x`` falls in
+        a bin of ``edges`` (same rule as :func:`bin_statistics`) whose ``keep`` is True.
+    keep : bool array, shape (..., nbins)
+        Which bins are used (e.g. those with enough samples).
+    edges : array, shape (nbins + 1,)
+
+    Returns
+    -------
+    std : float array (...)
+        NaN where fewer than two pairs count.
+    n : int array (...)
+        Number of pairs that count.
+
+    >>> std_in_kept_bins(np.array([0.1, 0.2, 1.5]), np.ones(3), np.array([True, False]),
+    ...                  np.array([0.0, 1.0, 2.0]))[1]
+    np.int64(2)
+    """
+    idx = _bin_index(x, edges)
+    k = np.take_along_axis(keep, np.maximum(idx, 0), axis=-1) & (idx >= 0) & np.isfinite(y)
+    n = k.sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = np.where(k, x, 0.0).sum(axis=-1) / n
+        ss = (np.where(k, x - m[..., None], 0.0) ** 2).sum(axis=-1)
+        return np.where(n > 1, np.sqrt(ss / (n - 1)), np.nan), n
 
 
 def quadrature(*terms: np.ndarray, axis: int | None = None) -> np.ndarray:

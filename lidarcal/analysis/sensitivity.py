@@ -32,7 +32,7 @@ import xarray as xr
 
 from lidarcal.analysis import kernels
 from lidarcal.analysis._records import STANDARD_NAMES, checked, select_heights, source_name
-from lidarcal.cf import var_attrs, with_bounds
+from lidarcal.cf import declared_attrs, with_bounds
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
 from lidarcal.units import LOG_UNITS, to_magnitude
@@ -104,6 +104,48 @@ def _range(reference_range) -> tuple[float, float]:
     return max(conv[0], 0.0), conv[1]
 
 
+#: Declared CF attributes of every output variable (applied by :func:`_assemble`).  Templates:
+#: ``{xname}`` the variable with spaces, ``{units}`` its units, ``{standard_name}`` its CF name
+#: (may be empty), ``{diff_units}`` % or m s-1, ``{slope_units}``, ``{mean_comment}``.
+_FLAG = dict(flag_values=np.array([0, 1], dtype=np.int8), flag_meanings="not_significant significant",
+             coverage_content_type="qualityInformation")
+OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
+    "mean_difference": dict(
+        long_name="mean {relative}lidar minus reference wind speed difference in bin", units="{diff_units}",
+        ancillary_variables="sample_count bin_flag", comment="{mean_comment}"),
+    "std_difference": dict(
+        long_name="standard deviation of the lidar minus reference difference in bin (ddof=1)",
+        units="{diff_units}"),
+    "sample_count": dict(long_name="number of 10-minute periods in bin", units="1",
+                         coverage_content_type="auxiliaryInformation"),
+    "variable_mean": dict(long_name="mean {xname} of the periods in bin", units="{units}",
+                          standard_name="{standard_name}"),
+    "bin_flag": dict(long_name="bin usage flag", units="1", coverage_content_type="qualityInformation",
+                     flag_values=np.array([0, 1, 2], dtype=np.int8),
+                     flag_meanings="used too_few_samples empty"),
+    "slope": dict(long_name="sensitivity slope m of the difference to {xname}", units="{slope_units}",
+                  comment="unweighted least squares of bin means on bin centres"),
+    "slope_standard_error": dict(long_name="standard error of the slope", units="{slope_units}"),
+    "intercept": dict(long_name="intercept of the sensitivity regression", units="{diff_units}"),
+    "correlation": dict(long_name="correlation coefficient R of the sensitivity regression", units="1"),
+    "variable_std": dict(long_name="standard deviation of {xname} over the periods used (ddof=1)",
+                         units="{units}"),
+    "periods_used": dict(long_name="number of periods in the bins used", units="1",
+                         coverage_content_type="auxiliaryInformation"),
+    "bins_used": dict(long_name="number of bins used in the regression", units="1",
+                      coverage_content_type="auxiliaryInformation"),
+    "slope_times_std": dict(long_name="Eq. 12 statistic m * std", units="{diff_units}"),
+    "slope_times_std_times_r": dict(long_name="Eq. 13 statistic m * std * R", units="{diff_units}"),
+    "significant_eq12": dict(long_name=f"|m * std| > {THRESHOLD_EQ12} % (Eq. 12)", units="1", **_FLAG),
+    "significant_eq13": dict(long_name=f"|m * std * R| > {THRESHOLD_EQ13} % (Eq. 13)", units="1", **_FLAG),
+    "significant": dict(long_name="sensitivity significant by Eq. 12 or Eq. 13", units="1", **_FLAG),
+    "bin": dict(long_name="centre of {xname} bin", units="{units}", standard_name="{standard_name}",
+                coverage_content_type="coordinate"),
+}
+#: Comment added to the Eq. 12-13 statistics of an absolute (m s-1) difference.
+_ABSOLUTE_COMMENT = "the thresholds of Eqs. 12-13 are in %; they do not apply here"
+
+
 def sensitivity(
     records: xr.Dataset,
     variable: str,
@@ -158,30 +200,52 @@ def sensitivity(
     min_samples = int(min_samples)
     records = select_heights(records, heights, source=source)
     x = checked(records, variable, source=source)
-    units = x.attrs["units"]
+    lo_ref, hi_ref = _range(reference_range)
+    diff = _difference(records, x, relative, lo_ref, hi_ref, source)
+    edges, width = _edges(x, diff, variable, bins, bin_width, source, (lo_ref, hi_ref))
+    fit = _fit(records, x, diff, edges, variable, min_samples, source)
+    config = {
+        "variable": variable, "variable_units": x.attrs["units"], "bin_width": width,
+        "bin_edges": edges.tolist(), "min_samples": min_samples, "relative": relative,
+        "reference_range_m_s-1": [lo_ref, None if np.isinf(hi_ref) else hi_ref],
+        "regression": "unweighted ordinary least squares of bin means on bin centres",
+        "thresholds_percent": {"eq12": THRESHOLD_EQ12, "eq13": THRESHOLD_EQ13},
+    }
+    return _assemble(records, variable, x.attrs["units"], relative, edges, fit, config, call)
+
+
+def _difference(records: xr.Dataset, x: xr.DataArray, relative: bool, lo_ref: float, hi_ref: float,
+                source: str) -> xr.DataArray:
+    """Lidar − reference (in % of the reference or m s-1), NaN outside the usable periods."""
     lidar = checked(records, "lidar_wind_speed", source=source)
     ref = checked(records, "reference_wind_speed", source=source)
-    lo_ref, hi_ref = _range(reference_range)
     use = (ref > lo_ref) & (ref <= hi_ref) & np.isfinite(lidar) & np.isfinite(x)
     diff = (100.0 * (lidar - ref) / ref) if relative else (lidar - ref)
-    diff = diff.where(use)
-    diff_units = "%" if relative else "m s-1"
+    return diff.where(use)
 
+
+def _edges(x: xr.DataArray, diff: xr.DataArray, variable: str, bins: Any, bin_width: Any, source: str,
+           ref_range: tuple[float, float]) -> tuple[np.ndarray, float | None]:
+    """Bin edges (user ``bins`` or multiples of the width over the data) and the width used."""
     if bins is not None:
         edges = np.asarray(bins, dtype=float)
         if edges.ndim != 1 or len(edges) < 2 or np.any(np.diff(edges) <= 0):
             raise InputError(f"bins must be at least two strictly increasing edges; got {edges.tolist()}")
-        width = None
-    else:
-        width = _width(variable, bin_width, units)
-        xs = x.where(np.isfinite(diff))
-        lo, hi = float(xs.min().compute()), float(xs.max().compute())
-        if not np.isfinite(lo):
-            raise InputError(
-                f"{source}: no period has finite {variable!r}, lidar_wind_speed and reference_wind_speed "
-                f"with the reference in [{lo_ref:g}, {hi_ref:g}] m s-1; nothing to bin"
-            )
-        edges = kernels.edges_from_width(lo, hi, width)
+        return edges, None
+    width = _width(variable, bin_width, x.attrs["units"])
+    xs = x.where(np.isfinite(diff))
+    lo, hi = float(xs.min().compute()), float(xs.max().compute())
+    if not np.isfinite(lo):
+        raise InputError(
+            f"{source}: no period has finite {variable!r}, lidar_wind_speed and reference_wind_speed "
+            f"with the reference in [{ref_range[0]:g}, {ref_range[1]:g}] m s-1; nothing to bin"
+        )
+    return kernels.edges_from_width(lo, hi, width), width
+
+
+def _fit(records: xr.Dataset, x: xr.DataArray, diff: xr.DataArray, edges: np.ndarray, variable: str,
+         min_samples: int, source: str) -> dict[str, Any]:
+    """Bin table, regression of the kept bin means, std of the variable and the Eqs. 12-13 tests."""
     nb = len(edges) - 1
 
     def _stats(xv, yv):
@@ -211,97 +275,60 @@ def sensitivity(
             f"periods, so no regression is possible (bins per height: "
             f"{dict(zip(map(float, records.height.values), keep.sum('bin').values.tolist(), strict=True))})"
         )
-
-    def _std_used(xv, yv, keepv):
-        idx = kernels._bin_index(xv, edges)
-        k = np.take_along_axis(keepv, np.maximum(idx, 0), axis=-1) & (idx >= 0) & np.isfinite(yv)
-        n = k.sum(axis=-1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            m = np.where(k, xv, 0.0).sum(axis=-1) / n
-            ss = (np.where(k, xv - m[..., None], 0.0) ** 2).sum(axis=-1)
-            return np.where(n > 1, np.sqrt(ss / (n - 1)), np.nan), n
-
     xstd, n_used = xr.apply_ufunc(
-        _std_used, x, diff, keep, input_core_dims=[["time"], ["time"], ["bin"]],
+        kernels.std_in_kept_bins, x, diff, keep, kwargs={"edges": edges},
+        input_core_dims=[["time"], ["time"], ["bin"]],
         output_core_dims=[[], []], dask="parallelized", output_dtypes=[float, np.int64],
         dask_gufunc_kwargs={"allow_rechunk": True},
     )
     xstd, n_used = xstd.compute().values, n_used.compute().values
     m_std, m_std_r, sig12, sig13 = kernels.significance(
         slope, xstd, r, threshold_12=THRESHOLD_EQ12, threshold_13=THRESHOLD_EQ13)
+    return {
+        "mean_difference": mean_kept.values, "std_difference": std.values,
+        "sample_count": count.values.astype(np.int32), "variable_mean": mean_x.values,
+        "bin_flag": np.where(keep.values, 0, np.where(count.values > 0, 1, 2)).astype(np.int8),
+        "slope": slope, "slope_standard_error": stderr, "intercept": intercept, "correlation": r,
+        "variable_std": xstd, "periods_used": n_used.astype(np.int32),
+        "bins_used": keep.sum("bin").values.astype(np.int32),
+        "slope_times_std": m_std, "slope_times_std_times_r": m_std_r,
+        "significant_eq12": sig12.astype(np.int8), "significant_eq13": sig13.astype(np.int8),
+        "significant": (sig12 | sig13).astype(np.int8),
+    }
 
+
+def _assemble(records: xr.Dataset, variable: str, units: str, relative: bool, edges: np.ndarray,
+              fit: Mapping[str, np.ndarray], config: dict[str, Any], call: str | None) -> xr.Dataset:
+    """Build the ``sensitivity`` artefact: ``fit`` with the attributes of :data:`OUTPUT_ATTRS`, stamped."""
     xname = variable.replace("_", " ")
-    slope_units = _per_unit(diff_units, units)
-    flag = dict(flag_values=np.array([0, 1], dtype=np.int8), flag_meanings="not_significant significant",
-                coverage_content_type="qualityInformation")
-    hd = ("height",)
-    hb = ("height", "bin")
+    diff_units = "%" if relative else "m s-1"
+    context = dict(
+        xname=xname, units=units, standard_name=STANDARD_NAMES.get(variable) or "", diff_units=diff_units,
+        slope_units=_per_unit(diff_units, units), relative="relative " if relative else "",
+        mean_comment="relative to each period's reference wind speed, then averaged" if relative else "")
+    centres = 0.5 * (edges[:-1] + edges[1:])
     ds = xr.Dataset(
-        {
-            "mean_difference": (hb, mean_kept.values, var_attrs(
-                f"mean {'relative ' if relative else ''}lidar minus reference wind speed difference in bin",
-                diff_units, ancillary_variables="sample_count bin_flag",
-                comment="relative to each period's reference wind speed, then averaged" if relative else "")),
-            "std_difference": (hb, std.values, var_attrs(
-                "standard deviation of the lidar minus reference difference in bin (ddof=1)", diff_units)),
-            "sample_count": (hb, count.values.astype(np.int32), var_attrs(
-                "number of 10-minute periods in bin", "1", coverage_content_type="auxiliaryInformation")),
-            "variable_mean": (hb, mean_x.values, var_attrs(f"mean {xname} of the periods in bin", units,
-                                                           STANDARD_NAMES.get(variable))),
-            "bin_flag": (hb, np.where(keep.values, 0, np.where(count.values > 0, 1, 2)).astype(np.int8),
-                         var_attrs("bin usage flag", "1", coverage_content_type="qualityInformation",
-                                   flag_values=np.array([0, 1, 2], dtype=np.int8),
-                                   flag_meanings="used too_few_samples empty")),
-            "slope": (hd, slope, var_attrs(f"sensitivity slope m of the difference to {xname}", slope_units,
-                                           comment="unweighted least squares of bin means on bin centres")),
-            "slope_standard_error": (hd, stderr, var_attrs("standard error of the slope", slope_units)),
-            "intercept": (hd, intercept, var_attrs("intercept of the sensitivity regression", diff_units)),
-            "correlation": (hd, r, var_attrs("correlation coefficient R of the sensitivity regression", "1")),
-            "variable_std": (hd, xstd, var_attrs(
-                f"standard deviation of {xname} over the periods used (ddof=1)", units)),
-            "periods_used": (hd, n_used.astype(np.int32), var_attrs(
-                "number of periods in the bins used", "1", coverage_content_type="auxiliaryInformation")),
-            "bins_used": (hd, keep.sum("bin").values.astype(np.int32), var_attrs(
-                "number of bins used in the regression", "1", coverage_content_type="auxiliaryInformation")),
-            "slope_times_std": (hd, m_std, var_attrs("Eq. 12 statistic m * std", diff_units)),
-            "slope_times_std_times_r": (hd, m_std_r, var_attrs("Eq. 13 statistic m * std * R", diff_units)),
-            "significant_eq12": (hd, sig12.astype(np.int8), var_attrs(
-                f"|m * std| > {THRESHOLD_EQ12} % (Eq. 12)", "1", **flag)),
-            "significant_eq13": (hd, sig13.astype(np.int8), var_attrs(
-                f"|m * std * R| > {THRESHOLD_EQ13} % (Eq. 13)", "1", **flag)),
-            "significant": (hd, (sig12 | sig13).astype(np.int8), var_attrs(
-                "sensitivity significant by Eq. 12 or Eq. 13", "1", **flag)),
-        },
-        coords={
-            "height": records["height"].variable.copy(),
-            "bin": ("bin", centres, var_attrs(f"centre of {xname} bin", units, STANDARD_NAMES.get(variable),
-                                              coverage_content_type="coordinate")),
-        },
+        {name: (("height", "bin") if np.ndim(values) == 2 else ("height",), values,
+                declared_attrs(OUTPUT_ATTRS, name, **context)) for name, values in fit.items()},
+        coords={"height": records["height"].variable.copy(),
+                "bin": ("bin", centres, declared_attrs(OUTPUT_ATTRS, "bin", **context))},
     )
     if not relative:
         for name in ("slope_times_std", "slope_times_std_times_r"):
-            ds[name].attrs["comment"] = "the thresholds of Eqs. 12-13 are in %; they do not apply here"
+            ds[name].attrs["comment"] = _ABSOLUTE_COMMENT
     ds["height"].attrs = dict(records["height"].attrs)
     ds = with_bounds(ds, "bin", edges)
-    config = {
-        "variable": variable, "variable_units": units, "bin_width": width, "bin_edges": edges.tolist(),
-        "min_samples": min_samples, "relative": relative,
-        "reference_range_m_s-1": [lo_ref, None if np.isinf(hi_ref) else hi_ref],
-        "regression": "unweighted ordinary least squares of bin means on bin centres",
-        "thresholds_percent": {"eq12": THRESHOLD_EQ12, "eq13": THRESHOLD_EQ13},
-    }
     ds.attrs = {
         "environmental_variable": variable,
         "environmental_variable_units": units,
         "difference_definition": ("100 % * (lidar_wind_speed - reference_wind_speed) / reference_wind_speed"
                                   if relative else "lidar_wind_speed - reference_wind_speed"),
         "regression_method": config["regression"] + " (scipy.stats.linregress equivalent)",
-        "min_samples": min_samples,
+        "min_samples": config["min_samples"],
         "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")),
     }
-    for key in ("lidar_serial",):
-        if key in records.attrs:
-            ds.attrs[key] = records.attrs[key]
+    if "lidar_serial" in records.attrs:
+        ds.attrs["lidar_serial"] = records.attrs["lidar_serial"]
     return stamp(
         ds, "sensitivity",
         title=f"Sensitivity of lidar wind speed to {xname}",
