@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -255,6 +256,45 @@ def simulate_campaign(
         conditions variables used, the four wind speeds, ``availability``, ``simulated``
         (0 where a period was skipped for missing input) and ``period_index``.
     """
+    camp = _prepare(conditions, model, heights, chunk, los_periods)
+    chunk = int(chunk)
+    results, tasks, bounds = _schedule(camp, model.to_dict(), base_seed, chunk, duration, workdir)
+    for name, result in _execute(tasks, scheduler, workers, progress, connect_timeout):
+        results[bounds[name][0]] = result
+    out = {name: np.concatenate([results[s][name] for s in sorted(results)], axis=0) for name in OUTPUTS}
+    los_data = {p: v for s in sorted(results) for p, v in results[s]["los"].items()}
+    ds = _assemble(camp.cond, camp.hidx, out, camp.valid, los_data)
+    return _describe(ds, camp, model, base_seed=base_seed, chunk=chunk, duration=duration,
+                     scheduler=scheduler, workers=workers, call=call, inputs=inputs)
+
+
+@dataclass(frozen=True)
+class _Campaign:
+    """The validated inputs of one campaign: what is simulated, at which heights, from which file."""
+
+    cond: xr.Dataset  # the loaded conditions (all heights)
+    path: str | None  # the conditions file, if given as a path
+    source: str  # how errors and the history name the conditions
+    hidx: np.ndarray  # indices of the simulated heights in ``cond``
+    los: list[int]  # periods whose LOS time series are kept
+    arrays: dict[str, np.ndarray]  # INPUTS at the simulated heights, (time, height)
+    valid: np.ndarray  # (time, height): complete input and wind > 0
+
+    @property
+    def z(self) -> np.ndarray:
+        return self.cond.height.values[self.hidx]
+
+    @property
+    def n(self) -> int:
+        return self.cond.sizes["time"]
+
+    @property
+    def checksum(self) -> str:
+        return self.cond.attrs["lidarcal_conditions_checksum"]
+
+
+def _prepare(conditions, model, heights, chunk, los_periods) -> _Campaign:
+    """Check the model and options against the conditions; load the inputs the chunks need."""
     from lidarcal.lidar import LidarModel
 
     if not isinstance(model, LidarModel):
@@ -263,35 +303,38 @@ def simulate_campaign(
     cond = load_conditions(conditions)
     source = path or str(cond.attrs.get("lidarcal_source_file", "<dataset>"))
     hidx = _select_heights(cond, heights, source)
-    z = cond.height.values[hidx]
-    problems = check_reachable(model, z)
+    problems = check_reachable(model, cond.height.values[hidx])
     if problems:
         raise InputError(
             f"{source}: heights the lidar cannot measure with this RWF/geometry: " + "; ".join(problems)
         )
-    chunk = int(chunk)
-    if chunk < 1:
-        raise InputError(f"chunk must be >= 1 period; got {chunk}")
+    if int(chunk) < 1:
+        raise InputError(f"chunk must be >= 1 period; got {int(chunk)}")
     n = cond.sizes["time"]
     los = sorted({int(i) for i in los_periods})
     bad = [i for i in los if not 0 <= i < n]
     if bad:
         raise InputError(f"los_periods {bad} outside the {n} periods of {source}")
-    model_dict = model.to_dict()
-    checksum = cond.attrs["lidarcal_conditions_checksum"]
     arrays = {name: cond[name].values[:, hidx] for name in INPUTS}
     # a calm period (0 m/s) is valid input but has no turbulence box to simulate: skip it too
     with np.errstate(invalid="ignore"):
         valid = cond["input_complete"].values[:, hidx].astype(bool) & (arrays["wind_speed"] > 0)
+    return _Campaign(cond=cond, path=path, source=source, hidx=hidx, los=los, arrays=arrays, valid=valid)
+
+
+def _schedule(
+    camp: _Campaign, model_dict: dict, base_seed: int, chunk: int, duration: float, workdir
+) -> tuple[dict[int, dict], list[tuple[str, dict]], dict[str, tuple[int, int]]]:
+    """Split the periods into chunks; return (cached results by start, tasks to run, task bounds)."""
     if workdir is not None:
         os.makedirs(workdir, exist_ok=True)
-
+    z = camp.z
     results: dict[int, dict] = {}
     tasks: list[tuple[str, dict]] = []
     bounds: dict[str, tuple[int, int]] = {}
-    for start in range(0, n, chunk):
-        stop = min(start + chunk, n)
-        key = chunk_key(checksum, model_dict, base_seed, start, stop, z, duration, tuple(los))
+    for start in range(0, camp.n, chunk):
+        stop = min(start + chunk, camp.n)
+        key = chunk_key(camp.checksum, model_dict, base_seed, start, stop, z, duration, tuple(camp.los))
         if workdir is not None:
             cached = load_chunk(chunk_path(workdir, start, stop, key), key, stop - start, z.size)
             if cached is not None:
@@ -299,58 +342,56 @@ def simulate_campaign(
                 continue
         name = f"lidarcal-chunk-{key[:16]}-{start}-{stop}"
         bounds[name] = (start, stop)
-        tasks.append(
-            (
-                name,
-                {
-                    "model": model_dict,
-                    "heights": z,
-                    **{k: v[start:stop] for k, v in arrays.items()},
-                    "valid": valid[start:stop],
-                    "period_index": np.arange(start, stop),
-                    "los": np.isin(np.arange(start, stop), los),
-                    "base_seed": int(base_seed),
-                    "duration": float(duration),
-                    "workdir": os.fspath(workdir) if workdir is not None else None,
-                    "key": key,
-                    "start": start,
-                    "stop": stop,
-                },
-            )
-        )
-    for name, result in _execute(tasks, scheduler, workers, progress, connect_timeout):
-        results[bounds[name][0]] = result
+        payload = {
+            "model": model_dict,
+            "heights": z,
+            **{k: v[start:stop] for k, v in camp.arrays.items()},
+            "valid": camp.valid[start:stop],
+            "period_index": np.arange(start, stop),
+            "los": np.isin(np.arange(start, stop), camp.los),
+            "base_seed": int(base_seed),
+            "duration": float(duration),
+            "workdir": os.fspath(workdir) if workdir is not None else None,
+            "key": key,
+            "start": start,
+            "stop": stop,
+        }
+        tasks.append((name, payload))
+    return results, tasks, bounds
 
-    out = {name: np.concatenate([results[s][name] for s in sorted(results)], axis=0) for name in OUTPUTS}
-    los_data = {p: v for s in sorted(results) for p, v in results[s]["los"].items()}
-    ds = _assemble(cond, hidx, out, valid, los_data)
+
+def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, chunk, duration, scheduler, workers,
+              call, inputs) -> xr.Dataset:
+    """Add the run's attributes and provenance: the ``simulated_rtd`` artefact."""
+    z, valid = camp.z, camp.valid
     ds.attrs["lidarcal_base_seed"] = int(base_seed)
     ds.attrs["lidarcal_lidar_model"] = model.to_json()
-    ds.attrs["lidarcal_conditions_checksum"] = checksum
+    ds.attrs["lidarcal_conditions_checksum"] = camp.checksum
     ds.attrs["lidarcal_skipped_count"] = int((~valid).sum())
     ds.attrs["lidarcal_filtered_count"] = int((ds["simulated"].values == 2).sum())
     config = {
-        "model": model_dict,
+        "model": model.to_dict(),
         "heights": z.tolist(),
         "chunk": chunk,
         "duration": duration,
         "scheduler": scheduler if isinstance(scheduler, str | type(None)) else "distributed.Client",
         "workers": workers,
-        "los_periods": los,
-        "conditions_checksum": checksum,
+        "los_periods": camp.los,
+        "conditions_checksum": camp.checksum,
     }
+    path, source = camp.path, camp.source
     return stamp(
         ds,
         "simulated_rtd",
         title="Simulated 10-minute records of a virtual DBS lidar and a virtual point reference",
         summary=(
-            f"Monte Carlo simulation of {n} ten-minute periods at {z.size} height(s): virtual lidar "
+            f"Monte Carlo simulation of {camp.n} ten-minute periods at {z.size} height(s): virtual lidar "
             f"({model.description}) in synthetic turbulence driven by the conditions time series, "
             f"compared with a virtual cup-like point reference."
         ),
         call=call or f"lidarcal.campaign.simulate_campaign({source!r}, base_seed={base_seed}, chunk={chunk})",
         inputs={**({"conditions": path} if path else {}), **(inputs or {})},
-        input_datasets={"conditions": cond},
+        input_datasets={"conditions": camp.cond},
         config=config,
         seeds={
             "base_seed": int(base_seed),
