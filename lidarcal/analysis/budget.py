@@ -25,7 +25,7 @@ NaN combined uncertainty.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -33,7 +33,7 @@ import xarray as xr
 
 from lidarcal.analysis import kernels
 from lidarcal.analysis._records import checked, select_heights, source_name
-from lidarcal.cf import var_attrs, with_bounds
+from lidarcal.cf import Param, declared_attrs, with_bounds
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.provenance import stamp
 from lidarcal.units import Q_, convert_values, to_magnitude
@@ -132,6 +132,43 @@ def _terms_total(
     return np.asarray(arr, dtype=float), origin
 
 
+#: Declared CF attributes of every output variable (applied by :func:`_assemble`).  Templates:
+#: ``{k}`` the coverage factor as text, ``{min_samples}``; ``Param("k")`` the factor as a number.
+OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
+    "uncertainty": dict(
+        long_name="combined standard uncertainty of the lidar wind speed (quadrature sum of contributors)",
+        units="m s-1", ancillary_variables="sample_count bin_flag"),
+    "relative_uncertainty": dict(
+        long_name="combined standard uncertainty relative to the bin mean reference wind speed", units="%"),
+    "expanded_uncertainty": dict(long_name="expanded uncertainty (k = {k})", units="m s-1",
+                                 coverage_factor=Param("coverage_factor")),
+    "relative_expanded_uncertainty": dict(
+        long_name="expanded uncertainty (k = {k}) relative to the bin mean reference wind speed", units="%",
+        coverage_factor=Param("coverage_factor")),
+    "contribution": dict(long_name="standard uncertainty contribution", units="m s-1"),
+    "relative_contribution": dict(
+        long_name="standard uncertainty contribution relative to the bin mean reference wind speed",
+        units="%"),
+    "sample_count": dict(long_name="number of 10-minute periods in bin", units="1",
+                         coverage_content_type="auxiliaryInformation"),
+    "mean_reference_wind_speed": dict(long_name="mean reference wind speed in bin", units="m s-1",
+                                      standard_name="wind_speed"),
+    "mean_lidar_wind_speed": dict(long_name="mean lidar wind speed in bin", units="m s-1",
+                                  standard_name="wind_speed"),
+    "mean_difference": dict(long_name="mean lidar minus reference wind speed", units="m s-1"),
+    "std_difference": dict(long_name="standard deviation of lidar minus reference wind speed (ddof=1)",
+                           units="m s-1"),
+    "bin_flag": dict(long_name="bin sample flag", units="1", coverage_content_type="qualityInformation",
+                     flag_values=np.array([0, 1, 2], dtype=np.int8), flag_meanings="ok thin empty",
+                     comment="thin: fewer than {min_samples} periods; empty: no period"),
+    "wind_speed": dict(long_name="centre of reference wind speed bin", units="m s-1",
+                       standard_name="wind_speed", coverage_content_type="coordinate"),
+}
+
+#: Relative (fraction of the bin mean reference speed) inputs of the IEC approach.
+_IEC_FRACTIONS = ("reference_relative_uncertainty", "mounting", "separation", "flow_inhomogeneity")
+
+
 def budget(
     records: xr.Dataset,
     *,
@@ -191,6 +228,27 @@ def budget(
         raise InputError(f"bin_width must be positive; got {bin_width!r}")
     k = float(coverage_factor)
     records = select_heights(records, heights, source=source)
+    edges, binned = _binned(records, width, source)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    config: dict[str, Any] = {"approach": approach, "bin_width_m_s-1": width, "min_samples": int(min_samples),
+                              "coverage_factor": k, "binned_by": "reference_wind_speed",
+                              "relative_to": "mean reference wind speed in the bin"}
+    if approach == "monte_carlo":
+        vref, config["virtual_reference_terms"] = _terms_total(
+            terms, centres, np.asarray(records["height"].values, dtype=float))
+        parts = _monte_carlo_parts(binned, vref)
+    else:
+        u_abs, rel = _iec_inputs(terms, reference_uncertainty, dict(zip(_IEC_FRACTIONS, (
+            reference_relative_uncertainty, mounting, separation, flow_inhomogeneity), strict=True)))
+        config.update({"reference_uncertainty_m_s-1": u_abs, **{f"{a}_fraction": b for a, b in rel.items()}})
+        parts = _iec_parts(binned, u_abs, rel)
+    contribution = np.stack([np.broadcast_to(parts[c], binned["n"].shape) for c in CONTRIBUTORS[approach]],
+                            axis=-1)
+    return _assemble(records, terms, approach, edges, binned, contribution, int(min_samples), k, config, call)
+
+
+def _binned(records: xr.Dataset, width: float, source: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Bin edges centred on multiples of ``width`` and the per-(height, bin) statistics."""
     lidar = checked(records, "lidar_wind_speed", source=source)
     ref = checked(records, "reference_wind_speed", source=source)
     ok = np.isfinite(lidar) & np.isfinite(ref)
@@ -217,77 +275,69 @@ def budget(
     n, mean_diff, std_diff, mean_ref, mean_lidar = (np.asarray(o.compute().values) for o in outs)
     with np.errstate(invalid="ignore", divide="ignore"):
         statistical = std_diff / np.sqrt(n)
-    centres = 0.5 * (edges[:-1] + edges[1:])
-    hvals = np.asarray(records["height"].values, dtype=float)
-    config: dict[str, Any] = {"approach": approach, "bin_width_m_s-1": width, "min_samples": int(min_samples),
-                              "coverage_factor": k, "binned_by": "reference_wind_speed",
-                              "relative_to": "mean reference wind speed in the bin"}
-    if approach == "monte_carlo":
-        vref, origin = _terms_total(terms, centres, hvals)
-        config["virtual_reference_terms"] = origin
-        parts = {"virtual_reference": vref, "mean_difference": np.abs(mean_diff),
-                 "std_difference": std_diff, "statistical": statistical}
-    else:
-        if terms is not None:
-            raise InputError("terms apply to the Monte Carlo approach only; the IEC approach uses "
-                             "reference_uncertainty")
-        if reference_uncertainty is None:
-            raise InputError("the IEC approach needs the reference anemometer's standard uncertainty: "
-                             "reference_uncertainty='0.1 m s-1' (--reference-uncertainty)")
-        u_abs = float(to_magnitude(reference_uncertainty, "m s-1", name="reference_uncertainty"))
-        rel = {name: _fraction(v, name) for name, v in (
-            ("reference_relative_uncertainty", reference_relative_uncertainty), ("mounting", mounting),
-            ("separation", separation), ("flow_inhomogeneity", flow_inhomogeneity))}
-        config.update({"reference_uncertainty_m_s-1": u_abs, **{f"{a}_fraction": b for a, b in rel.items()}})
-        parts = {
-            "reference_sensor": np.sqrt(u_abs**2 + (rel["reference_relative_uncertainty"] * mean_ref) ** 2),
-            "mean_difference": np.abs(mean_diff), "statistical": statistical,
-            "mounting": rel["mounting"] * mean_ref, "separation": rel["separation"] * mean_ref,
-            "flow_inhomogeneity": rel["flow_inhomogeneity"] * mean_ref,
-        }
-    names = CONTRIBUTORS[approach]
-    contribution = np.stack([np.broadcast_to(parts[c], n.shape) for c in names], axis=-1)
+    return edges, {"n": n, "mean_difference": mean_diff, "std_difference": std_diff,
+                   "mean_reference": mean_ref, "mean_lidar": mean_lidar, "statistical": statistical}
+
+
+def _monte_carlo_parts(binned: Mapping[str, np.ndarray], vref: np.ndarray) -> dict[str, np.ndarray]:
+    """Contributors of the SAFO-MV + virtual lidar approach (m s-1)."""
+    return {"virtual_reference": vref, "mean_difference": np.abs(binned["mean_difference"]),
+            "std_difference": binned["std_difference"], "statistical": binned["statistical"]}
+
+
+def _iec_inputs(terms: xr.Dataset | None, reference_uncertainty: Any,
+                fractions: Mapping[str, Any]) -> tuple[float, dict[str, float]]:
+    """Check the IEC approach's inputs; return u_abs (m s-1) and the relative terms (fractions)."""
+    if terms is not None:
+        raise InputError("terms apply to the Monte Carlo approach only; the IEC approach uses "
+                         "reference_uncertainty")
+    if reference_uncertainty is None:
+        raise InputError("the IEC approach needs the reference anemometer's standard uncertainty: "
+                         "reference_uncertainty='0.1 m s-1' (--reference-uncertainty)")
+    u_abs = float(to_magnitude(reference_uncertainty, "m s-1", name="reference_uncertainty"))
+    return u_abs, {name: _fraction(v, name) for name, v in fractions.items()}
+
+
+def _iec_parts(binned: Mapping[str, np.ndarray], u_abs: float,
+               rel: Mapping[str, float]) -> dict[str, np.ndarray]:
+    """Contributors of the IEC field approach (m s-1); relative terms scale with the bin mean reference."""
+    mean_ref = binned["mean_reference"]
+    return {
+        "reference_sensor": np.sqrt(u_abs**2 + (rel["reference_relative_uncertainty"] * mean_ref) ** 2),
+        "mean_difference": np.abs(binned["mean_difference"]), "statistical": binned["statistical"],
+        "mounting": rel["mounting"] * mean_ref, "separation": rel["separation"] * mean_ref,
+        "flow_inhomogeneity": rel["flow_inhomogeneity"] * mean_ref,
+    }
+
+
+def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edges: np.ndarray,
+              binned: Mapping[str, np.ndarray], contribution: np.ndarray, min_samples: int, k: float,
+              config: dict[str, Any], call: str | None) -> xr.Dataset:
+    """Build the ``uncertainty_budget`` artefact with the attributes of :data:`OUTPUT_ATTRS`, stamped."""
+    n, names = binned["n"], CONTRIBUTORS[approach]
     combined = kernels.quadrature(contribution, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        pct = 100.0 / mean_ref
-    flag = np.where(n >= int(min_samples), 0, np.where(n > 0, 1, 2)).astype(np.int8)
-
-    hw = ("height", "wind_speed")
-    hwc = (*hw, "contributor")
+        pct = 100.0 / binned["mean_reference"]
+    hw, hwc = ("height", "wind_speed"), ("height", "wind_speed", "contributor")
+    values = {
+        "uncertainty": (hw, combined), "relative_uncertainty": (hw, combined * pct),
+        "expanded_uncertainty": (hw, k * combined), "relative_expanded_uncertainty": (hw, k * combined * pct),
+        "contribution": (hwc, contribution), "relative_contribution": (hwc, contribution * pct[..., None]),
+        "sample_count": (hw, n.astype(np.int32)),
+        "mean_reference_wind_speed": (hw, binned["mean_reference"]),
+        "mean_lidar_wind_speed": (hw, binned["mean_lidar"]),
+        "mean_difference": (hw, binned["mean_difference"]),
+        "std_difference": (hw, binned["std_difference"]),
+        "bin_flag": (hw, np.where(n >= min_samples, 0, np.where(n > 0, 1, 2)).astype(np.int8)),
+    }
+    context = {"k": f"{k:g}", "coverage_factor": k, "min_samples": min_samples}
     ds = xr.Dataset(
-        {
-            "uncertainty": (hw, combined, var_attrs(
-                "combined standard uncertainty of the lidar wind speed (quadrature sum of contributors)",
-                "m s-1", ancillary_variables="sample_count bin_flag")),
-            "relative_uncertainty": (hw, combined * pct, var_attrs(
-                "combined standard uncertainty relative to the bin mean reference wind speed", "%")),
-            "expanded_uncertainty": (hw, k * combined, var_attrs(
-                f"expanded uncertainty (k = {k:g})", "m s-1", coverage_factor=k)),
-            "relative_expanded_uncertainty": (hw, k * combined * pct, var_attrs(
-                f"expanded uncertainty (k = {k:g}) relative to the bin mean reference wind speed", "%",
-                coverage_factor=k)),
-            "contribution": (hwc, contribution, var_attrs("standard uncertainty contribution", "m s-1")),
-            "relative_contribution": (hwc, contribution * pct[..., None], var_attrs(
-                "standard uncertainty contribution relative to the bin mean reference wind speed", "%")),
-            "sample_count": (hw, n.astype(np.int32), var_attrs(
-                "number of 10-minute periods in bin", "1", coverage_content_type="auxiliaryInformation")),
-            "mean_reference_wind_speed": (hw, mean_ref, var_attrs(
-                "mean reference wind speed in bin", "m s-1", "wind_speed")),
-            "mean_lidar_wind_speed": (hw, mean_lidar, var_attrs("mean lidar wind speed in bin", "m s-1",
-                                                                 "wind_speed")),
-            "mean_difference": (hw, mean_diff, var_attrs("mean lidar minus reference wind speed", "m s-1")),
-            "std_difference": (hw, std_diff, var_attrs(
-                "standard deviation of lidar minus reference wind speed (ddof=1)", "m s-1")),
-            "bin_flag": (hw, flag, var_attrs(
-                "bin sample flag", "1", coverage_content_type="qualityInformation",
-                flag_values=np.array([0, 1, 2], dtype=np.int8), flag_meanings="ok thin empty",
-                comment=f"thin: fewer than {int(min_samples)} periods; empty: no period")),
-        },
+        {name: (dims, data, declared_attrs(OUTPUT_ATTRS, name, **context))
+         for name, (dims, data) in values.items()},
         coords={
             "height": records["height"].variable.copy(),
-            "wind_speed": ("wind_speed", centres, var_attrs(
-                "centre of reference wind speed bin", "m s-1", "wind_speed",
-                coverage_content_type="coordinate")),
+            "wind_speed": ("wind_speed", 0.5 * (edges[:-1] + edges[1:]),
+                           declared_attrs(OUTPUT_ATTRS, "wind_speed", **context)),
             "contributor": ("contributor", np.array(names, dtype=object), {
                 "long_name": "uncertainty contributor",
                 "description": "; ".join(f"{c}: {_CONTRIBUTOR_NAMES[c]}" for c in names)}),
@@ -295,13 +345,10 @@ def budget(
     )
     ds["height"].attrs = dict(records["height"].attrs)
     ds = with_bounds(ds, "wind_speed", edges)
-    ds.attrs = {"approach": approach, "coverage_factor": k, "min_samples": int(min_samples),
+    ds.attrs = {"approach": approach, "coverage_factor": k, "min_samples": min_samples,
                 "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown"))}
     if "lidar_serial" in records.attrs:
         ds.attrs["lidar_serial"] = records.attrs["lidar_serial"]
-    inputs = {"records": records}
-    if terms is not None:
-        inputs["terms"] = terms
     title = {"monte_carlo": "SAFO-MV and Monte Carlo", "iec": "IEC 61400-50-2 field"}[approach]
     return stamp(
         ds, "uncertainty_budget",
@@ -309,5 +356,5 @@ def budget(
         summary=("Standard uncertainty contributors per height and 0.5 m/s reference wind speed bin, "
                  "combined in quadrature, in m/s and %, with the expanded uncertainty (paper section 3.4)."),
         call=call or f"lidarcal.analysis.budget(records, approach={approach!r})",
-        input_datasets=inputs, config=config,
+        input_datasets={"records": records, **({"terms": terms} if terms is not None else {})}, config=config,
     )
