@@ -27,7 +27,8 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.errors import InputError, MissingVariableError
-from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes
+from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes, trapezoid_weights
+from lidarcal.rwf.kernels import barycenter
 from lidarcal.units import convert_variable
 
 __all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD"]
@@ -339,7 +340,7 @@ def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
     if "zero_distance" in rwf.variables:
         zd = float(convert_variable(rwf, "zero_distance", "m", source=src).values)
     else:
-        zd = float(np.trapezoid(g * s, s) / np.trapezoid(g, s))
+        zd = float(barycenter(g * trapezoid_weights(s), s))  # trapezoid rule on a non-uniform table
     try:
         nodes, weights = gauss_rwf_nodes(s, g, n_nodes)
     except ValueError as exc:

@@ -15,21 +15,22 @@ points per height instead of hundreds.
 
 Eq. 2 (CNR weighting) multiplies the RWF by ``10^(CNR(s)/20)`` with
 ``CNR(s) = CNR_0 + g s``; :func:`cnr_weights` applies that factor to the node weights and
-renormalises (the factor is smooth, so the same nodes stay accurate).
+renormalises (the factor is smooth, so the same nodes stay accurate); the factor itself is
+:func:`lidarcal.rwf.kernels.cnr_weighted_rwf`, shared with the tabulated RWF.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["gauss_hermite_rwf", "gauss_rwf_nodes", "cnr_weights", "gaussian_rwf_sigma"]
+from lidarcal.rwf.kernels import FWHM_PER_SIGMA, cnr_weighted_rwf
 
-_FWHM_PER_SIGMA = 2.0 * np.sqrt(2.0 * np.log(2.0))
+__all__ = ["gauss_hermite_rwf", "gauss_rwf_nodes", "cnr_weights", "gaussian_rwf_sigma", "trapezoid_weights"]
 
 
 def gaussian_rwf_sigma(fwhm: float) -> float:
     """Return the standard deviation (m) of a Gaussian RWF with full width at half maximum ``fwhm`` (m)."""
-    return float(fwhm) / _FWHM_PER_SIGMA
+    return float(fwhm) / FWHM_PER_SIGMA
 
 
 def gauss_hermite_rwf(fwhm: float, n_nodes: int = 5) -> tuple[np.ndarray, np.ndarray]:
@@ -52,11 +53,7 @@ def gauss_rwf_nodes(offsets: np.ndarray, rwf: np.ndarray, n_nodes: int = 5) -> t
         raise ValueError(f"offsets and rwf must be 1-D of equal length >= 2; got {s.shape}, {g.shape}")
     if np.any(np.diff(s) <= 0):
         raise ValueError("RWF offsets must be strictly increasing")
-    ds = np.diff(s)
-    trap = np.zeros_like(s)
-    trap[:-1] += ds / 2.0
-    trap[1:] += ds / 2.0
-    mu = g * trap
+    mu = g * trapezoid_weights(s)
     if np.count_nonzero(mu > 0) < n_nodes:
         raise ValueError(f"the RWF has fewer than {n_nodes} positive samples; cannot build {n_nodes} nodes")
     total = mu.sum()
@@ -85,8 +82,17 @@ def cnr_weights(offsets: np.ndarray, weights: np.ndarray, cnr_gradient: np.ndarr
     """Node weights of the CNR-weighted RWF (Eq. 2), ``(..., K)`` for gradients of shape ``(...)``.
 
     ``w_k ∝ w_k^0 10^(scale * g * s_k / 20)`` with ``g`` in dB m-1 and ``s_k`` in m, normalised to
-    sum 1.  ``scale = 0`` returns the unweighted RWF; ``scale = 1`` is Eq. 2 as written.
+    sum 1.  ``scale = 0`` returns the unweighted RWF; ``scale = 1`` is Eq. 2 as written.  The
+    factor is :func:`lidarcal.rwf.kernels.cnr_weighted_rwf` (the one implementation of Eq. 2).
     """
-    g = np.asarray(cnr_gradient, dtype=float)[..., None]
-    w = np.asarray(weights, dtype=float) * 10.0 ** (scale * g * np.asarray(offsets, float) / 20.0)
-    return w / w.sum(axis=-1, keepdims=True)
+    return cnr_weighted_rwf(weights, offsets, cnr_gradient, dz=1.0, scale=scale, axis=-1)
+
+
+def trapezoid_weights(offsets: np.ndarray) -> np.ndarray:
+    """Trapezoid-rule node weights (m) of the grid ``offsets``: ``sum(f * w)`` = ``trapezoid(f, offsets)``."""
+    s = np.asarray(offsets, dtype=float)
+    ds = np.diff(s)
+    trap = np.zeros_like(s)
+    trap[:-1] += ds / 2.0
+    trap[1:] += ds / 2.0
+    return trap

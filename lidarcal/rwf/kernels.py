@@ -31,7 +31,6 @@ __all__ = [
     "FWHM_PER_SIGMA",
     "range_sample_spacing",
     "range_grid",
-    "gaussian_pulse",
     "two_sided_gaussian_pulse",
     "two_sided_sigmas",
     "sampled_pulse",
@@ -58,12 +57,6 @@ def range_grid(half_width: float, resolution: float) -> np.ndarray:
     """Odd-length uniform grid ``[-half_width, half_width]`` with 0 exactly at its centre."""
     n = int(np.ceil(half_width / resolution))
     return np.arange(-n, n + 1, dtype=float) * resolution
-
-
-def gaussian_pulse(z: np.ndarray, fwhm: float, offset: float = 0.0) -> np.ndarray:
-    """Gaussian pulse envelope (peak 1) of FWHM ``fwhm`` centred at ``offset``."""
-    sigma = fwhm / FWHM_PER_SIGMA
-    return np.exp(-0.5 * ((np.asarray(z) - offset) / sigma) ** 2)
 
 
 def two_sided_sigmas(fwhm: float, asymmetry: float) -> tuple[float, float]:
@@ -162,16 +155,43 @@ def rwf_from_pulse(pulse: np.ndarray, window: np.ndarray, dz: float) -> np.ndarr
     return _normalise(np.clip(rwf, 0.0, None), dz)
 
 
-def cnr_weighted_rwf(rwf: np.ndarray, z: np.ndarray, cnr_gradient: np.ndarray, dz: float) -> np.ndarray:
-    """Eq. 2: ``RWF(z) 10^(CNR(z)/20)`` with ``CNR(z) = g z``, renormalised, shape (z, g).
+#: Largest |exponent| (decades) of the Eq. 2 factor evaluated without a shift: 10^100 leaves
+#: 200 decades of headroom for the RWF values and their sum before a float64 overflows.
+_MAX_DECADES = 100.0
 
-    The factor is evaluated as ``exp(k z - max(k z))`` with ``k = g ln 10 / 20`` so that
-    steep gradients cannot overflow; the constant cancels in the renormalisation.
+
+def cnr_weighted_rwf(rwf: np.ndarray, z: np.ndarray, cnr_gradient: np.ndarray, dz: float = 1.0,
+                     scale: float = 1.0, axis: int = 0) -> np.ndarray:
+    """Eq. 2: ``RWF(z) 10^(scale g z / 20)`` with ``CNR(z) = CNR_0 + g z``, renormalised.
+
+    The one implementation of Eq. 2, used for the tabulated RWF (:mod:`lidarcal.rwf.dataset`,
+    ``axis=0``: result ``(z, *g.shape)``, unit integral with grid spacing ``dz``) and for the
+    virtual lidar's quadrature nodes (:mod:`lidarcal.lidar.quadrature`, ``axis=-1``: result
+    ``(*g.shape, K)``, ``dz = 1`` so the weights sum to 1).  ``rwf`` and ``z`` are 1-D of equal
+    length, ``g`` in dB m-1 has any shape; ``scale = 0`` returns the unweighted RWF.
+
+    Overflow guard: where the largest exponent along ``axis`` exceeds ``_MAX_DECADES`` in
+    magnitude it is subtracted before ``10**`` (the constant cancels in the renormalisation);
+    elsewhere the factor is evaluated as written, so moderate gradients give the same bits
+    with or without the guard.
     """
-    k = np.asarray(cnr_gradient, dtype=float)[None, :] * np.log(10.0) / 20.0
-    kz = k * np.asarray(z, dtype=float)[:, None]
-    w = rwf[:, None] * np.exp(kz - kz.max(axis=0, keepdims=True))
-    return _normalise(w, dz)
+    w0 = np.asarray(rwf, dtype=float)
+    s = np.asarray(z, dtype=float)
+    g = np.asarray(cnr_gradient, dtype=float)
+    if axis == 0:
+        shape = (-1,) + (1,) * g.ndim
+        w0, s, g = w0.reshape(shape), s.reshape(shape), g[None, ...]
+    elif axis == -1:
+        g = g[..., None]
+    else:
+        raise ValueError(f"axis must be 0 or -1; got {axis}")
+    decades = scale * g * s / 20.0
+    top = np.max(decades, axis=axis, keepdims=True)
+    shift = np.abs(top) > _MAX_DECADES
+    if np.any(shift):
+        decades = decades - np.where(shift, top, 0.0)
+    w = w0 * 10.0 ** decades
+    return _normalise(w, dz, axis=axis)
 
 
 def barycenter(weights: np.ndarray, z: np.ndarray) -> np.ndarray:
