@@ -15,6 +15,7 @@ from lidarcal.bench.grid import CNR_EDGES, CNR_NODES, LOS_LABELS, VELOCITY_NODES
 from lidarcal.bench.ingest import build_cube, ingest
 from lidarcal.bench.response import TrueResponse
 from lidarcal.bench.simulator import simulate_run
+from lidarcal.binning import group_statistics
 from lidarcal.errors import InputError, UnitError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.schema import validate_dataset
@@ -69,7 +70,7 @@ def test_group_kernels_match_numpy(pairs):
     groups = np.array([g for g, _ in pairs])
     values = np.array([v for _, v in pairs])
     med = kernels.group_median(values, groups, 6)
-    count, mean, std = kernels.binned_stats(values, groups, 6)
+    count, mean, std = group_statistics(values, groups, 6)
     for g in range(6):
         sel = values[groups == g]
         assert count[g] == sel.size

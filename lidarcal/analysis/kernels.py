@@ -1,4 +1,7 @@
-"""Pure numpy kernels of the analysis stage: binning, regression, significance, quadrature.
+"""Pure numpy kernels of the analysis stage: bin edges, regression, significance, quadrature.
+
+Binning itself (``bin_statistics``) is :func:`lidarcal.binning.binned_statistics`, the engine
+shared with the bench and diagnose stages, re-exported here under the analysis stage's name.
 
 Nothing here knows about files, xarray or units: arguments are plain float arrays in SI
 (or the caller's) units.  Functions that take data arrays work over the **last** axis and
@@ -8,6 +11,9 @@ broadcast over any leading axes, so the dataset layer can hand them ``(..., time
 from __future__ import annotations
 
 import numpy as np
+
+from lidarcal.binning import bin_index
+from lidarcal.binning import binned_statistics as bin_statistics  # the one binning engine
 
 __all__ = [
     "edges_from_width",
@@ -50,70 +56,6 @@ def centred_edges(lo: float, hi: float, width: float) -> np.ndarray:
     first = np.floor(lo / width + 0.5 + 1e-9)
     last = np.floor(hi / width + 0.5 + 1e-9)
     return (np.arange(first, last + 2) - 0.5) * width
-
-
-def _bin_index(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Bin index of every ``x`` (``-1`` outside or NaN); bins are ``[e_i, e_i+1)``."""
-    idx = np.searchsorted(edges, x, side="right") - 1
-    nbins = len(edges) - 1
-    idx = np.where((idx >= 0) & (idx < nbins), idx, -1)
-    return np.where(np.isnan(x), -1, idx)
-
-
-def bin_statistics(
-    x: np.ndarray, y: np.ndarray, edges: np.ndarray, *, ddof: int = 1
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Per-bin count, mean and standard deviation of ``y`` binned by ``x``.
-
-    Parameters
-    ----------
-    x, y : array, shape (..., n)
-        Binning variable and values; a pair is used only if both are finite.
-    edges : array, shape (nbins + 1,)
-        Increasing bin edges; bin *i* is ``[edges[i], edges[i+1])``; values outside are ignored.
-    ddof : int
-        Delta degrees of freedom of the standard deviation (1: sample std).
-
-    Returns
-    -------
-    count : int array (..., nbins)
-    mean_y, std_y, mean_x : float arrays (..., nbins)
-        NaN where a bin is empty (``std_y`` also where ``count <= ddof``).
-
-    Examples
-    --------
-    >>> x, y = np.array([0.1, 0.2, 1.5]), np.array([1., 3., 5.])
-    >>> n, m, s, mx = bin_statistics(x, y, np.array([0., 1., 2.]))
-    >>> n.tolist(), m.tolist(), mx.tolist()
-    ([2, 1], [2.0, 5.0], [0.15000000000000002, 1.5])
-    """
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    x, y = np.broadcast_arrays(x, y)
-    edges = np.asarray(edges, dtype=float)
-    nbins = len(edges) - 1
-    lead = x.shape[:-1]
-    nrow = int(np.prod(lead)) if lead else 1
-    x2 = x.reshape(nrow, -1)
-    y2 = y.reshape(nrow, -1)
-    idx = _bin_index(x2, edges)
-    idx = np.where(np.isfinite(y2), idx, -1)
-    ok = idx >= 0
-    flat = (np.arange(nrow)[:, None] * nbins + idx)[ok]
-    size = nrow * nbins
-    count = np.bincount(flat, minlength=size).astype(np.int64)
-    sum_y = np.bincount(flat, weights=y2[ok], minlength=size)
-    sum_x = np.bincount(flat, weights=x2[ok], minlength=size)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean_y = sum_y / count
-        mean_x = sum_x / count
-        # two-pass variance: subtract the bin mean first (no catastrophic cancellation)
-        dev = y2[ok] - mean_y[flat]
-        ss = np.bincount(flat, weights=dev * dev, minlength=size)
-        std_y = np.sqrt(ss / (count - ddof))
-    std_y = np.where(count > ddof, std_y, np.nan)
-    shape = (*lead, nbins)
-    return count.reshape(shape), mean_y.reshape(shape), std_y.reshape(shape), mean_x.reshape(shape)
 
 
 def linear_regression(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -189,7 +131,7 @@ def std_in_kept_bins(
     ----------
     x, y : array, shape (..., n)
         Binning variable and values; a pair counts only if ``y`` is finite and ``x`` falls in
-        a bin of ``edges`` (same rule as :func:`bin_statistics`) whose ``keep`` is True.
+        a bin of ``edges`` (the rule of :mod:`lidarcal.binning`) whose ``keep`` is True.
     keep : bool array, shape (..., nbins)
         Which bins are used (e.g. those with enough samples).
     edges : array, shape (nbins + 1,)
@@ -205,7 +147,7 @@ def std_in_kept_bins(
     ...                  np.array([0.0, 1.0, 2.0]))[1]
     np.int64(2)
     """
-    idx = _bin_index(x, edges)
+    idx = bin_index(x, edges)
     k = np.take_along_axis(keep, np.maximum(idx, 0), axis=-1) & (idx >= 0) & np.isfinite(y)
     n = k.sum(axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -47,6 +47,7 @@ from lidarcal.bench.grid import (
     VELOCITY_NODES,
     grid_index,
 )
+from lidarcal.binning import group_statistics
 from lidarcal.cf import var_attrs, with_bounds
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
@@ -132,8 +133,8 @@ def build_cube(
     keep = kernels.reject_outliers(residual, cell, n_cells, rule=outlier_rule, k=outlier_k,
                                    threshold=outlier_threshold, min_scale=min_scale)
     status[cand[~keep]] = kernels.REJECTED
-    count, mean, std = kernels.binned_stats(residual[keep], cell[keep], n_cells)
-    _, cnr_mean, _ = kernels.binned_stats(rtd.cnr[cand][keep], cell[keep], n_cells)
+    count, mean, std = group_statistics(residual[keep], cell[keep], n_cells)
+    _, cnr_mean, _ = group_statistics(rtd.cnr[cand][keep], cell[keep], n_cells)
     rejected = np.bincount(cell[~keep], minlength=n_cells)
     tally = np.bincount(status, minlength=5)
     counts = {"records_total": len(rtd), "records_outside_bins": int(tally[kernels.OUTSIDE]),

@@ -1,4 +1,7 @@
-"""Pure numpy kernels of the bench stage: matching samples to bins, robust rejection, binning.
+"""Pure numpy kernels of the bench stage: matching samples to bins, robust rejection.
+
+Per-cell statistics go through :func:`lidarcal.binning.group_statistics`, the engine shared
+with the analysis and diagnose stages.
 
 No files, no xarray, no units: times are int64 nanoseconds, velocities m s-1, CNR dB.
 Everything is vectorised (``searchsorted``, ``lexsort``, ``bincount``); nothing loops over
@@ -11,7 +14,7 @@ import numpy as np
 
 __all__ = [
     "USED", "OUTSIDE", "TRANSITION", "LOS_MISMATCH", "REJECTED",
-    "match_to_bins", "group_median", "reject_outliers", "binned_stats", "between_run_stats",
+    "match_to_bins", "group_median", "reject_outliers", "between_run_stats",
 ]
 
 #: Sample status codes returned by :func:`match_to_bins` / set by :func:`reject_outliers`.
@@ -82,20 +85,6 @@ def reject_outliers(
     dev = np.abs(residual - center)
     scale = 1.4826 * group_median(dev, cell, n_cells)[cell]
     return dev <= k * np.maximum(scale, min_scale)
-
-
-def binned_stats(
-    values: np.ndarray, cell: np.ndarray, n_cells: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-cell count, mean and standard deviation (ddof=1; two-pass, NaN where undefined)."""
-    count = np.bincount(cell, minlength=n_cells)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.bincount(cell, weights=values, minlength=n_cells) / count
-        sq = np.bincount(cell, weights=(values - mean[cell]) ** 2, minlength=n_cells)
-        std = np.sqrt(sq / (count - 1))
-    mean[count == 0] = np.nan
-    std[count < 2] = np.nan
-    return count, mean, std
 
 
 def between_run_stats(

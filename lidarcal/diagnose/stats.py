@@ -21,6 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats as _st
 
+from lidarcal.binning import binned_statistics
+
 __all__ = [
     "relative_difference", "bin_edges", "binned_means", "BinnedResiduals", "bin_residuals",
     "holm", "disagreement_tests", "gap", "GAP_METRIC",
@@ -55,30 +57,16 @@ def bin_edges(x: np.ndarray, n_bins: int) -> np.ndarray:
     return edges
 
 
-def _bin_index(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
-    """Bin of each value (last edge inclusive); −1 for NaN or out of range."""
-    idx = np.searchsorted(edges, x, side="right") - 1
-    idx = np.where(x == edges[-1], edges.size - 2, idx)
-    idx[~np.isfinite(x) | (idx < 0) | (idx > edges.size - 2)] = -1
-    return idx
-
-
 def binned_means(r: np.ndarray, x: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Per bin of ``x`` (1-D arrays): count, mean of ``r``, its standard error, mean of ``x``."""
-    nb = edges.size - 1
-    ok = np.isfinite(r) & np.isfinite(x)
-    idx = _bin_index(np.where(ok, x, np.nan), edges)
-    use = idx >= 0
-    count = np.bincount(idx[use], minlength=nb).astype(float)
-    s1 = np.bincount(idx[use], weights=r[use], minlength=nb)
-    s2 = np.bincount(idx[use], weights=r[use] ** 2, minlength=nb)
-    sx = np.bincount(idx[use], weights=x[use], minlength=nb)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        mean = s1 / count
-        var = (s2 - count * mean**2) / (count - 1)
-        se = np.sqrt(np.maximum(var, 0.0) / count)
-        xmean = sx / count
-    return count, mean, se, xmean
+    """Per bin of ``x`` (1-D arrays): count, mean of ``r``, its standard error, mean of ``x``.
+
+    Bins, missing values and the (two-pass) variance are those of :mod:`lidarcal.binning`; the
+    last bin includes ``edges[-1]``, the largest value when ``edges`` are quantiles of ``x``.
+    """
+    count, mean, std, xmean = binned_statistics(x, r, edges)
+    with np.errstate(invalid="ignore"):
+        se = std / np.sqrt(count)
+    return count.astype(float), mean, se, xmean
 
 
 @dataclass
