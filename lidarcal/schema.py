@@ -5,6 +5,22 @@ Each artefact kind has one YAML file in ``schemas/`` (shipped inside the package
 whether NaN is allowed, physical range) and its required global attributes.  The validator
 never stops at the first problem: it collects them all, each naming the source, the
 variable, what was expected and what was found.
+
+A variable is declared once.  A schema that carries variables declared in another one
+(the six conditions variables, the measured wind-speed pair) copies their specs with an
+``include`` entry instead of repeating them::
+
+    include:
+      - from: conditions          # schema kind whose own variables are copied
+        into: coordinates         # or variables (the default)
+        only: [wind_speed, cnr]   # a subset (default: all of them, in their order)
+        name: "{name}_bin_lower"  # name template (default "{name}")
+        keep: [units, range]      # spec keys copied (default: all)
+        set: {dims: ["{name}"]}   # keys set on every copy; "{name}" is replaced in strings
+
+``long_name`` and ``standard_name`` in a spec are metadata, not checks; keeping
+``standard_name`` in an include turns it into a required ``standard_name`` attribute.  A spec
+the including schema writes itself under the same name is merged over the copy (its keys win).
 """
 
 from __future__ import annotations
@@ -20,7 +36,7 @@ import yaml
 from lidarcal.errors import InputError, ValidationError
 from lidarcal.units import LOG_UNITS, _parse
 
-__all__ = ["load_schema", "list_kinds", "validate_dataset", "COMMON_ATTRIBUTES"]
+__all__ = ["load_schema", "declared_variables", "list_kinds", "validate_dataset", "COMMON_ATTRIBUTES"]
 
 #: Global attributes every artefact written by lidarcal must carry.
 COMMON_ATTRIBUTES = (
@@ -43,18 +59,90 @@ def list_kinds() -> list[str]:
     return sorted(p.name[:-5] for p in _schema_dir().iterdir() if p.name.endswith(".yaml"))
 
 
+#: Keys an ``include`` entry may have.
+_INCLUDE_KEYS = {"from", "into", "only", "name", "keep", "set"}
+#: Spec keys that describe a variable without being checked.
+_METADATA_KEYS = ("long_name", "standard_name")
+
+
 @functools.cache
-def load_schema(kind: str) -> dict[str, Any]:
-    """Load and sanity-check the schema of artefact ``kind``."""
+def _read_schema(kind: str) -> dict[str, Any]:
+    """Read the YAML of ``kind`` as written (includes not resolved) and sanity-check it."""
     path = _schema_dir() / f"{kind}.yaml"
     if not path.is_file():
         raise InputError(f"unknown artefact kind {kind!r}; known kinds: {', '.join(list_kinds())}")
     schema = yaml.safe_load(path.read_text())
-    for key in ("kind", "description", "dims", "coordinates", "variables"):
+    for key in ("kind", "description", "dims"):
         if key not in schema:
             raise InputError(f"schema {path.name}: missing top-level key {key!r}")
     if schema["kind"] != kind:
         raise InputError(f"schema {path.name}: declares kind {schema['kind']!r}")
+    return schema
+
+
+def declared_variables(kind: str) -> dict[str, dict[str, Any]]:
+    """Return the variable specs schema ``kind`` writes itself (not those it includes), in order."""
+    return {name: dict(spec or {}) for name, spec in (_read_schema(kind).get("variables") or {}).items()}
+
+
+def _substitute(value: Any, name: str) -> Any:
+    if isinstance(value, str):
+        return value.replace("{name}", name)
+    if isinstance(value, list):
+        return [_substitute(v, name) for v in value]
+    if isinstance(value, dict):
+        return {k: _substitute(v, name) for k, v in value.items()}
+    return value
+
+
+def _included(entry: dict[str, Any], where: str) -> tuple[str, dict[str, dict[str, Any]]]:
+    """Resolve one ``include`` entry to (section, {name: spec})."""
+    unknown = set(entry) - _INCLUDE_KEYS
+    if "from" not in entry or unknown:
+        raise InputError(f"schema {where}: include entry {entry!r} needs 'from' and may only have "
+                         f"{sorted(_INCLUDE_KEYS)}; found {sorted(entry)}")
+    into = entry.get("into", "variables")
+    if into not in ("variables", "coordinates"):
+        raise InputError(f"schema {where}: include 'into' is {into!r}; expected 'variables' or 'coordinates'")
+    source = declared_variables(entry["from"])
+    only = entry.get("only", list(source))
+    missing = [n for n in only if n not in source]
+    if missing:
+        raise InputError(f"schema {where}: include from {entry['from']!r} names {missing}, which "
+                         f"{entry['from']}.yaml does not declare; it declares {list(source)}")
+    keep, out = entry.get("keep"), {}
+    for name in only:
+        spec = {k: v for k, v in source[name].items() if keep is None or k in keep}
+        std = spec.pop("standard_name", None) if keep is not None else None
+        for key in _METADATA_KEYS:
+            spec.pop(key, None)
+        if std is not None:
+            spec["attributes"] = {**spec.get("attributes", {}), "standard_name": std}
+        spec.update(_substitute(entry.get("set") or {}, name))
+        out[entry.get("name", "{name}").replace("{name}", name)] = spec
+    return into, out
+
+
+@functools.cache
+def load_schema(kind: str) -> dict[str, Any]:
+    """Load the schema of artefact ``kind`` with its ``include`` entries resolved.
+
+    Specs carry only checks: ``long_name`` / ``standard_name`` metadata are in
+    :func:`declared_variables`.
+    """
+    raw = _read_schema(kind)
+    schema = {k: v for k, v in raw.items() if k != "include"}
+    sections: dict[str, dict[str, Any]] = {"coordinates": {}, "variables": {}}
+    for entry in raw.get("include") or []:
+        into, specs = _included(entry, f"{kind}.yaml")
+        sections[into].update(specs)
+    for section in sections:
+        for name, spec in (raw.get(section) or {}).items():
+            own = {k: v for k, v in (spec or {}).items() if k not in _METADATA_KEYS}
+            sections[section][name] = {**sections[section].get(name, {}), **own}
+        if section not in raw and not sections[section]:
+            raise InputError(f"schema {kind}.yaml: missing top-level key {section!r}")
+        schema[section] = sections[section]
     return schema
 
 

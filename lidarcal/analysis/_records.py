@@ -9,25 +9,22 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
+from lidarcal.conditions.variables import CANONICAL_UNITS as _VARIABLE_UNITS
+from lidarcal.conditions.variables import CONDITIONS
+from lidarcal.conditions.variables import STANDARD_NAMES as _STANDARD_NAMES
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.units import LOG_UNITS, convert_values
 
-#: Canonical units of the variables an analysis may use (docs/contracts.md).
+#: Canonical units of the variables an analysis may use (docs/contracts.md): the declared
+#: conditions variables and measured pair, plus the simulated scalar and vector speeds.
 CANONICAL_UNITS = {
-    "wind_speed": "m s-1",
-    "wind_from_direction": "degree",
-    "turbulence_intensity": "1",
-    "wind_shear_exponent": "1",
-    "cnr": "dB",
-    "cnr_gradient": "dB m-1",
-    "lidar_wind_speed": "m s-1",
-    "reference_wind_speed": "m s-1",
+    **_VARIABLE_UNITS,
     "lidar_wind_speed_scalar": "m s-1",
     "lidar_wind_speed_vector": "m s-1",
 }
 
 #: CF standard names of the conditions variables.
-STANDARD_NAMES = {"wind_speed": "wind_speed", "wind_from_direction": "wind_from_direction"}
+STANDARD_NAMES = {n: s for n, s in _STANDARD_NAMES.items() if n in CONDITIONS}
 
 
 def source_name(ds: xr.Dataset, default: str = "<records>") -> str:

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from lidarcal.conditions.variables import CONDITION_NAMES
+
 __all__ = ["OUTPUTS", "chunk_key", "chunk_path", "load_chunk", "run_chunk"]
 
 #: Per-height outputs of :func:`lidarcal.lidar.simulate_period` stored by the campaign.
@@ -30,14 +32,7 @@ OUTPUTS = (
 )
 
 #: Inputs passed to the engine, in the order of the conditions contract.
-INPUTS = (
-    "wind_speed",
-    "wind_from_direction",
-    "turbulence_intensity",
-    "wind_shear_exponent",
-    "cnr",
-    "cnr_gradient",
-)
+INPUTS = CONDITION_NAMES
 
 _FORMAT = 1  # bump when the chunk file layout or the result of a chunk changes meaning
 

@@ -17,6 +17,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.cf import height_coord, var_attrs
+from lidarcal.conditions.variables import CONDITIONS, FIELD_PAIR
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import open_artefact
 from lidarcal.schema import validate_dataset
@@ -30,29 +31,13 @@ __all__ = [
     "conditions_checksum",
 ]
 
-#: The six variables of the contract: canonical unit, long name, CF standard name.
-CONDITION_VARIABLES: dict[str, tuple[str, str, str | None]] = {
-    "wind_speed": ("m s-1", "10-minute mean horizontal wind speed", "wind_speed"),
-    "wind_from_direction": (
-        "degree",
-        "10-minute mean wind direction (meteorological, from)",
-        "wind_from_direction",
-    ),
-    "turbulence_intensity": ("1", "turbulence intensity (sigma_u / mean wind speed)", None),
-    "wind_shear_exponent": ("1", "power-law wind shear exponent from neighbouring heights (Eq. 10)", None),
-    "cnr": ("dB", "carrier-to-noise ratio", None),
-    "cnr_gradient": ("dB m-1", "carrier-to-noise ratio gradient along the beam", None),
-}
+#: The six variables of the contract: canonical unit, long name, CF standard name
+#: (declared in ``schemas/conditions.yaml``, see :mod:`lidarcal.conditions.variables`).
+CONDITION_VARIABLES: dict[str, tuple[str, str, str | None]] = {n: tuple(v) for n, v in CONDITIONS.items()}
 
-#: The measured pair a ``field_campaign`` adds.
-FIELD_VARIABLES: dict[str, tuple[str, str, str | None]] = {
-    "lidar_wind_speed": ("m s-1", "lidar 10-minute horizontal wind speed (measured)", "wind_speed"),
-    "reference_wind_speed": (
-        "m s-1",
-        "reference anemometer 10-minute mean wind speed (measured)",
-        "wind_speed",
-    ),
-}
+#: The measured pair a ``field_campaign`` adds (declared in ``schemas/field_campaign.yaml``).
+FIELD_VARIABLES: dict[str, tuple[str, str, str | None]] = {n: tuple(v) for n, v in FIELD_PAIR.items()}
+
 
 class SkippedPeriodsWarning(UserWarning):
     """Some periods lack a needed value at some height and will be skipped there."""

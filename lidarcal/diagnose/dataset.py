@@ -20,6 +20,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.cf import height_coord, var_attrs
+from lidarcal.conditions.variables import CONDITIONS
 from lidarcal.diagnose.core import DiagnosisResult
 from lidarcal.diagnose.effects import CONDITION_VARIABLES, EFFECTS
 from lidarcal.diagnose.stats import GAP_METRIC
@@ -30,9 +31,8 @@ __all__ = ["summary", "to_dataset", "corrected_model", "records_dataset", "sensi
            "UNITS"]
 
 #: Canonical units of the conditions variables (docs/contracts.md).
-UNITS = {"wind_speed": "m s-1", "wind_from_direction": "degree", "turbulence_intensity": "1",
-         "wind_shear_exponent": "1", "cnr": "dB", "cnr_gradient": "dB m-1"}
-_STANDARD = {"wind_speed": "wind_speed", "wind_from_direction": "wind_from_direction"}
+UNITS = {name: v.units for name, v in CONDITIONS.items()}
+_STANDARD = {name: v.standard_name for name, v in CONDITIONS.items() if v.standard_name}
 
 
 def _num(x: float) -> float | None:

@@ -37,15 +37,13 @@ from typing import Any
 
 import numpy as np
 
+from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.errors import InputError
 
 __all__ = ["Parameter", "Effect", "EFFECTS", "CONDITION_VARIABLES", "get_effect"]
 
 #: The conditions variables of ``docs/contracts.md`` (the only legal drivers).
-CONDITION_VARIABLES = (
-    "wind_speed", "wind_from_direction", "turbulence_intensity", "wind_shear_exponent", "cnr",
-    "cnr_gradient",
-)
+CONDITION_VARIABLES = CONDITION_NAMES
 
 #: Records are dicts of arrays over (time, height) with the simulated_rtd names.
 Records = Mapping[str, np.ndarray]
