@@ -18,6 +18,7 @@ import numpy as np
 from lidarcal.analysis.terms import PAPER_INPUTS, format_table, repeatability_inputs, uncertainty_terms
 from lidarcal.cli import command_line
 from lidarcal.io import check_writable, write_artefact
+from lidarcal.lidar import LidarModel
 from lidarcal.units import Q_
 
 
@@ -31,8 +32,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    metavar="M_S", help="wind speeds in m/s (default: Table 4's 4 6 ... 16)")
     p.add_argument("--height", type=float, default=100.0, metavar="M", help="measurement height z, m (100)")
     p.add_argument("--shear", type=float, default=0.2, metavar="ALPHA", help="power-law shear exponent (0.2)")
-    p.add_argument("--cone-angle", type=float, default=28.0, metavar="DEG",
-                   help="beam angle from vertical, degree (28; Table 1's polar 62 is the elevation)")
+    p.add_argument("--cone-angle", type=float, default=LidarModel.cone_angle, metavar="DEG",
+                   help="beam angle from vertical, degree (%(default)g; Table 1's polar 62 is the elevation)")
     p.add_argument("--std-repeatability", type=float, metavar="M_S",
                    help="s-bar_s, m/s (default: from --repeatability, else 0.027)")
     p.add_argument("--bias-repeatability", type=float, metavar="M_S",

@@ -15,7 +15,7 @@ import argparse
 
 from lidarcal.cli import command_line
 from lidarcal.io import check_writable, write_artefact
-from lidarcal.lidar import LidarModel
+from lidarcal.lidar import DEFAULT_RWF_FWHM, LidarModel
 from lidarcal.lidar.box import lidar_turbulence_box
 from lidarcal.turbulence.box import GENERATORS
 from lidarcal.units import Q_
@@ -34,9 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, nargs="+", default=[0], metavar="INT",
                    help="seed tuple as simulate_period takes it, e.g. BASE_SEED PERIOD_INDEX (0)")
     p.add_argument("--duration", type=float, default=600.0, metavar="S", help="period length, s (600)")
-    p.add_argument("--cone-angle", type=float, default=28.0, metavar="DEG",
-                   help="cone angle from vertical (28)")
-    p.add_argument("--rwf-fwhm", type=float, default=30.0, metavar="M", help="Gaussian RWF FWHM, m (30)")
+    p.add_argument("--cone-angle", type=float, default=LidarModel.cone_angle, metavar="DEG",
+                   help="cone angle from vertical (%(default)g)")
+    p.add_argument("--rwf-fwhm", type=float, default=DEFAULT_RWF_FWHM, metavar="M",
+                   help="Gaussian RWF FWHM, m (%(default)g)")
     p.add_argument("--nodes", type=int, default=5, help="RWF quadrature nodes per beam (5)")
     p.add_argument("--beam-period", type=float, default=1.0, metavar="S", help="seconds per LOS (1)")
     p.add_argument("--generator", choices=GENERATORS, default="fast",

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.campaign import DEFAULT_BASE_SEED
 from lidarcal.diagnose import fit, stats
 from lidarcal.diagnose.effects import CONDITION_VARIABLES, EFFECTS, Effect, get_effect
 from lidarcal.errors import InputError, MissingVariableError
@@ -39,7 +40,7 @@ __all__ = ["diagnose", "DiagnosisResult", "CandidateFit", "DEFAULT_SEED", "RECOR
 log = logging.getLogger("lidarcal.diagnose")
 
 #: Base seed of the diagnosis simulations (the hidden-effect generator uses different ones).
-DEFAULT_SEED = 20240101
+DEFAULT_SEED = DEFAULT_BASE_SEED
 #: Simulated record variables diagnose needs.
 RECORD_NAMES = ("lidar_wind_speed", "reference_wind_speed", "lidar_wind_speed_scalar",
                 "lidar_wind_speed_vector")
