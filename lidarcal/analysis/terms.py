@@ -46,12 +46,13 @@ written is slightly conservative.  lidarcal follows Eq. 11.
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from typing import Any, Literal
 
 import numpy as np
 import xarray as xr
 
-from lidarcal.cf import var_attrs
+from lidarcal.cf import declared_attrs, var_attrs
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
 from lidarcal.provenance import stamp
@@ -135,6 +136,45 @@ def _positive(value: float, name: str, unit: str, *, allow_zero: bool = True) ->
     return value
 
 
+#: Declared attributes of the scalar input variables: name -> (units, long_name), in output order.
+INPUT_ATTRS: dict[str, tuple[str, str]] = {
+    "mean_between_run_std_std": ("m s-1", "mean between-run std of the bench LOS std (s-bar_s)"),
+    "mean_between_run_std_bias": ("m s-1", "mean between-run std of the bench LOS bias (s-bar_delta)"),
+    "n_runs": ("1", "number of bench runs in the repeatability analysis"),
+    "n_los_samples": ("1", "radial velocities per LOS per 10 minutes"),
+    "bench_uncertainty": ("m s-1", "SAFO-MV bench radial-velocity uncertainty as stated (dv_SAFO)"),
+    "bench_coverage_factor": ("1", "coverage factor dividing bench_uncertainty in Eq. 8"),
+    "beam_angle_uncertainty": ("degree", "standard uncertainty of the beam cone angle"),
+    "zero_distance_uncertainty": ("m", "standard uncertainty of the zero distance"),
+    "shear_exponent": ("1", "wind shear power-law exponent (Eq. 10)"),
+    "cone_angle": ("degree", "beam cone angle from vertical"),
+    "beam_angle_coefficient": ("1", "coefficient replacing cot(phi) dphi in Eq. 9"),
+}
+
+#: Declared CF attributes of the result variables (:func:`lidarcal.cf.declared_attrs`).
+OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
+    "uncertainty": dict(
+        long_name="standard uncertainty of the horizontal wind speed per contributor (Table 4)",
+        units="m s-1", standard_name="wind_speed standard_error"),
+    "relative_uncertainty": dict(long_name="standard uncertainty per contributor relative to the wind speed",
+                                 units="%"),
+    "total": dict(long_name="quadrature sum of the non-simulated uncertainty terms", units="m s-1",
+                  standard_name="wind_speed standard_error"),
+    "total_relative": dict(long_name="quadrature sum of the non-simulated terms relative to the wind speed",
+                           units="%"),
+}
+
+#: Attributes of the coordinates, as written.
+COORD_ATTRS: dict[str, dict[str, str]] = {
+    "wind_speed": {"standard_name": "wind_speed", "units": "m s-1", "long_name": "horizontal wind speed"},
+    "contributor": {"long_name": "uncertainty contributor (paper Table 4 row)"},
+    "equation": {"long_name": "equation number in the paper"},
+    "contributor_description": {"long_name": "description of the uncertainty contributor"},
+    "height": {"standard_name": "height", "long_name": "measurement height above ground", "units": "m",
+               "positive": "up", "axis": "Z"},
+}
+
+
 def uncertainty_terms(
     wind_speed: Any,
     *,
@@ -204,68 +244,33 @@ def uncertainty_terms(
     >>> round(float(ds.uncertainty.sel(wind_speed=10, contributor="beam_angle")), 4)
     0.0248
     """
-    ws = np.atleast_1d(np.asarray(to_magnitude(wind_speed, "m s-1", name="wind_speed"), dtype=float))
-    if ws.ndim != 1 or ws.size == 0 or not np.all(np.isfinite(ws)) or np.any(ws <= 0):
-        raise InputError(f"argument 'wind_speed': expected a 1-D array of positive finite speeds; found {ws}")
-    if len(np.unique(ws)) != ws.size:
-        raise InputError(f"argument 'wind_speed': expected distinct speeds; found duplicates in {ws}")
-    s_s = _positive(to_magnitude(mean_between_run_std_std, "m s-1", name="mean_between_run_std_std"),
-                    "mean_between_run_std_std", "m s-1")
-    s_d = _positive(to_magnitude(mean_between_run_std_bias, "m s-1", name="mean_between_run_std_bias"),
-                    "mean_between_run_std_bias", "m s-1")
-    dv = _positive(to_magnitude(bench_uncertainty, "m s-1", name="bench_uncertainty"),
-                   "bench_uncertainty", "m s-1")
-    dphi = _positive(to_magnitude(beam_angle_uncertainty, "degree", name="beam_angle_uncertainty"),
-                     "beam_angle_uncertainty", "degree")
-    dz = _positive(to_magnitude(zero_distance_uncertainty, "m", name="zero_distance_uncertainty"),
-                   "zero_distance_uncertainty", "m")
-    z = _positive(to_magnitude(height, "m", name="height"), "height", "m", allow_zero=False)
-    phi = float(to_magnitude(cone_angle, "degree", name="cone_angle"))
-    if not 0 < phi < 90:
-        raise InputError(
-            f"argument 'cone_angle': expected an angle from vertical in (0, 90) degree; found {phi:g}")
-    alpha = float(to_magnitude(shear_exponent, "1", name="shear_exponent"))
-    if not np.isfinite(alpha):
-        raise InputError(f"argument 'shear_exponent': expected a finite exponent; found {alpha}")
-    k_cov = _positive(bench_coverage_factor, "bench_coverage_factor", "", allow_zero=False)
-    counts = {}
-    for name, value in (("n_runs", n_runs), ("n_los_samples", n_los_samples)):
-        if not float(value) >= 1 or float(value) != int(value):
-            raise InputError(f"argument {name!r}: expected a whole number >= 1; found {value}")
-        counts[name] = int(value)
+    ws = _checked_wind_speeds(wind_speed)
+    inputs, z = _checked_inputs(
+        mean_between_run_std_std=mean_between_run_std_std,
+        mean_between_run_std_bias=mean_between_run_std_bias,
+        n_runs=n_runs, n_los_samples=n_los_samples, bench_uncertainty=bench_uncertainty,
+        bench_coverage_factor=bench_coverage_factor, beam_angle_uncertainty=beam_angle_uncertainty,
+        zero_distance_uncertainty=zero_distance_uncertainty, shear_exponent=shear_exponent,
+        cone_angle=cone_angle, height=height)
     if bias_repeatability_n not in ("los_samples", "runs"):
         raise InputError(f"argument 'bias_repeatability_n': expected 'los_samples' or 'runs'; "
                          f"found {bias_repeatability_n!r}")
     if beam_angle_coefficient is not None:
         beam_angle_coefficient = _positive(beam_angle_coefficient, "beam_angle_coefficient", "")
-    n_bias = counts["n_los_samples"] if bias_repeatability_n == "los_samples" else counts["n_runs"]
-
+        inputs["beam_angle_coefficient"] = beam_angle_coefficient
+    n_bias = inputs["n_los_samples"] if bias_repeatability_n == "los_samples" else inputs["n_runs"]
     terms = table4_kernel(
-        ws, std_repeatability=s_s, bias_repeatability=s_d, n_bias=n_bias,
-        n_los_samples=counts["n_los_samples"], bench_uncertainty=dv / k_cov,
-        beam_angle_uncertainty=np.deg2rad(dphi), zero_distance_uncertainty=dz, shear_exponent=alpha,
-        height=z, cone_angle=np.deg2rad(phi), beam_angle_coefficient=beam_angle_coefficient,
+        ws, std_repeatability=inputs["mean_between_run_std_std"],
+        bias_repeatability=inputs["mean_between_run_std_bias"], n_bias=n_bias,
+        n_los_samples=inputs["n_los_samples"],
+        bench_uncertainty=inputs["bench_uncertainty"] / inputs["bench_coverage_factor"],
+        beam_angle_uncertainty=np.deg2rad(inputs["beam_angle_uncertainty"]),
+        zero_distance_uncertainty=inputs["zero_distance_uncertainty"],
+        shear_exponent=inputs["shear_exponent"],
+        height=z, cone_angle=np.deg2rad(inputs["cone_angle"]), beam_angle_coefficient=beam_angle_coefficient,
     )
-    inputs = {
-        "mean_between_run_std_std": (s_s, "m s-1", "mean between-run std of the bench LOS std (s-bar_s)"),
-        "mean_between_run_std_bias": (s_d, "m s-1",
-                                      "mean between-run std of the bench LOS bias (s-bar_delta)"),
-        "n_runs": (np.int32(counts["n_runs"]), "1", "number of bench runs in the repeatability analysis"),
-        "n_los_samples": (np.int32(counts["n_los_samples"]), "1", "radial velocities per LOS per 10 minutes"),
-        "bench_uncertainty": (dv, "m s-1", "SAFO-MV bench radial-velocity uncertainty as stated (dv_SAFO)"),
-        "bench_coverage_factor": (k_cov, "1", "coverage factor dividing bench_uncertainty in Eq. 8"),
-        "beam_angle_uncertainty": (dphi, "degree", "standard uncertainty of the beam cone angle"),
-        "zero_distance_uncertainty": (dz, "m", "standard uncertainty of the zero distance"),
-        "shear_exponent": (alpha, "1", "wind shear power-law exponent (Eq. 10)"),
-        "cone_angle": (phi, "degree", "beam cone angle from vertical"),
-    }
-    if beam_angle_coefficient is not None:
-        inputs["beam_angle_coefficient"] = (beam_angle_coefficient, "1",
-                                            "coefficient replacing cot(phi) dphi in Eq. 9")
-    config = {
-        **{name: v[0] for name, v in inputs.items()}, "height": z, "wind_speed": ws,
-        "bias_repeatability_n": bias_repeatability_n, "beam_angle_coefficient": beam_angle_coefficient,
-    }
+    config = {**inputs, "height": z, "wind_speed": ws, "bias_repeatability_n": bias_repeatability_n,
+              "beam_angle_coefficient": beam_angle_coefficient}
     ds = _to_dataset(ws, terms, z, inputs)
     ds.attrs.update({
         "bias_repeatability_n": bias_repeatability_n,
@@ -274,7 +279,8 @@ def uncertainty_terms(
     })
     summary = (
         f"Uncertainty terms of the horizontal wind speed not modelled by Monte Carlo (paper Eqs. 6-11, "
-        f"Table 4) at z = {z:g} m, alpha = {alpha:g}, phi = {phi:g} degree for {ws.size} wind speeds; "
+        f"Table 4) at z = {z:g} m, alpha = {inputs['shear_exponent']:g}, phi = {inputs['cone_angle']:g} "
+        f"degree for {ws.size} wind speeds; "
         f"total {float(ds.total.min()):.4f} to {float(ds.total.max()):.4f} m/s."
     )
     return stamp(ds, "uncertainty_terms", title="Non-simulated calibration uncertainty terms (Table 4)",
@@ -283,38 +289,68 @@ def uncertainty_terms(
                  config=config, keywords="Doppler lidar, calibration, uncertainty budget, wind speed")
 
 
-def _to_dataset(ws: np.ndarray, terms: np.ndarray, z: float, inputs: dict) -> xr.Dataset:
-    rel = 100.0 * terms / ws[:, None]
+def _checked_wind_speeds(wind_speed: Any) -> np.ndarray:
+    """Wind speeds in m s-1 as a 1-D array of distinct positive finite values."""
+    ws = np.atleast_1d(np.asarray(to_magnitude(wind_speed, "m s-1", name="wind_speed"), dtype=float))
+    if ws.ndim != 1 or ws.size == 0 or not np.all(np.isfinite(ws)) or np.any(ws <= 0):
+        raise InputError(f"argument 'wind_speed': expected a 1-D array of positive finite speeds; found {ws}")
+    if len(np.unique(ws)) != ws.size:
+        raise InputError(f"argument 'wind_speed': expected distinct speeds; found duplicates in {ws}")
+    return ws
+
+
+def _checked_inputs(*, height: Any, **given: Any) -> tuple[dict[str, Any], float]:
+    """Check Table 4's inputs and convert them to the units of :data:`INPUT_ATTRS`.
+
+    Returns the inputs (floats; counts as ``int``) in :data:`INPUT_ATTRS` order and the height z (m).
+    """
+    out: dict[str, Any] = {}
+    for name, unit in (("mean_between_run_std_std", "m s-1"), ("mean_between_run_std_bias", "m s-1"),
+                       ("bench_uncertainty", "m s-1"), ("beam_angle_uncertainty", "degree"),
+                       ("zero_distance_uncertainty", "m")):
+        out[name] = _positive(to_magnitude(given[name], unit, name=name), name, unit)
+    z = _positive(to_magnitude(height, "m", name="height"), "height", "m", allow_zero=False)
+    phi = float(to_magnitude(given["cone_angle"], "degree", name="cone_angle"))
+    if not 0 < phi < 90:
+        raise InputError(
+            f"argument 'cone_angle': expected an angle from vertical in (0, 90) degree; found {phi:g}")
+    alpha = float(to_magnitude(given["shear_exponent"], "1", name="shear_exponent"))
+    if not np.isfinite(alpha):
+        raise InputError(f"argument 'shear_exponent': expected a finite exponent; found {alpha}")
+    out.update(cone_angle=phi, shear_exponent=alpha)
+    out["bench_coverage_factor"] = _positive(given["bench_coverage_factor"], "bench_coverage_factor", "",
+                                             allow_zero=False)
+    for name in ("n_runs", "n_los_samples"):
+        value = given[name]
+        if not float(value) >= 1 or float(value) != int(value):
+            raise InputError(f"argument {name!r}: expected a whole number >= 1; found {value}")
+        out[name] = int(value)
+    return {name: out[name] for name in INPUT_ATTRS if name in out}, z
+
+
+def _to_dataset(ws: np.ndarray, terms: np.ndarray, z: float, inputs: Mapping[str, Any]) -> xr.Dataset:
+    """Assemble the dataset with the declared attributes (OUTPUT_ATTRS, COORD_ATTRS, INPUT_ATTRS)."""
     total = np.sqrt(np.sum(terms**2, axis=1))
     names = list(CONTRIBUTORS)
+    wc = ("wind_speed", "contributor")
+    values = {"uncertainty": (wc, terms), "relative_uncertainty": (wc, 100.0 * terms / ws[:, None]),
+              "total": ("wind_speed", total), "total_relative": ("wind_speed", 100.0 * total / ws)}
     ds = xr.Dataset(
-        {
-            "uncertainty": (("wind_speed", "contributor"), terms, var_attrs(
-                "standard uncertainty of the horizontal wind speed per contributor (Table 4)", "m s-1",
-                "wind_speed standard_error")),
-            "relative_uncertainty": (("wind_speed", "contributor"), rel, var_attrs(
-                "standard uncertainty per contributor relative to the wind speed", "%")),
-            "total": ("wind_speed", total, var_attrs(
-                "quadrature sum of the non-simulated uncertainty terms", "m s-1",
-                "wind_speed standard_error")),
-            "total_relative": ("wind_speed", 100.0 * total / ws, var_attrs(
-                "quadrature sum of the non-simulated terms relative to the wind speed", "%")),
-        },
+        {name: (dims, data, declared_attrs(OUTPUT_ATTRS, name)) for name, (dims, data) in values.items()},
         coords={
-            "wind_speed": ("wind_speed", ws, {"standard_name": "wind_speed", "units": "m s-1",
-                                              "long_name": "horizontal wind speed"}),
-            "contributor": ("contributor", np.array(names, dtype=object),
-                            {"long_name": "uncertainty contributor (paper Table 4 row)"}),
+            "wind_speed": ("wind_speed", ws, dict(COORD_ATTRS["wind_speed"])),
+            "contributor": ("contributor", np.array(names, dtype=object), dict(COORD_ATTRS["contributor"])),
             "equation": ("contributor", np.array([CONTRIBUTORS[n][0] for n in names], dtype=object),
-                         {"long_name": "equation number in the paper"}),
+                         dict(COORD_ATTRS["equation"])),
             "contributor_description": ("contributor",
                                         np.array([CONTRIBUTORS[n][1] for n in names], dtype=object),
-                                        {"long_name": "description of the uncertainty contributor"}),
-            "height": ((), z, {"standard_name": "height", "long_name": "measurement height above ground",
-                               "units": "m", "positive": "up", "axis": "Z"}),
+                                        dict(COORD_ATTRS["contributor_description"])),
+            "height": ((), z, dict(COORD_ATTRS["height"])),
         },
     )
-    for name, (value, unit, text) in inputs.items():
+    for name, value in inputs.items():
+        unit, text = INPUT_ATTRS[name]
+        value = np.int32(value) if name in ("n_runs", "n_los_samples") else value
         ds[name] = ((), value, var_attrs(text, unit, coverage_content_type="auxiliaryInformation"))
     return ds
 
