@@ -29,6 +29,7 @@ import os
 import shutil
 import time
 import warnings
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,12 +37,24 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.campaign import DEFAULT_BASE_SEED
+from lidarcal.analysis.budget import budget
+from lidarcal.analysis.sensitivity import sensitivity
+from lidarcal.analysis.sweep import analyse_sweep
+from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
+from lidarcal.bench.ingest import ingest
+from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
+from lidarcal.certificate import make_certificate, write_certificate
+from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
+from lidarcal.conditions.grid import sweep_conditions
 from lidarcal.data import sample_file
 from lidarcal.io import check_writable, open_artefact, write_artefact
+from lidarcal.lidar import LidarModel
+from lidarcal.provenance import stamp
+from lidarcal.report import write_report
+from lidarcal.rwf import range_weighting_function
 from lidarcal.units import Q_
 
-__all__ = ["CalibrationConfig", "CalibrationResult", "calibrate", "OUTPUT_NAMES", "DEFAULT_HEIGHTS"]
+__all__ = ["CalibrationConfig", "CalibrationResult", "calibrate", "sweep", "OUTPUT_NAMES", "DEFAULT_HEIGHTS"]
 
 log = logging.getLogger(__name__)
 
@@ -98,8 +111,6 @@ class CalibrationConfig:
 
 def _terms_per_height(records: xr.Dataset, overrides: dict[str, Any]) -> xr.Dataset:
     """Table 4 terms at every simulated height, with that height's median shear exponent."""
-    from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
-
     speeds = Q_(np.arange(0.25, 40.01, 0.25), "m/s")
     parts = []
     for z in records.height.values:
@@ -133,8 +144,6 @@ class CalibrationResult:
 
 
 def _conditions(cfg: CalibrationConfig) -> tuple[xr.Dataset, dict]:
-    from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
-
     if cfg.conditions is not None:
         path = Path(cfg.conditions)
         ds = load_conditions(path)
@@ -178,15 +187,6 @@ def calibrate(
         ``.paths`` and ``.datasets`` of every artefact.  Each finished stage is also logged at
         INFO level on the ``lidarcal.pipeline`` logger.
     """
-    from lidarcal.analysis.budget import budget
-    from lidarcal.analysis.sensitivity import sensitivity
-    from lidarcal.bench.ingest import ingest
-    from lidarcal.campaign import simulate_campaign
-    from lidarcal.certificate import make_certificate, write_certificate
-    from lidarcal.lidar import LidarModel
-    from lidarcal.report import write_report
-    from lidarcal.rwf import range_weighting_function
-
     cfg = config or CalibrationConfig()
     outdir = Path(outdir)
     outdir.mkdir(parents=True, exist_ok=True)
@@ -230,8 +230,6 @@ def calibrate(
     # 3. conditions
     cond, cond_inputs = _conditions(cfg)
     if "lidarcal_artefact" not in cond.attrs or cond.attrs.get("lidarcal_artefact") != "conditions":
-        from lidarcal.provenance import stamp
-
         cond = stamp(cond, "conditions", title="Conditions simulated by lidarcal calibrate",
                      summary="10-minute conditions (lidarcal docs/contracts.md) used as Monte Carlo input.",
                      call="lidarcal calibrate", inputs=cond_inputs)
@@ -288,3 +286,45 @@ def calibrate(
                 "budget": bud, "certificate": open_artefact(paths["certificate"], "certificate")}
     return CalibrationResult(paths=paths, datasets=datasets)
 
+
+def sweep(
+    model: LidarModel,
+    *,
+    grid: Mapping[str, Any] | None = None,
+    heights: Sequence[float] = (100.0,),
+    repeats: int = 1,
+    base_seed: int | None = None,
+    scheduler: Any = None,
+    workers: int | None = None,
+    chunk: int = 64,
+    workdir: Any = None,
+    progress: bool = False,
+    call: str | None = None,
+    inputs: Mapping[str, Any] | None = None,
+) -> tuple[xr.Dataset, xr.Dataset]:
+    """Classification-style sweep: simulate ``model`` on a full grid of conditions and analyse it.
+
+    The grid is built by :func:`lidarcal.conditions.grid.sweep_conditions`, simulated by
+    :func:`lidarcal.campaign.simulate_campaign` (seed ``base_seed``, default
+    :data:`~lidarcal.campaign.DEFAULT_BASE_SEED`) and analysed by
+    :func:`lidarcal.analysis.sweep.analyse_sweep`.
+
+    Returns
+    -------
+    (sweep, records)
+        The ``sweep`` artefact and the ``simulated_rtd`` records it was computed from.
+    """
+    conditions = sweep_conditions(grid, heights=heights, repeats=repeats)
+    records = simulate_campaign(
+        conditions,
+        model,
+        base_seed=DEFAULT_BASE_SEED if base_seed is None else int(base_seed),
+        scheduler=scheduler,
+        workers=workers,
+        chunk=chunk,
+        workdir=workdir,
+        progress=progress,
+        inputs=dict(inputs or {}),
+    )
+    out = analyse_sweep(records, grid, repeats=repeats, call=call or "lidarcal.pipeline.sweep", inputs=inputs)
+    return out, records

@@ -5,11 +5,13 @@ import json
 import numpy as np
 import pytest
 
-from lidarcal.analysis.sweep import SWEEP_VARIABLES, analyse_sweep, sweep, sweep_conditions
+from lidarcal.analysis.sweep import analyse_sweep
 from lidarcal.cli import main
+from lidarcal.conditions.grid import SWEEP_VARIABLES, sweep_conditions
 from lidarcal.errors import InputError, UnitError
 from lidarcal.io import open_artefact
 from lidarcal.lidar import LidarModel
+from lidarcal.pipeline import sweep
 from lidarcal.schema import validate_dataset
 from lidarcal.units import Q_
 

@@ -1,9 +1,9 @@
-"""Classification-style sweep over the full parameter space (paper §4, Discussion a and b).
+"""Analysis of a classification-style sweep (paper §4, Discussion a and b).
 
-Like IEC 61400-50-1's anemometer classification (about 10^5 model runs over the full range
-of environmental conditions), the virtual lidar is run on a **full-factorial grid** of
-conditions — wind speed, turbulence intensity, shear exponent, CNR, CNR gradient and wind
-direction — instead of the correlated conditions a test site happens to offer.  The result:
+The virtual lidar is simulated on the full-factorial grid of
+:func:`lidarcal.conditions.grid.sweep_conditions` (the orchestration is
+:func:`lidarcal.pipeline.sweep`); :func:`analyse_sweep` reads the simulated records back
+onto the grid:
 
 - ``deviation`` — the mean relative lidar−reference deviation (%) at every grid point and
   height (averaged over ``repeats`` Monte Carlo replicates with different seeds);
@@ -19,129 +19,21 @@ replicates of one grid point consecutive: period = grid_index × repeats + repli
 
 from __future__ import annotations
 
-import itertools
 import json
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
-import pint
 import xarray as xr
 
 from lidarcal.analysis._records import CANONICAL_UNITS, STANDARD_NAMES
 from lidarcal.analysis.sensitivity import sensitivity
-from lidarcal.cf import height_coord, time_coord, var_attrs
-from lidarcal.errors import InputError, UnitError
+from lidarcal.cf import var_attrs
+from lidarcal.conditions.grid import SWEEP_VARIABLES, grid_values
+from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
-from lidarcal.units import LOG_UNITS, to_magnitude
 
-__all__ = ["SWEEP_VARIABLES", "DEFAULT_GRID", "sweep_conditions", "analyse_sweep", "sweep"]
-
-#: Swept variables, in the order of the grid dimensions.
-SWEEP_VARIABLES = (
-    "wind_speed",
-    "turbulence_intensity",
-    "wind_shear_exponent",
-    "cnr",
-    "cnr_gradient",
-    "wind_from_direction",
-)
-
-#: Default grid (canonical units): 4 x 3 x 3 x 2 x 3 x 3 = 648 points.  Directions cover
-#: 0-45 degree because DBS geometry repeats every 90 degree and mirrors about 45 degree.
-DEFAULT_GRID: dict[str, tuple[float, ...]] = {
-    "wind_speed": (4.0, 8.0, 12.0, 16.0),
-    "turbulence_intensity": (0.05, 0.12, 0.20),
-    "wind_shear_exponent": (0.0, 0.2, 0.4),
-    "cnr": (-20.0, -10.0),
-    "cnr_gradient": (-0.05, 0.0, 0.05),
-    "wind_from_direction": (0.0, 22.5, 45.0),
-}
-
-_RANGES = {
-    "wind_speed": (0.5, 60.0),
-    "turbulence_intensity": (0.0, 1.0),
-    "wind_shear_exponent": (-1.0, 1.5),
-    "cnr": (-60.0, 20.0),
-    "cnr_gradient": (-5.0, 5.0),
-    "wind_from_direction": (-360.0, 720.0),
-}
-
-
-def _values(name: str, value: Any) -> np.ndarray:
-    """Grid values of one variable in canonical units (quantities converted; dB as floats)."""
-    unit = CANONICAL_UNITS[name]
-    if isinstance(value, pint.Quantity | str):
-        arr = np.atleast_1d(np.asarray(to_magnitude(value, unit, name=name), dtype=float))
-    elif unit in LOG_UNITS or unit == "1":
-        arr = np.atleast_1d(np.asarray(value, dtype=float))
-    else:
-        raise UnitError(
-            f"grid {name!r}: got bare numbers {value!r}; give a quantity in units convertible to "
-            f"{unit!r}, e.g. Q_([4, 8], {unit!r})"
-        )
-    if arr.ndim != 1 or arr.size == 0 or not np.all(np.isfinite(arr)):
-        raise InputError(f"grid {name!r}: expected a non-empty 1-D list of finite values; got {arr.tolist()}")
-    if len(np.unique(arr)) != arr.size:
-        raise InputError(f"grid {name!r}: values must be distinct; got {arr.tolist()}")
-    lo, hi = _RANGES[name]
-    if arr.min() < lo or arr.max() > hi:
-        raise InputError(f"grid {name!r}: values {arr.tolist()} {unit} outside the range [{lo}, {hi}] {unit}")
-    return np.sort(arr)
-
-
-def _grid(grid: Mapping[str, Any] | None) -> dict[str, np.ndarray]:
-    grid = dict(grid or {})
-    unknown = sorted(set(grid) - set(SWEEP_VARIABLES))
-    if unknown:
-        raise InputError(f"grid: unknown variable(s) {unknown}; sweepable: {list(SWEEP_VARIABLES)}")
-    out = {}
-    for name in SWEEP_VARIABLES:
-        if name in grid:
-            out[name] = _values(name, grid[name])
-        else:
-            out[name] = np.asarray(DEFAULT_GRID[name], dtype=float)
-    return out
-
-
-def sweep_conditions(
-    grid: Mapping[str, Any] | None = None, *, heights: Sequence[float] = (100.0,), repeats: int = 1
-) -> xr.Dataset:
-    """``conditions`` Dataset with one period per (grid point, replicate), same at every height.
-
-    ``grid`` maps swept variables to their values (quantities, or bare floats for the
-    dimensionless variables and the dB ones); missing variables take :data:`DEFAULT_GRID`.
-    """
-    if int(repeats) < 1:
-        raise InputError(f"repeats must be >= 1; got {repeats}")
-    values = _grid(grid)
-    points = np.array(list(itertools.product(*(values[n] for n in SWEEP_VARIABLES))), dtype=float)
-    points = np.repeat(points, int(repeats), axis=0)
-    n, nh = len(points), len(heights)
-    data = {
-        name: (
-            ("time", "height"),
-            np.repeat(points[:, i : i + 1], nh, axis=1),
-            var_attrs(
-                name.replace("_", " "),
-                CANONICAL_UNITS[name],
-                STANDARD_NAMES.get(name),
-                coverage_content_type="auxiliaryInformation",
-            ),
-        )
-        for i, name in enumerate(SWEEP_VARIABLES)
-    }
-    ds = xr.Dataset(
-        data,
-        coords={
-            "time": time_coord(np.datetime64("2000-01-01T00:00") + np.arange(n) * np.timedelta64(600, "s")),
-            "height": height_coord(heights),
-        },
-    )
-    ds.attrs["lidarcal_sweep_grid"] = json.dumps({k: v.tolist() for k, v in values.items()})
-    ds.attrs["lidarcal_sweep_repeats"] = int(repeats)
-    ds["time"].attrs["comment"] = "synthetic period start times: one period per grid point and replicate"
-    return ds
+__all__ = ["analyse_sweep"]
 
 
 def _edges(values: np.ndarray) -> np.ndarray:
@@ -149,9 +41,33 @@ def _edges(values: np.ndarray) -> np.ndarray:
     return np.concatenate([[values[0] - (mid[0] - values[0])], mid, [values[-1] + (values[-1] - mid[-1])]])
 
 
-def analyse_sweep(records: xr.Dataset, grid: Mapping[str, Any], *, repeats: int = 1) -> xr.Dataset:
-    """Turn simulated records of :func:`sweep_conditions` into a ``sweep`` artefact."""
-    values = _grid(grid)
+def analyse_sweep(
+    records: xr.Dataset,
+    grid: Mapping[str, Any] | None,
+    *,
+    repeats: int = 1,
+    call: str | None = None,
+    inputs: Mapping[str, Any] | None = None,
+) -> xr.Dataset:
+    """Turn simulated records of :func:`~lidarcal.conditions.grid.sweep_conditions` into a ``sweep`` artefact.
+
+    Parameters
+    ----------
+    records : xarray.Dataset
+        ``simulated_rtd`` records of the grid, in grid order.  The lidar model and base seed
+        recorded on them (``lidarcal_lidar_model``, ``lidarcal_base_seed``) go into the
+        artefact's provenance.
+    grid : mapping or None
+        The grid the conditions were built from (as for
+        :func:`~lidarcal.conditions.grid.grid_values`).
+    repeats : int
+        Monte Carlo replicates per grid point.
+    call : str, optional
+        What produced it, for the ``history`` attribute.
+    inputs : mapping of role to path, optional
+        Input files, recorded with their SHA-256.
+    """
+    values = grid_values(grid)
     shape = tuple(len(values[n]) for n in SWEEP_VARIABLES)
     n_grid = int(np.prod(shape))
     nt = records.sizes["time"]
@@ -295,57 +211,26 @@ def analyse_sweep(records: xr.Dataset, grid: Mapping[str, Any], *, repeats: int 
     for key in ("lidarcal_lidar_model", "lidarcal_base_seed"):
         if key in records.attrs:
             ds.attrs[key] = records.attrs[key]
-    return ds
+    return _stamp(ds, records, values, repeats=int(repeats), call=call, inputs=inputs)
 
 
-def sweep(
-    model: Any,
-    *,
-    grid: Mapping[str, Any] | None = None,
-    heights: Sequence[float] = (100.0,),
-    repeats: int = 1,
-    base_seed: int | None = None,
-    scheduler: Any = None,
-    workers: int | None = None,
-    chunk: int = 64,
-    workdir: Any = None,
-    progress: bool = False,
-    call: str | None = None,
-    inputs: Mapping[str, Any] | None = None,
-) -> tuple[xr.Dataset, xr.Dataset]:
-    """Simulate the grid with ``model`` and analyse it.
-
-    Returns
-    -------
-    (sweep, records)
-        The ``sweep`` artefact and the ``simulated_rtd`` records it was computed from.
-    """
-    from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
-
-    values = _grid(grid)
-    conditions = sweep_conditions(grid, heights=heights, repeats=repeats)
-    seed = DEFAULT_BASE_SEED if base_seed is None else int(base_seed)
-    records = simulate_campaign(
-        conditions,
-        model,
-        base_seed=seed,
-        scheduler=scheduler,
-        workers=workers,
-        chunk=chunk,
-        workdir=workdir,
-        progress=progress,
-        inputs=dict(inputs or {}),
-    )
-    ds = analyse_sweep(records, grid, repeats=repeats)
+def _stamp(ds, records, values, *, repeats, call, inputs) -> xr.Dataset:
+    """Provenance of the ``sweep`` artefact, from the grid and what the records say of their run."""
     n = int(np.prod([len(v) for v in values.values()]))
+    run = json.loads(records.attrs.get("lidarcal_config", "{}"))
     config = {
         "grid": {k: v.tolist() for k, v in values.items()},
-        "heights": [float(h) for h in heights],
-        "repeats": int(repeats),
-        "chunk": chunk,
-        "lidar_model": json.loads(model.to_json()),
+        "heights": [float(h) for h in records["height"].values],
+        "repeats": repeats,
     }
-    out = stamp(
+    if "chunk" in run:
+        config["chunk"] = run["chunk"]
+    if "lidarcal_lidar_model" in records.attrs:
+        config["lidar_model"] = json.loads(records.attrs["lidarcal_lidar_model"])
+    seeds = {"scheme": "SeedSequence([base_seed, grid_index * repeats + replicate, round(height_m * 1000)])"}
+    if "lidarcal_base_seed" in records.attrs:
+        seeds = {"base_seed": int(records.attrs["lidarcal_base_seed"]), **seeds}
+    return stamp(
         ds,
         "sweep",
         title="Classification-style sweep of the virtual lidar over a full grid of conditions",
@@ -354,12 +239,8 @@ def sweep(
             "replicate(s): mean relative deviation from the virtual reference at every point, its maximum "
             "magnitude over the grid, and sensitivity slopes (paper Discussion a-b)."
         ),
-        call=call or "lidarcal.analysis.sweep",
+        call=call or "lidarcal.analysis.sweep.analyse_sweep",
         inputs=dict(inputs or {}),
         config=config,
-        seeds={
-            "base_seed": seed,
-            "scheme": "SeedSequence([base_seed, grid_index * repeats + replicate, round(height_m * 1000)])",
-        },
+        seeds=seeds,
     )
-    return out, records

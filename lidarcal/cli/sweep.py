@@ -12,8 +12,6 @@ import argparse
 
 import numpy as np
 
-from lidarcal.analysis._records import CANONICAL_UNITS
-from lidarcal.analysis.sweep import DEFAULT_GRID, SWEEP_VARIABLES, sweep
 from lidarcal.cli import command_line
 from lidarcal.cli.options import (
     add_heights_option,
@@ -25,8 +23,12 @@ from lidarcal.cli.options import (
     positive_int,
     simulation_options,
 )
+from lidarcal.conditions.grid import DEFAULT_GRID, SWEEP_VARIABLES
+from lidarcal.conditions.variables import CANONICAL_UNITS
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
+from lidarcal.lidar import LidarModel
+from lidarcal.pipeline import sweep
 from lidarcal.units import Q_
 
 
@@ -76,8 +78,6 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Build the grid, simulate, analyse, write."""
-    from lidarcal.lidar import LidarModel
-
     check_writable(args.output, overwrite=args.overwrite)
     if args.records_output:
         check_writable(args.records_output, overwrite=args.overwrite)
