@@ -13,7 +13,6 @@ from typing import Any
 import cf_xarray.units  # noqa: F401  (registers the CF unit formatter and aliases)
 import numpy as np
 import pint
-import pint_xarray  # noqa: F401  (registers the .pint accessor)
 import xarray as xr
 from cf_xarray.units import units as ureg
 
@@ -27,8 +26,6 @@ __all__ = [
     "convert_values",
     "convert_variable",
     "to_magnitude",
-    "quantify",
-    "dequantify",
 ]
 
 Q_ = ureg.Quantity
@@ -135,20 +132,3 @@ def to_magnitude(value: Any, expected: str, *, name: str) -> float | np.ndarray:
         f"convertible to {expected!r}, e.g. ureg.Quantity({value!r}, {expected!r})"
     )
 
-
-def quantify(ds: xr.Dataset) -> xr.Dataset:
-    """Attach pint units from the ``units`` attributes, using lidarcal's registry."""
-    return ds.pint.quantify(unit_registry=ureg)
-
-
-def dequantify(ds: xr.Dataset) -> xr.Dataset:
-    """Inverse of :func:`quantify` that writes UDUNITS spellings (``degree``, ``dB m-1``)."""
-    units = {
-        name: cf_units(var.data.units)
-        for name, var in ds.variables.items()
-        if isinstance(var.data, pint.Quantity)
-    }
-    out = ds.pint.dequantify()
-    for name, unit in units.items():
-        out[name].attrs["units"] = unit
-    return out

@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pint_xarray  # noqa: F401  (registers the .pint accessor)
 import pytest
 import xarray as xr
 
@@ -12,7 +13,7 @@ from lidarcal.errors import InputError, OutputExistsError, UnitError, Validation
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.provenance import sha256, stamp
 from lidarcal.schema import list_kinds, load_schema, validate_dataset
-from lidarcal.units import Q_, convert_values, dequantify, quantify, to_magnitude
+from lidarcal.units import Q_, cf_units, convert_values, to_magnitude, ureg
 
 
 def make_conditions(n=4, heights=(40.0, 80.0), seed=0):
@@ -56,12 +57,17 @@ def test_to_magnitude_refuses_bare_numbers():
         to_magnitude(100.0, "m", name="z")
 
 
-def test_quantify_roundtrip_writes_udunits_spellings():
-    ds = make_conditions()
-    back = dequantify(quantify(ds))
-    assert back.wind_from_direction.attrs["units"] == "degree"
-    assert back.cnr_gradient.attrs["units"] == "dB m-1"
-    assert back.wind_speed.attrs["units"] == "m s-1"
+def test_registry_reads_and_writes_udunits_spellings():
+    # pint-xarray with lidarcal's registry parses the artefacts' UDUNITS strings, and cf_units
+    # spells the parsed units back exactly as the schemas declare them
+    q = make_conditions().pint.quantify(unit_registry=ureg)
+    assert q.wind_speed.data.units == ureg.Unit("m/s")
+    assert float(q.wind_speed[0, 0].data.to("km/h").magnitude) == pytest.approx(
+        3.6 * float(q.wind_speed[0, 0].data.magnitude)
+    )
+    names = ("wind_from_direction", "cnr_gradient", "wind_speed")
+    spelled = {name: cf_units(q[name].data.units) for name in names}
+    assert spelled == {"wind_from_direction": "degree", "cnr_gradient": "dB m-1", "wind_speed": "m s-1"}
 
 
 def test_validator_reports_every_problem_at_once():

@@ -42,7 +42,7 @@ COMMANDS = (
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """Build the argument parser from every available subcommand module."""
+    """Build the argument parser from every subcommand module."""
     parser = argparse.ArgumentParser(
         prog="lidarcal",
         description="Anemometer-free calibration of pulsed Doppler wind lidars.",
@@ -50,13 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"lidarcal {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"lidarcal.cli.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"lidarcal.cli.{name}":
-                continue  # stage not built yet
-            raise
-        module.register(sub)
+        importlib.import_module(f"lidarcal.cli.{name}").register(sub)
     return parser
 
 

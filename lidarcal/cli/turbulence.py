@@ -64,9 +64,3 @@ def run(args: argparse.Namespace) -> int:
           f"(target {ds.attrs['lidarcal_sigma_u']:.3f}, {ds.attrs['lidarcal_sigma_v']:.3f}, "
           f"{ds.attrs['lidarcal_sigma_w']:.3f})")
     return 0
-
-
-def _argv(args: argparse.Namespace) -> list[str]:
-    return [f"--wind-speed {args.wind_speed:g}", f"--ti {args.ti:g}", f"--height {args.height:g}",
-            f"--direction {args.direction:g}", f"--shear {args.shear:g}",
-            "--seed " + " ".join(map(str, args.seed)), f"--generator {args.generator}", f"-o {args.output}"]

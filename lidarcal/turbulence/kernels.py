@@ -41,7 +41,6 @@ __all__ = [
     "frequencies",
     "spectral_magnitudes",
     "unique_planar_points",
-    "coherence_factors",
     "correlated_standard",
     "generate_points",
     "correlate",
@@ -133,21 +132,6 @@ def _factorise(mats: np.ndarray, jitter: float) -> np.ndarray:
         return vec * np.sqrt(np.clip(lam, 0.0, None))[..., None, :]
 
 
-def coherence_factors(f: np.ndarray, yz: np.ndarray, wind_speed: float, l_c: float = L_C,
-                      jitter: float = 1e-10) -> np.ndarray:
-    """Return square-root factors ``(3, n_f, n, n)`` of the ``iec3d`` coherence matrices of points ``yz``.
-
-    The matrices are built whole (``r = 0`` on the diagonal gives 1) in one ``exp`` call and
-    factorised by a batched Cholesky of ``C + jitter I``; if any matrix is still not positive
-    definite (near-duplicate points), the batch falls back to the symmetric
-    eigen-decomposition ``V sqrt(max(lambda, 0))``, which reproduces ``C``.
-    """
-    a, r = _coherence_exponents(f, yz, wind_speed, l_c)
-    mats = np.multiply(a[:, :, None, None], r)
-    np.exp(mats, out=mats)
-    return _factorise(mats, jitter)
-
-
 #: Frequencies factorised per batch: keeps the temporaries ~0.3 MB (measured 2.4x faster
 #: than one 3 MB batch, which the allocator maps and faults in afresh on every call).
 _CHUNK = 100
@@ -158,8 +142,9 @@ def correlated_standard(f: np.ndarray, yz: np.ndarray, wind_speed: float, xs: np
     """Return ``L(f) xi(f)`` for every component and frequency as (real, imag) pairs.
 
     ``xs`` has shape ``(3, n_f, n, 2)`` (real and imaginary parts of the unit coefficients).
-    Same maths as ``coherence_factors(f, yz, ...) @ xi`` but built, factorised and applied in
-    chunks of :data:`_CHUNK` frequencies (real BLAS on the stacked real/imaginary parts).
+    ``L(f)`` is a square root of the ``iec3d`` coherence matrix of the points ``yz`` (``r = 0``
+    on the diagonal gives 1), built, factorised and applied in chunks of :data:`_CHUNK`
+    frequencies (real BLAS on the stacked real/imaginary parts).
     """
     a, r = _coherence_exponents(f, yz, wind_speed, l_c)
     out = np.empty_like(xs)
