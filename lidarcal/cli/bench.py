@@ -11,7 +11,11 @@ from __future__ import annotations
 
 import argparse
 
+from lidarcal.bench.ingest import ingest
+from lidarcal.bench.repeatability import repeatability
+from lidarcal.bench.simulator import simulate_run
 from lidarcal.cli import command_line
+from lidarcal.cli.options import add_output_options
 from lidarcal.io import check_writable, write_artefact
 
 
@@ -23,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     bsub = p.add_subparsers(dest="bench_command", metavar="SUBCOMMAND")
 
     s = bsub.add_parser("simulate", help="write a simulated bench run (rtd.csv[.gz], control_log.csv)")
-    s.add_argument("-o", "--output", required=True, metavar="DIR", help="existing output directory")
+    add_output_options(s, "DIR", help="existing output directory")
     s.add_argument("--seed", type=int, default=0, help="SeedSequence entropy (default 0)")
     s.add_argument("--accumulation-time", type=float, default=650.0, metavar="S",
                    help="seconds per programmed bin (default 650, the paper's; full sweep ≈ 400 h)")
@@ -35,13 +39,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--bias-scale", type=float, default=1.0, help="scale of the true-response bias model")
     s.add_argument("--compress", action="store_true",
                    help="write the RTD gzip-compressed as rtd.csv.gz (byte-reproducible)")
-    s.add_argument("--overwrite", action="store_true", help="replace existing files")
     s.set_defaults(handler=run_simulate)
 
     i = bsub.add_parser("ingest", help="RTD + control log -> bench_cube netCDF")
     i.add_argument("rtd", metavar="RTD", help="lidar real-time data CSV (.csv or gzip-compressed .csv.gz)")
     i.add_argument("control", metavar="CONTROL", help="SAFO-MV control log CSV (.csv or .csv.gz)")
-    i.add_argument("-o", "--output", required=True, metavar="CUBE.nc")
+    add_output_options(i, "CUBE.nc")
     i.add_argument("--settling-time", type=float, default=5.0, metavar="S",
                    help="seconds after each bin start treated as transition (default 5)")
     i.add_argument("--outlier-rule", choices=("mad", "fixed", "none"), default="mad",
@@ -49,12 +52,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     i.add_argument("--outlier-k", type=float, default=4.0, help="MAD multiple of the mad rule (default 4)")
     i.add_argument("--outlier-threshold", type=float, default=3.0, metavar="M_S",
                    help="limit on |measured - programmed| in m/s for the fixed rule (default 3)")
-    i.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     i.set_defaults(handler=run_ingest)
 
     r = bsub.add_parser("repeatability", help="ISO 5725-4 between-run analysis of several cubes")
     r.add_argument("cubes", nargs="+", metavar="CUBE.nc")
-    r.add_argument("-o", "--output", required=True, metavar="REP.nc")
+    add_output_options(r, "REP.nc")
     r.add_argument("--exclude", action="append", default=[], metavar="RUN",
                    help="leave out a run by run_id or operator (run_id=X / operator=Y); repeatable")
     r.add_argument("--min-samples", type=int, default=144,
@@ -64,14 +66,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--velocity-window", type=float, nargs=2, default=(-18.0, 18.0), metavar=("LO", "HI"),
                    help="velocity window in m/s (default -18 18)")
     r.add_argument("--exclusive", action="store_true", help="exclude the window bounds (default: inclusive)")
-    r.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     r.set_defaults(handler=run_repeatability)
 
 
 def run_simulate(args: argparse.Namespace) -> int:
     """Simulate a run and write its two CSV files."""
-    from lidarcal.bench.simulator import simulate_run
-
     run = simulate_run(seed=args.seed, accumulation_time=f"{args.accumulation_time} s",
                        lidar_serial=args.serial, operator=args.operator, run_id=args.run_id,
                        bench_id=args.bench_id, start=args.start, bias_scale=args.bias_scale)
@@ -82,8 +81,6 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 def run_ingest(args: argparse.Namespace) -> int:
     """Ingest one run into a bench_cube."""
-    from lidarcal.bench.ingest import ingest
-
     check_writable(args.output, overwrite=args.overwrite)
     ds = ingest(args.rtd, args.control, settling_time=f"{args.settling_time} s",
                 outlier_rule=args.outlier_rule, outlier_k=args.outlier_k,
@@ -96,8 +93,6 @@ def run_ingest(args: argparse.Namespace) -> int:
 
 def run_repeatability(args: argparse.Namespace) -> int:
     """Between-run analysis of several cubes."""
-    from lidarcal.bench.repeatability import repeatability
-
     check_writable(args.output, overwrite=args.overwrite)
     ds = repeatability(args.cubes, exclude=args.exclude, min_samples=args.min_samples,
                        cnr_window=tuple(args.cnr_window),

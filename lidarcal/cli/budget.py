@@ -14,6 +14,7 @@ import numpy as np
 
 from lidarcal.analysis.budget import DEFAULT_MIN_SAMPLES, budget
 from lidarcal.cli import command_line
+from lidarcal.cli.options import add_output_options
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
 
@@ -26,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("records", metavar="RECORDS.nc", help="simulated_rtd or field_campaign file")
-    p.add_argument("-o", "--output", required=True, metavar="BUDGET.nc")
+    add_output_options(p, "BUDGET.nc")
     p.add_argument("--approach", choices=("monte_carlo", "iec"), default="monte_carlo")
     p.add_argument("--terms", metavar="TERMS.nc", help="uncertainty_terms artefact (Monte Carlo approach)")
     p.add_argument("--bin-width", default="0.5 m s-1", help="wind speed bin width (default '0.5 m s-1')")
@@ -60,7 +61,6 @@ def register(sub: argparse._SubParsersAction) -> None:
             metavar="'0 %'",
             help=f"IEC: relative standard uncertainty due to {name.replace('-', ' ')} (default 0)",
         )
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     p.set_defaults(handler=run)
 
 

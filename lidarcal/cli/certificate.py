@@ -11,7 +11,9 @@ import argparse
 
 from lidarcal.certificate import make_certificate, write_certificate
 from lidarcal.cli import command_line
+from lidarcal.cli.options import add_output_options
 from lidarcal.io import check_writable, open_artefact
+from lidarcal.report import write_report
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,9 +38,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--records", metavar="RECORDS.nc", help="simulated_rtd / field_campaign records (summarised)"
     )
-    p.add_argument("-o", "--output", required=True, metavar="CERT.nc")
+    add_output_options(p, "CERT.nc")
     p.add_argument("--report", metavar="CERT.html", help="also write the HTML report (and its PNGs)")
-    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.set_defaults(handler=run)
 
 
@@ -67,8 +68,6 @@ def run(args: argparse.Namespace) -> int:
         f"(check with: lidarcal verify {path})"
     )
     if args.report:
-        from lidarcal.report import write_report
-
         written = write_report(args.report, certificate=cert, overwrite=args.overwrite)
         print(
             f"{args.report}: HTML report with {len(written['figures'])} interactive plots and "

@@ -15,7 +15,10 @@ import warnings
 import numpy as np
 
 from lidarcal.cli import command_line
+from lidarcal.cli.options import add_output_options
+from lidarcal.conditions import load_conditions, sample_conditions_path, synthetic_conditions
 from lidarcal.io import check_writable, open_artefact, write_artefact
+from lidarcal.provenance import stamp
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -79,16 +82,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="I_REF",
         help="stochastic mode: IEC reference turbulence intensity (default 0.10)",
     )
-    syn.add_argument("-o", "--output", required=True, metavar="C.nc")
-    syn.add_argument("--overwrite", action="store_true")
+    add_output_options(syn, "C.nc")
     syn.set_defaults(handler=run_synthetic)
     p.set_defaults(handler=lambda args: p.print_help() or 1)
 
 
 def run_check(args: argparse.Namespace) -> int:
     """Print the shape, ranges and skipped periods of a conditions input."""
-    from lidarcal.conditions import load_conditions
-
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         ds = load_conditions(args.file, kind=args.kind)
@@ -109,9 +109,6 @@ def run_check(args: argparse.Namespace) -> int:
 
 def run_synthetic(args: argparse.Namespace) -> int:
     """Generate synthetic conditions and write them with provenance."""
-    from lidarcal.conditions import sample_conditions_path, synthetic_conditions
-    from lidarcal.provenance import stamp
-
     check_writable(args.output, overwrite=args.overwrite)
     base_path = args.base or (sample_conditions_path() if args.from_sample else None)
     base = open_artefact(base_path) if base_path else None

@@ -14,6 +14,7 @@ import argparse
 import numpy as np
 
 from lidarcal.cli import command_line
+from lidarcal.cli.options import add_output_options
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.rwf import range_weighting_function
 from lidarcal.units import Q_
@@ -48,8 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="range_offset grid spacing in metres (default 0.1)")
     grid.add_argument("--half-width", type=float, metavar="M",
                       help="range_offset grid half extent in metres (default: just wide enough)")
-    p.add_argument("-o", "--output", required=True, metavar="RWF.nc")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    add_output_options(p, "RWF.nc")
     p.set_defaults(handler=run)
 
 

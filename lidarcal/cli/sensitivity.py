@@ -14,6 +14,7 @@ import numpy as np
 from lidarcal.analysis._records import CANONICAL_UNITS
 from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES, sensitivity
 from lidarcal.cli import command_line
+from lidarcal.cli.options import add_output_options
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
@@ -34,13 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="VAR",
         help="environmental variable to bin by (repeatable), e.g. wind_shear_exponent",
     )
-    p.add_argument(
-        "-o",
-        "--output",
-        required=True,
-        metavar="OUT.nc",
-        help="output file; with several variables it must contain {variable}",
-    )
+    add_output_options(p, "OUT.nc", help="output file; with several variables it must contain {variable}")
     p.add_argument(
         "--bin-width",
         action="append",
@@ -70,7 +65,6 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="reference wind speed range in m s-1 (default 4 16)",
     )
     p.add_argument("--all-wind-speeds", action="store_true", help="use every period (no reference range)")
-    p.add_argument("--overwrite", action="store_true", help="replace existing output files")
     p.set_defaults(handler=run)
 
 
