@@ -20,8 +20,25 @@ import xarray as xr
 
 from lidarcal.errors import InputError, OutputExistsError
 from lidarcal.provenance import sha256
+from lidarcal.schema import validate_dataset
 
-__all__ = ["write_artefact", "open_artefact", "atomic_path", "check_writable"]
+__all__ = ["write_artefact", "open_artefact", "atomic_path", "check_writable", "source_name"]
+
+
+def source_name(obj: object, default: str = "<dataset>") -> str:
+    """Name of the file ``obj`` came from, for messages: the one answer to "which file was this?".
+
+    A path is returned as given; a dataset gives the file name :func:`open_artefact` recorded
+    (``lidarcal_source_file``), else the path xarray opened it from (``encoding["source"]``),
+    else its ``id`` attribute (every lidarcal artefact has one), else ``default``; anything
+    else gives ``default``.
+    """
+    if isinstance(obj, str | os.PathLike):
+        return os.fspath(obj)
+    if isinstance(obj, xr.Dataset):
+        return str(obj.attrs.get("lidarcal_source_file") or obj.encoding.get("source")
+                   or obj.attrs.get("id") or default)
+    return default
 
 
 def check_writable(path: str | os.PathLike, *, overwrite: bool = False) -> Path:
@@ -91,8 +108,6 @@ def write_artefact(
     OutputExistsError
         If ``path`` exists and ``overwrite`` is false.
     """
-    from lidarcal.schema import validate_dataset
-
     path = check_writable(path, overwrite=overwrite)
     # open_artefact's in-memory notes on where a dataset was read from describe that file,
     # not this one: never persist them

@@ -13,6 +13,7 @@ from lidarcal.conditions.variables import CANONICAL_UNITS as _VARIABLE_UNITS
 from lidarcal.conditions.variables import CONDITIONS
 from lidarcal.conditions.variables import STANDARD_NAMES as _STANDARD_NAMES
 from lidarcal.errors import InputError, MissingVariableError
+from lidarcal.io import source_name  # noqa: F401  (imported from here by the analysis modules)
 from lidarcal.units import LOG_UNITS, convert_values
 
 #: Canonical units of the variables an analysis may use (docs/contracts.md): the declared
@@ -25,11 +26,6 @@ CANONICAL_UNITS = {
 
 #: CF standard names of the conditions variables.
 STANDARD_NAMES = {n: s for n, s in _STANDARD_NAMES.items() if n in CONDITIONS}
-
-
-def source_name(ds: xr.Dataset, default: str = "<records>") -> str:
-    """Return the file a dataset came from (``open_artefact`` records it), for messages."""
-    return str(ds.attrs.get("lidarcal_source_file") or default)
 
 
 def checked(ds: xr.Dataset, name: str, *, source: str, expected: str | None = None) -> xr.DataArray:

@@ -32,7 +32,7 @@ from lidarcal.bench import kernels
 from lidarcal.bench.ingest import cube_template
 from lidarcal.cf import var_attrs
 from lidarcal.errors import InputError
-from lidarcal.io import open_artefact
+from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import stamp
 from lidarcal.schema import validate_dataset
 from lidarcal.units import to_magnitude
@@ -114,7 +114,7 @@ def repeatability(
     datasets, sources = [], []
     for item in cubes:
         ds = item if isinstance(item, xr.Dataset) else open_artefact(item, "bench_cube")
-        src = ds.attrs.get("lidarcal_source_file", "<dataset>") if isinstance(item, xr.Dataset) else str(item)
+        src = source_name(item)
         validate_dataset(ds, "bench_cube", source=src, raise_on_error=True)
         datasets.append(ds)
         sources.append(src)

@@ -38,9 +38,12 @@ from lidarcal.campaign.chunks import (
     run_chunk,
     unflatten_los,
 )
+from lidarcal.campaign.los import los_variables
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.conditions import CONDITION_VARIABLES, load_conditions
 from lidarcal.errors import InputError
+from lidarcal.io import source_name
+from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 from lidarcal.provenance import stamp
 
@@ -295,13 +298,11 @@ class _Campaign:
 
 def _prepare(conditions, model, heights, chunk, los_periods) -> _Campaign:
     """Check the model and options against the conditions; load the inputs the chunks need."""
-    from lidarcal.lidar import LidarModel
-
     if not isinstance(model, LidarModel):
         raise InputError(f"model must be a lidarcal.lidar.LidarModel; got {type(model).__name__}")
     path = None if isinstance(conditions, xr.Dataset) else os.fspath(conditions)
     cond = load_conditions(conditions)
-    source = path or str(cond.attrs.get("lidarcal_source_file", "<dataset>"))
+    source = path or source_name(cond)
     hidx = _select_heights(cond, heights, source)
     problems = check_reachable(model, cond.height.values[hidx])
     if problems:
@@ -443,7 +444,5 @@ def _assemble(
         ),
     )
     if los_data:
-        from lidarcal.campaign.los import los_variables
-
         ds = ds.merge(los_variables(los_data, ds.height.values))
     return ds

@@ -18,8 +18,8 @@ import xarray as xr
 
 from lidarcal.cf import height_coord, var_attrs
 from lidarcal.conditions.variables import CONDITIONS, FIELD_PAIR
-from lidarcal.errors import InputError, MissingVariableError
-from lidarcal.io import open_artefact
+from lidarcal.errors import InputError, MissingVariableError, ValidationError
+from lidarcal.io import open_artefact, source_name
 from lidarcal.schema import validate_dataset
 from lidarcal.units import convert_values, convert_variable
 
@@ -41,12 +41,6 @@ FIELD_VARIABLES: dict[str, tuple[str, str, str | None]] = {n: tuple(v) for n, v 
 
 class SkippedPeriodsWarning(UserWarning):
     """Some periods lack a needed value at some height and will be skipped there."""
-
-
-def _source_of(obj: str | os.PathLike | xr.Dataset) -> str:
-    if isinstance(obj, xr.Dataset):
-        return str(obj.attrs.get("lidarcal_source_file") or obj.encoding.get("source") or "<dataset>")
-    return str(obj)
 
 
 def _where_first(mask: np.ndarray, ds: xr.Dataset) -> str:
@@ -127,7 +121,7 @@ def load_conditions(
     """
     if kind not in ("conditions", "field_campaign"):
         raise InputError(f"kind must be 'conditions' or 'field_campaign'; got {kind!r}")
-    source = _source_of(path_or_dataset)
+    source = source_name(path_or_dataset)
     if isinstance(path_or_dataset, xr.Dataset):
         raw = path_or_dataset
     else:
@@ -208,8 +202,6 @@ def load_conditions(
     problems = validate_dataset(checked, kind, source=source)
     problems = [p for p in problems if "lidarcal_artefact" not in p]
     if problems:
-        from lidarcal.errors import ValidationError
-
         raise ValidationError(problems, source)
     if n_skip and warn:
         rows = np.unique(np.argwhere(~complete)[:, 0])

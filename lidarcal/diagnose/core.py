@@ -28,11 +28,14 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.campaign import DEFAULT_BASE_SEED
+from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
+from lidarcal.conditions import load_conditions
 from lidarcal.diagnose import fit, stats
 from lidarcal.diagnose.effects import CONDITION_VARIABLES, EFFECTS, Effect, get_effect
 from lidarcal.errors import InputError, MissingVariableError
+from lidarcal.io import open_artefact, source_name
 from lidarcal.lidar import LidarModel
+from lidarcal.lidar.geometry import check_reachable
 
 __all__ = ["diagnose", "DiagnosisResult", "CandidateFit", "DEFAULT_SEED", "RECORD_NAMES",
            "min_periods"]
@@ -103,14 +106,6 @@ class DiagnosisResult:
 
 # -- input ------------------------------------------------------------------------------------
 
-def _source(obj: Any) -> str:
-    if isinstance(obj, str | os.PathLike):
-        return os.fspath(obj)
-    if isinstance(obj, xr.Dataset):
-        return str(obj.attrs.get("lidarcal_source_file") or "<field campaign dataset>")
-    return "<field campaign>"
-
-
 def load_field(field: str | os.PathLike | xr.Dataset, *, n_bins: int, min_bin_count: int,
                min_wind_speed: float) -> tuple[xr.Dataset, np.ndarray, str]:
     """Open and check a field campaign; return (dataset, usable mask (time, height), source).
@@ -119,10 +114,7 @@ def load_field(field: str | os.PathLike | xr.Dataset, *, n_bins: int, min_bin_co
     and the reference is at least ``min_wind_speed``.  Heights with fewer than
     :func:`min_periods` usable periods are dropped (with a log message); none left is an error.
     """
-    from lidarcal.conditions import load_conditions
-    from lidarcal.io import open_artefact
-
-    source = _source(field)
+    source = source_name(field, "<field campaign>")
     raw = field if isinstance(field, xr.Dataset) else open_artefact(field)
     missing = [n for n in MEASURED if n not in raw.variables]
     if missing:
@@ -162,8 +154,6 @@ def nominal_model(ds: xr.Dataset, *, cube: xr.Dataset | None = None, rwf: xr.Dat
 
 def _check_reachable(model, heights: np.ndarray, source: str) -> None:
     """Refuse heights whose range gate (with the RWF's extent) would reach below the lidar."""
-    from lidarcal.lidar.geometry import check_reachable
-
     problems = check_reachable(model, heights)
     if problems:
         raise InputError(f"{source}: variable 'height': heights the lidar cannot measure with this RWF and "
@@ -184,8 +174,6 @@ class _Simulator:
         self.runs = 0
 
     def __call__(self, model, label: str) -> dict[str, np.ndarray]:
-        from lidarcal.campaign import simulate_campaign
-
         n_t, n_h = self.conditions.sizes['time'], self.conditions.sizes['height']
         self.progress(f"simulating {n_t} periods x {n_h} "
                       f"heights: {label}")
@@ -218,6 +206,32 @@ def _fit(effect: Effect, r, d0, d_probe, theta0, theta_probe, conditions, valid,
     dbic = fit.delta_bic(res.rss, res.rss0, effect.n_parameters, n_eff)
     explained = 1.0 - res.rss / res.rss0 if res.rss0 > 0 else 0.0
     return theta0 + float(res.delta[0]), float(res.stderr[0]), dbic, explained, res.clipped
+
+
+@dataclass
+class _Problem:
+    """The residual to explain and what every candidate fit shares (common random numbers)."""
+
+    model: Any
+    simulate: _Simulator
+    base: dict[str, np.ndarray]
+    conditions: dict[str, np.ndarray]
+    d_measured: np.ndarray
+    d0: np.ndarray
+    valid: np.ndarray
+    r: np.ndarray
+    weights: np.ndarray | None = None
+    n_eff: float = 0.0
+    design_effect: float = 1.0
+
+    def records_at(self, effect: Effect, params: Mapping[str, float], label: str) -> dict[str, np.ndarray]:
+        """Return the records of the model with ``effect`` at ``params`` (shortcut or re-simulation)."""
+        return _records_at(effect, params, self.model, self.base, self.conditions, self.simulate, label)
+
+    def fit(self, effect: Effect, d_probe: np.ndarray, theta0: float, theta_probe: float):
+        """Linearised fit of ``effect`` from the response ``d_probe`` at ``theta_probe``."""
+        return _fit(effect, self.r, self.d0, d_probe, theta0, theta_probe, self.conditions, self.valid,
+                    self.weights, self.n_eff)
 
 
 def diagnose(
@@ -270,7 +284,7 @@ def diagnose(
         Show a progress bar (tqdm, stderr) during each simulation.  Each step is also
         logged at INFO level on the ``lidarcal.diagnose`` logger.
     """
-    say = log.info
+    # 0. inputs: the campaign, the nominal model, the candidates
     ds, usable, source = load_field(field, n_bins=n_bins, min_bin_count=min_bin_count,
                                     min_wind_speed=min_wind_speed)
     if model is None:
@@ -278,87 +292,112 @@ def diagnose(
     _check_reachable(model, ds.height.values, source)
     ids = [c for c in (candidates if candidates is not None else EFFECTS) if c != "none"]
     effects = [get_effect(c) for c in ids]
-
-    cond_ds = ds[list(CONDITION_VARIABLES)].copy()
-    cond_ds.attrs = {"lidarcal_source_file": os.path.basename(source)}  # a plain conditions input
-    conditions = {n: np.asarray(ds[n].transpose("time", "height").values, dtype=float)
-                  for n in CONDITION_VARIABLES}
-    simulate = _Simulator(cond_ds, base_seed, {"progress": progress, **(simulate_options or {})}, say)
-    base = simulate(model, "nominal model")
-    d_meas = stats.relative_difference(ds["lidar_wind_speed"].values, ds["reference_wind_speed"].values)
-    d0 = _d(base)
-    valid = usable & np.isfinite(d_meas) & np.isfinite(d0)
-    r = np.where(valid, d_meas - d0, np.nan)
-
+    # 1. simulate the campaign's own conditions with the nominal model
+    simulate = _Simulator(_conditions_input(ds, source), base_seed,
+                          {"progress": progress, **(simulate_options or {})}, log.info)
+    problem = _residual(ds, usable, model, simulate)
     # 2. where do they disagree?
-    edges = {n: stats.bin_edges(conditions[n][valid], n_bins) for n in CONDITION_VARIABLES}
-    drivers = {n: np.where(valid, conditions[n], np.nan) for n in CONDITION_VARIABLES}
-    binned0 = stats.bin_residuals(r, drivers, n_bins, edges)
-    tests = stats.disagreement_tests(binned0, min_bin_count, residual=r)
-    p_all = np.concatenate([tests["p_adjusted"].ravel(), tests["mean_p_adjusted"]])
-    p_min = float(np.nanmin(p_all)) if np.isfinite(p_all).any() else 1.0
-    significant = p_min < alpha
-    gap0 = stats.gap(binned0, min_bin_count)
-    say(f"gap before: {gap0[0]:.3f} % (noise floor {gap0[2]:.3f} %); disagreement "
-        f"{'significant' if significant else 'not significant'} (min Holm p = {p_min:.3g})")
-
-    # 3-4. fit every candidate from one probe (common random numbers)
-    w = fit.noise_weights(d0, conditions, valid)
-    deff = fit.design_effect(np.where(valid, r, 0.0), w)
-    n_eff = float(valid.sum()) / deff
-    fits: list[CandidateFit] = []
-    for eff in effects:
-        theta0 = eff.nominal(model)
-        probe = eff.probe(model)
-        d_probe = _d(_records_at(eff, probe, model, base, conditions, simulate, f"{eff.id} probe {probe}"))
-        name = eff.parameters[0].name
-        est, se, dbic, expl, clipped = _fit(eff, r, d0, d_probe, theta0[name], probe[name], conditions,
-                                            valid, w, n_eff)
-        fits.append(CandidateFit(eff, theta0, {name: est}, {name: se}, dbic, expl, probe, clipped=clipped))
-        say(f"  {eff.id}: {name} = {est:.4g} ± {se:.2g}, ΔBIC = {dbic:.1f}, explains {100 * expl:.1f} %")
-    fits.sort(key=lambda c: c.delta_bic)
-
+    edges, drivers, binned0, tests, significant, gap0 = _disagreement(problem, n_bins, min_bin_count, alpha)
+    # 3-4. fit every candidate from one probe, name the best and refine it
+    fits = _fit_candidates(problem, effects)
     chosen, tied, note = _choose(fits, significant, bic_threshold, tie_threshold)
-    corrected = model
-    after = base
-    if chosen is not None:
-        eff = chosen.effect
-        name = eff.parameters[0].name
-        theta0, theta1 = chosen.nominal[name], chosen.estimate[name]
-        # refine: one re-simulation at the estimate; secant response over [θ0, θ1]
-        rec1 = _records_at(eff, {name: theta1}, model, base, conditions, simulate, f"{eff.id} at estimate")
-        after, final = rec1, theta1
-        if abs(theta1 - theta0) > 1e-12:
-            est2, se2, dbic2, expl2, clipped2 = _fit(eff, r, d0, _d(rec1), theta0, theta1, conditions, valid,
-                                                     w, n_eff)
-            chosen.stderr = {name: se2}
-            chosen.refined = True
-            if abs(est2 - theta1) > 0.5 * se2:  # the estimate moved: simulate where it landed
-                final = est2
-                after = _records_at(eff, {name: est2}, model, base, conditions, simulate,
-                                    f"{eff.id} at refined estimate")
-            chosen.estimate = {name: final}
-            chosen.delta_bic, chosen.explained, chosen.clipped = dbic2, expl2, clipped2
-            say(f"refined {eff.id}: {name} = {final:.4g} ± {se2:.2g}")
-        corrected = eff.apply(model, chosen.estimate)
-        fits.sort(key=lambda c: c.delta_bic)  # the refined score may reorder the table
+    corrected, after = (model, problem.base) if chosen is None else _refine(problem, chosen)
+    fits.sort(key=lambda c: c.delta_bic)  # the refined score may reorder the table
+    # 5. the gap after adding the fitted effect
     d_after = _d(after)
-    r_after = np.where(valid, d_meas - d_after, np.nan)
-    binned1 = stats.bin_residuals(r_after, drivers, n_bins, edges)
+    binned1 = stats.bin_residuals(np.where(problem.valid, problem.d_measured - d_after, np.nan), drivers,
+                                  n_bins, edges)
     gap1 = stats.gap(binned1, min_bin_count)
-    say(f"answer: {chosen.effect.id if chosen else 'none'}; gap after: {gap1[0]:.3f} % "
-        f"({simulate.runs} campaign simulations)")
+    log.info(f"answer: {chosen.effect.id if chosen else 'none'}; gap after: {gap1[0]:.3f} % "
+             f"({simulate.runs} campaign simulations)")
     settings = {"base_seed": int(base_seed), "n_bins": int(n_bins), "min_bin_count": int(min_bin_count),
                 "alpha": float(alpha), "bic_threshold": float(bic_threshold),
                 "tie_threshold": float(tie_threshold), "min_wind_speed": float(min_wind_speed),
                 "candidates": ids, "simulations": simulate.runs,
                 "simulate_options": {k: v for k, v in (simulate_options or {}).items() if k != "scheduler"}}
     return DiagnosisResult(
-        heights=ds.height.values, times=ds.time.values, conditions=conditions, valid=valid,
-        d_measured=d_meas, d_before=d0, d_after=d_after, binned_before=binned0, binned_after=binned1,
-        tests=tests, significant=significant, candidates=fits, chosen=chosen, tied=tied, note=note,
-        gap_before=gap0, gap_after=gap1, design_effect=deff, nominal_model=model, corrected_model=corrected,
-        settings=settings, source=source, field_dataset=ds)
+        heights=ds.height.values, times=ds.time.values, conditions=problem.conditions, valid=problem.valid,
+        d_measured=problem.d_measured, d_before=problem.d0, d_after=d_after, binned_before=binned0,
+        binned_after=binned1, tests=tests, significant=significant, candidates=fits, chosen=chosen,
+        tied=tied, note=note, gap_before=gap0, gap_after=gap1, design_effect=problem.design_effect,
+        nominal_model=model, corrected_model=corrected, settings=settings, source=source, field_dataset=ds)
+
+
+def _conditions_input(ds: xr.Dataset, source: str) -> xr.Dataset:
+    """Return the campaign's six conditions as a plain ``conditions`` input of the simulation."""
+    cond_ds = ds[list(CONDITION_VARIABLES)].copy()
+    cond_ds.attrs = {"lidarcal_source_file": os.path.basename(source)}
+    return cond_ds
+
+
+def _residual(ds: xr.Dataset, usable: np.ndarray, model, simulate: _Simulator) -> _Problem:
+    """Simulate the nominal model; residual r = d_measured − d_simulated where both are usable."""
+    conditions = {n: np.asarray(ds[n].transpose("time", "height").values, dtype=float)
+                  for n in CONDITION_VARIABLES}
+    base = simulate(model, "nominal model")
+    d_meas = stats.relative_difference(ds["lidar_wind_speed"].values, ds["reference_wind_speed"].values)
+    d0 = _d(base)
+    valid = usable & np.isfinite(d_meas) & np.isfinite(d0)
+    r = np.where(valid, d_meas - d0, np.nan)
+    return _Problem(model, simulate, base, conditions, d_meas, d0, valid, r)
+
+
+def _disagreement(problem: _Problem, n_bins: int, min_bin_count: int, alpha: float):
+    """Bin the residual by every condition and test it (Holm).
+
+    Returns the bin edges and drivers per condition, the binned residual, the tests, whether the
+    disagreement is significant at ``alpha`` and the gap before correction.
+    """
+    valid, conditions = problem.valid, problem.conditions
+    edges = {n: stats.bin_edges(conditions[n][valid], n_bins) for n in CONDITION_VARIABLES}
+    drivers = {n: np.where(valid, conditions[n], np.nan) for n in CONDITION_VARIABLES}
+    binned0 = stats.bin_residuals(problem.r, drivers, n_bins, edges)
+    tests = stats.disagreement_tests(binned0, min_bin_count, residual=problem.r)
+    p_all = np.concatenate([tests["p_adjusted"].ravel(), tests["mean_p_adjusted"]])
+    p_min = float(np.nanmin(p_all)) if np.isfinite(p_all).any() else 1.0
+    significant = p_min < alpha
+    gap0 = stats.gap(binned0, min_bin_count)
+    log.info(f"gap before: {gap0[0]:.3f} % (noise floor {gap0[2]:.3f} %); disagreement "
+             f"{'significant' if significant else 'not significant'} (min Holm p = {p_min:.3g})")
+    return edges, drivers, binned0, tests, significant, gap0
+
+
+def _fit_candidates(problem: _Problem, effects: Sequence[Effect]) -> list[CandidateFit]:
+    """Fit every effect from one probe re-simulation (common random numbers); sorted by ΔBIC."""
+    problem.weights = fit.noise_weights(problem.d0, problem.conditions, problem.valid)
+    problem.design_effect = fit.design_effect(np.where(problem.valid, problem.r, 0.0), problem.weights)
+    problem.n_eff = float(problem.valid.sum()) / problem.design_effect
+    fits: list[CandidateFit] = []
+    for eff in effects:
+        theta0 = eff.nominal(problem.model)
+        probe = eff.probe(problem.model)
+        d_probe = _d(problem.records_at(eff, probe, f"{eff.id} probe {probe}"))
+        name = eff.parameters[0].name
+        est, se, dbic, expl, clipped = problem.fit(eff, d_probe, theta0[name], probe[name])
+        fits.append(CandidateFit(eff, theta0, {name: est}, {name: se}, dbic, expl, probe, clipped=clipped))
+        log.info(f"  {eff.id}: {name} = {est:.4g} ± {se:.2g}, ΔBIC = {dbic:.1f}, explains {100 * expl:.1f} %")
+    fits.sort(key=lambda c: c.delta_bic)
+    return fits
+
+
+def _refine(problem: _Problem, chosen: CandidateFit) -> tuple[Any, dict[str, np.ndarray]]:
+    """Re-simulate at the estimate, refit on the secant over [θ0, θ1]; return (corrected model, records)."""
+    eff = chosen.effect
+    name = eff.parameters[0].name
+    theta0, theta1 = chosen.nominal[name], chosen.estimate[name]
+    rec1 = problem.records_at(eff, {name: theta1}, f"{eff.id} at estimate")
+    after, final = rec1, theta1
+    if abs(theta1 - theta0) > 1e-12:
+        est2, se2, dbic2, expl2, clipped2 = problem.fit(eff, _d(rec1), theta0, theta1)
+        chosen.stderr = {name: se2}
+        chosen.refined = True
+        if abs(est2 - theta1) > 0.5 * se2:  # the estimate moved: simulate where it landed
+            final = est2
+            after = problem.records_at(eff, {name: est2}, f"{eff.id} at refined estimate")
+        chosen.estimate = {name: final}
+        chosen.delta_bic, chosen.explained, chosen.clipped = dbic2, expl2, clipped2
+        log.info(f"refined {eff.id}: {name} = {final:.4g} ± {se2:.2g}")
+    return eff.apply(problem.model, chosen.estimate), after
 
 
 def _choose(fits: list[CandidateFit], significant: bool, bic_threshold: float,

@@ -19,12 +19,15 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.analysis.sensitivity import sensitivity
 from lidarcal.cf import height_coord, var_attrs
 from lidarcal.conditions.variables import CONDITIONS
 from lidarcal.diagnose.core import DiagnosisResult
 from lidarcal.diagnose.effects import CONDITION_VARIABLES, EFFECTS
 from lidarcal.diagnose.stats import GAP_METRIC
 from lidarcal.errors import InputError
+from lidarcal.io import open_artefact, source_name
+from lidarcal.lidar import LidarModel
 from lidarcal.provenance import stamp
 
 __all__ = ["summary", "to_dataset", "corrected_model", "records_dataset", "sensitivity_statistics",
@@ -98,8 +101,6 @@ def sensitivity_statistics(result: DiagnosisResult) -> dict[str, np.ndarray]:
 
     Computed by :func:`lidarcal.analysis.sensitivity` on the diagnosis' own quantile bins.
     """
-    from lidarcal.analysis.sensitivity import sensitivity
-
     out = {}
     nv, nh = len(CONDITION_VARIABLES), len(result.heights)
     for which in ("measured", "before", "after"):
@@ -237,13 +238,9 @@ def corrected_model(diagnosis: xr.Dataset | str | os.PathLike):
     Any artefact with a ``lidarcal_lidar_model`` attribute works (a ``simulated_rtd`` too);
     ``lidarcal simulate --model DIAGNOSIS.nc`` uses this.
     """
-    from lidarcal.io import open_artefact
-    from lidarcal.lidar import LidarModel
-
     ds = diagnosis if isinstance(diagnosis, xr.Dataset) else open_artefact(diagnosis, load=False, chunks={})
     text = ds.attrs.get("lidarcal_lidar_model")
-    name = diagnosis if isinstance(diagnosis, str | os.PathLike) else ds.attrs.get("lidarcal_source_file",
-                                                                                  "<dataset>")
+    name = source_name(diagnosis)
     if not isinstance(diagnosis, xr.Dataset):
         ds.close()
     if not text:

@@ -27,6 +27,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.errors import InputError, MissingVariableError
+from lidarcal.io import source_name
 from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes, trapezoid_weights
 from lidarcal.rwf.kernels import barycenter
 from lidarcal.units import convert_variable
@@ -230,13 +231,13 @@ class LidarModel:
         if rwf is not None:
             offsets, weights = _rwf_nodes(rwf, n_nodes)
             kw.update(rwf_offsets=offsets, rwf_weights=weights, cnr_weighting_scale=1.0)
-            described.append(f"RWF {_source(rwf)} ({n_nodes} nodes)")
+            described.append(f"RWF {source_name(rwf)} ({n_nodes} nodes)")
         else:
             described.append(f"ideal Gaussian RWF FWHM {rwf_fwhm:g} m ({n_nodes} nodes)")
         if cube is not None:
             kw["noise_table"] = _noise_table(cube, tuple(overrides.get("azimuths", cls.azimuths)))
             kw["cnr_threshold"] = DEFAULT_CNR_THRESHOLD
-            described.append(f"bench cube {_source(cube)}, CNR filter {DEFAULT_CNR_THRESHOLD:g} dB")
+            described.append(f"bench cube {source_name(cube)}, CNR filter {DEFAULT_CNR_THRESHOLD:g} dB")
         else:
             described.append("ideal Gaussian LOS noise")
         kw["description"] = "; ".join(described)
@@ -297,7 +298,7 @@ def lidar_attributes(ds: xr.Dataset, *, source: str | None = None) -> dict[str, 
     Raises :class:`~lidarcal.errors.InputError` naming the file and attribute when a value is
     not a number or outside its range.
     """
-    source = source or _source(ds)
+    source = source or source_name(ds)
     out = {}
     for name, (default, meaning, lo, hi, zero_ok) in LIDAR_ATTRIBUTES.items():
         raw = ds.attrs.get(name, default)
@@ -316,12 +317,8 @@ def lidar_attributes(ds: xr.Dataset, *, source: str | None = None) -> dict[str, 
     return out
 
 
-def _source(ds: xr.Dataset) -> str:
-    return str(ds.attrs.get("lidarcal_source_file") or ds.attrs.get("id") or "<dataset>")
-
-
 def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
-    src = _source(rwf)
+    src = source_name(rwf)
     if "rwf" not in rwf.variables:
         raise MissingVariableError(f"{src}: rwf artefact has no variable 'rwf'; "
                                    f"found {sorted(map(str, rwf.variables))}")
@@ -360,7 +357,7 @@ def _fill_nearest(values: np.ndarray) -> np.ndarray:
 
 
 def _noise_table(cube: xr.Dataset, azimuths: tuple[float, ...]) -> NoiseTable:
-    src = _source(cube)
+    src = source_name(cube)
     bias = convert_variable(cube, "los_bias", "m s-1", source=src)
     std = convert_variable(cube, "los_std", "m s-1", source=src)
     cnr = convert_variable(cube, "cnr", "dB", source=src).values
