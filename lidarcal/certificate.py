@@ -32,8 +32,9 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.errors import InputError
-from lidarcal.io import atomic_path, check_writable, write_artefact
-from lidarcal.provenance import stamp
+from lidarcal.io import atomic_path, check_writable, open_artefact, write_artefact
+from lidarcal.provenance import jsonable, read_json_attr, stamp
+from lidarcal.schema import validate_dataset
 
 __all__ = [
     "make_certificate",
@@ -59,37 +60,6 @@ _ROLE_KINDS = {
     "terms": "uncertainty_terms",
 }
 _RECORD_KINDS = ("simulated_rtd", "field_campaign")
-
-
-# ------------------------------------------------------------------ JSON helpers
-
-
-def _plain(obj: Any) -> Any:
-    if isinstance(obj, Mapping):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, bytes):
-        return obj.decode("utf-8", "replace")
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    if isinstance(obj, float) and not np.isfinite(obj):
-        return str(obj)
-    return obj
-
-
-def _json_attr(ds: xr.Dataset, name: str) -> Any:
-    text = ds.attrs.get(name)
-    if text is None:
-        return None
-    try:
-        return json.loads(text)
-    except (TypeError, ValueError):
-        return text
 
 
 # ------------------------------------------------------------------ flattening
@@ -144,7 +114,7 @@ def extract_component(cert: xr.Dataset, name: str) -> xr.Dataset:
 
 def components(cert: xr.Dataset) -> list[dict[str, Any]]:
     """List the components of a certificate (name, prefix, kind, file, sha256, attributes)."""
-    comps = _json_attr(cert, "lidarcal_components")
+    comps = read_json_attr(cert, "lidarcal_components")
     if not isinstance(comps, list):
         raise InputError("not a lidarcal certificate: global attribute 'lidarcal_components' is missing")
     return comps
@@ -177,7 +147,7 @@ def _find_key(obj: Any, key: str) -> Any:
 def _serial(ds: xr.Dataset) -> str | None:
     if ds.attrs.get("lidar_serial"):
         return str(ds.attrs["lidar_serial"])
-    model = _json_attr(ds, "lidarcal_lidar_model")
+    model = read_json_attr(ds, "lidarcal_lidar_model")
     found = _find_key(model, "lidar_serial") if model is not None else None
     return str(found) if found else None
 
@@ -191,7 +161,7 @@ def _check_consistent(inputs: Mapping[str, xr.Dataset]) -> str | None:
         raise InputError("inputs disagree on the lidar: " + "; ".join(pairs))
     known = {role: ds.attrs.get("lidarcal_source_sha256") for role, ds in inputs.items()}
     for role, ds in inputs.items():
-        recorded = _json_attr(ds, "lidarcal_inputs")
+        recorded = read_json_attr(ds, "lidarcal_inputs")
         for rec in recorded if isinstance(recorded, list) else []:
             other = rec.get("role")
             if other in known and known[other] and other != role and rec.get("sha256") != known[other]:
@@ -224,9 +194,9 @@ def _provenance(role: str, ds: xr.Dataset) -> dict[str, Any]:
         "sha256": ds.attrs.get("lidarcal_source_sha256"),
         "id": ds.attrs.get("id"),
         "lidarcal_version": ds.attrs.get("lidarcal_version"),
-        "inputs": _json_attr(ds, "lidarcal_inputs"),
-        "config": _json_attr(ds, "lidarcal_config"),
-        "seeds": _json_attr(ds, "lidarcal_seeds"),
+        "inputs": read_json_attr(ds, "lidarcal_inputs"),
+        "config": read_json_attr(ds, "lidarcal_config"),
+        "seeds": read_json_attr(ds, "lidarcal_seeds"),
         "history": ds.attrs.get("history"),
     }
 
@@ -244,7 +214,7 @@ def _records_summary(records: xr.Dataset) -> dict[str, Any]:
         out["time_coverage_end"] = str(np.max(t))
     for name in ("lidarcal_base_seed", "lidarcal_lidar_model"):
         if name in records.attrs:
-            out[name] = _json_attr(records, name)
+            out[name] = read_json_attr(records, name)
     return out
 
 
@@ -312,7 +282,8 @@ def make_certificate(
     cert = xr.merge(parts, compat="no_conflicts", join="exact", combine_attrs="drop_conflicts")
     comps = []
     for role, ds in {**inputs, **sens_roles}.items():
-        attrs = {k: _plain(v) for k, v in ds.attrs.items() if not k.startswith("lidarcal_source_")}
+        attrs = {k: jsonable(v, strict=True) for k, v in ds.attrs.items()
+                 if not k.startswith("lidarcal_source_")}
         comps.append(
             {
                 "name": role,
@@ -327,14 +298,15 @@ def make_certificate(
     chain = [_provenance(role, ds) for role, ds in everything.items()]
     cert.attrs = {
         "certificate_components": " ".join(c["name"] for c in comps),
-        "lidarcal_components": json.dumps(_plain(comps), sort_keys=True),
-        "lidarcal_provenance_chain": json.dumps(_plain(chain), sort_keys=True),
+        "lidarcal_components": json.dumps(jsonable(comps, strict=True), sort_keys=True),
+        "lidarcal_provenance_chain": json.dumps(jsonable(chain, strict=True), sort_keys=True),
         "budget_approach": str(budget.attrs.get("approach", "unknown")),
     }
     if serial:
         cert.attrs["lidar_serial"] = serial
     if records is not None:
-        cert.attrs["lidarcal_records_summary"] = json.dumps(_plain(_records_summary(records)), sort_keys=True)
+        cert.attrs["lidarcal_records_summary"] = json.dumps(jsonable(_records_summary(records), strict=True),
+                                                            sort_keys=True)
     if rwf is not None and "zero_distance" in rwf:
         cert.attrs["zero_distance_m"] = float(rwf["zero_distance"])
     for key in ("bench_id", "operator", "run_id", "time_coverage_start", "time_coverage_end"):
@@ -463,9 +435,6 @@ def verify_certificate(path: str | os.PathLike) -> VerificationReport:
         If ``path`` is missing, unreadable or not a lidarcal certificate.
     """
     import netCDF4
-
-    from lidarcal.io import open_artefact
-    from lidarcal.schema import validate_dataset
 
     path = Path(path)
     if not path.exists():

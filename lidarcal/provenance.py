@@ -21,7 +21,9 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-__all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "CONVENTIONS"]
+from lidarcal import __version__
+
+__all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "jsonable", "CONVENTIONS"]
 
 CONVENTIONS = "CF-1.11, ACDD-1.3"
 _PACKAGES = ("lidarcal", "numpy", "scipy", "xarray", "dask", "netCDF4", "pint", "pint-xarray",
@@ -48,26 +50,44 @@ def software_versions() -> dict[str, str]:
     return out
 
 
-def _jsonable(obj: Any) -> Any:
+def jsonable(obj: Any, *, strict: bool = False) -> Any:
+    """``obj`` with numpy scalars and arrays, paths, bytes and pint quantities made JSON-ready.
+
+    Mappings (keys become strings), lists and tuples are converted recursively; a pint
+    quantity becomes ``"<magnitude> <cf unit>"``.  With ``strict`` non-finite floats become
+    the strings ``"nan"``, ``"inf"``, ``"-inf"``, so that :func:`json.dumps` writes standard
+    JSON (the certificate's attributes); without it they stay floats (``NaN`` in the text).
+    """
     if isinstance(obj, Mapping):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
+        return {str(k): jsonable(v, strict=strict) for k, v in obj.items()}
     if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
+        return [jsonable(v, strict=strict) for v in obj]
+    if isinstance(obj, np.ndarray | np.generic):
+        return jsonable(obj.tolist(), strict=strict)
+    if isinstance(obj, bytes):
+        return obj.decode("utf-8", "replace")
     if isinstance(obj, os.PathLike):
         return os.fspath(obj)
     if hasattr(obj, "magnitude") and hasattr(obj, "units"):
         return f"{obj.magnitude} {obj.units:~cf}"
+    if strict and isinstance(obj, float) and not np.isfinite(obj):
+        return str(obj)
     return obj
 
 
 def read_json_attr(ds: xr.Dataset, name: str, default: Any = None) -> Any:
-    """Decode a JSON-valued global attribute written by :func:`stamp`."""
+    """Decode a JSON-valued global attribute (as written by :func:`stamp`).
+
+    Returns ``default`` when the attribute is absent and the text itself when it is not JSON
+    (an attribute of a file lidarcal did not write), so provenance records never fail on it.
+    """
     text = ds.attrs.get(name)
-    return default if text is None else json.loads(text)
+    if text is None:
+        return default
+    try:
+        return json.loads(text)
+    except (TypeError, ValueError):
+        return text
 
 
 def _now() -> str:
@@ -109,8 +129,6 @@ def stamp(
     seeds : mapping, optional
         Random seeds used, recorded as JSON.
     """
-    from lidarcal import __version__
-
     now = _now()
     records = []
     for role, path in (inputs or {}).items():
@@ -151,8 +169,8 @@ def stamp(
             "lidarcal_version": __version__,
             "lidarcal_software": json.dumps(software_versions(), sort_keys=True),
             "lidarcal_inputs": json.dumps(records, sort_keys=True),
-            "lidarcal_config": json.dumps(_jsonable(dict(config or {})), sort_keys=True),
-            "lidarcal_seeds": json.dumps(_jsonable(dict(seeds or {})), sort_keys=True),
+            "lidarcal_config": json.dumps(jsonable(dict(config or {})), sort_keys=True),
+            "lidarcal_seeds": json.dumps(jsonable(dict(seeds or {})), sort_keys=True),
         }
     )
     out.attrs = attrs
