@@ -89,10 +89,10 @@ def _anchors(markdown: str) -> set[str]:
 def test_the_scanners_find_what_they_look_for(tmp_path):
     # the checks below are only worth something if the scanners do flag a planted offence
     (tmp_path / "docs").mkdir()
-    (tmp_path / "docs" / "real.md").write_text("x")
+    (tmp_path / "docs" / "README.md").write_text("x")
     gone, gone_glob = "docs/" + "gone.md", "tests/" + "test_gone*.py"  # pieces: this file is scanned too
     bad = tmp_path / "mod.py"
-    bad.write_text(f"# see {FORBIDDEN[0]} 3.1\n# and docs/real.md, {gone}, {gone_glob}\n")
+    bad.write_text(f"# see {FORBIDDEN[0]} 3.1\n# and docs/README.md, {gone}, {gone_glob}\n")
     assert outside_references([bad], tmp_path) == [f"mod.py:1: # see {FORBIDDEN[0]} 3.1"]
     assert missing_cited_paths([bad], tmp_path) == [f"mod.py: {gone}", f"mod.py: {gone_glob}"]
     # a path inside another path (an output directory, a URL) is not a citation
