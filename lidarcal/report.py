@@ -29,10 +29,11 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.certificate import components, extract_component
 from lidarcal.errors import InputError
 from lidarcal.io import atomic_path, check_writable
 
-__all__ = ["report_figures", "write_report"]
+__all__ = ["report_figures", "write_report", "offline_html", "write_text"]
 
 _WIDTH, _HEIGHT = 640, 340
 
@@ -188,8 +189,6 @@ def report_figures(
 
 
 def _from_certificate(cert: xr.Dataset) -> dict[str, Any]:
-    from lidarcal.certificate import components, extract_component
-
     parts: dict[str, Any] = {"sensitivities": []}
     for comp in components(cert):
         ds = extract_component(cert, comp["name"])
@@ -255,10 +254,6 @@ def write_report(
     dict
         ``{"html": Path, "figures": [names], "png": [Paths]}``.
     """
-    from bokeh.embed import components as bokeh_components
-    from bokeh.embed.bundle import Bundle, bundle_for_objs_and_resources
-    from bokeh.resources import INLINE
-
     hv = _hv()
     parts: dict[str, Any] = (
         _from_certificate(certificate) if certificate is not None else {"sensitivities": []}
@@ -275,35 +270,63 @@ def write_report(
     for p in [path, *pngs.values()]:
         check_writable(p, overwrite=overwrite)
 
-    models = [hv.render(fig, backend="bokeh") for fig in figs.values()]
-    script, divs = bokeh_components(models)
-    # only the BokehJS bundles these models need, inline.  Importing hvplot imports panel,
-    # which adds URL-loaded files (its ES-module shims) to every Resources object; the plots
-    # here are plain bokeh models, so those URLs are dropped (checked below)
+    title = title or (
+        certificate.attrs.get("title") if certificate is not None else "lidarcal calibration report"
+    )
+    rows = _summary_rows(certificate, parts.get("budget"))
+    table = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
+    models = {name: hv.render(fig, backend="bokeh") for name, fig in figs.items()}
+    links = {name: f'<p class="png"><a href="{p.name}">static PNG</a></p>' for name, p in pngs.items()}
+    page = offline_html(models, title=title, header=f"<table>\n{table}\n</table>", after=links)
+    written = []
+    if png:
+        renderer = hv.renderer("matplotlib")
+        for name, fig in figs.items():
+            with atomic_path(pngs[name], overwrite=overwrite) as tmp:
+                renderer.save(fig, str(tmp.with_suffix("")), fmt="png")
+                tmp.with_suffix(".png").replace(tmp)
+            written.append(pngs[name])
+    write_text(path, page, overwrite=overwrite)
+    return {"html": path, "figures": list(figs), "png": written}
+
+
+def offline_html(models: Mapping[str, Any], *, title: str, header: str = "",
+                 after: Mapping[str, str] | None = None, headings: bool = True) -> str:
+    """One self-contained HTML page of bokeh ``models``: BokehJS inline, nothing from the network.
+
+    Each model gets a ``<section>`` (with an ``<h2>`` of its name if ``headings``, then
+    ``after[name]`` if given) below the ``<h1>`` title and the ``header`` HTML.  Only the
+    BokehJS bundles the models need are embedded.  Importing hvplot imports panel, which adds
+    URL-loaded files (its ES-module shims) to every bokeh Resources object; the plots here are
+    plain bokeh models, so those URLs are dropped, and a model from outside bokeh (which would
+    need them) is refused.
+    """
+    from bokeh.embed import components as bokeh_components
+    from bokeh.embed.bundle import Bundle, bundle_for_objs_and_resources
+    from bokeh.resources import INLINE
+
+    models = dict(models)
+    after = after or {}
     foreign = sorted(
         {
             type(x).__module__
-            for m in models
+            for m in models.values()
             for x in m.references()
             if not type(x).__module__.startswith("bokeh.")
         }
     )
     if foreign:
         raise InputError(f"report plots use non-bokeh models from {foreign}; cannot embed them offline")
-    bundle = bundle_for_objs_and_resources(models, INLINE)
+    script, divs = bokeh_components(list(models.values()))
+    bundle = bundle_for_objs_and_resources(list(models.values()), INLINE)
     resources = "".join(Bundle(js_raw=bundle.js_raw, css_raw=bundle.css_raw, hashes=bundle.hashes))
-    title = title or (
-        certificate.attrs.get("title") if certificate is not None else "lidarcal calibration report"
-    )
-    rows = _summary_rows(certificate, parts.get("budget"))
-    table = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
     sections = "\n".join(
-        f'<section id="{name}"><h2>{html.escape(name.replace("_", " "))}</h2>{div}'
-        + (f'<p class="png"><a href="{pngs[name].name}">static PNG</a></p>' if name in pngs else "")
-        + "</section>"
-        for name, div in zip(figs, divs, strict=True)
+        f'<section id="{html.escape(name)}">'
+        + (f"<h2>{html.escape(name.replace('_', ' '))}</h2>" if headings else "")
+        + div + after.get(name, "") + "</section>"
+        for name, div in zip(models, divs, strict=True)
     )
-    page = f"""<!DOCTYPE html>
+    return f"""<!DOCTYPE html>
 <html lang="en">
 <head>
 <meta charset="utf-8">
@@ -319,22 +342,17 @@ section {{ margin-bottom: 2em; }}
 </head>
 <body>
 <h1>{html.escape(title)}</h1>
-<table>
-{table}
-</table>
+{header}
 {sections}
 <footer><p>Generated by lidarcal; self-contained (BokehJS inline, no network needed).</p></footer>
 </body>
 </html>
 """
-    written = []
-    if png:
-        renderer = hv.renderer("matplotlib")
-        for name, fig in figs.items():
-            with atomic_path(pngs[name], overwrite=overwrite) as tmp:
-                renderer.save(fig, str(tmp.with_suffix("")), fmt="png")
-                tmp.with_suffix(".png").replace(tmp)
-            written.append(pngs[name])
+
+
+def write_text(path: str | os.PathLike, text: str, *, overwrite: bool = False) -> Path:
+    """Write ``text`` (UTF-8) to ``path`` atomically; refuses an existing file unless ``overwrite``."""
+    path = Path(path)
     with atomic_path(path, overwrite=overwrite) as tmp:
-        tmp.write_text(page, encoding="utf-8")
-    return {"html": path, "figures": list(figs), "png": written}
+        tmp.write_text(text, encoding="utf-8")
+    return path

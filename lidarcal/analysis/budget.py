@@ -33,6 +33,7 @@ import xarray as xr
 
 from lidarcal.analysis import kernels
 from lidarcal.analysis._records import checked, select_heights, source_name
+from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.cf import Param, declared_attrs, with_bounds
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.provenance import stamp
@@ -83,8 +84,6 @@ def _terms_total(
     """
     positive = centres > 0
     if terms is None:
-        from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
-
         out = np.full((len(heights), len(centres)), np.nan)
         for i, h in enumerate(heights):
             inputs = {**PAPER_INPUTS, "height": f"{h} m"}

@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from lidarcal.conditions.variables import CONDITION_NAMES
+from lidarcal.lidar import LidarModel, simulate_period
 
 __all__ = ["OUTPUTS", "chunk_key", "chunk_path", "load_chunk", "run_chunk"]
 
@@ -108,8 +109,6 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
     ``duration``, and optionally ``workdir``/``key`` to cache the result atomically.
     Returns ``{output: (n, h) array}`` plus ``los`` (``{period_index: {name: array}}``).
     """
-    from lidarcal.lidar import LidarModel, simulate_period
-
     model = LidarModel.from_dict(task["model"])
     heights = np.asarray(task["heights"], dtype=float)
     valid = np.asarray(task["valid"], dtype=bool)

@@ -24,14 +24,18 @@ from lidarcal.cli.options import (
     progress_enabled,
     simulation_options,
 )
+from lidarcal.conditions import load_conditions
+from lidarcal.diagnose.core import diagnose
+from lidarcal.diagnose.dataset import summary, to_dataset
+from lidarcal.diagnose.effects import EFFECTS
+from lidarcal.diagnose.generate import GENERATOR_SEED, generate_field_campaign, hidden_effect_conditions
+from lidarcal.diagnose.report import write_report
 from lidarcal.errors import InputError
+from lidarcal.io import check_writable, open_artefact, write_artefact
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``diagnose`` and ``diagnose-generate`` subcommands."""
-    from lidarcal.diagnose.effects import EFFECTS
-    from lidarcal.diagnose.generate import GENERATOR_SEED
-
     p = sub.add_parser("diagnose", help="name the model effect that explains a field campaign's gap",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("field", metavar="FIELD.nc", help="field_campaign netCDF (docs/contracts.md)")
@@ -81,10 +85,6 @@ def _sim_options(args: argparse.Namespace) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     """Run the diagnosis, write the artefact (and report), print the summary."""
-    from lidarcal.diagnose.core import diagnose
-    from lidarcal.diagnose.dataset import summary, to_dataset
-    from lidarcal.io import check_writable, open_artefact, write_artefact
-
     check_writable(args.output, overwrite=args.overwrite)
     if args.report:
         check_writable(args.report, overwrite=args.overwrite)
@@ -101,8 +101,6 @@ def run(args: argparse.Namespace) -> int:
     ds = to_dataset(result, call=call, inputs=inputs)
     write_artefact(ds, args.output, overwrite=args.overwrite)
     if args.report:
-        from lidarcal.diagnose.report import write_report
-
         write_report(ds, args.report, overwrite=args.overwrite)
     js = summary(result)
     if args.json:
@@ -131,10 +129,6 @@ def _parse_params(items: list[str]) -> dict[str, float] | None:
 
 def _generate(args: argparse.Namespace) -> int:
     """Simulate a field campaign with a hidden catalogue effect and write it (field_campaign)."""
-    from lidarcal.conditions import load_conditions
-    from lidarcal.diagnose.generate import generate_field_campaign, hidden_effect_conditions
-    from lidarcal.io import check_writable, write_artefact
-
     check_writable(args.output, overwrite=args.overwrite)
     if args.conditions:
         cond = load_conditions(args.conditions)

@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import os
 
+from lidarcal.campaign import simulate_campaign
 from lidarcal.cli import command_line
 from lidarcal.cli.options import (
     add_heights_option,
@@ -26,7 +27,10 @@ from lidarcal.cli.options import (
     add_seed_option,
     simulation_options,
 )
+from lidarcal.conditions import load_conditions, sample_conditions_path
+from lidarcal.diagnose import corrected_model
 from lidarcal.io import check_writable, open_artefact, write_artefact
+from lidarcal.lidar import LidarModel
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -73,17 +77,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Load inputs, build the lidar model, run the campaign and write the ``simulated_rtd`` file."""
-    from lidarcal.campaign import simulate_campaign
-    from lidarcal.conditions import load_conditions, sample_conditions_path
-    from lidarcal.lidar import LidarModel
-
     check_writable(args.output, overwrite=args.overwrite)
     conditions = args.conditions or sample_conditions_path()
     cond = load_conditions(conditions, warn=False)  # simulate_campaign reports skipped periods
     inputs = {}
     if args.model:
-        from lidarcal.diagnose import corrected_model
-
         model = corrected_model(args.model)
         inputs["model"] = args.model
     elif args.cube or args.rwf:

@@ -16,6 +16,7 @@ from lidarcal.conditions.load import (
     load_conditions,
 )
 from lidarcal.conditions.synthetic import conditions_dataset, synthetic_conditions
+from lidarcal.data import sample_file
 
 __all__ = [
     "CONDITION_VARIABLES",
@@ -34,6 +35,4 @@ __all__ = [
 
 def sample_conditions_path():
     """Path of the embedded real sample (brightwind demo mast, 3 months, 40/60/80 m)."""
-    from lidarcal.data import sample_file
-
     return sample_file("conditions/conditions.nc")

@@ -28,7 +28,7 @@ import xarray as xr
 
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.conditions.kernels import ar1, cnr_model, power_law, shear_exponent, vertical_gradient
-from lidarcal.conditions.load import CONDITION_VARIABLES
+from lidarcal.conditions.load import CONDITION_VARIABLES, load_conditions
 from lidarcal.errors import InputError
 
 __all__ = ["synthetic_conditions", "conditions_dataset"]
@@ -83,8 +83,6 @@ def _stochastic(
 
 
 def _extrapolated(base: xr.Dataset, n: int, z: np.ndarray) -> dict[str, np.ndarray]:
-    from lidarcal.conditions.load import load_conditions
-
     base = load_conditions(base, warn=False)
     if n > base.sizes["time"]:
         raise InputError(f"synthetic_conditions: base has {base.sizes['time']} periods; asked for {n}")

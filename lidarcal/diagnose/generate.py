@@ -24,9 +24,12 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.campaign import simulate_campaign
 from lidarcal.cf import var_attrs
+from lidarcal.conditions import synthetic_conditions
 from lidarcal.diagnose.effects import CONDITION_VARIABLES, get_effect
 from lidarcal.errors import InputError
+from lidarcal.lidar import LidarModel
 from lidarcal.provenance import stamp
 
 __all__ = ["GENERATOR_SEED", "REALISTIC_STRENGTHS", "DIAGNOSIS_CNR_MODEL", "hidden_effect_conditions",
@@ -66,8 +69,6 @@ def hidden_effect_conditions(n_periods: int, heights: Sequence[float] = (40.0, 8
     ``turbulence_reference`` is the synthetic generator's I_ref (default 0.10: TI ≈ 0.08–0.2
     at 80 m); raise it for campaigns where the hybrid weight must matter.
     """
-    from lidarcal.conditions import synthetic_conditions
-
     n = int(n_periods)
     full = synthetic_conditions(n * int(pool), heights, seed, turbulence_reference=turbulence_reference,
                                 median_speed=median_speed, ref_height=ref_height,
@@ -115,9 +116,6 @@ def generate_field_campaign(
     simulate_options : mapping, optional
         Extra keyword arguments of :func:`lidarcal.campaign.simulate_campaign`.
     """
-    from lidarcal.campaign import simulate_campaign
-    from lidarcal.lidar import LidarModel
-
     eff = get_effect(effect)
     params = dict(REALISTIC_STRENGTHS[eff.id] if params is None else params)
     nominal = model if model is not None else LidarModel.ideal()

@@ -18,6 +18,7 @@ from lidarcal.cf import var_attrs
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
 from lidarcal.turbulence.kernels import L_C, cell_size, generate_points, sigma_components
+from lidarcal.turbulence.pyconturb_backend import generate_points_pyconturb
 from lidarcal.units import to_magnitude
 
 __all__ = ["turbulence_box", "GENERATORS"]
@@ -33,8 +34,6 @@ def _generate(generator: str, wind: np.ndarray, U: float, sigma: np.ndarray,
         return generate_points(x, y, z, wind_speed=U, sigma=sigma, rng=np.random.default_rng(seed_seq),
                                duration=duration, dt=dt)
     if generator == "pyconturb":
-        from lidarcal.turbulence.pyconturb_backend import generate_points_pyconturb
-
         return generate_points_pyconturb(x, y, z, wind_speed=U, sigma=sigma, seed=seed_seq, duration=duration,
                                          dt=dt)
     raise InputError(f"generator must be one of {GENERATORS}; got {generator!r}")
