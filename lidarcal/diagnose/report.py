@@ -11,18 +11,15 @@ from __future__ import annotations
 import html
 import json
 import os
-import re
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import xarray as xr
 
-from lidarcal.io import atomic_path
+from lidarcal.report import offline_html, write_text
 
 __all__ = ["write_report", "report_layout"]
-
-_EXTERNAL_SCRIPT = re.compile(r'<script src="[^"]*"></script>\n?')
 
 
 def _header(ds: xr.Dataset) -> str:
@@ -92,22 +89,14 @@ def report_layout(ds: xr.Dataset):
 def write_report(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write the self-contained HTML report atomically.
 
-    The layout is rendered to bokeh and written with bokeh's INLINE resources (the JavaScript
-    is embedded).  ``hvplot.save`` would go through panel, whose page template links its CSS
-    from a CDN, so the page would try the network when opened offline.
+    The layout is rendered to bokeh and written by :func:`lidarcal.report.offline_html` (the
+    page writer shared with the calibration report: BokehJS inline).  ``hvplot.save`` would go
+    through panel, whose page template links its CSS from a CDN, so the page would try the
+    network when opened offline.
     """
     import holoviews as hv
-    from bokeh.embed import file_html
-    from bokeh.layouts import column
-    from bokeh.models import Div
-    from bokeh.resources import INLINE
 
-    fig = column(Div(text=_header(ds), width=900), hv.render(report_layout(ds), backend="bokeh"))
-    text = file_html(fig, INLINE, title=f"lidarcal diagnosis: {ds.attrs.get('diagnosis_effect', '')}")
-    # importing hvplot imports panel, which adds a <script src="static/extensions/panel/..."> tag
-    # (relative, unused without panel models) to every bokeh page: drop such external tags
-    text = _EXTERNAL_SCRIPT.sub("", text)
-    path = Path(path)
-    with atomic_path(path, overwrite=overwrite) as tmp:
-        tmp.write_text(text, encoding="utf-8")
-    return path
+    model = hv.render(report_layout(ds), backend="bokeh")
+    title = f"lidarcal diagnosis: {ds.attrs.get('diagnosis_effect', '')}"
+    page = offline_html({"diagnosis": model}, title=title, header=_header(ds), headings=False)
+    return write_text(path, page, overwrite=overwrite)
