@@ -4,7 +4,9 @@ Infrastructure modules (errors, units, schema, cf, binning, provenance, io, comp
 and the package root) never import a stage.  Stages may import infrastructure and the stages
 *before* them in :data:`STAGES`; importing a later stage (one that may depend on the importer)
 fails with the file, line and edge.  Function-local imports count like module-level ones, so
-a cycle cannot hide inside a function.  Finally the module import graph has no cycle.
+a cycle cannot hide inside a function, and each one must say why it is local (``# cycle:``
+or ``# deferred:``).  Finally the module import graph has no cycle.  The checkers are
+themselves tested on small packages written to ``tmp_path``.
 """
 
 from __future__ import annotations
@@ -138,6 +140,35 @@ def module_cycles(root: Path) -> list[list[str]]:
     return cycles
 
 
+def _local_imports(node: ast.AST, in_function: bool = False):
+    """Import statements inside a function (or lambda), at any depth."""
+    for child in ast.iter_child_nodes(node):
+        if isinstance(child, ast.Import | ast.ImportFrom) and in_function:
+            yield child
+        funcs = ast.FunctionDef | ast.AsyncFunctionDef | ast.Lambda
+        yield from _local_imports(child, in_function or isinstance(child, funcs))
+
+
+def unexplained_local_imports(root: Path) -> list[str]:
+    """``file:line`` of every import of the package inside a function without a reason comment.
+
+    A function-local import is kept only to break a real cycle or to defer a heavy import;
+    its line (or the line before) says which with ``# cycle:`` or ``# deferred:``.
+    """
+    found = []
+    for path in sorted(root.rglob("*.py")):
+        lines = path.read_text(encoding="utf-8").splitlines()
+        for node in _local_imports(ast.parse("\n".join(lines))):
+            if isinstance(node, ast.Import):
+                ours = any(a.name.split(".")[0] == root.name for a in node.names)
+            else:
+                ours = bool(node.level) or (node.module or "").split(".")[0] == root.name
+            said = " ".join(lines[max(node.lineno - 2, 0) : node.end_lineno])
+            if ours and "# cycle:" not in said and "# deferred:" not in said:
+                found.append(f"{path.relative_to(root.parent)}:{node.lineno}")
+    return found
+
+
 def test_every_module_is_placed():
     stages = {stage_of(m) for m in import_graph(PACKAGE)}
     unplaced = sorted(stages - set(STAGES) - set(INFRASTRUCTURE))
@@ -149,6 +180,14 @@ def test_stages_import_only_earlier_stages_and_infrastructure():
     assert not problems, "imports against the layering:\n" + "\n".join(problems)
 
 
+def test_function_local_imports_say_why():
+    found = unexplained_local_imports(PACKAGE)
+    assert not found, (
+        "function-local imports of lidarcal without '# cycle: ...' or '# deferred: ...' "
+        "(move them to the top of the module):\n" + "\n".join(found)
+    )
+
+
 def test_no_import_cycles_between_modules():
     cycles = module_cycles(PACKAGE)
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
@@ -157,7 +196,7 @@ def test_no_import_cycles_between_modules():
 # -- the checker itself, on a tiny package written to tmp_path -----------------------------
 
 def _package(tmp_path: Path, files: dict[str, str]) -> Path:
-    root = tmp_path / "lidarcal"
+    root = tmp_path / "pkg"  # not "lidarcal": test_docs would take the paths below as cited
     for rel, text in {"__init__.py": "", **files}.items():
         path = root / rel
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -170,19 +209,19 @@ def test_checker_finds_a_backwards_edge_even_inside_a_function(tmp_path):
         tmp_path,
         {
             "errors.py": "",
-            "lidar/__init__.py": "from lidarcal.lidar.model import Model\n",
-            "lidar/model.py": "from lidarcal.errors import InputError\n",
-            "campaign/__init__.py": "from lidarcal.lidar import Model\n",
-            "analysis/sweep.py": "import numpy\n\n\ndef sweep():\n    from lidarcal.campaign import run\n",
+            "lidar/__init__.py": "from pkg.lidar.model import Model\n",
+            "lidar/model.py": "from pkg.errors import InputError\n",
+            "campaign/__init__.py": "from pkg.lidar import Model\n",
+            "analysis/sweep.py": "import numpy\n\n\ndef sweep():\n    from pkg.campaign import run\n",
         },
     )
     problems = layering_violations(root)
     assert problems == [
-        "lidarcal/analysis/sweep.py:5: lidarcal.analysis.sweep imports lidarcal.campaign "
+        "pkg/analysis/sweep.py:5: pkg.analysis.sweep imports pkg.campaign "
         "(stage 'analysis' imports the later stage 'campaign', which may depend on it)"
     ]
     # the same tree with the edge the right way round is clean
-    (root / "analysis" / "sweep.py").write_text("from lidarcal.lidar import Model\n")
+    (root / "analysis" / "sweep.py").write_text("from pkg.lidar import Model\n")
     assert layering_violations(root) == []
 
 
@@ -194,14 +233,14 @@ def test_checker_finds_infrastructure_importing_a_stage_and_unknown_stages(tmp_p
             "schema.py": "",
             "lidar/__init__.py": "",
             "lidar/model.py": "",
-            "extras/tool.py": "from lidarcal.io import x\n",
+            "extras/tool.py": "from pkg.io import x\n",
         },
     )
     problems = layering_violations(root)
     assert problems == [
-        "lidarcal/extras/tool.py:1: lidarcal.extras.tool imports lidarcal.io "
+        "pkg/extras/tool.py:1: pkg.extras.tool imports pkg.io "
         "('extras' is neither infrastructure nor a listed stage)",
-        "lidarcal/io.py:2: lidarcal.io imports lidarcal.lidar.model "
+        "pkg/io.py:2: pkg.io imports pkg.lidar.model "
         "(infrastructure 'io' imports stage 'lidar')",
     ]
 
@@ -211,17 +250,17 @@ def test_checker_finds_a_cycle_hidden_in_a_function(tmp_path):
         tmp_path,
         {
             "turbulence/__init__.py": "",
-            "turbulence/box.py": "from lidarcal.lidar.simulate import seed\n",
+            "turbulence/box.py": "from pkg.lidar.simulate import seed\n",
             "lidar/__init__.py": "",
-            "lidar/simulate.py": "def f():\n    from lidarcal.turbulence import box\n",
+            "lidar/simulate.py": "def f():\n    from pkg.turbulence import box\n",
         },
     )
     assert module_cycles(root) == [
-        ["lidarcal.lidar.simulate", "lidarcal.turbulence.box", "lidarcal.lidar.simulate"]
+        ["pkg.lidar.simulate", "pkg.turbulence.box", "pkg.lidar.simulate"]
     ]
     # the layering names the edge that runs the wrong way: turbulence (earlier) imports lidar
     assert [p.split(" (")[0] for p in layering_violations(root)] == [
-        "lidarcal/turbulence/box.py:1: lidarcal.turbulence.box imports lidarcal.lidar.simulate"
+        "pkg/turbulence/box.py:1: pkg.turbulence.box imports pkg.lidar.simulate"
     ]
 
 
@@ -229,3 +268,28 @@ def test_checker_finds_a_cycle_hidden_in_a_function(tmp_path):
 def test_each_stage_exists(stage):
     # a stage listed here but renamed or removed would make the order check vacuous for it
     assert (PACKAGE / stage).is_dir() or (PACKAGE / f"{stage}.py").is_file()
+
+
+def test_checker_finds_unexplained_local_imports(tmp_path):
+    root = _package(
+        tmp_path,
+        {
+            "errors.py": "",
+            "io.py": (
+                "import json\n"
+                "from pkg.errors import E\n"
+                "def f():\n"
+                "    import numpy\n"  # third-party: not ours to judge
+                "    from pkg import errors\n"
+                "def g():\n"
+                "    # deferred: heavy import\n"
+                "    from pkg import errors\n"
+                "class C:\n"
+                "    def h(self):\n"
+                "        from . import errors  # cycle: io <-> errors\n"
+                "        x = 1\n"
+                "        from . import errors\n"
+            ),
+        },
+    )
+    assert unexplained_local_imports(root) == ["pkg/io.py:5", "pkg/io.py:13"]
