@@ -1,19 +1,29 @@
-"""Locate the embedded sample data (shipped in the wheel, or the checkout's folder)."""
+"""Locate lidarcal's packaged data folders (``sample_data/``, ``schemas/``).
+
+In a wheel they are installed inside the package; in a checkout (editable install) they stay
+at the repository's top level, beside ``lidarcal/``.  :func:`packaged_dir` is the one place
+that knows both.
+"""
 
 from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
 
-__all__ = ["sample_data_dir", "sample_file"]
+__all__ = ["packaged_dir", "sample_data_dir", "sample_file"]
+
+
+def packaged_dir(name: str) -> Path:
+    """Return data folder ``name`` as installed in the wheel, else the checkout's top-level folder."""
+    packaged = resources.files("lidarcal") / name
+    if packaged.is_dir():
+        return Path(str(packaged))
+    return Path(str(resources.files("lidarcal"))).parent / name  # editable install / checkout
 
 
 def sample_data_dir() -> Path:
     """Directory holding lidarcal's embedded sample inputs."""
-    packaged = resources.files("lidarcal") / "sample_data"
-    if packaged.is_dir():
-        return Path(str(packaged))
-    return Path(str(resources.files("lidarcal"))).parent / "sample_data"
+    return packaged_dir("sample_data")
 
 
 def sample_file(name: str) -> Path:

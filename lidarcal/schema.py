@@ -26,13 +26,13 @@ the including schema writes itself under the same name is merged over the copy (
 from __future__ import annotations
 
 import functools
-from importlib import resources
 from typing import Any
 
 import numpy as np
 import xarray as xr
 import yaml
 
+from lidarcal.data import packaged_dir
 from lidarcal.errors import InputError, ValidationError
 from lidarcal.units import LOG_UNITS, _parse
 
@@ -48,10 +48,7 @@ COMMON_ATTRIBUTES = (
 
 def _schema_dir():
     """``schemas/`` as installed in the wheel, else the checkout's top-level folder."""
-    packaged = resources.files("lidarcal") / "schemas"
-    if packaged.is_dir():
-        return packaged
-    return resources.files("lidarcal").parent / "schemas"  # editable install / checkout
+    return packaged_dir("schemas")
 
 
 def list_kinds() -> list[str]:
