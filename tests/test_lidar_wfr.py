@@ -5,6 +5,7 @@ import pytest
 
 from lidarcal.lidar.quadrature import cnr_weights, gauss_hermite_rwf, gauss_rwf_nodes
 from lidarcal.lidar.wfr import hold_latest, reconstruct, sliding_components
+from lidarcal.rwf.kernels import cnr_weighted_rwf
 
 PHI = 28.0
 S = np.sin(np.radians(PHI))
@@ -111,3 +112,22 @@ def test_quadratic_profile_exact_and_gauss_hermite():
     np.testing.assert_allclose(cnr_weights(nodes, weights, 0.0), weights, rtol=1e-15)
     with pytest.raises(ValueError, match="increasing"):
         gauss_rwf_nodes(nodes[::-1], weights, 3)
+
+
+def test_eq2_kernel_is_shared_guarded_and_as_written_for_moderate_gradients():
+    nodes, weights = gauss_hermite_rwf(30.0, 5)
+    g = np.linspace(-0.2, 0.2, 41)
+    # moderate gradients: exactly Eq. 2 as written (the overflow guard is not engaged)
+    direct = weights * 10.0 ** (g[:, None] * nodes / 20.0)
+    np.testing.assert_array_equal(cnr_weights(nodes, weights, g), direct / direct.sum(axis=-1, keepdims=True))
+    # the RWF table (axis 0, unit integral) and the nodes (axis -1, unit sum) use the same factor
+    table = cnr_weighted_rwf(weights, nodes, g, dz=2.0, axis=0)
+    np.testing.assert_allclose(2.0 * table.T, cnr_weights(nodes, weights, g), rtol=1e-15)
+    # 1000 dB m-1 over +-36 m is 10^(+-1800): the unguarded form overflows, the guarded one
+    # puts all weight on the far node (the others < 1e-40), computed here from logs by hand
+    steep = cnr_weights(nodes, weights, [1000.0, -1000.0])
+    assert np.all(np.isfinite(steep))
+    logw = np.log10(weights) + 1000.0 * nodes / 20.0
+    expected = 10.0 ** (logw - logw.max())
+    np.testing.assert_allclose(steep[0], expected / expected.sum(), rtol=1e-12, atol=1e-300)
+    np.testing.assert_allclose(steep[1], (expected / expected.sum())[::-1], rtol=1e-12, atol=1e-300)
