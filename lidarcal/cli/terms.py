@@ -17,6 +17,7 @@ import numpy as np
 
 from lidarcal.analysis.terms import PAPER_INPUTS, format_table, repeatability_inputs, uncertainty_terms
 from lidarcal.cli import command_line
+from lidarcal.cli.options import add_output_options
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.lidar import LidarModel
 from lidarcal.units import Q_
@@ -54,8 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="use C*U for Eq. 9 (Table 4 prints 0.00248; the formula gives 0.00286)")
     p.add_argument("--zero-distance-uncertainty", type=float, default=0.45, metavar="M",
                    help="Zd standard uncertainty, m (0.45)")
-    p.add_argument("-o", "--output", required=True, metavar="TERMS.nc")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    add_output_options(p, "TERMS.nc")
     p.set_defaults(handler=run)
 
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 
 from lidarcal.cli import command_line
+from lidarcal.cli.options import add_output_options
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.lidar import DEFAULT_RWF_FWHM, LidarModel
 from lidarcal.lidar.box import lidar_turbulence_box
@@ -42,8 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--beam-period", type=float, default=1.0, metavar="S", help="seconds per LOS (1)")
     p.add_argument("--generator", choices=GENERATORS, default="fast",
                    help="fast (lidarcal's) or pyconturb (gen_turb; slower) (fast)")
-    p.add_argument("-o", "--output", required=True, metavar="BOX.nc")
-    p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    add_output_options(p, "BOX.nc")
     p.set_defaults(handler=run)
 
 
