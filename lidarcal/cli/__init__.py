@@ -25,6 +25,7 @@ COMMANDS = (
     "rwf",
     "terms",
     "conditions",
+    "field",
     "turbulence",
     "simulate",
     "sensitivity",

@@ -82,6 +82,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     syn.add_argument("-o", "--output", required=True, metavar="C.nc")
     syn.add_argument("--overwrite", action="store_true")
     syn.set_defaults(handler=run_synthetic)
+    from lidarcal.cli.field import add_conditions_from_sta
+
+    add_conditions_from_sta(acts)
     p.set_defaults(handler=lambda args: p.print_help() or 1)
 
 
