@@ -75,7 +75,8 @@ def write_newer(path, end, z, v, *, eol="\n", serial="WLS866-001", location=("Lo
             names += [f"{h:g}m {q}" for q in NEWER_QUANTITIES] + [""]
     rows = []
     for t in range(len(end)):
-        cells = [pd.Timestamp(end[t]).strftime("%Y/%m/%d %H:%M"), "30.1", "12.4", "1013.2", "80.5", "0", "24.1"]
+        stamp = pd.Timestamp(end[t]).strftime("%Y/%m/%d %H:%M")
+        cells = [stamp, "30.1", "12.4", "1013.2", "80.5", "0", "24.1"]
         for k in range(len(z)):
             if k == drop_group:
                 continue
@@ -315,7 +316,8 @@ def test_bad_height_group_missing(tmp_path, capsys, dialect):
 
 def test_bad_mixed_serials(tmp_path, capsys):
     a = write_newer(tmp_path / "a.sta", ends(3), Z, make_values(3, Z))
-    b = write_newer(tmp_path / "b.sta", ends(3, "2024-03-02T00:10"), Z, make_values(3, Z), serial="WLS866-002")
+    b = write_newer(tmp_path / "b.sta", ends(3, "2024-03-02T00:10"), Z, make_values(3, Z),
+                    serial="WLS866-002")
     _run_bad(tmp_path, [a, b], capsys, f"{b}: line 3", "WLS866-002", "WLS866-001", f"{a} (line 3)")
 
 
@@ -426,3 +428,26 @@ def test_field_mast_height_not_a_lidar_altitude(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "mast height(s) ['75'] m are not among the lidar's altitudes ['40', '60', '80']" in err
     assert not out.exists()
+
+
+def test_single_period_time_and_bounds_share_units(tmp_path):
+    # with one period xarray would pick different units for time and its bounds on its own
+    import netCDF4
+
+    p = write_newer(tmp_path / "one.sta", ends(1), Z, make_values(1, Z))
+    out = tmp_path / "one.nc"
+    assert main(["conditions", "from-sta", str(p), "-o", str(out)]) == 0
+    with netCDF4.Dataset(out) as nc:
+        assert nc["time"].units.startswith("minutes since 1970-01-01")
+        assert getattr(nc["time_bounds"], "units", nc["time"].units) == nc["time"].units
+        np.testing.assert_array_equal(nc["time_bounds"][:] - nc["time"][:][:, None], [[0, 10]])
+
+
+def test_sample_files_read():
+    from lidarcal.data import sample_file
+
+    new = read_sta(sample_file("sta/example_newer.sta"))
+    old = read_sta(sample_file("sta/example_older.sta"))
+    assert (new.dialect, new.values["speed"].shape, new.scan_angle) == ("newer", (12, 5), 28.0)
+    assert (old.dialect, old.values["speed"].shape, old.scan_angle) == ("older", (8, 4), 27.8)
+    assert b"\r\n" in sample_file("sta/example_newer.sta").read_bytes()

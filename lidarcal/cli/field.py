@@ -1,9 +1,9 @@
-"""``lidarcal field from-sta`` and ``lidarcal conditions from-sta``: WindCube ``.sta`` files in.
+r"""``lidarcal field from-sta`` and ``lidarcal conditions from-sta``: WindCube ``.sta`` files in.
 
 Examples::
 
     lidarcal conditions from-sta day1.sta day2.sta -o conditions.nc --min-availability 80
-    lidarcal field from-sta day1.sta day2.sta --reference mast.csv \\
+    lidarcal field from-sta day1.sta day2.sta --reference mast.csv \
         --reference-columns 80=Spd80mN,60=Spd60mN --reference-std 80=Spd80mNStd,60=Spd60mNStd -o field.nc
 """
 

@@ -186,8 +186,8 @@ def sta_field_campaign(
     if not found.any():
         raise InputError(
             f"{reference}: no mast interval start matches a lidar interval start (lidar "
-            f"{pd.Timestamp(times.min())} .. {pd.Timestamp(times.max())}, mast {pd.Timestamp(start.min())} .. "
-            f"{pd.Timestamp(start.max())}, --reference-timestamp {timestamp})"
+            f"{pd.Timestamp(times.min())} .. {pd.Timestamp(times.max())}, mast "
+            f"{pd.Timestamp(start.min())} .. {pd.Timestamp(start.max())}, --reference-timestamp {timestamp})"
         )
 
     def on_lidar_times(series: np.ndarray) -> np.ndarray:
@@ -224,8 +224,8 @@ def sta_field_campaign(
     out["reference_wind_speed"] = (("time", "height"), ref, var_attrs(
         "reference anemometer 10-minute mean wind speed (measured)", "m s-1", "wind_speed",
         coverage_content_type="physicalMeasurement",
-        comment=f"mast CSV {Path(reference).name}, columns {json.dumps({f'{h:g}': columns[h] for h in heights})}"
-                f", matched on interval start"))
+        comment=f"mast CSV {Path(reference).name}, columns "
+                f"{json.dumps({f'{h:g}': columns[h] for h in heights})}, matched on interval start"))
     out.attrs.update({
         "reference_file": Path(reference).name,
         "reference_columns": json.dumps({f"{h:g}": columns[h] for h in heights}),

@@ -177,7 +177,9 @@ def _header_numbers(path: Path, n: int, header: dict, where: dict) -> tuple[np.n
     line, key = where["scanangle"]
     phi = _float(header[key], f"{path}: line {line}", f"{key!r}")
     if not 0 < phi < 90:
-        raise InputError(f"{path}: line {line}: {key!r}: expected a cone angle in (0, 90) degree; found {phi}")
+        raise InputError(
+            f"{path}: line {line}: {key!r}: expected a cone angle in (0, 90) degree; found {phi}"
+        )
     return alts, phi
 
 
@@ -250,7 +252,9 @@ def _columns_older(path: Path, line: int, names: list[str], alts: np.ndarray, al
                     f"(the header's Altitudes, line {alt_line}, list {alts.size} heights)"
                 )
             if i in starts:
-                raise InputError(f"{path}: line {line}, column {j + 1}: {name!r} repeats column {starts[i] + 1}")
+                raise InputError(
+                    f"{path}: line {line}, column {j + 1}: {name!r} repeats column {starts[i] + 1}"
+                )
             starts[i] = j
     bounds = sorted(starts.values()) + [len(names)]
     out = {role: [] for role in ROLES}
@@ -286,8 +290,8 @@ def _columns_older(path: Path, line: int, names: list[str], alts: np.ndarray, al
         for role in ROLES:
             if role not in group:
                 raise InputError(
-                    f"{path}: line {line}, columns {j0 + 1}-{j1}: the group of height index {i} ({h:g} m) has "
-                    f"no column {expected[role]!r}"
+                    f"{path}: line {line}, columns {j0 + 1}-{j1}: the group of height index {i} ({h:g} m) "
+                    f"has no column {expected[role]!r}"
                 )
             out[role].append(group[role])
         after = j1 + 1
