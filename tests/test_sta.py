@@ -451,3 +451,44 @@ def test_sample_files_read():
     assert (new.dialect, new.values["speed"].shape, new.scan_angle) == ("newer", (12, 5), 28.0)
     assert (old.dialect, old.values["speed"].shape, old.scan_angle) == ("older", (8, 4), 27.8)
     assert b"\r\n" in sample_file("sta/example_newer.sta").read_bytes()
+
+
+@pytest.mark.parametrize("case", ["missing_column", "bad_time", "bad_number", "duplicate", "no_overlap",
+                                  "std_without_mean"])
+def test_field_bad_mast_records(tmp_path, capsys, case):
+    z = np.array([40.0, 60.0, 80.0])
+    v = make_values(4, z)
+    sta = write_newer(tmp_path / "l.sta", ends(4), z, v)
+    starts = ends(4) - np.timedelta64(600, "s")
+    if case == "no_overlap":
+        starts = starts + np.timedelta64(1, "D")
+    mast = write_mast(tmp_path / "m.csv", starts, [60, 80], v["speed"][:, 1:], v["disp"][:, 1:])
+    lines = mast.read_text().splitlines()
+    if case == "bad_time":
+        lines[2] = "yesterday" + lines[2][lines[2].index(","):]
+    elif case == "bad_number":
+        cells = lines[3].split(",")
+        cells[1] = "n/a?"
+        lines[3] = ",".join(cells)
+    elif case == "duplicate":
+        lines[4] = lines[1]
+    mast.write_text("\n".join(lines) + "\n")
+    cols, std = "80=Spd80mN,60=Spd60mN", "80=Spd80mNStd"
+    if case == "missing_column":
+        cols = "80=Spd80mN,60=Spd60mS"
+    if case == "std_without_mean":
+        std = "40=Spd80mNStd"
+    out = tmp_path / "f.nc"
+    assert main(["field", "from-sta", str(sta), "--reference", str(mast), "--reference-columns", cols,
+                 "--reference-std", std, "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    expect = {
+        "missing_column": f"{mast}: column(s) ['Spd60mS'] not found",
+        "bad_time": f"{mast}: line 3, column 1 ('Timestamp'): expected a timestamp; found 'yesterday'",
+        "bad_number": f"{mast}: line 4, column 2 ('Spd60mN'): expected a number; found 'n/a?'",
+        "duplicate": f"{mast}: line 5, column 1 ('Timestamp'): duplicated timestamp",
+        "no_overlap": f"{mast}: no mast interval start matches a lidar interval start",
+        "std_without_mean": "--reference-std: height(s) ['40'] m have no mean column",
+    }[case]
+    assert expect in err, err
+    assert not out.exists()

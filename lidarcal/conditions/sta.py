@@ -406,15 +406,17 @@ def read_sta(path: str | os.PathLike) -> StaFile:
     )
 
 
-def _same(files: list[StaFile], what: str, keys: tuple[str, ...], get) -> None:
+def _same(files: list[StaFile], what: str, key: str, get) -> None:
     ref = files[0]
     for other in files[1:]:
         a, b = get(ref), get(other)
         if a != b:
-            line_a, line_b = ref.line_of(*keys), other.line_of(*keys)
+            line_a, line_b = ref.line_of(key), other.line_of(key)
+            written = f"{other.header_lines[key][1]}={other.get(key)}" if line_b else "key missing"
             raise InputError(
-                f"{other.path}: line {line_b}: {what} {b} differs from {a} in {ref.path} (line {line_a}); "
-                f"files joined along time must come from one lidar with one configuration"
+                f"{other.path}: line {line_b or f'2-{other.header_size + 1}'} ({written!r}): {what} {b!r} "
+                f"differs from {a!r} in {ref.path} (line {line_a}); files joined along time must come "
+                f"from one lidar with one configuration"
             )
 
 
@@ -424,9 +426,9 @@ def read_sta_files(paths) -> list[StaFile]:
     if not paths:
         raise InputError("no .sta file given")
     files = [read_sta(p) for p in paths]
-    _same(files, "ID System (serial)", ("idsystem",), lambda f: f.serial)
-    _same(files, "Altitudes", ("altitudes",), lambda f: f.altitudes.tolist())
-    _same(files, "ScanAngle", ("scanangle",), lambda f: f.scan_angle)
+    _same(files, "ID System (serial)", "idsystem", lambda f: f.serial)
+    _same(files, "Altitudes", "altitudes", lambda f: f.altitudes.tolist())
+    _same(files, "ScanAngle", "scanangle", lambda f: f.scan_angle)
     seen: dict[np.datetime64, tuple[StaFile, int]] = {}
     for f in files:
         for t, line in zip(f.end, f.lines, strict=True):
