@@ -492,3 +492,20 @@ def test_field_bad_mast_records(tmp_path, capsys, case):
     }[case]
     assert expect in err, err
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_diagnose_accepts_the_sample_field_campaign(tmp_path, capsys):
+    from lidarcal.data import sample_file
+
+    field = tmp_path / "field.nc"
+    assert main(["field", "from-sta", str(sample_file("sta/example_older.sta")), "--reference",
+                 str(sample_file("sta/example_mast.csv")), "--reference-columns", "80=Spd80mN,60=Spd60mN",
+                 "--reference-std", "80=Spd80mNStd,60=Spd60mNStd", "-o", str(field)]) == 0
+    capsys.readouterr()
+    # 8 periods: 2 bins x 3 periods is the most the sample supports
+    assert main(["diagnose", str(field), "-o", str(tmp_path / "d.nc"), "--json", "--bins", "2",
+                 "--min-bin-count", "3", "--scheduler", "synchronous"]) == 0
+    answer = json.loads(capsys.readouterr().out)
+    assert answer["effect"] in ("none", "unexplained") or answer["effects"]
+    assert np.isfinite(answer["gap_before"])
