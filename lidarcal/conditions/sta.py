@@ -31,11 +31,13 @@ uses the same neighbours (:mod:`lidarcal.conditions.kernels`).
 from __future__ import annotations
 
 import csv
+import hashlib
+import io
 import json
 import os
 import re
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -45,7 +47,6 @@ import xarray as xr
 from lidarcal.conditions.kernels import shear_exponent, vertical_gradient
 from lidarcal.conditions.synthetic import conditions_dataset
 from lidarcal.errors import InputError
-from lidarcal.provenance import sha256
 
 __all__ = ["StaFile", "read_sta", "read_sta_files", "sta_conditions", "DIALECTS", "PERIOD"]
 
@@ -93,7 +94,6 @@ class StaFile:
     values: dict[str, np.ndarray]  # role -> (row, altitude)
     columns: dict[str, list[int]]  # role -> 1-based column of each altitude
     sha256: str = ""
-    extra: dict = field(default_factory=dict)
 
     def get(self, *keys: str) -> str | None:
         """Header value of the first normalised key present (see :func:`_norm`)."""
@@ -325,7 +325,7 @@ def read_sta(path: str | os.PathLike) -> StaFile:
     if not path.is_file():
         raise InputError(f"{path}: file not found")
     raw = path.read_bytes()
-    text = raw.decode("latin-1")
+    text = raw.decode("latin-1")  # every byte is a Latin-1 character: decoding cannot fail
     lines = text.split("\n")
     lines = [ln[:-1] if ln.endswith("\r") else ln for ln in lines]
     while lines and not lines[-1].strip():
@@ -358,12 +358,14 @@ def read_sta(path: str | os.PathLike) -> StaFile:
                 f"{path}: line {k + 1}, column {len(names) + 1}: {count} tab-separated fields; the "
                 f"column-name line (line {col_line}) names {len(names)}"
             )
+    # the table is parsed from the lines split above (decoded as Latin-1, CR stripped) so that
+    # row r is exactly file line n + 3 + r, whatever stray carriage returns a line holds
     try:
         df = pd.read_csv(
-            path, sep="\t", encoding="latin-1", header=None, skiprows=n + 2, names=list(range(len(names))),
-            dtype=str, keep_default_na=False, skip_blank_lines=False, quoting=csv.QUOTE_NONE,
-            index_col=False,
-        ).iloc[:n_rows]
+            io.StringIO("\n".join(lines[n + 2:]) + "\n"), sep="\t", header=None,
+            names=list(range(len(names))), dtype=str, keep_default_na=False, skip_blank_lines=False,
+            quoting=csv.QUOTE_NONE, index_col=False, lineterminator="\n",
+        )
     except (pd.errors.ParserError, ValueError) as exc:
         raise InputError(f"{path}: lines {n + 3}-{len(lines)}: not a tab-separated table: {exc}") from None
     first_line = n + 3
@@ -402,7 +404,7 @@ def read_sta(path: str | os.PathLike) -> StaFile:
         path=path, dialect=dialect, header_size=n, header=header, header_lines=where, altitudes=alts,
         scan_angle=phi, end=end, lines=row_lines, values=values,
         columns={role: [j + 1 for j in js] for role, js in cols.items()},
-        sha256=sha256(path),
+        sha256=hashlib.sha256(raw).hexdigest(),
     )
 
 
