@@ -492,6 +492,7 @@ def sta_attributes(files: list[StaFile], min_availability: float) -> dict:
         "lidar_gps_location": first.get("gpslocation", "gpslocalisation") or "not given",
         "lidar_cnr_threshold": cnr_thr_value if cnr_thr_value is not None else "not given",
         "lidar_firmware_version": first.get("version") or "not given",
+        "lidar_timezone": first.get("timezone") or "not given in the file header",
         "instrument": f"WindCube pulsed Doppler wind lidar, ID System {serial or 'not given'}",
         "sta_dialect": first.dialect,
         "sta_min_availability": float(min_availability),
@@ -516,9 +517,12 @@ def _time_bounds(ds: xr.Dataset, end: np.ndarray) -> xr.Dataset:
     ds["time"].attrs["bounds"] = "time_bounds"
     # one explicit encoding for time and its bounds (CF: bounds share the coordinate's units)
     ds["time"].encoding.update(units="minutes since 1970-01-01 00:00:00", calendar="proleptic_gregorian")
+    tz = str(ds.attrs.get("lidar_timezone", "")).replace(" ", "").upper()
+    if tz not in ("UTC", "UTC+0", "UTC+00", "UTC+00:00", "UTC-0", "GMT"):
+        ds["time"].attrs["long_name"] = "start of 10-minute period (lidar clock time, see comment)"
     ds["time"].attrs["comment"] = (
-        "interval start = the .sta file's end-of-interval timestamp minus 10 minutes, in the lidar's "
-        "clock time zone as written in the file"
+        "interval start = the .sta file's end-of-interval timestamp minus 10 minutes, in the lidar "
+        f"clock's time zone (header 'timezone': {ds.attrs.get('lidar_timezone', 'not given')})"
     )
     return ds
 
