@@ -85,6 +85,9 @@ def _encoding(ds: xr.Dataset) -> dict[str, dict]:
             # string dimension coordinate (e.g. bench_cube ``los``): write a CF character array;
             # compliance-checker crashes on variable-length string coordinate variables
             e["dtype"] = "S1"
+        if var.dtype.kind == "M" and "bounds" in var.attrs and "units" in var.encoding:
+            # a time with CF bounds keeps its chosen units; xarray gives the bounds the same ones
+            e.update({k: var.encoding[k] for k in ("units", "calendar") if k in var.encoding})
         if var.dtype.kind == "f" and var.ndim >= 1 and var.size > 1000:
             e.update(zlib=True, complevel=4)
         enc[name] = e

@@ -29,6 +29,7 @@ COMMANDS = (
     "rwf",
     "terms",
     "conditions",
+    "field",
     "turbulence",
     "simulate",
     "sensitivity",

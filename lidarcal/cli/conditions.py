@@ -84,6 +84,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_output_options(syn, "C.nc")
     syn.set_defaults(handler=run_synthetic)
+    from lidarcal.cli.field import add_conditions_from_sta
+
+    add_conditions_from_sta(acts)
     p.set_defaults(handler=lambda args: p.print_help() or 1)
 
 

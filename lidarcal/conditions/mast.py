@@ -1,0 +1,239 @@
+"""A ``field_campaign`` from WindCube ``.sta`` files and a met-mast CSV record.
+
+The lidar's own 10-minute speed becomes ``lidar_wind_speed``; the mast's 10-minute mean at
+the same height becomes ``reference_wind_speed``, matched on the interval **start** (mast
+stamps marking the interval end are shifted back 10 minutes with ``timestamp="end"``).
+The conditions to simulate are the mast's speed (``wind_speed``), the lidar's direction,
+turbulence intensity from the mast's standard deviation where a std column is given for
+that height (else from the lidar's dispersion), and shear exponent and CNR gradient from the
+lidar's neighbouring altitudes (all of them, before keeping the mast heights).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from lidarcal.cf import var_attrs
+from lidarcal.conditions.sta import DERIVED_LIMITS, PERIOD, _out_of_range, sta_conditions
+from lidarcal.errors import InputError, MissingVariableError
+
+__all__ = ["parse_height_columns", "read_reference_csv", "sta_field_campaign"]
+
+
+def parse_height_columns(text: str, option: str = "--reference-columns") -> dict[float, str]:
+    """``"80=Spd80mN,60=Spd60mN"`` -> ``{80.0: "Spd80mN", 60.0: "Spd60mN"}`` (height in m)."""
+    out: dict[float, str] = {}
+    for item in (t.strip() for t in str(text).split(",")):
+        if not item:
+            continue
+        height, sep, column = item.partition("=")
+        try:
+            h = float(height)
+        except ValueError:
+            h = float("nan")
+        if not sep or not column.strip() or not np.isfinite(h) or h <= 0:
+            raise InputError(f"{option}: expected HEIGHT=COLUMN pairs like '80=Spd80mN'; found {item!r}")
+        if h in out:
+            raise InputError(f"{option}: height {h:g} m given twice")
+        out[h] = column.strip()
+    if not out:
+        raise InputError(f"{option}: expected at least one HEIGHT=COLUMN pair; found {text!r}")
+    return out
+
+
+def read_reference_csv(
+    path: str | os.PathLike,
+    columns: dict[float, str],
+    std: dict[float, str] | None = None,
+    *,
+    timestamp: str = "start",
+    time_column: str | None = None,
+) -> tuple[np.ndarray, dict[float, np.ndarray], dict[float, np.ndarray]]:
+    """Read a mast CSV: interval-start times and the mean (and std) speed columns per height.
+
+    Returns
+    -------
+    (start times datetime64[ns], {height: mean speed}, {height: std})
+    """
+    path = Path(path)
+    if timestamp not in ("start", "end"):
+        raise InputError(f"--reference-timestamp: expected 'start' or 'end'; found {timestamp!r}")
+    if not path.is_file():
+        raise InputError(f"{path}: file not found")
+    try:
+        df = pd.read_csv(path, encoding="utf-8-sig", dtype=str, keep_default_na=False)
+    except UnicodeDecodeError:
+        df = pd.read_csv(path, encoding="latin-1", dtype=str, keep_default_na=False)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise InputError(f"{path}: not a readable CSV table: {exc}") from None
+    names = list(df.columns)
+    tcol = time_column or (names[0] if names else None)
+    wanted = [tcol, *columns.values(), *(std or {}).values()]
+    missing = [c for c in wanted if c not in names]
+    if missing:
+        raise MissingVariableError(f"{path}: column(s) {missing} not found; the file has {names}")
+    text = df[tcol].astype(str).str.strip()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # format inference notices; unparsable cells are reported below
+        times = pd.to_datetime(text, errors="coerce")
+    bad = times.isna().to_numpy()
+    if bad.any():
+        r = int(np.flatnonzero(bad)[0])
+        raise InputError(
+            f"{path}: line {r + 2}, column {names.index(tcol) + 1} ({tcol!r}): expected a timestamp; found "
+            f"{text.iloc[r]!r}"
+        )
+    start = times.to_numpy(dtype="datetime64[ns]") - (PERIOD if timestamp == "end" else np.timedelta64(0))
+    _, first, counts = np.unique(start, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        a = int(first[np.flatnonzero(counts > 1)[0]])
+        b = int(np.flatnonzero(start == start[a])[1])
+        raise InputError(
+            f"{path}: line {b + 2}, column {names.index(tcol) + 1} ({tcol!r}): duplicated timestamp "
+            f"{text.iloc[b]!r} (also line {a + 2})"
+        )
+
+    def numbers(col: str) -> np.ndarray:
+        cells = df[col].astype(str).str.strip()
+        values = pd.to_numeric(cells, errors="coerce").to_numpy(dtype=float)
+        blank = cells.str.lower().isin(["", "nan", "na", "n/a", "null", "none", "-"]).to_numpy()
+        bad = np.isnan(values) & ~blank
+        if bad.any():
+            r = int(np.flatnonzero(bad)[0])
+            raise InputError(
+                f"{path}: line {r + 2}, column {names.index(col) + 1} ({col!r}): expected a number; found "
+                f"{cells.iloc[r]!r}"
+            )
+        return values
+
+    means = {h: numbers(c) for h, c in columns.items()}
+    stds = {h: numbers(c) for h, c in (std or {}).items()}
+    return start, means, stds
+
+
+def _match_heights(heights: list[float], altitudes: np.ndarray, option: str, source: str) -> list[int]:
+    idx, absent = [], []
+    for h in heights:
+        hit = np.flatnonzero(np.isclose(altitudes, h, rtol=0, atol=1e-6))
+        if hit.size:
+            idx.append(int(hit[0]))
+        else:
+            absent.append(h)
+    if absent:
+        raise InputError(
+            f"{option}: mast height(s) {[f'{h:g}' for h in absent]} m are not among the lidar's altitudes "
+            f"{[f'{a:g}' for a in altitudes]} m ({source})"
+        )
+    return idx
+
+
+def sta_field_campaign(
+    sta_paths,
+    reference: str | os.PathLike,
+    columns: dict[float, str],
+    std: dict[float, str] | None = None,
+    *,
+    timestamp: str = "start",
+    time_column: str | None = None,
+    min_availability: float = 80.0,
+) -> xr.Dataset:
+    """Build a ``field_campaign`` Dataset (DESIGN 3.1) from ``.sta`` files and a mast CSV.
+
+    Parameters
+    ----------
+    sta_paths : sequence of path
+        The lidar's ``.sta`` files (see :func:`~lidarcal.conditions.sta.sta_conditions`).
+    reference : path
+        Mast CSV with a time column and one mean-speed column per height (m s-1).
+    columns, std : dict of height (m) -> column name
+        Mean speed columns and, optionally, their standard deviations (for TI).
+    timestamp : {"start", "end"}
+        Whether the mast's stamps mark the interval start or end.
+    time_column : str, optional
+        The mast's time column (default: the first column).
+    min_availability : float
+        Lidar data availability (%) a period needs at a height.
+
+    Returns
+    -------
+    xarray.Dataset
+        On (time, height) at the mast heights (ascending), lidar times; not yet stamped.
+    """
+    std = dict(std or {})
+    extra = [h for h in std if h not in columns]
+    if extra:
+        raise InputError(
+            f"--reference-std: height(s) {[f'{h:g}' for h in extra]} m have no mean column in "
+            f"--reference-columns ({[f'{h:g}' for h in columns]} m)"
+        )
+    cond = sta_conditions(sta_paths, min_availability, warn=False)
+    z = cond.height.values
+    source = ", ".join(Path(p).name for p in sta_paths)
+    heights = sorted(columns)
+    idx = _match_heights(heights, z, "--reference-columns", source)
+    start, means, stds = read_reference_csv(reference, columns, std, timestamp=timestamp,
+                                            time_column=time_column)
+    times = cond.time.values
+    pos = pd.Index(start).get_indexer(pd.Index(times))
+    found = pos >= 0
+    if not found.any():
+        raise InputError(
+            f"{reference}: no mast interval start matches a lidar interval start (lidar "
+            f"{pd.Timestamp(times.min())} .. {pd.Timestamp(times.max())}, mast "
+            f"{pd.Timestamp(start.min())} .. {pd.Timestamp(start.max())}, --reference-timestamp {timestamp})"
+        )
+
+    def on_lidar_times(series: np.ndarray) -> np.ndarray:
+        return np.where(found, series[np.clip(pos, 0, None)], np.nan)
+
+    ref = np.column_stack([on_lidar_times(means[h]) for h in heights])
+    sub = cond.isel(height=idx)
+    lidar_speed = sub["wind_speed"].values
+    ti = sub["turbulence_intensity"].values.copy()
+    ti_source = {}
+    for k, h in enumerate(heights):
+        if h in stds:
+            sd = on_lidar_times(stds[h])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ti[:, k] = np.where(ref[:, k] > 0, sd / ref[:, k], np.nan)
+            ti_source[f"{h:g}"] = f"mast {std[h]} / {columns[h]}"
+        else:
+            ti_source[f"{h:g}"] = "lidar speed dispersion / lidar speed"
+    vals = {"turbulence_intensity": ti}
+    dropped = _out_of_range(vals, {"turbulence_intensity": DERIVED_LIMITS["turbulence_intensity"]})
+    out = sub.copy()
+    out["wind_speed"] = (("time", "height"), ref, dict(sub["wind_speed"].attrs))
+    out["wind_speed"].attrs["comment"] = "mast 10-minute mean (the reference): the conditions to simulate"
+    out["turbulence_intensity"] = (("time", "height"), vals["turbulence_intensity"],
+                                   dict(sub["turbulence_intensity"].attrs))
+    out["turbulence_intensity"].attrs["comment"] = "per height: " + json.dumps(ti_source)
+    out["wind_shear_exponent"].attrs["comment"] += " of the lidar's altitudes " + str(
+        [float(a) for a in z])
+    out["cnr_gradient"].attrs["comment"] += "; neighbours among the lidar's altitudes"
+    out["lidar_wind_speed"] = (("time", "height"), lidar_speed, var_attrs(
+        "lidar 10-minute horizontal wind speed (measured)", "m s-1", "wind_speed",
+        coverage_content_type="physicalMeasurement",
+        comment="the .sta file's speed column; missing below the availability threshold"))
+    out["reference_wind_speed"] = (("time", "height"), ref, var_attrs(
+        "reference anemometer 10-minute mean wind speed (measured)", "m s-1", "wind_speed",
+        coverage_content_type="physicalMeasurement",
+        comment=f"mast CSV {Path(reference).name}, columns "
+                f"{json.dumps({f'{h:g}': columns[h] for h in heights})}, matched on interval start"))
+    out.attrs.update({
+        "reference_file": Path(reference).name,
+        "reference_columns": json.dumps({f"{h:g}": columns[h] for h in heights}),
+        "reference_std_columns": json.dumps({f"{h:g}": std[h] for h in sorted(std)}),
+        "reference_timestamp": timestamp,
+        "reference_matched_periods": int(np.isfinite(ref).any(axis=1).sum()),
+        "sta_out_of_range_set_missing": json.dumps(
+            {**json.loads(cond.attrs["sta_out_of_range_set_missing"]), **{f"mast {k}": v for k, v in
+                                                                         dropped.items()}}),
+    })
+    return out
