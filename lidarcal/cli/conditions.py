@@ -15,6 +15,7 @@ import warnings
 import numpy as np
 
 from lidarcal.cli import command_line
+from lidarcal.cli.field import add_conditions_from_sta
 from lidarcal.cli.options import add_output_options
 from lidarcal.conditions import load_conditions, sample_conditions_path, synthetic_conditions
 from lidarcal.io import check_writable, open_artefact, write_artefact
@@ -84,8 +85,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_output_options(syn, "C.nc")
     syn.set_defaults(handler=run_synthetic)
-    from lidarcal.cli.field import add_conditions_from_sta
-
     add_conditions_from_sta(acts)
     p.set_defaults(handler=lambda args: p.print_help() or 1)
 

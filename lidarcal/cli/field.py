@@ -12,7 +12,10 @@ from __future__ import annotations
 import argparse
 
 from lidarcal.cli import command_line
+from lidarcal.conditions.mast import parse_height_columns, sta_field_campaign
+from lidarcal.conditions.sta import sta_conditions
 from lidarcal.io import check_writable, write_artefact
+from lidarcal.provenance import stamp
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -58,9 +61,6 @@ def _config(args: argparse.Namespace) -> dict:
 
 def run_conditions(args: argparse.Namespace) -> int:
     """Read the ``.sta`` files and write a ``conditions`` artefact."""
-    from lidarcal.conditions.sta import sta_conditions
-    from lidarcal.provenance import stamp
-
     check_writable(args.output, overwrite=args.overwrite)
     ds = sta_conditions(args.files, args.min_availability)
     ds = stamp(
@@ -81,9 +81,6 @@ def run_conditions(args: argparse.Namespace) -> int:
 
 def run_field(args: argparse.Namespace) -> int:
     """Read the ``.sta`` files and the mast CSV and write a ``field_campaign`` artefact."""
-    from lidarcal.conditions.mast import parse_height_columns, sta_field_campaign
-    from lidarcal.provenance import stamp
-
     check_writable(args.output, overwrite=args.overwrite)
     columns = parse_height_columns(args.reference_columns, "--reference-columns")
     std = parse_height_columns(args.reference_std, "--reference-std") if args.reference_std else None
