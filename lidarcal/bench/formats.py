@@ -260,6 +260,33 @@ def read_rtd(path: str | os.PathLike) -> RtdTable:
     return RtdTable(t, los, velocity, cnr, serials[0], str(path))
 
 
+#: Largest difference between a bin's end - start and the declared ``accumulation_time_s``, s:
+#: timestamps have millisecond resolution and a bench switches its state in well under a second.
+DURATION_TOLERANCE_S = 1.0
+
+
+def _check_durations(start: np.ndarray, end: np.ndarray, meta: dict, path) -> None:
+    """Bins must last the declared ``accumulation_time_s`` (optional metadata) within 1 s."""
+    declared = meta.get("accumulation_time_s")
+    if declared is None:
+        return
+    try:
+        seconds = float(declared)
+    except ValueError:
+        seconds = float("nan")
+    if not (np.isfinite(seconds) and seconds > 0):
+        raise InputError(f"{path}: control log metadata 'accumulation_time_s' must be a positive number of "
+                         f"seconds; found {declared!r}")
+    duration = (end - start) / 1e9
+    bad = np.abs(duration - seconds) > DURATION_TOLERANCE_S
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            f"{path}: control log row {i + 1} ({_iso(start[i])} to {_iso(end[i])}) lasts {duration[i]:g} s; "
+            f"expected the declared accumulation_time_s {seconds:g} s (+-{DURATION_TOLERANCE_S:g} s); "
+            f"{int(bad.sum())} of {len(start)} bins differ")
+
+
 def read_control_log(path: str | os.PathLike) -> ControlLog:
     """Read and check a SAFO-MV control log (see the module docstring)."""
     what = "control log"
@@ -289,6 +316,7 @@ def read_control_log(path: str | os.PathLike) -> ControlLog:
         i = int(np.argmax(overlap)) + 1
         raise InputError(f"{path}: control log row {i + 1} starts at {_iso(start[i])}, before the previous "
                          f"bin ends ({_iso(end[i - 1])}); programmed bins must not overlap")
+    _check_durations(start, end, meta, path)
     velocity, vname = _unit_column(df, "programmed_velocity", "m s-1", path, what)
     cnr, cname = _unit_column(df, "programmed_cnr", "dB", path, what)
     los = _los(df["los"], path, what)

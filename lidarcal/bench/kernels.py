@@ -14,7 +14,7 @@ import numpy as np
 
 __all__ = [
     "USED", "OUTSIDE", "TRANSITION", "LOS_MISMATCH", "REJECTED",
-    "match_to_bins", "group_median", "reject_outliers", "between_run_stats",
+    "match_to_bins", "group_median", "robust_location", "reject_outliers", "between_run_stats",
 ]
 
 #: Sample status codes returned by :func:`match_to_bins` / set by :func:`reject_outliers`.
@@ -57,6 +57,18 @@ def group_median(values: np.ndarray, groups: np.ndarray, n_groups: int) -> np.nd
     if len(v) == 0:
         return np.full(n_groups, np.nan)
     return np.where(counts > 0, 0.5 * (v[lo] + v[hi]), np.nan)
+
+
+def robust_location(
+    values: np.ndarray, groups: np.ndarray, n_groups: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Count, median and robust scale (1.4826 · MAD) of ``values`` per group (NaN where empty)."""
+    count = np.bincount(groups, minlength=n_groups)
+    center = group_median(values, groups, n_groups)
+    if len(values) == 0:
+        return count, center, np.full(n_groups, np.nan)
+    scale = 1.4826 * group_median(np.abs(values - center[groups]), groups, n_groups)
+    return count, center, scale
 
 
 def reject_outliers(
