@@ -128,7 +128,8 @@ def test_negative_wind_speed_refused_with_count_and_first_location():
     ds = make_conditions()
     ds.wind_speed[2, 1] = -1.0
     ds.wind_speed[4, 0] = -0.5
-    with pytest.raises(InputError, match=r"'wind_speed' has 2 negative value\(s\).*index 2\), height=60 m"):
+    with pytest.raises(InputError, match=r"'wind_speed' has 2 value\(s\) outside \[0, 80\].*first -1 m s-1 "
+                       r"at .*index 2\), height=60 m"):
         load_conditions(ds)
 
 

@@ -20,7 +20,7 @@ from lidarcal.cf import height_coord, var_attrs
 from lidarcal.conditions.variables import CONDITIONS, FIELD_PAIR
 from lidarcal.errors import InputError, MissingVariableError, ValidationError
 from lidarcal.io import open_artefact, source_name
-from lidarcal.schema import validate_dataset
+from lidarcal.schema import declared_variables, validate_dataset
 from lidarcal.units import convert_values, convert_variable
 
 __all__ = [
@@ -46,6 +46,56 @@ class SkippedPeriodsWarning(UserWarning):
 def _where_first(mask: np.ndarray, ds: xr.Dataset) -> str:
     t, h = np.argwhere(mask)[0]
     return f"time={ds.time.values[t]!s} (index {t}), height={float(ds.height.values[h]):g} m"
+
+
+def _check_time(raw: xr.Dataset, source: str) -> None:
+    """Refuse an empty, missing, unsorted or repeated time axis, naming the first offender."""
+    if raw.sizes["time"] == 0:
+        raise InputError(f"{source}: dimension 'time' has length 0; expected at least one 10-minute period")
+    if "time" not in raw.coords:
+        raise MissingVariableError(f"{source}: coordinate 'time' is missing (UTC timestamps are required)")
+    t = raw["time"].values
+    if t.dtype.kind not in "Mmfiu":
+        raise InputError(f"{source}: coordinate 'time' holds {t.dtype} values; expected timestamps "
+                         "(CF units 'seconds since ...' or datetime64)")
+    missing = np.isnat(t) if t.dtype.kind in "Mm" else ~np.isfinite(t)
+    if missing.any():
+        i = int(np.argmax(missing))
+        raise InputError(f"{source}: coordinate 'time' has {int(missing.sum())} missing value(s) "
+                         f"(NaT or NaN), first at index {i}; expected a timestamp for every period")
+    step = t[1:] > t[:-1]
+    if not step.all():
+        i = int(np.argmax(~step)) + 1
+        kind = "repeats" if t[i] == t[i - 1] else "comes before"
+        raise InputError(
+            f"{source}: coordinate 'time' must be strictly increasing; {int((~step).sum())} value(s) are "
+            f"duplicated or out of order, first at index {i}: {t[i]!s} {kind} the previous time {t[i - 1]!s}")
+
+
+def _check_values(name: str, values: np.ndarray, unit: str, spec: dict, ds_shape: xr.Dataset,
+                  source: str, hint: str = "") -> None:
+    """Refuse +-inf and values outside the declared physical range (NaN stays "missing").
+
+    Runs on the values as converted to canonical units, before any folding (a direction of
+    1000 degree is refused, not wrapped), naming the first offending value, time and height.
+    """
+    inf = np.isinf(values)
+    if inf.any():
+        t, h = np.argwhere(inf)[0]
+        raise InputError(
+            f"{source}: variable {name!r} has {int(inf.sum())} infinite value(s), first {values[t, h]:g} at "
+            f"{_where_first(inf, ds_shape)}; expected finite values (NaN marks a missing value)")
+    lo, hi = (None, None) if spec.get("range") is None else spec["range"]
+    lo = -np.inf if lo is None else float(lo)
+    hi = np.inf if hi is None else float(hi)
+    with np.errstate(invalid="ignore"):
+        bad = (values < lo) | (values > hi)
+    if bad.any():
+        t, h = np.argwhere(bad)[0]
+        u, conv = ("", "") if unit == "1" else (f" {unit}", f" (after conversion to {unit})")
+        raise InputError(
+            f"{source}: variable {name!r} has {int(bad.sum())} value(s) outside [{lo:g}, {hi:g}]{u}{conv}, "
+            f"first {values[t, h]:.6g}{u} at {_where_first(bad, ds_shape)}{hint}")
 
 
 def _check_height(ds: xr.Dataset, source: str) -> np.ndarray:
@@ -130,6 +180,7 @@ def load_conditions(
         raise MissingVariableError(
             f"{source}: dimension 'time' is missing; found dims {sorted(map(str, raw.dims))}"
         )
+    _check_time(raw, source)
     heights = _check_height(raw, source)
     specs = dict(CONDITION_VARIABLES)
     if kind == "field_campaign":
@@ -152,25 +203,10 @@ def load_conditions(
         values = np.asarray(da.values, dtype=float)[:, order]
         data[name] = values
     ds_shape = xr.Dataset(coords={"time": raw["time"].values, "height": heights[order]})
-    for name in (
-        "wind_speed",
-        *(("lidar_wind_speed", "reference_wind_speed") if kind == "field_campaign" else ()),
-    ):
-        bad = data[name] < 0
-        if bad.any():
-            raise InputError(
-                f"{source}: variable {name!r} has {int(bad.sum())} negative value(s) (min "
-                f"{np.nanmin(data[name]):.4g} m s-1, first at {_where_first(bad, ds_shape)}); "
-                f"expected wind speeds >= 0 m s-1"
-            )
-    ti = data["turbulence_intensity"]
-    bad = (ti > 1) | (ti < 0)
-    if bad.any():
-        raise InputError(
-            f"{source}: variable 'turbulence_intensity' has {int(bad.sum())} value(s) outside [0, 1] "
-            f"(max {np.nanmax(ti):.4g}, first at {_where_first(bad, ds_shape)}); expected a "
-            f"fraction sigma_u / U in [0, 1] (percent must carry units '%')"
-        )
+    declared = {**declared_variables("conditions"), **declared_variables(kind)}  # ranges, as validated
+    hints = {"turbulence_intensity": "; expected a fraction sigma_u / U (percent must carry units '%')"}
+    for name, (unit, _long_name, _std) in specs.items():
+        _check_values(name, data[name], unit, declared.get(name, {}), ds_shape, source, hints.get(name, ""))
     data["wind_from_direction"] = np.mod(data["wind_from_direction"], 360.0)
 
     needed = list(CONDITION_VARIABLES) + (list(FIELD_VARIABLES) if kind == "field_campaign" else [])
