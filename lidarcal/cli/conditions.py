@@ -18,7 +18,10 @@ from lidarcal.cli import command_line
 from lidarcal.cli.field import add_conditions_from_sta
 from lidarcal.cli.options import add_output_options
 from lidarcal.conditions import load_conditions, sample_conditions_path, synthetic_conditions
+from lidarcal.diagnose.core import check_field
+from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
+from lidarcal.lidar import LidarModel, check_reachable
 from lidarcal.provenance import stamp
 
 
@@ -31,7 +34,10 @@ def register(sub: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     acts = p.add_subparsers(dest="action", metavar="ACTION")
-    chk = acts.add_parser("check", help="load a conditions/field_campaign file and summarise it")
+    chk = acts.add_parser("check", help="load a conditions/field_campaign file and summarise it",
+                          description="Run the checks of the command that reads the file (simulate for "
+                          "conditions, diagnose with its default settings for field_campaign) and "
+                          "summarise it; exit 2 with the first problem.")
     chk.add_argument("file", metavar="FILE")
     chk.add_argument("--kind", choices=("conditions", "field_campaign"), default="conditions")
     chk.set_defaults(handler=run_check)
@@ -94,11 +100,23 @@ def run_check(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         ds = load_conditions(args.file, kind=args.kind)
+    # the checks of the command that consumes the file, so what passes here passes there: diagnose's
+    # for a field campaign, simulate's lidar (lidar_* attributes, reachable heights) for conditions
+    if args.kind == "field_campaign":
+        check_field(args.file)
+    else:
+        problems = check_reachable(LidarModel.from_attrs(ds, source=args.file), ds.height.values)
+        if problems:
+            raise InputError(f"{args.file}: variable 'height': heights the lidar of its lidar_* attributes "
+                             "cannot measure: " + "; ".join(problems))
     print(f"{args.file}: {args.kind} ok, {ds.sizes['time']} periods, heights {ds.height.values.tolist()} m")
     for name in ds.data_vars:
         if name == "input_complete":
             continue
         v = ds[name].values
+        if not np.isfinite(v).any():
+            print(f"  {name:22s} [{ds[name].attrs['units']}]  all missing (NaN)")
+            continue
         print(
             f"  {name:22s} [{ds[name].attrs['units']}]  min {np.nanmin(v):9.4g}"
             f"  median {np.nanmedian(v):9.4g}  max {np.nanmax(v):9.4g}"

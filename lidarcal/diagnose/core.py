@@ -37,7 +37,7 @@ from lidarcal.io import open_artefact, source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 
-__all__ = ["diagnose", "DiagnosisResult", "CandidateFit", "DEFAULT_SEED", "RECORD_NAMES",
+__all__ = ["diagnose", "check_field", "DiagnosisResult", "CandidateFit", "DEFAULT_SEED", "RECORD_NAMES",
            "min_periods"]
 
 log = logging.getLogger("lidarcal.diagnose")
@@ -150,6 +150,24 @@ def load_field(field: str | os.PathLike | xr.Dataset, *, n_bins: int, min_bin_co
 def nominal_model(ds: xr.Dataset, *, cube: xr.Dataset | None = None, rwf: xr.Dataset | None = None):
     """Return the nominal lidar: the file's ``lidar_*`` attributes, configured from cube/RWF if given."""
     return LidarModel.from_attrs(ds, cube=cube, rwf=rwf)
+
+
+def check_field(field: str | os.PathLike | xr.Dataset, *, cube: xr.Dataset | None = None,
+                rwf: xr.Dataset | None = None, model: Any = None, n_bins: int = 6, min_bin_count: int = 10,
+                min_wind_speed: float = 3.0) -> tuple[xr.Dataset, np.ndarray, str, Any]:
+    """Every check :func:`diagnose` makes of its inputs before simulating: the one field_campaign check.
+
+    :func:`load_field` (contract, measured pair, enough usable periods per height), the nominal
+    model from the ``lidar_*`` attributes (or ``cube``/``rwf``, or ``model``) and the heights
+    the lidar can reach.  ``lidarcal conditions check --kind field_campaign`` runs it with
+    diagnose's defaults.  Returns (dataset, usable mask, source, nominal model).
+    """
+    ds, usable, source = load_field(field, n_bins=n_bins, min_bin_count=min_bin_count,
+                                    min_wind_speed=min_wind_speed)
+    if model is None:
+        model = nominal_model(ds, cube=cube, rwf=rwf)
+    _check_reachable(model, ds.height.values, source)
+    return ds, usable, source, model
 
 
 def _check_reachable(model, heights: np.ndarray, source: str) -> None:
@@ -285,11 +303,8 @@ def diagnose(
         logged at INFO level on the ``lidarcal.diagnose`` logger.
     """
     # 0. inputs: the campaign, the nominal model, the candidates
-    ds, usable, source = load_field(field, n_bins=n_bins, min_bin_count=min_bin_count,
-                                    min_wind_speed=min_wind_speed)
-    if model is None:
-        model = nominal_model(ds, cube=cube, rwf=rwf)
-    _check_reachable(model, ds.height.values, source)
+    ds, usable, source, model = check_field(field, cube=cube, rwf=rwf, model=model, n_bins=n_bins,
+                                            min_bin_count=min_bin_count, min_wind_speed=min_wind_speed)
     ids = [c for c in (candidates if candidates is not None else EFFECTS) if c != "none"]
     effects = [get_effect(c) for c in ids]
     # 1. simulate the campaign's own conditions with the nominal model
