@@ -15,7 +15,7 @@ from lidarcal.bench.ingest import ingest
 from lidarcal.bench.repeatability import repeatability
 from lidarcal.bench.simulator import simulate_run
 from lidarcal.cli import command_line
-from lidarcal.cli.options import add_output_options
+from lidarcal.cli.options import add_output_options, finite, nonnegative, nonnegative_int, positive
 from lidarcal.io import check_writable, write_artefact
 
 
@@ -28,15 +28,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     s = bsub.add_parser("simulate", help="write a simulated bench run (rtd.csv[.gz], control_log.csv)")
     add_output_options(s, "DIR", help="existing output directory")
-    s.add_argument("--seed", type=int, default=0, help="SeedSequence entropy (default 0)")
-    s.add_argument("--accumulation-time", type=float, default=650.0, metavar="S",
+    s.add_argument("--seed", type=nonnegative_int("--seed"), default=0,
+                   help="SeedSequence entropy (default 0)")
+    s.add_argument("--accumulation-time", type=positive("--accumulation-time"), default=650.0, metavar="S",
                    help="seconds per programmed bin (default 650, the paper's; full sweep ≈ 400 h)")
     s.add_argument("--serial", default="WLS866-0195", help="lidar serial number")
     s.add_argument("--operator", default="A", help="bench operator")
     s.add_argument("--run-id", default="1", help="run identifier")
     s.add_argument("--bench-id", default="SAFO-MV-01", help="bench identifier")
     s.add_argument("--start", default="2023-02-17T16:07:00Z", help="start of the first bin (ISO 8601 UTC)")
-    s.add_argument("--bias-scale", type=float, default=1.0, help="scale of the true-response bias model")
+    s.add_argument("--bias-scale", type=nonnegative("--bias-scale"), default=1.0,
+                   help="scale of the true-response bias model")
     s.add_argument("--compress", action="store_true",
                    help="write the RTD gzip-compressed as rtd.csv.gz (byte-reproducible)")
     s.set_defaults(handler=run_simulate)
@@ -45,12 +47,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     i.add_argument("rtd", metavar="RTD", help="lidar real-time data CSV (.csv or gzip-compressed .csv.gz)")
     i.add_argument("control", metavar="CONTROL", help="SAFO-MV control log CSV (.csv or .csv.gz)")
     add_output_options(i, "CUBE.nc")
-    i.add_argument("--settling-time", type=float, default=5.0, metavar="S",
+    i.add_argument("--settling-time", type=nonnegative("--settling-time"), default=5.0, metavar="S",
                    help="seconds after each bin start treated as transition (default 5)")
     i.add_argument("--outlier-rule", choices=("mad", "fixed", "none"), default="mad",
                    help="bad-estimate rule (default mad: |r - median| > k * 1.4826 MAD per bin)")
-    i.add_argument("--outlier-k", type=float, default=4.0, help="MAD multiple of the mad rule (default 4)")
-    i.add_argument("--outlier-threshold", type=float, default=3.0, metavar="M_S",
+    i.add_argument("--outlier-k", type=positive("--outlier-k"), default=4.0,
+                   help="MAD multiple of the mad rule (default 4)")
+    i.add_argument("--outlier-threshold", type=positive("--outlier-threshold"), default=3.0, metavar="M_S",
                    help="limit on |measured - programmed| in m/s for the fixed rule (default 3)")
     i.set_defaults(handler=run_ingest)
 
@@ -59,11 +62,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_output_options(r, "REP.nc")
     r.add_argument("--exclude", action="append", default=[], metavar="RUN",
                    help="leave out a run by run_id or operator (run_id=X / operator=Y); repeatable")
-    r.add_argument("--min-samples", type=int, default=144,
+    r.add_argument("--min-samples", type=nonnegative_int("--min-samples"), default=144,
                    help="use bins with more than this many samples in every run (default 144)")
-    r.add_argument("--cnr-window", type=float, nargs=2, default=(-18.0, -12.0), metavar=("LO", "HI"),
+    r.add_argument("--cnr-window", type=finite("--cnr-window"), nargs=2, default=(-18.0, -12.0),
+                   metavar=("LO", "HI"),
                    help="CNR window in dB (default -18 -12)")
-    r.add_argument("--velocity-window", type=float, nargs=2, default=(-18.0, 18.0), metavar=("LO", "HI"),
+    r.add_argument("--velocity-window", type=finite("--velocity-window"), nargs=2, default=(-18.0, 18.0),
+                   metavar=("LO", "HI"),
                    help="velocity window in m/s (default -18 18)")
     r.add_argument("--exclusive", action="store_true", help="exclude the window bounds (default: inclusive)")
     r.set_defaults(handler=run_repeatability)

@@ -14,7 +14,7 @@ import numpy as np
 
 from lidarcal.analysis.budget import DEFAULT_MIN_SAMPLES, budget
 from lidarcal.cli import command_line
-from lidarcal.cli.options import add_output_options
+from lidarcal.cli.options import add_output_options, positive, positive_int, positive_quantity
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
 
@@ -30,18 +30,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_output_options(p, "BUDGET.nc")
     p.add_argument("--approach", choices=("monte_carlo", "iec"), default="monte_carlo")
     p.add_argument("--terms", metavar="TERMS.nc", help="uncertainty_terms artefact (Monte Carlo approach)")
-    p.add_argument("--bin-width", default="0.5 m s-1", help="wind speed bin width (default '0.5 m s-1')")
+    p.add_argument("--bin-width", type=positive_quantity("--bin-width", "m s-1"), default="0.5 m s-1",
+                   help="wind speed bin width (default '0.5 m s-1')")
     p.add_argument(
         "--min-samples",
-        type=int,
+        type=positive_int("--min-samples"),
         default=DEFAULT_MIN_SAMPLES,
         help=f"bins with fewer periods are flagged thin (default {DEFAULT_MIN_SAMPLES})",
     )
     p.add_argument(
-        "--height", type=float, action="append", metavar="M", help="height to include (repeatable)"
+        "--height", type=positive("--height"), action="append", metavar="M",
+        help="height to include (repeatable)",
     )
     p.add_argument(
-        "--coverage-factor", type=float, default=2.0, help="k of the expanded uncertainty (default 2)"
+        "--coverage-factor", type=positive("--coverage-factor"), default=2.0,
+        help="k of the expanded uncertainty (default 2)",
     )
     p.add_argument(
         "--reference-uncertainty",

@@ -16,7 +16,7 @@ import numpy as np
 
 from lidarcal.cli import command_line
 from lidarcal.cli.field import add_conditions_from_sta
-from lidarcal.cli.options import add_output_options
+from lidarcal.cli.options import add_output_options, nonnegative_int, number, positive, positive_int
 from lidarcal.conditions import load_conditions, sample_conditions_path, synthetic_conditions
 from lidarcal.diagnose.core import check_field
 from lidarcal.errors import InputError
@@ -47,20 +47,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     syn.add_argument(
         "-n",
         "--periods",
-        type=int,
+        type=positive_int("--periods"),
         default=None,
         metavar="N",
         help="number of 10-minute periods (default 1008 = one week; all with --from-sample)",
     )
     syn.add_argument(
         "--heights",
-        type=float,
+        type=positive("--heights"),
         nargs="+",
         default=[40, 60, 80, 100, 120, 140, 160, 200],
         metavar="M",
         help="heights in m (default 40 60 80 100 120 140 160 200)",
     )
-    syn.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    syn.add_argument("--seed", type=nonnegative_int("--seed"), default=0, help="random seed (default 0)")
     src = syn.add_mutually_exclusive_group()
     src.add_argument(
         "--from-sample",
@@ -70,21 +70,21 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--base", metavar="C.nc", help="extrapolate this conditions file instead")
     syn.add_argument(
         "--median-speed",
-        type=float,
+        type=positive("--median-speed"),
         default=8.0,
         metavar="M/S",
         help="stochastic mode: median speed at the reference height (default 8)",
     )
     syn.add_argument(
         "--ref-height",
-        type=float,
+        type=positive("--ref-height"),
         default=80.0,
         metavar="M",
         help="stochastic mode: reference height (default 80)",
     )
     syn.add_argument(
         "--turbulence-reference",
-        type=float,
+        type=number("--turbulence-reference", lo=0, hi=1),
         default=0.10,
         metavar="I_REF",
         help="stochastic mode: IEC reference turbulence intensity (default 0.10)",

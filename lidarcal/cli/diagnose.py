@@ -21,6 +21,11 @@ from lidarcal.cli.options import (
     add_parallel_options,
     add_progress_option,
     add_seed_option,
+    nonnegative,
+    nonnegative_int,
+    number,
+    positive_int,
+    probability,
     progress_enabled,
     simulation_options,
 )
@@ -46,11 +51,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--candidates", nargs="+", choices=[e for e in EFFECTS if e != "none"], metavar="EFFECT",
                    help="catalogue effects to try (default: all)")
     add_seed_option(p, help="base seed of the simulations")
-    p.add_argument("--bins", type=int, default=6, help="quantile bins per environmental variable")
-    p.add_argument("--min-bin-count", type=int, default=10, help="periods a bin needs to count")
-    p.add_argument("--alpha", type=float, default=0.01, help="family-wise false-alarm rate")
-    p.add_argument("--bic-threshold", type=float, default=6.0, help="ΔBIC an effect must beat")
-    p.add_argument("--min-wind-speed", type=float, default=3.0, help="minimum reference speed, m s-1")
+    p.add_argument("--bins", type=number("--bins", lo=2, integer=True), default=6,
+                   help="quantile bins per environmental variable")
+    p.add_argument("--min-bin-count", type=positive_int("--min-bin-count"), default=10,
+                   help="periods a bin needs to count")
+    p.add_argument("--alpha", type=probability("--alpha"), default=0.01, help="family-wise false-alarm rate")
+    p.add_argument("--bic-threshold", type=nonnegative("--bic-threshold"), default=6.0,
+                   help="ΔBIC an effect must beat")
+    p.add_argument("--min-wind-speed", type=nonnegative("--min-wind-speed"), default=3.0,
+                   help="minimum reference speed, m s-1")
     _sim_args(p)
     p.set_defaults(handler=run)
 
@@ -60,10 +69,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="effect parameter (default: a realistic strength)")
     g.add_argument("--conditions", metavar="C.nc", help="conditions to simulate (default: synthetic)")
-    g.add_argument("--periods", type=int, default=300, help="synthetic periods (without --conditions)")
+    g.add_argument("--periods", type=positive_int("--periods"), default=300,
+                   help="synthetic periods (without --conditions)")
     add_heights_option(g, default=(40.0, 80.0, 120.0, 160.0),
                        help="synthetic heights, m (without --conditions)")
-    g.add_argument("--conditions-seed", type=int, default=11, help="seed of the synthetic conditions")
+    g.add_argument("--conditions-seed", type=nonnegative_int("--conditions-seed"), default=11,
+                   help="seed of the synthetic conditions")
     # not the diagnosis' seed: the hidden effect must be found through independent noise
     add_seed_option(g, default=GENERATOR_SEED, help="base seed of the measurement simulation")
     add_output_options(g, "FIELD.nc")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 
 from lidarcal.cli import command_line
+from lidarcal.cli.options import number
 from lidarcal.conditions.mast import parse_height_columns, sta_field_campaign
 from lidarcal.conditions.sta import sta_conditions
 from lidarcal.io import check_writable, write_artefact
@@ -20,7 +21,8 @@ from lidarcal.provenance import stamp
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("files", nargs="+", metavar="FILE.sta", help="WindCube 10-minute statistics files")
-    p.add_argument("--min-availability", type=float, default=80.0, metavar="PCT",
+    p.add_argument("--min-availability", type=number("--min-availability", lo=0, hi=100), default=80.0,
+                   metavar="PCT",
                    help="data availability (%%) a period needs at a height, else NaN there (default 80)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
 

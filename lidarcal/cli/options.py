@@ -8,7 +8,10 @@ parsed options back into library keyword arguments.
 * progress: on when stderr is a terminal; ``--progress`` / ``--no-progress`` force it.
 * heights: ``--heights M [M ...]`` (metres).
 * seed: ``--seed N``, default :data:`lidarcal.campaign.DEFAULT_BASE_SEED` (docs/seeds.md).
-* numbers are checked at parse time (``--workers 0`` is refused by argparse, exit 2).
+* numbers are checked at parse time by the ``type`` functions below (:func:`number`,
+  :func:`positive`, :func:`nonnegative`, :func:`probability`, :func:`finite`,
+  :func:`positive_int`, :func:`nonnegative_int`, :func:`positive_quantity`): ``--workers 0`` or
+  ``--alpha 2`` is refused by argparse with exit 2 and a message naming the option.
 """
 
 from __future__ import annotations
@@ -18,10 +21,20 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import numpy as np
+
 from lidarcal.campaign import DEFAULT_BASE_SEED
+from lidarcal.units import ureg
 
 __all__ = [
+    "number",
+    "finite",
+    "positive",
+    "nonnegative",
+    "probability",
     "positive_int",
+    "nonnegative_int",
+    "positive_quantity",
     "add_parallel_options",
     "add_lidar_options",
     "add_progress_option",
@@ -39,17 +52,90 @@ SCHEDULER_HELP = (
 )
 
 
+def _interval(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) -> str:
+    if lo is not None and hi is not None:
+        return f"in {'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open else ']'}"
+    if lo is not None:
+        return f"{'>' if lo_open else '>='} {lo:g}"
+    if hi is not None:
+        return f"{'<' if hi_open else '<='} {hi:g}"
+    return "finite"
+
+
+def number(option: str, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
+           hi_open: bool = False, integer: bool = False) -> Callable[[str], float]:
+    """Return an argparse ``type`` for a finite number in a range, naming ``option`` when refused.
+
+    ``lo``/``hi`` are the bounds (None: unbounded), ``lo_open``/``hi_open`` exclude them; with
+    ``integer`` only whole numbers are accepted and an ``int`` is returned.  NaN and infinities
+    are always refused.
+    """
+    bounds = _interval(lo, hi, lo_open, hi_open)
+    bounds = "" if bounds == "finite" else f" {bounds}"
+    what = f"a whole number{bounds}" if integer else f"a finite number{bounds}"
+
+    def parse(text: str) -> float:
+        try:
+            value = int(text) if integer else float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{option} expects {what}; got {text!r}") from None
+        if not np.isfinite(value) or (lo is not None and (value < lo or (lo_open and value == lo))) \
+                or (hi is not None and (value > hi or (hi_open and value == hi))):
+            raise argparse.ArgumentTypeError(f"{option} expects {what}; got {text!r}")
+        return value
+
+    parse.__name__ = f"{option} value"
+    return parse
+
+
+def finite(option: str) -> Callable[[str], float]:
+    """Return a ``type`` accepting any finite number (no NaN, no infinity)."""
+    return number(option)
+
+
+def positive(option: str) -> Callable[[str], float]:
+    """Return a ``type`` accepting a finite number > 0."""
+    return number(option, lo=0.0, lo_open=True)
+
+
+def nonnegative(option: str) -> Callable[[str], float]:
+    """Return a ``type`` accepting a finite number >= 0."""
+    return number(option, lo=0.0)
+
+
+def probability(option: str) -> Callable[[str], float]:
+    """Return a ``type`` accepting a probability strictly between 0 and 1 (e.g. a false-alarm rate)."""
+    return number(option, lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+
+
 def positive_int(option: str) -> Callable[[str], int]:
     """Return an argparse ``type`` accepting integers >= 1 and naming ``option`` otherwise."""
+    return number(option, lo=1, integer=True)
 
-    def parse(text: str) -> int:
+
+def nonnegative_int(option: str) -> Callable[[str], int]:
+    """Return a ``type`` accepting integers >= 0 (seeds, indices, counts that may be zero)."""
+    return number(option, lo=0, integer=True)
+
+
+def positive_quantity(option: str, unit: str | None = None) -> Callable[[str], str]:
+    """Return a ``type`` accepting a quantity such as ``'0.5 m s-1'`` (or a number), finite and > 0.
+
+    The text is returned unchanged (the library converts it); with ``unit`` it must convert to
+    that unit.
+    """
+
+    def parse(text: str) -> str:
         try:
-            value = int(text)
-        except ValueError:
-            raise argparse.ArgumentTypeError(f"{option} expects a whole number >= 1; got {text!r}") from None
-        if value < 1:
-            raise argparse.ArgumentTypeError(f"{option} expects a whole number >= 1; got {value}")
-        return value
+            q = ureg.Quantity(text.strip())
+            magnitude = float(q.to(unit).magnitude) if unit and not q.dimensionless else float(q.magnitude)
+        except Exception:  # pint raises many types for unparsable text
+            raise argparse.ArgumentTypeError(
+                f"{option} expects a quantity > 0{f' in {unit}' if unit else ''}, e.g. '0.5 m s-1'; "
+                f"got {text!r}") from None
+        if not (np.isfinite(magnitude) and magnitude > 0):
+            raise argparse.ArgumentTypeError(f"{option} expects a quantity > 0; got {text!r}")
+        return text
 
     parse.__name__ = f"{option} value"
     return parse
@@ -94,14 +180,14 @@ def progress_enabled(args: argparse.Namespace) -> bool:
 def add_seed_option(parser: argparse.ArgumentParser, *, default: int = DEFAULT_BASE_SEED,
                     help: str = "base seed of the Monte Carlo; see docs/seeds.md") -> None:
     """``--seed N`` with the project's base seed as default."""
-    parser.add_argument("--seed", type=int, default=default, metavar="N",
+    parser.add_argument("--seed", type=nonnegative_int("--seed"), default=default, metavar="N",
                         help=f"{help} (default %(default)s)")
 
 
 def add_heights_option(parser: argparse.ArgumentParser, *, default: Sequence[float] | None = None,
                        help: str = "heights, m") -> None:
     """``--heights M [M ...]``."""
-    parser.add_argument("--heights", type=float, nargs="+", metavar="M",
+    parser.add_argument("--heights", type=positive("--heights"), nargs="+", metavar="M",
                         default=None if default is None else list(default), help=help)
 
 

@@ -14,7 +14,7 @@ import argparse
 import numpy as np
 
 from lidarcal.cli import command_line
-from lidarcal.cli.options import add_output_options
+from lidarcal.cli.options import add_output_options, finite, positive
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.rwf import range_weighting_function
 from lidarcal.units import Q_
@@ -25,12 +25,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("rwf", help="range-weighting function and zero distance (Eqs. 1-2)",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     pulse = p.add_argument_group("pulse")
-    pulse.add_argument("--pulse-length", type=float, default=25.0, metavar="M",
+    pulse.add_argument("--pulse-length", type=positive("--pulse-length"), default=25.0, metavar="M",
                        help="pulse FWHM in range, c*tau/2, metres (default 25, the paper's WindCube)")
-    pulse.add_argument("--asymmetry", type=float, default=0.0,
+    pulse.add_argument("--asymmetry", type=finite("--asymmetry"), default=0.0,
                        help="two-sided Gaussian asymmetry (s_far - s_near)/(s_far + s_near) in (-1, 1); "
                             "positive = longer tail away from the lidar (default 0 = Gaussian)")
-    pulse.add_argument("--pulse-offset", type=float, default=0.0, metavar="M",
+    pulse.add_argument("--pulse-offset", type=finite("--pulse-offset"), default=0.0, metavar="M",
                        help="pulse peak beyond the nominal gate centre, metres (a Zd error; default 0)")
     pulse.add_argument("--pulse-file", metavar="CSV",
                        help="measured pulse: CSV with 'time_<unit>' or 'range_offset_<unit>' and 'intensity' "
@@ -38,16 +38,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     apod = p.add_argument_group("apodization")
     apod.add_argument("--fft-size", type=int, choices=(64, 128), default=64,
                       help="FFT length in samples (64: WindCube v2.1, 128: WindCube XP; default 64)")
-    apod.add_argument("--sampling-frequency", type=float, default=250.0, metavar="MHZ",
+    apod.add_argument("--sampling-frequency", type=positive("--sampling-frequency"), default=250.0,
+                      metavar="MHZ",
                       help="digitiser sampling frequency in MHz (default 250, i.e. 0.6 m per sample)")
-    apod.add_argument("--window-std", type=float, default=0.2, metavar="FRACTION",
+    apod.add_argument("--window-std", type=positive("--window-std"), default=0.2, metavar="FRACTION",
                       help="Gaussian window std as a fraction of the FFT length (default 0.2)")
     grid = p.add_argument_group("grid")
-    grid.add_argument("--cnr-gradient", type=float, nargs="+", metavar="DB_PER_M",
+    grid.add_argument("--cnr-gradient", type=finite("--cnr-gradient"), nargs="+", metavar="DB_PER_M",
                       help="CNR gradients in dB m-1 (default -0.1 ... 0.1 in 0.01 steps; 0 always added)")
-    grid.add_argument("--resolution", type=float, default=0.1, metavar="M",
+    grid.add_argument("--resolution", type=positive("--resolution"), default=0.1, metavar="M",
                       help="range_offset grid spacing in metres (default 0.1)")
-    grid.add_argument("--half-width", type=float, metavar="M",
+    grid.add_argument("--half-width", type=positive("--half-width"), metavar="M",
                       help="range_offset grid half extent in metres (default: just wide enough)")
     add_output_options(p, "RWF.nc")
     p.set_defaults(handler=run)

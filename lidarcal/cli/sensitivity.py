@@ -14,9 +14,16 @@ import numpy as np
 from lidarcal.analysis._records import CANONICAL_UNITS
 from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES, sensitivity
 from lidarcal.cli import command_line
-from lidarcal.cli.options import add_output_options
+from lidarcal.cli.options import add_output_options, nonnegative, positive, positive_int, positive_quantity
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
+
+
+def _bin_width(text: str) -> str:
+    """Argparse ``type`` of ``--bin-width [VAR=]WIDTH``: the width must be a quantity > 0."""
+    _name, sep, value = text.partition("=")
+    positive_quantity("--bin-width")(value if sep else text)
+    return text
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--bin-width",
         action="append",
+        type=_bin_width,
         default=[],
         metavar="[VAR=]WIDTH",
         help="bin width, e.g. 0.05 or 'wind_speed=0.5 m s-1' (bare numbers: the variable's "
@@ -46,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument(
         "--min-samples",
-        type=int,
+        type=positive_int("--min-samples"),
         default=DEFAULT_MIN_SAMPLES,
         help=f"minimum periods per bin used in the regression (default {DEFAULT_MIN_SAMPLES})",
     )
@@ -54,12 +62,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--absolute", action="store_true", help="difference in m s-1 instead of %% of the reference"
     )
     p.add_argument(
-        "--height", type=float, action="append", metavar="M", help="height to analyse (repeatable)"
+        "--height", type=positive("--height"), action="append", metavar="M",
+        help="height to analyse (repeatable)",
     )
     p.add_argument(
         "--reference-range",
         nargs=2,
-        type=float,
+        type=nonnegative("--reference-range"),
         default=[4.0, 16.0],
         metavar=("LO", "HI"),
         help="reference wind speed range in m s-1 (default 4 16)",

@@ -25,6 +25,8 @@ from lidarcal.cli.options import (
     add_parallel_options,
     add_progress_option,
     add_seed_option,
+    nonnegative_int,
+    positive,
     simulation_options,
 )
 from lidarcal.conditions import load_conditions, sample_conditions_path
@@ -54,18 +56,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_parallel_options(p)
     p.add_argument(
         "--los-periods",
-        type=int,
+        type=nonnegative_int("--los-periods"),
         nargs="+",
         default=(),
         metavar="I",
         help="period indices whose LOS time series are stored",
     )
     p.add_argument(
-        "--duration", type=float, default=600.0, metavar="S", help="period length, s (default 600)"
+        "--duration", type=positive("--duration"), default=600.0, metavar="S",
+        help="period length, s (default 600)",
     )
     p.add_argument(
         "--timeout",
-        type=float,
+        type=positive("--timeout"),
         default=5.0,
         metavar="S",
         help="seconds to wait for a remote scheduler (default 5)",

@@ -17,7 +17,7 @@ import numpy as np
 
 from lidarcal.analysis.terms import PAPER_INPUTS, format_table, repeatability_inputs, uncertainty_terms
 from lidarcal.cli import command_line
-from lidarcal.cli.options import add_output_options
+from lidarcal.cli.options import add_output_options, finite, nonnegative, number, positive, positive_int
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.lidar import LidarModel
 from lidarcal.units import Q_
@@ -29,31 +29,40 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--repeatability", metavar="REP.nc",
                    help="repeatability artefact giving s-bar_s, s-bar_delta and n_runs")
-    p.add_argument("--wind-speed", type=float, nargs="+", default=[4, 6, 8, 10, 12, 14, 16],
+    p.add_argument("--wind-speed", type=positive("--wind-speed"), nargs="+",
+                   default=[4, 6, 8, 10, 12, 14, 16],
                    metavar="M_S", help="wind speeds in m/s (default: Table 4's 4 6 ... 16)")
-    p.add_argument("--height", type=float, default=100.0, metavar="M", help="measurement height z, m (100)")
-    p.add_argument("--shear", type=float, default=0.2, metavar="ALPHA", help="power-law shear exponent (0.2)")
-    p.add_argument("--cone-angle", type=float, default=LidarModel.cone_angle, metavar="DEG",
+    p.add_argument("--height", type=positive("--height"), default=100.0, metavar="M",
+                   help="measurement height z, m (100)")
+    p.add_argument("--shear", type=number("--shear", lo=-2, hi=2), default=0.2, metavar="ALPHA",
+                   help="power-law shear exponent (0.2)")
+    p.add_argument("--cone-angle", type=number("--cone-angle", lo=0, hi=90, lo_open=True, hi_open=True),
+                   default=LidarModel.cone_angle, metavar="DEG",
                    help="beam angle from vertical, degree (%(default)g; Table 1's polar 62 is the elevation)")
-    p.add_argument("--std-repeatability", type=float, metavar="M_S",
+    p.add_argument("--std-repeatability", type=nonnegative("--std-repeatability"), metavar="M_S",
                    help="s-bar_s, m/s (default: from --repeatability, else 0.027)")
-    p.add_argument("--bias-repeatability", type=float, metavar="M_S",
+    p.add_argument("--bias-repeatability", type=nonnegative("--bias-repeatability"), metavar="M_S",
                    help="s-bar_delta, m/s (default: from --repeatability, else 0.021)")
-    p.add_argument("--n-runs", type=int, help="bench runs (default: from --repeatability, else 4)")
-    p.add_argument("--n-los-samples", type=int, default=150,
+    p.add_argument("--n-runs", type=positive_int("--n-runs"),
+                   help="bench runs (default: from --repeatability, else 4)")
+    p.add_argument("--n-los-samples", type=positive_int("--n-los-samples"), default=150,
                    help="radial velocities per LOS per 10 min (150)")
     p.add_argument("--eq7-n", choices=("los_samples", "runs"), default="los_samples",
                    help="N of Eq. 7: los_samples reproduces Table 4's 0.0026, runs follows the text "
                         "(default los_samples)")
-    p.add_argument("--bench-uncertainty", type=float, default=0.0145, metavar="M_S",
+    p.add_argument("--bench-uncertainty", type=nonnegative("--bench-uncertainty"), default=0.0145,
+                   metavar="M_S",
                    help="dv_SAFO as stated, m/s (0.0145)")
-    p.add_argument("--bench-coverage-factor", type=float, default=1.0, metavar="K",
+    p.add_argument("--bench-coverage-factor", type=positive("--bench-coverage-factor"), default=1.0,
+                   metavar="K",
                    help="k dividing dv_SAFO (1 reproduces Table 4; 2 converts the stated k=2 value)")
-    p.add_argument("--beam-angle-uncertainty", type=float, default=0.087, metavar="DEG",
+    p.add_argument("--beam-angle-uncertainty", type=nonnegative("--beam-angle-uncertainty"), default=0.087,
+                   metavar="DEG",
                    help="beam angle standard uncertainty, degree (0.087)")
-    p.add_argument("--beam-angle-coefficient", type=float, metavar="C",
+    p.add_argument("--beam-angle-coefficient", type=finite("--beam-angle-coefficient"), metavar="C",
                    help="use C*U for Eq. 9 (Table 4 prints 0.00248; the formula gives 0.00286)")
-    p.add_argument("--zero-distance-uncertainty", type=float, default=0.45, metavar="M",
+    p.add_argument("--zero-distance-uncertainty", type=nonnegative("--zero-distance-uncertainty"),
+                   default=0.45, metavar="M",
                    help="Zd standard uncertainty, m (0.45)")
     add_output_options(p, "TERMS.nc")
     p.set_defaults(handler=run)

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 
 from lidarcal.cli import command_line
-from lidarcal.cli.options import add_output_options
+from lidarcal.cli.options import add_output_options, nonnegative_int, number, positive, positive_int
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.lidar import DEFAULT_RWF_FWHM, LidarModel
 from lidarcal.lidar.box import lidar_turbulence_box
@@ -26,21 +26,29 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``turbulence`` subcommand."""
     p = sub.add_parser("turbulence", help="turbulence at a virtual lidar's sample points",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--wind-speed", type=float, required=True, metavar="M_S", help="mean wind speed, m/s")
-    p.add_argument("--ti", type=float, required=True, help="turbulence intensity sigma_u / U (e.g. 0.1)")
-    p.add_argument("--height", type=float, required=True, metavar="M", help="measurement height, m")
-    p.add_argument("--direction", type=float, default=0.0, metavar="DEG",
+    p.add_argument("--wind-speed", type=positive("--wind-speed"), required=True, metavar="M_S",
+                   help="mean wind speed, m/s")
+    p.add_argument("--ti", type=number("--ti", lo=0, hi=1), required=True,
+                   help="turbulence intensity sigma_u / U (e.g. 0.1)")
+    p.add_argument("--height", type=positive("--height"), required=True, metavar="M",
+                   help="measurement height, m")
+    p.add_argument("--direction", type=number("--direction", lo=-360, hi=720), default=0.0, metavar="DEG",
                    help="wind-from direction relative to the lidar's north mark, degree (0)")
-    p.add_argument("--shear", type=float, default=0.0, metavar="ALPHA", help="power-law shear exponent (0)")
-    p.add_argument("--seed", type=int, nargs="+", default=[0], metavar="INT",
+    p.add_argument("--shear", type=number("--shear", lo=-2, hi=2), default=0.0, metavar="ALPHA",
+                   help="power-law shear exponent (0)")
+    p.add_argument("--seed", type=nonnegative_int("--seed"), nargs="+", default=[0], metavar="INT",
                    help="seed tuple as simulate_period takes it, e.g. BASE_SEED PERIOD_INDEX (0)")
-    p.add_argument("--duration", type=float, default=600.0, metavar="S", help="period length, s (600)")
-    p.add_argument("--cone-angle", type=float, default=LidarModel.cone_angle, metavar="DEG",
+    p.add_argument("--duration", type=positive("--duration"), default=600.0, metavar="S",
+                   help="period length, s (600)")
+    p.add_argument("--cone-angle", type=number("--cone-angle", lo=0, hi=90, lo_open=True, hi_open=True),
+                   default=LidarModel.cone_angle, metavar="DEG",
                    help="cone angle from vertical (%(default)g)")
-    p.add_argument("--rwf-fwhm", type=float, default=DEFAULT_RWF_FWHM, metavar="M",
+    p.add_argument("--rwf-fwhm", type=positive("--rwf-fwhm"), default=DEFAULT_RWF_FWHM, metavar="M",
                    help="Gaussian RWF FWHM, m (%(default)g)")
-    p.add_argument("--nodes", type=int, default=5, help="RWF quadrature nodes per beam (5)")
-    p.add_argument("--beam-period", type=float, default=1.0, metavar="S", help="seconds per LOS (1)")
+    p.add_argument("--nodes", type=positive_int("--nodes"), default=5,
+                   help="RWF quadrature nodes per beam (5)")
+    p.add_argument("--beam-period", type=positive("--beam-period"), default=1.0, metavar="S",
+                   help="seconds per LOS (1)")
     p.add_argument("--generator", choices=GENERATORS, default="fast",
                    help="fast (lidarcal's) or pyconturb (gen_turb; slower) (fast)")
     add_output_options(p, "BOX.nc")
