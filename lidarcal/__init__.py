@@ -30,6 +30,7 @@ The main entry points are available from the top level, imported on first use so
 :func:`lidarcal.diagnose.diagnose`.
 """
 
+import sys as _sys
 from importlib import import_module as _import_module
 from importlib import metadata as _metadata
 
@@ -45,6 +46,8 @@ _EXPORTS = {
     "budget": ("lidarcal.analysis.budget", "budget"),
     "make_certificate": ("lidarcal.certificate", "make_certificate"),
     "verify": ("lidarcal.certificate", "verify_certificate"),
+    "open_certificate": ("lidarcal.certificate", "open_certificate"),
+    "result_table": ("lidarcal.certificate", "result_table"),
     # the subpackage itself, callable as its diagnose() function (a submodule import would
     # rebind the attribute to the package anyway)
     "diagnose": ("lidarcal.diagnose", None),
@@ -68,6 +71,44 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     return sorted({*globals(), *_EXPORTS})
+
+
+
+class _UnitsOnPintImport:
+    """Import hook: when ``pint_xarray`` is first imported, register cf-xarray's unit registry.
+
+    pint-xarray's ``ds.pint.quantify()`` parses units with pint's application registry, which
+    does not understand CF spellings (``m s-1``, ``1``, ``dB``) until ``cf_xarray.units`` is
+    imported.  Importing it costs most of a second, so ``import lidarcal`` does it only once
+    pint-xarray is in use (now, if it already is).
+    """
+
+    def find_spec(self, name, path=None, target=None):
+        if name != "pint_xarray":
+            return None
+        _sys.meta_path.remove(self)
+        from importlib.util import find_spec
+
+        spec = find_spec(name)
+        if spec is not None and spec.loader is not None and hasattr(spec.loader, "exec_module"):
+            run = spec.loader.exec_module
+
+            def exec_module(module):
+                run(module)
+                _register_units()
+
+            spec.loader.exec_module = exec_module
+        return spec
+
+
+def _register_units() -> None:
+    _import_module("lidarcal.units").register_units()
+
+
+if "pint_xarray" in _sys.modules:
+    _register_units()
+elif not any(isinstance(f, _UnitsOnPintImport) for f in _sys.meta_path):
+    _sys.meta_path.insert(0, _UnitsOnPintImport())
 
 try:
     __version__ = _metadata.version("lidarcal")

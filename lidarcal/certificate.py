@@ -35,6 +35,7 @@ from lidarcal.errors import InputError
 from lidarcal.io import atomic_path, check_writable, open_artefact, write_artefact
 from lidarcal.provenance import jsonable, read_json_attr, stamp
 from lidarcal.schema import validate_dataset
+from lidarcal.units import register_units
 
 __all__ = [
     "make_certificate",
@@ -43,6 +44,10 @@ __all__ = [
     "integrity_record",
     "extract_component",
     "components",
+    "open_certificate",
+    "result_table",
+    "headline_range",
+    "HEADLINE_WIND_SPEEDS",
     "VerificationReport",
 ]
 
@@ -118,6 +123,150 @@ def components(cert: xr.Dataset) -> list[dict[str, Any]]:
     if not isinstance(comps, list):
         raise InputError("not a lidarcal certificate: global attribute 'lidarcal_components' is missing")
     return comps
+
+
+def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> xr.DataTree:
+    """Open a certificate as an :class:`xarray.DataTree`, one group per component.
+
+    Every group (``budget``, ``cube``, ``rwf``, ``terms``, ``sensitivity_<variable>``) holds
+    the component under its original variable and dimension names, as
+    :func:`extract_component` restores it, so ``tree["budget"].sel(height=120, wind_speed=8,
+    method="nearest")`` and the ``cf`` accessor work.  The root holds the certificate's global
+    attributes (provenance, integrity record).  Values are read lazily (dask, ``chunks={}``
+    unless given); opening also registers cf-xarray's unit registry with pint, so
+    ``tree["budget"].dataset.pint.quantify()`` understands the stored units.
+
+    Raises
+    ------
+    InputError
+        If ``path`` is missing, unreadable or not a lidarcal certificate.
+    """
+    register_units()
+    ds = open_artefact(path, load=False, chunks={} if chunks is None else chunks)
+    if ds.attrs.get("lidarcal_artefact") != "certificate":
+        found = ds.attrs.get("lidarcal_artefact")
+        raise InputError(f"{path}: not a lidarcal certificate: it is "
+                         f"{repr(found) + ' artefact' if found else 'not a lidarcal artefact'}")
+    nodes: dict[str, xr.Dataset] = {"/": xr.Dataset(attrs=dict(ds.attrs))}
+    for comp in components(ds):
+        nodes[f"/{comp['name']}"] = extract_component(ds, comp["name"])
+    return xr.DataTree.from_dict(nodes)
+
+
+# ------------------------------------------------------------------ result table
+
+#: Wind speeds (bin centres, m/s) the headline expanded uncertainty is quoted over: the range
+#: of the paper's Table 4, from the 4 m/s cut-in that wind sensors are calibrated from.
+HEADLINE_WIND_SPEEDS = (4.0, 16.0)
+
+
+def _budget_of(obj: xr.Dataset) -> xr.Dataset:
+    if obj.attrs.get("lidarcal_artefact") == "certificate" or "lidarcal_components" in obj.attrs:
+        return extract_component(obj, "budget")
+    if "relative_expanded_uncertainty" not in obj:
+        raise InputError("expected a certificate or an uncertainty_budget; "
+                         "found no variable 'relative_expanded_uncertainty'")
+    return obj
+
+
+def _headline_mask(budget: xr.Dataset, speeds: tuple[float, float]) -> xr.DataArray:
+    lo, hi = speeds
+    inside = (budget["wind_speed"] >= lo) & (budget["wind_speed"] <= hi)
+    return (budget["bin_flag"] == 0) & inside & np.isfinite(budget["relative_expanded_uncertainty"])
+
+
+def headline_range(obj: xr.Dataset, *, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS
+                   ) -> tuple[float, float] | None:
+    """Smallest and largest k = 2 relative expanded uncertainty (%) quoted on the certificate.
+
+    Only bins that are not flagged (``bin_flag`` ok: at least ``min_samples`` periods) and
+    whose centre lies in ``wind_speeds`` (m/s, inclusive) count.  ``obj`` is a certificate or
+    an ``uncertainty_budget``; None when no bin qualifies.
+    """
+    budget = _budget_of(obj)
+    rel = budget["relative_expanded_uncertainty"].where(_headline_mask(budget, wind_speeds))
+    if not bool(np.isfinite(rel).any()):
+        return None
+    return float(rel.min()), float(rel.max())
+
+
+def _flag_names(var: xr.DataArray) -> dict[int, str]:
+    values = np.atleast_1d(var.attrs.get("flag_values", []))
+    meanings = str(var.attrs.get("flag_meanings", "")).split()
+    return {int(v): m for v, m in zip(values, meanings, strict=False)}
+
+
+def _significant_sensitivities(cert: xr.Dataset) -> dict[float, str]:
+    """Per height, the sensitivities significant by Eq. 12 or 13, as readable text."""
+    out: dict[float, list[str]] = {}
+    for comp in components(cert):
+        if not comp["name"].startswith("sensitivity_"):
+            continue
+        sens = extract_component(cert, comp["name"])
+        var = sens.attrs.get("environmental_variable", comp["name"][len("sensitivity_"):])
+        for z in np.atleast_1d(sens["height"].values):
+            one = sens.sel(height=z)
+            if not int(one["significant"]):
+                continue
+            eqs = [eq for eq, name in (("Eq. 12", "significant_eq12"), ("Eq. 13", "significant_eq13"))
+                   if int(one[name])]
+            out.setdefault(float(z), []).append(
+                f"{var}: m*std = {float(one['slope_times_std']):.2f} %, "
+                f"m*std*R = {float(one['slope_times_std_times_r']):.2f} % ({', '.join(eqs)})"
+            )
+    return {z: "; ".join(v) for z, v in out.items()}
+
+
+def result_table(cert: xr.Dataset, *, contributors: int = 3,
+                 wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS):
+    """IEC-style result table of a certificate: one row per height and wind-speed bin.
+
+    Columns: ``height_m``, ``wind_speed_m_s`` (bin centre) and its bounds, ``sample_count``,
+    ``bin_flag`` (the budget's flag meaning: ``ok``, ``thin``, ``empty``), ``in_headline``
+    (counted in :func:`headline_range`), the k = 2 expanded uncertainty in m/s and in % of
+    the bin's mean reference wind speed, ``main_contributors`` (the largest ``contributors``
+    standard-uncertainty contributions, in %) and ``significant_sensitivities`` (per height,
+    Eqs. 12-13).  Numbers are the certificate's own values, not rounded.
+
+    Returns
+    -------
+    pandas.DataFrame
+    """
+    import pandas as pd
+
+    budget = _budget_of(cert).load()
+    k = float(budget.attrs.get("coverage_factor", 2.0))
+    flags = _flag_names(budget["bin_flag"])
+    headline = _headline_mask(budget, wind_speeds)
+    sens = _significant_sensitivities(cert) if "lidarcal_components" in cert.attrs else {}
+    names = [str(c) for c in budget["contributor"].values]
+    bounds = budget["wind_speed_bounds"].values if "wind_speed_bounds" in budget else None
+    rows = []
+    for i, z in enumerate(budget["height"].values):
+        for j, u in enumerate(budget["wind_speed"].values):
+            rel_c = budget["relative_contribution"].values[i, j]
+            order = [n for n in np.argsort(-np.nan_to_num(rel_c, nan=-np.inf)) if np.isfinite(rel_c[n])]
+            main = "; ".join(f"{names[n]} {rel_c[n]:.2f} %" for n in order[:contributors])
+            flag = int(budget["bin_flag"].values[i, j])
+            rows.append({
+                "height_m": float(z),
+                "wind_speed_m_s": float(u),
+                "wind_speed_min_m_s": float(bounds[j, 0]) if bounds is not None else np.nan,
+                "wind_speed_max_m_s": float(bounds[j, 1]) if bounds is not None else np.nan,
+                "sample_count": int(budget["sample_count"].values[i, j]),
+                "bin_flag": flags.get(flag, str(flag)),
+                "in_headline": bool(headline.values[i, j]),
+                f"expanded_uncertainty_k{k:g}_m_s": float(budget["expanded_uncertainty"].values[i, j]),
+                f"expanded_uncertainty_k{k:g}_pct": float(
+                    budget["relative_expanded_uncertainty"].values[i, j]),
+                "main_contributors": main,
+                "significant_sensitivities": sens.get(float(z), ""),
+            })
+    table = pd.DataFrame(rows)
+    table.attrs["coverage_factor"] = k
+    table.attrs["headline_wind_speeds_m_s"] = tuple(wind_speeds)
+    table.attrs["headline_range_pct"] = headline_range(budget, wind_speeds=wind_speeds)
+    return table
 
 
 # ------------------------------------------------------------------ consistency
@@ -302,6 +451,12 @@ def make_certificate(
         "lidarcal_provenance_chain": json.dumps(jsonable(chain, strict=True), sort_keys=True),
         "budget_approach": str(budget.attrs.get("approach", "unknown")),
     }
+    if (rng := headline_range(budget)) is not None:
+        lo, hi = HEADLINE_WIND_SPEEDS
+        cert.attrs["expanded_uncertainty_headline"] = (
+            f"{rng[0]:.2f} % to {rng[1]:.2f} % (k = {float(budget.attrs.get('coverage_factor', 2)):g}; "
+            f"bins flagged ok with centres {lo:g} to {hi:g} m/s; lidarcal table lists every bin)"
+        )
     if serial:
         cert.attrs["lidar_serial"] = serial
     if records is not None:

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import components, extract_component
+from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component, headline_range
 from lidarcal.errors import InputError
 from lidarcal.io import atomic_path, check_writable
 
@@ -219,17 +219,17 @@ def _summary_rows(meta: xr.Dataset | None, budget: xr.Dataset | None) -> list[tu
                 rows.append(
                     (f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}")
                 )
-    if budget is not None:
-        ok = budget["bin_flag"] == 0
-        rel = budget["relative_expanded_uncertainty"].where(ok)
-        if bool(np.isfinite(rel).any()):
-            rows.append(
-                (
-                    f"Expanded uncertainty (k = {float(budget.attrs.get('coverage_factor', 2)):g}), "
-                    "bins with enough samples",
-                    f"{float(rel.min()):.2f} % to {float(rel.max()):.2f} %",
-                )
+    # the headline: bins flagged ok, centres 4-16 m/s (certificate.headline_range, as `lidarcal table`)
+    rng = headline_range(budget) if budget is not None else None
+    if rng is not None:
+        lo, hi = HEADLINE_WIND_SPEEDS
+        rows.append(
+            (
+                f"Expanded uncertainty (k = {float(budget.attrs.get('coverage_factor', 2)):g}), "
+                f"bins with enough samples, {lo:g} to {hi:g} m/s",
+                f"{rng[0]:.2f} % to {rng[1]:.2f} %",
             )
+        )
     return rows
 
 

@@ -26,6 +26,7 @@ __all__ = [
     "convert_values",
     "convert_variable",
     "to_magnitude",
+    "register_units",
 ]
 
 Q_ = ureg.Quantity
@@ -40,6 +41,18 @@ _CANONICAL = {
     "dimensionless": "1",
     "percent": "%",
 }
+
+
+def register_units() -> None:
+    """Make this registry (cf-xarray's) pint's application registry, the one pint-xarray uses.
+
+    Importing this module already does it (``cf_xarray.units`` registers itself); call this
+    again if other code replaced the application registry since.  ``import lidarcal`` arranges
+    it too, on the first import of ``pint_xarray``, so ``ds.pint.quantify()`` understands the
+    units of every artefact (``m s-1``, ``%``, ``dB``, ``1``).
+    """
+    if pint.get_application_registry().get() is not ureg:
+        pint.set_application_registry(ureg)
 
 
 def cf_units(unit: pint.Unit | str) -> str:

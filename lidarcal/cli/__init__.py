@@ -37,6 +37,7 @@ COMMANDS = (
     "sweep",
     "certificate",
     "verify",
+    "table",
     "diagnose",
     "validate",
 )

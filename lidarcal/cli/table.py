@@ -1,0 +1,122 @@
+"""``lidarcal table CERT.nc [--format csv|md|html] [-o FILE]``: the certificate's result table.
+
+One row per height and wind-speed bin: the k = 2 expanded uncertainty in m/s and in % of the
+bin's mean reference wind speed, the largest standard-uncertainty contributors, the number of
+10-minute periods in the bin and the bin's flag (``ok``, ``thin``: fewer periods than the
+budget's ``min_samples``, ``empty``), then the sensitivities that are significant by Eq. 12
+or Eq. 13 at that height.  The headline range quoted above the table covers only bins that
+are ``ok`` with a centre from 4 to 16 m/s (``--wind-speeds``); ``in_headline`` marks them.
+CSV (the default) carries every column with the certificate's unrounded values; Markdown and
+HTML round for reading and list the sensitivities once per height.  Without ``-o`` the table
+goes to stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import html
+import sys
+from pathlib import Path
+
+from lidarcal.certificate import HEADLINE_WIND_SPEEDS, result_table
+from lidarcal.cli.options import add_overwrite_option
+from lidarcal.io import atomic_path, check_writable, open_artefact
+
+FORMATS = ("csv", "md", "html")
+_SUFFIXES = {".csv": "csv", ".md": "md", ".markdown": "md", ".html": "html", ".htm": "html"}
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``table`` subcommand."""
+    p = sub.add_parser("table", help="IEC-style result table of a certificate (CSV, Markdown, HTML)",
+                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("certificate", metavar="CERT.nc")
+    p.add_argument("--format", choices=FORMATS,
+                   help="output format (default: from the -o suffix, else csv)")
+    p.add_argument("-o", "--output", metavar="FILE", help="write here instead of stdout")
+    p.add_argument("--wind-speeds", type=float, nargs=2, metavar=("MIN", "MAX"),
+                   default=list(HEADLINE_WIND_SPEEDS),
+                   help="bin centres (m/s) the headline range covers (default %(default)s)")
+    p.add_argument("--contributors", type=int, default=3, metavar="N",
+                   help="contributors listed per bin, largest first (default %(default)s)")
+    add_overwrite_option(p)
+    p.set_defaults(handler=run)
+
+
+def _headline(table) -> str:
+    lo, hi = table.attrs["headline_wind_speeds_m_s"]
+    rng = table.attrs["headline_range_pct"]
+    k = table.attrs["coverage_factor"]
+    where = f"bins flagged ok with centres {lo:g} to {hi:g} m/s"
+    if rng is None:
+        return f"Expanded uncertainty (k = {k:g}): no {where}"
+    return f"Expanded uncertainty (k = {k:g}), {where}: {rng[0]:.2f} % to {rng[1]:.2f} %"
+
+
+def _rounded(table):
+    k = table.attrs["coverage_factor"]
+    out = table.drop(columns=["significant_sensitivities", "wind_speed_min_m_s", "wind_speed_max_m_s"])
+    return out.rename(columns={
+        "height_m": "height (m)",
+        "wind_speed_m_s": "wind speed (m/s)",
+        "sample_count": "periods",
+        "bin_flag": "flag",
+        "in_headline": "in headline",
+        f"expanded_uncertainty_k{k:g}_m_s": f"U (k = {k:g}) (m/s)",
+        f"expanded_uncertainty_k{k:g}_pct": f"U (k = {k:g}) (%)",
+        "main_contributors": "main contributors (standard uncertainty, %)",
+    }).round({f"U (k = {k:g}) (m/s)": 3, f"U (k = {k:g}) (%)": 2})
+
+
+def _sensitivities(table) -> list[tuple[float, str]]:
+    per = table.drop_duplicates("height_m")
+    return [(z, s) for z, s in zip(per["height_m"], per["significant_sensitivities"], strict=True)]
+
+
+def _cell(value) -> str:
+    return "" if isinstance(value, float) and value != value else str(value)
+
+
+def _markdown(table) -> str:
+    body = _rounded(table)
+    lines = [f"# Result table: {table.attrs.get('title', 'calibration certificate')}", "",
+             _headline(table), "",
+             "| " + " | ".join(body.columns) + " |", "|" + "---|" * len(body.columns)]
+    lines += ["| " + " | ".join(_cell(v) for v in row) + " |" for row in body.itertuples(index=False)]
+    lines += ["", "## Significant sensitivities (Eqs. 12-13)", ""]
+    lines += [f"- {z:g} m: {s or 'none'}" for z, s in _sensitivities(table)]
+    return "\n".join(lines) + "\n"
+
+
+def _html(table) -> str:
+    title = html.escape(f"Result table: {table.attrs.get('title', 'calibration certificate')}")
+    sens = "".join(f"<li>{z:g} m: {html.escape(s or 'none')}</li>" for z, s in _sensitivities(table))
+    grid = _rounded(table).to_html(index=False, na_rep="", border=0)
+    return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{title}</title></head><body>\n"
+            f"<h1>{title}</h1>\n<p>{html.escape(_headline(table))}</p>\n{grid}\n"
+            f"<h2>Significant sensitivities (Eqs. 12-13)</h2>\n<ul>{sens}</ul>\n</body></html>\n")
+
+
+def render(table, fmt: str) -> str:
+    """Return ``table`` (from :func:`lidarcal.certificate.result_table`) as csv, md or html text."""
+    if fmt == "csv":
+        return table.to_csv(index=False, lineterminator="\n")
+    return _markdown(table) if fmt == "md" else _html(table)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Build the table and write it."""
+    fmt = args.format or (_SUFFIXES.get(Path(args.output).suffix.lower(), "csv") if args.output else "csv")
+    if args.output:
+        check_writable(args.output, overwrite=args.overwrite)
+    cert = open_artefact(args.certificate, "certificate")
+    table = result_table(cert, contributors=args.contributors, wind_speeds=tuple(args.wind_speeds))
+    table.attrs["title"] = cert.attrs.get("title", "calibration certificate")
+    text = render(table, fmt)
+    if not args.output:
+        sys.stdout.write(text)
+        return 0
+    with atomic_path(args.output, overwrite=args.overwrite) as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+    print(f"{args.output}: {len(table)} bins; {_headline(table)}")
+    return 0

@@ -1,0 +1,157 @@
+"""The certificate read back: the IEC-style result table, the DataTree view and pint units."""
+
+import numpy as np
+import pandas as pd
+import pytest
+import xarray as xr
+from analysis_factories import make_records
+
+import lidarcal
+from lidarcal.analysis import budget, sensitivity
+from lidarcal.analysis.terms import PAPER_INPUTS, TABLE4_WIND_SPEEDS, uncertainty_terms
+from lidarcal.certificate import headline_range, make_certificate, result_table, write_certificate
+from lidarcal.cli import main
+from lidarcal.io import write_artefact
+
+SERIAL = "WLS7-TABLE"
+
+
+@pytest.fixture(scope="module")
+def cert_path(tmp_path_factory):
+    """A sealed certificate whose budget has one thin bin and one slow bin carrying large values.
+
+    The records span about 2-14 m/s.  A budget written by other code may keep a value in a
+    flagged bin, so the 8 m/s bin at 120 m is flagged thin with a finite 50 %, and the ok bin
+    at 2 m/s and 80 m gets 40 %: the headline must leave both out.
+    """
+    d = tmp_path_factory.mktemp("table")
+    records = make_records(n=500, heights=(80.0, 120.0), lidar_serial=SERIAL, shear_slope=(8.0, 0.0))
+    for name in ("wind_speed", "lidar_wind_speed", "reference_wind_speed"):
+        records[name] = records[name] * (12 / 11) - 3.0  # about 1.9 to 13.9 m/s, same relative error
+    bud = budget(records)
+    rel = bud["relative_expanded_uncertainty"].values
+    j8 = int(np.argmin(abs(bud["wind_speed"].values - 8.0)))
+    bud["bin_flag"].values[1, j8] = 1
+    rel[1, j8] = 50.0
+    j2 = int(np.argmin(abs(bud["wind_speed"].values - 2.0)))
+    assert bud["bin_flag"].values[0, j2] == 0 and bud["wind_speed"].values[j2] == 2.0
+    rel[0, j2] = 40.0
+    sens = [sensitivity(records, v) for v in ("wind_shear_exponent", "turbulence_intensity")]
+    terms = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS)
+    cert = make_certificate(budget=bud, sensitivities=sens, terms=terms)
+    path = write_certificate(cert, d / "cert.nc")
+    write_artefact(bud, d / "budget.nc")
+    return path
+
+
+def _brute_headline(bud):
+    """Loop over every bin: flag ok, centre in [4, 16] m/s, finite value."""
+    vals = []
+    for i in range(bud.sizes["height"]):
+        for j, u in enumerate(bud["wind_speed"].values):
+            v = float(bud["relative_expanded_uncertainty"].values[i, j])
+            if int(bud["bin_flag"].values[i, j]) == 0 and 4.0 <= u <= 16.0 and np.isfinite(v):
+                vals.append(v)
+    return min(vals), max(vals)
+
+
+def test_table_numbers_are_the_certificate_values(cert_path):
+    cert = xr.open_dataset(cert_path)
+    table = result_table(cert)
+    nh, nu = cert.sizes["budget_height"], cert.sizes["budget_wind_speed"]
+    assert len(table) == nh * nu
+    got = table.set_index(["height_m", "wind_speed_m_s"])
+    for i, z in enumerate(cert["budget_height"].values):
+        for j, u in enumerate(cert["budget_wind_speed"].values):
+            row = got.loc[(z, u)]
+            # the same float64 values, not recomputed: exact equality (NaN = NaN)
+            np.testing.assert_array_equal(row["expanded_uncertainty_k2_m_s"],
+                                          cert["budget_expanded_uncertainty"].values[i, j])
+            np.testing.assert_array_equal(row["expanded_uncertainty_k2_pct"],
+                                          cert["budget_relative_expanded_uncertainty"].values[i, j])
+            assert row["sample_count"] == cert["budget_sample_count"].values[i, j]
+            flag = int(cert["budget_bin_flag"].values[i, j])
+            assert row["bin_flag"] == ["ok", "thin", "empty"][flag]
+    # the contributors: the largest relative contributions of one well-filled bin, by name
+    i, j = 0, int(np.argmax(cert["budget_sample_count"].values[0]))
+    rc = cert["budget_relative_contribution"].values[i, j]
+    names = [str(n) for n in cert["budget_contributor"].values]
+    order = np.argsort(rc)[::-1][:3]
+    expected = "; ".join(f"{names[n]} {rc[n]:.2f} %" for n in order)
+    assert got.loc[(cert["budget_height"].values[i], cert["budget_wind_speed"].values[j]),
+                   "main_contributors"] == expected
+
+
+def test_headline_leaves_out_flagged_and_out_of_range_bins(cert_path):
+    cert = xr.open_dataset(cert_path)
+    bud = lidarcal.certificate.extract_component(cert, "budget")
+    lo, hi = headline_range(cert)
+    assert (lo, hi) == _brute_headline(bud)
+    assert hi < 40.0  # neither the planted thin bin (50 %) nor the 2 m/s bin (40 %)
+    # without the range restriction the 2 m/s bin would be the maximum; the thin one never
+    assert headline_range(cert, wind_speeds=(0.0, 100.0))[1] == 40.0
+    table = result_table(cert)
+    assert not table.loc[table["bin_flag"] != "ok", "in_headline"].any()
+    inside = table[table["in_headline"]]
+    pct = inside["expanded_uncertainty_k2_pct"]
+    assert (pct.min(), pct.max()) == (lo, hi)
+    assert cert.attrs["expanded_uncertainty_headline"].startswith(f"{lo:.2f} % to {hi:.2f} %")
+
+
+def test_significant_sensitivities_per_height(cert_path):
+    cert = xr.open_dataset(cert_path)
+    table = result_table(cert).drop_duplicates("height_m").set_index("height_m")
+    for z in cert["sensitivity_wind_shear_exponent_height"].values:
+        sig = int(cert["sensitivity_wind_shear_exponent_significant"].sel(
+            sensitivity_wind_shear_exponent_height=z))
+        text = table.loc[z, "significant_sensitivities"]
+        assert ("wind_shear_exponent" in text) == bool(sig)
+        if sig:
+            m_std = float(cert["sensitivity_wind_shear_exponent_slope_times_std"].sel(
+                sensitivity_wind_shear_exponent_height=z))
+            assert f"m*std = {m_std:.2f} %" in text
+    # the factory plants 8 % per unit alpha at 80 m and none at 120 m: Eq. 12/13 must see it
+    assert "wind_shear_exponent" in table.loc[80.0, "significant_sensitivities"]
+
+
+@pytest.mark.parametrize("fmt", ["csv", "md", "html"])
+def test_table_cli_formats(cert_path, tmp_path, capsys, fmt):
+    out = tmp_path / f"t.{fmt}"
+    assert main(["table", str(cert_path), "-o", str(out)]) == 0
+    text = out.read_text()
+    lo, hi = headline_range(xr.open_dataset(cert_path))
+    if fmt == "csv":
+        back = pd.read_csv(out)
+        assert len(back) == len(result_table(xr.open_dataset(cert_path)))
+        # CSV keeps pandas' shortest round-trip repr of the float64: equal to the last bit
+        assert back["expanded_uncertainty_k2_pct"].where(back["in_headline"]).max() == hi
+    else:
+        assert f"{lo:.2f} % to {hi:.2f} %" in text and "Significant sensitivities" in text
+    assert main(["table", str(cert_path), "-o", str(out)]) == 2  # never replaced silently
+    assert "exists" in capsys.readouterr().err
+    assert main(["table", str(cert_path.parent / "budget.nc")]) == 2
+    assert "expected a 'certificate' artefact" in capsys.readouterr().err
+
+
+def test_open_certificate_tree(cert_path):
+    tree = lidarcal.open_certificate(cert_path)
+    assert isinstance(tree, xr.DataTree)
+    assert set(tree.children) == {"budget", "terms", "sensitivity_wind_shear_exponent",
+                                  "sensitivity_turbulence_intensity"}
+    flat = xr.open_dataset(cert_path)
+    one = tree["budget"].sel(height=120, wind_speed=8, method="nearest")
+    i = int(np.argmin(abs(flat["budget_height"].values - 120)))
+    j = int(np.argmin(abs(flat["budget_wind_speed"].values - 8)))
+    expected = flat["budget_relative_expanded_uncertainty"].values[i, j]
+    assert float(one["relative_expanded_uncertainty"]) == expected
+    assert tree["budget"].dataset["wind_speed"].attrs["bounds"] == "wind_speed_bounds"
+    # the cf accessor finds one vertical axis per group (the flat file has one per component)
+    assert tree["budget"].dataset.cf["Z"].name == "height"
+    assert tree.attrs["lidar_serial"] == SERIAL
+    # lazy: values stay on disk until asked for
+    assert tree["budget"].dataset["uncertainty"].chunks is not None
+
+
+def test_open_certificate_refuses_other_artefacts(cert_path):
+    with pytest.raises(lidarcal.errors.InputError, match="budget.nc: not a lidarcal certificate"):
+        lidarcal.open_certificate(cert_path.parent / "budget.nc")
