@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
+import socket
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,7 +24,10 @@ from lidarcal.errors import InputError, OutputExistsError
 from lidarcal.provenance import sha256
 from lidarcal.schema import validate_dataset
 
-__all__ = ["write_artefact", "open_artefact", "atomic_path", "check_writable", "source_name"]
+__all__ = [
+    "write_artefact", "open_artefact", "atomic_path", "check_writable", "source_name",
+    "part_path", "publish", "remove_stale_parts",
+]
 
 
 def source_name(obj: object, default: str = "<dataset>") -> str:
@@ -51,21 +56,102 @@ def check_writable(path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     return path
 
 
+#: Temporary files are ``.<name>.<host>-<pid>.<random>.part`` next to their destination, so a
+#: later writer of the same path can recognise those of runs that died and remove them.
+_PART = re.compile(r"(?P<host>[A-Za-z0-9_-]*)-(?P<pid>[0-9]+)\.[A-Za-z0-9_]+\.part")
+
+
+def _host() -> str:
+    return re.sub(r"[^A-Za-z0-9_-]", "_", socket.gethostname())
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # exists, owned by someone else
+        return True
+    return True
+
+
+def remove_stale_parts(path: str | os.PathLike) -> list[Path]:
+    """Remove the temporary files of writers of ``path`` that died (killed runs); return them.
+
+    Only files named by :func:`part_path` on this host whose process no longer exists are
+    removed: a live writer's temporary (this or another process, or another host sharing the
+    directory) is never touched.
+    """
+    path = Path(path)
+    prefix, host, removed = f".{path.name}.", _host(), []
+    try:
+        candidates = [p for p in path.parent.iterdir() if p.name.startswith(prefix)]
+    except OSError:
+        return removed
+    for p in candidates:
+        m = _PART.fullmatch(p.name[len(prefix):])
+        if m is None or m["host"] != host or _pid_alive(int(m["pid"])):
+            continue
+        with contextlib.suppress(OSError):
+            p.unlink()
+            removed.append(p)
+    return removed
+
+
+def part_path(path: str | os.PathLike) -> Path:
+    """Create and return a new empty temporary file for ``path``, next to it (mode 0600)."""
+    path = Path(path)
+    prefix = f".{path.name}.{_host()}-{os.getpid()}."
+    fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".part", dir=path.parent)
+    os.close(fd)
+    return Path(tmp)
+
+
+def publish(tmp: Path, path: Path, *, overwrite: bool = False) -> None:
+    """Move the finished temporary ``tmp`` onto ``path``: exactly one of concurrent writers wins.
+
+    With ``overwrite`` the rename replaces whatever is there.  Without it the file is published
+    with an exclusive create (a hard link, which fails if ``path`` exists), so of several
+    processes writing the same new path one succeeds and the others get
+    :class:`~lidarcal.errors.OutputExistsError`; never is one output silently replaced.
+    """
+    if overwrite:
+        os.replace(tmp, path)
+        return
+    lost = OutputExistsError(f"{path}: file exists: another writer finished it while this one was writing; "
+                             "not replaced; pass overwrite=True (--overwrite) to replace it")
+    try:
+        os.link(tmp, path)
+    except FileExistsError:
+        raise lost from None
+    except OSError:
+        # a file system without hard links: reserve the name exclusively, then move the data in
+        try:
+            os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o600))
+        except FileExistsError:
+            raise lost from None
+        os.replace(tmp, path)
+        return
+    tmp.unlink()
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; rename it onto ``path`` only on success."""
+    """Yield a temporary path next to ``path``; publish it onto ``path`` only on success.
+
+    The temporary is removed on failure; temporaries of earlier writers of ``path`` that were
+    killed are removed first (:func:`remove_stale_parts`).  Publishing is exclusive unless
+    ``overwrite`` (:func:`publish`).
+    """
     path = check_writable(path, overwrite=overwrite)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp)
+    remove_stale_parts(path)
+    tmp = part_path(path)
     umask = os.umask(0)
     os.umask(umask)
     os.chmod(tmp, 0o666 & ~umask)  # mkstemp makes 0600; outputs get ordinary permissions
     try:
         yield tmp
-        if path.exists() and not overwrite:
-            raise OutputExistsError(f"{path}: file appeared while writing; not replaced")
-        os.replace(tmp, path)
+        publish(tmp, path, overwrite=overwrite)
     finally:
         if tmp.exists():
             tmp.unlink()

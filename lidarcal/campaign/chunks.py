@@ -12,13 +12,13 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from lidarcal.conditions.variables import CONDITION_NAMES
+from lidarcal.io import part_path, publish, remove_stale_parts
 from lidarcal.lidar import LidarModel, simulate_period
 
 __all__ = ["OUTPUTS", "chunk_key", "chunk_path", "load_chunk", "run_chunk"]
@@ -89,16 +89,20 @@ def load_chunk(path: Path, key: str, n: int, n_heights: int) -> dict[str, np.nda
 
 
 def _save_atomic(path: Path, key: str, result: dict[str, np.ndarray]) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    # a cache entry is named by its key, so two workers writing one chunk write the same
+    # numbers: the later rename may replace the earlier (publish with overwrite).  Temporaries
+    # of killed workers are recognised by their pid and removed (lidarcal.io.part_path).
+    remove_stale_parts(path)
+    tmp = part_path(path)
     try:
-        with os.fdopen(fd, "wb") as fh:
+        with open(tmp, "wb") as fh:
             np.savez(fh, key=np.asarray(key), **result)
             fh.flush()
             os.fsync(fh.fileno())
-        os.replace(tmp, path)
+        publish(tmp, path, overwrite=True)
     finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+        if tmp.exists():
+            tmp.unlink()
 
 
 def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
