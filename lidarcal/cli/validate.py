@@ -1,10 +1,15 @@
-"""``lidarcal validate FILE...``: schema check plus the CF-1.11/ACDD-1.3 compliance-checker."""
+"""``lidarcal validate FILE...``: schema check plus the CF-1.11/ACDD-1.3 compliance-checker.
+
+Every file is checked and reported.  Exit status 0 when all pass, 1 when a file has schema or
+compliance problems, 2 when a file is missing or unreadable (whatever the others gave).
+"""
 
 from __future__ import annotations
 
 import argparse
+import sys
 
-from lidarcal.compliance import check_compliance
+from lidarcal.compliance import check_compliance, summary_lines
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
 from lidarcal.schema import validate_dataset
@@ -17,34 +22,36 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("files", nargs="+", metavar="FILE")
     p.add_argument("--kind", help="schema to apply (default: the file's lidarcal_artefact attribute)")
     p.add_argument("--no-compliance", action="store_true", help="skip the IOOS compliance-checker")
-    p.add_argument("-v", "--verbose", action="store_true", help="also list medium/low-priority findings")
+    p.add_argument("-v", "--verbose", action="store_true",
+                   help="list every finding (by default the findings of one check share one line)")
     p.set_defaults(handler=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Validate every file; exit 1 if any has a problem."""
-    bad = 0
+    """Validate every file, reporting each; 2 if any could not be read, else 1 if any has a problem."""
+    bad = unreadable = 0
     for path in args.files:
         try:
             ds = open_artefact(path, load=False, chunks={})
+        except InputError as exc:  # missing, empty, not netCDF: report it and check the rest
+            print(f"lidarcal validate: error: {exc}", file=sys.stderr)
+            print(f"{path}: FAIL (not readable)")
+            unreadable += 1
+            continue
+        try:
             problems = validate_dataset(ds, args.kind, source=path)
-            ds.close()
         except InputError as exc:
             problems = [str(exc)]
-        report = None if (args.no_compliance or problems and "not a readable" in problems[0]) \
-            else check_compliance(path)
+        finally:
+            ds.close()
+        report = None if args.no_compliance else check_compliance(path)
         failures = problems + (report.failures if report else [])
         status = "FAIL" if failures else "ok"
         print(f"{path}: {status}")
         for line in problems:
             print(f"  schema: {line}")
-        if report:
-            for line in report.failures:
-                print(f"  compliance: {line}")
-            for line in report.exceptions:
-                print(f"  documented exception: {line}")
-            if args.verbose:
-                for line in report.warnings:
-                    print(f"  warning: {line}")
+        if report:  # failures, then each documented exception and warning check on one line
+            for line in summary_lines(report, verbose=args.verbose):
+                print(f"  {line}")
         bad += bool(failures)
-    return 1 if bad else 0
+    return 2 if unreadable else 1 if bad else 0

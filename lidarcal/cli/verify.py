@@ -1,38 +1,72 @@
 """``lidarcal verify CERT.nc...``: recompute a certificate's checksums and schema.
 
 Prints what was altered (values or attributes of which variable, which global attribute) and
-exits with status 1 if anything was; a file that is not a certificate is an error (status 2).
+exits with status 1 if anything was.  Every file is checked and reported; a file that is
+missing, unreadable or not a certificate is an error (status 2, whatever the other files gave).
+
+What OK promises depends on the signature, and each file's line says which applies:
+
+* ``unsigned: integrity only`` -- nothing changed since the seal was computed.  Protects
+  against accidents, not forgery: whoever can rewrite the file can recompute the seal.
+* ``signed by <fingerprint>`` with ``--public-key KEY.pub`` -- the file is exactly as sealed
+  by the holder of the matching private key (``lidarcal keygen``, ``--sign``); a re-sealed,
+  re-signed or unsigned file fails.
+* ``signed by <fingerprint>`` without ``--public-key`` -- the signature matches the public key
+  stored in the file: consistent, but anyone can sign with a key of their own; compare the
+  fingerprint with one you trust, or pass ``--public-key``.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 
 from lidarcal.certificate import verify_certificate
+from lidarcal.errors import LidarcalError
+from lidarcal.signing import load_public_key
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``verify`` subcommand."""
     p = sub.add_parser(
-        "verify", help="check a certificate's integrity record and schema", description=__doc__
+        "verify", help="check a certificate's integrity record, signature and schema", description=__doc__,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("files", nargs="+", metavar="CERT.nc")
+    p.add_argument("--public-key", metavar="KEY.pub",
+                   help="require a valid signature by this Ed25519 public key (lidarcal keygen)")
     p.set_defaults(handler=run)
 
 
+def _signature_line(report, public_key: str | None) -> str:
+    if report.signed_by is None:
+        return "unsigned: integrity only (whoever can rewrite the file can re-seal it)"
+    if report.key_trusted:
+        return f"signed by {report.signed_by} (checked against {public_key})"
+    return (f"signed by {report.signed_by} (against the key stored in the file; pass --public-key "
+            "to check it is a key you trust)")
+
+
 def run(args: argparse.Namespace) -> int:
-    """Verify every file; 1 if any was altered."""
-    bad = 0
+    """Verify every file, reporting each; 2 if any could not be checked, else 1 if any was altered."""
+    bad = failed = 0
+    key = load_public_key(args.public_key) if args.public_key else None
     for path in args.files:
-        report = verify_certificate(path)
+        try:
+            report = verify_certificate(path, public_key=key)
+        except LidarcalError as exc:  # missing, unreadable, not a certificate: report it, check the rest
+            print(f"lidarcal verify: error: {exc}", file=sys.stderr)
+            print(f"{path}: NOT CHECKED (see the error above)")
+            failed += 1
+            continue
         if report.ok:
             print(
                 f"{path}: OK ({report.variables_checked} variables and {report.attributes_checked} global "
-                "attributes match their SHA-256; schema valid)"
+                f"attributes match their SHA-256; schema valid); {_signature_line(report, args.public_key)}"
             )
         else:
             print(f"{path}: ALTERED or invalid ({len(report.problems)} problem(s))")
             for line in report.problems:
                 print(f"  - {line}")
             bad += 1
-    return 1 if bad else 0
+    return 2 if failed else 1 if bad else 0
