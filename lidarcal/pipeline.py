@@ -52,6 +52,7 @@ from lidarcal.lidar import LidarModel
 from lidarcal.provenance import stamp
 from lidarcal.report import write_report
 from lidarcal.rwf import range_weighting_function
+from lidarcal.signing import load_private_key
 from lidarcal.units import Q_
 
 __all__ = ["CalibrationConfig", "CalibrationResult", "calibrate", "sweep", "OUTPUT_NAMES", "DEFAULT_HEIGHTS"]
@@ -167,6 +168,7 @@ def calibrate(
     *,
     overwrite: bool = False,
     progress: bool = False,
+    signing_key: str | os.PathLike | None = None,
 ) -> CalibrationResult:
     """Run the whole calibration; return the path and dataset of every artefact written.
 
@@ -180,6 +182,9 @@ def calibrate(
         Replace existing outputs; otherwise existing files are refused before any work.
     progress : bool
         Show a progress bar (tqdm, stderr) during the simulation.
+    signing_key : path, optional
+        Ed25519 private key (``lidarcal keygen``) signing the certificate's seal; read before
+        any work.  Not part of the configuration: it changes who vouches, not the numbers.
 
     Returns
     -------
@@ -195,6 +200,7 @@ def calibrate(
         paths[f"sensitivity_{var}"] = outdir / f"sensitivity_{var}.nc"
     for path in paths.values():  # refuse before doing an hour of work
         check_writable(path, overwrite=overwrite)
+    signer = load_private_key(signing_key) if signing_key is not None else None
     t0 = time.perf_counter()
 
     def done(key: str, what: str) -> None:
@@ -275,8 +281,9 @@ def calibrate(
     # 6. certificate and report
     cert = make_certificate(budget=bud, sensitivities=sens, cube=cube, rwf=rwf, terms=terms,
                             records=records, config=cfg.to_dict(), call="lidarcal calibrate")
-    write_certificate(cert, paths["certificate"], overwrite=overwrite)
-    done("certificate", "calibration certificate (check with: lidarcal verify)")
+    write_certificate(cert, paths["certificate"], overwrite=overwrite, signing_key=signer)
+    done("certificate", "calibration certificate (check with: lidarcal verify"
+         + (f" --public-key {signing_key}.pub)" if signer else ")"))
     written = write_report(paths["report"], certificate=cert, overwrite=overwrite)
     for png in written.get("png", []):
         paths[f"png:{Path(png).name}"] = Path(png)

@@ -37,6 +37,7 @@ COMMANDS = (
     "sweep",
     "certificate",
     "verify",
+    "keygen",
     "table",
     "diagnose",
     "validate",

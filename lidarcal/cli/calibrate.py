@@ -61,6 +61,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_parallel_options(p, workdir=False)  # chunks are cached in OUTDIR/.simulation-chunks
     add_overwrite_option(p)
     add_progress_option(p)
+    p.add_argument("--sign", metavar="KEY",
+                   help="sign the certificate's seal with this Ed25519 private key (lidarcal keygen); "
+                   "without it the certificate is sealed for integrity only")
     p.set_defaults(handler=run)
 
 
@@ -72,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
         periods=None if args.periods == 0 else args.periods, base_seed=args.seed,
         workers=args.workers, scheduler=args.scheduler, fft_size=args.fft_size, chunk=args.chunk,
     )
-    result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args))
+    result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args),
+                       signing_key=args.sign)
     print(f"done: certificate {result.paths['certificate']}, report {result.paths['report']}")
     return 0

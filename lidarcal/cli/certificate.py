@@ -3,6 +3,11 @@
 Bundle a calibration (budget, sensitivities, bench cube, RWF and Zd, Table 4 terms) with the
 provenance of every input into one sealed netCDF certificate; check it later with
 ``lidarcal verify CERT.nc``.  An existing certificate is never replaced without ``--overwrite``.
+
+The seal (SHA-256 of every value and attribute) detects alteration, not forgery: anyone who can
+rewrite the file can recompute it.  ``--sign KEY`` (from ``lidarcal keygen``) adds an Ed25519
+signature of the seal; ``lidarcal verify CERT.nc --public-key KEY.pub`` then fails for any file
+not sealed by the holder of KEY.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ from lidarcal.cli import command_line
 from lidarcal.cli.options import add_output_options
 from lidarcal.io import check_writable, open_artefact
 from lidarcal.report import write_report
+from lidarcal.signing import fingerprint, load_private_key
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -40,6 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_output_options(p, "CERT.nc")
     p.add_argument("--report", metavar="CERT.html", help="also write the HTML report (and its PNGs)")
+    p.add_argument("--sign", metavar="KEY",
+                   help="sign the seal with this Ed25519 private key (lidarcal keygen); without it the "
+                   "certificate is sealed for integrity only")
     p.set_defaults(handler=run)
 
 
@@ -48,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.output, overwrite=args.overwrite)
     if args.report:
         check_writable(args.report, overwrite=args.overwrite)
+    key = load_private_key(args.sign) if args.sign else None  # a bad key fails before any work
     budget = open_artefact(args.budget, "uncertainty_budget")
     sens = [open_artefact(path, "sensitivity") for path in args.sensitivity]
     optional = {
@@ -62,11 +72,10 @@ def run(args: argparse.Namespace) -> int:
     config = {k: v for k, v in vars(args).items() if k != "handler"}
     call = command_line(args)
     cert = make_certificate(budget=budget, sensitivities=sens, config=config, call=call, **optional)
-    path = write_certificate(cert, args.output, overwrite=args.overwrite)
-    print(
-        f"{path}: certificate with components {cert.attrs['certificate_components']}; sealed "
-        f"(check with: lidarcal verify {path})"
-    )
+    path = write_certificate(cert, args.output, overwrite=args.overwrite, signing_key=key)
+    how = (f"sealed and signed by {fingerprint(key)} (check with: lidarcal verify {path} --public-key "
+           f"{args.sign}.pub)" if key else f"sealed, unsigned (check with: lidarcal verify {path})")
+    print(f"{path}: certificate with components {cert.attrs['certificate_components']}; {how}")
     if args.report:
         written = write_report(args.report, certificate=cert, overwrite=args.overwrite)
         print(

@@ -1,0 +1,128 @@
+"""Ed25519 keys and signatures for certificates (``lidarcal keygen``, ``--sign``, ``--public-key``).
+
+A certificate's seal (``lidarcal_integrity``, :mod:`lidarcal.certificate`) is an unkeyed
+SHA-256 record: it detects alteration, but whoever can rewrite the file can recompute it.  A
+signature closes that: the signer's private key signs the exact UTF-8 bytes of the seal, and
+anyone holding the matching public key can check that the seal -- hence every value and
+attribute it covers -- is the one the key holder wrote.  It says nothing about who holds the
+key: distribute the public key (or its fingerprint) through a channel you trust.
+
+Keys are PEM files: the private key PKCS#8 unencrypted, written with mode 0600 (keep it
+secret); the public key SubjectPublicKeyInfo, written next to it as ``KEY.pub``.  A key is
+named by its fingerprint, ``sha256:`` and the hex SHA-256 of its 32 raw public bytes.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import os
+from pathlib import Path
+
+from cryptography.exceptions import InvalidSignature
+from cryptography.hazmat.primitives import serialization
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+
+from lidarcal.errors import InputError
+from lidarcal.io import atomic_path, check_writable, part_path, publish, remove_stale_parts
+
+__all__ = [
+    "ALGORITHM",
+    "fingerprint",
+    "generate_keypair",
+    "load_private_key",
+    "load_public_key",
+    "sign",
+    "verify_signature",
+]
+
+#: What a signature is made of, as recorded next to it in the certificate.
+ALGORITHM = "Ed25519 over the UTF-8 bytes of the global attribute lidarcal_integrity"
+
+
+def fingerprint(key: Ed25519PublicKey | Ed25519PrivateKey) -> str:
+    """``sha256:<hex>`` of the 32 raw bytes of the (public half of the) key."""
+    public = key.public_key() if isinstance(key, Ed25519PrivateKey) else key
+    raw = public.public_bytes(serialization.Encoding.Raw, serialization.PublicFormat.Raw)
+    return "sha256:" + hashlib.sha256(raw).hexdigest()
+
+
+def generate_keypair(path: str | os.PathLike, *, overwrite: bool = False) -> tuple[Path, Path, str]:
+    """Write a new private key to ``path`` (mode 0600) and its public key to ``path.pub``.
+
+    Returns the two paths and the fingerprint.  Neither file is replaced unless ``overwrite``.
+    """
+    path = Path(path)
+    pub = path.with_name(path.name + ".pub")
+    check_writable(path, overwrite=overwrite)
+    check_writable(pub, overwrite=overwrite)
+    key = Ed25519PrivateKey.generate()
+    private_pem = key.private_bytes(
+        serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+    )
+    public_pem = key.public_key().public_bytes(
+        serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo
+    )
+    remove_stale_parts(path)
+    tmp = part_path(path)  # created 0600 and never widened: the private key is never readable by others
+    try:
+        tmp.write_bytes(private_pem)
+        os.chmod(tmp, 0o600)
+        publish(tmp, path, overwrite=overwrite)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    with atomic_path(pub, overwrite=overwrite) as tmp_pub:
+        tmp_pub.write_bytes(public_pem)
+    return path, pub, fingerprint(key)
+
+
+def _read(path: str | os.PathLike, what: str) -> bytes:
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: {what} not found (expected a PEM file written by lidarcal keygen)")
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: cannot read the {what}: {exc.strerror}") from None
+
+
+def load_private_key(path: str | os.PathLike) -> Ed25519PrivateKey:
+    """Read an Ed25519 private key (PEM, unencrypted) with a clear error for anything else."""
+    data = _read(path, "private key")
+    try:
+        key = serialization.load_pem_private_key(data, password=None)
+    except (ValueError, TypeError) as exc:
+        public = b"PUBLIC" in data
+        hint = " (this is a public key; --sign takes the private key KEY, not KEY.pub)" if public else ""
+        raise InputError(f"{path}: not an unencrypted PEM private key{hint}: {exc}") from None
+    if not isinstance(key, Ed25519PrivateKey):
+        raise InputError(f"{path}: expected an Ed25519 private key; found {type(key).__name__}")
+    return key
+
+
+def load_public_key(path: str | os.PathLike) -> Ed25519PublicKey:
+    """Read an Ed25519 public key (PEM) with a clear error for anything else."""
+    data = _read(path, "public key")
+    try:
+        key = serialization.load_pem_public_key(data)
+    except (ValueError, TypeError) as exc:
+        hint = " (this is a private key: give KEY.pub)" if b"PRIVATE" in data else ""
+        raise InputError(f"{path}: not a PEM public key{hint}: {exc}") from None
+    if not isinstance(key, Ed25519PublicKey):
+        raise InputError(f"{path}: expected an Ed25519 public key; found {type(key).__name__}")
+    return key
+
+
+def sign(key: Ed25519PrivateKey, seal: str) -> str:
+    """Base64 Ed25519 signature of the UTF-8 bytes of ``seal``."""
+    return base64.b64encode(key.sign(seal.encode("utf-8"))).decode("ascii")
+
+
+def verify_signature(key: Ed25519PublicKey, seal: str, signature: str) -> bool:
+    """Check that ``signature`` (base64) is ``key``'s signature of ``seal``; never raises."""
+    try:
+        key.verify(base64.b64decode(signature, validate=True), seal.encode("utf-8"))
+    except (InvalidSignature, ValueError):
+        return False
+    return True
