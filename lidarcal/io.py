@@ -49,10 +49,20 @@ def source_name(obj: object, default: str = "<dataset>") -> str:
 def check_writable(path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Fail early (before any work) if ``path`` exists and may not be replaced."""
     path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{path}: output is a directory; expected the path of a file")
     if path.exists() and not overwrite:
         raise OutputExistsError(f"{path}: file exists; pass overwrite=True (--overwrite) to replace it")
-    if not path.parent.exists():
-        raise InputError(f"{path}: output directory {path.parent} does not exist")
+    parent = path.parent
+    if not parent.exists():
+        raise InputError(f"{path}: output directory {parent} does not exist")
+    if not parent.is_dir():
+        raise InputError(f"{path}: {parent} is not a directory")
+    try:  # a real probe: permission bits say nothing for root or on a read-only file system
+        with tempfile.TemporaryFile(dir=parent):
+            pass
+    except OSError as exc:
+        raise InputError(f"{path}: output directory {parent} is not writable ({exc.strerror})") from None
     return path
 
 
@@ -224,6 +234,8 @@ def open_artefact(
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: file not found")
+    if path.is_dir():
+        raise InputError(f"{path}: is a directory; expected a netCDF file")
     if path.stat().st_size == 0:
         raise InputError(f"{path}: file is empty")
     try:

@@ -47,6 +47,7 @@ from lidarcal.certificate import make_certificate, write_certificate
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
 from lidarcal.conditions.grid import sweep_conditions
 from lidarcal.data import sample_file
+from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel
 from lidarcal.provenance import stamp
@@ -194,7 +195,12 @@ def calibrate(
     """
     cfg = config or CalibrationConfig()
     outdir = Path(outdir)
-    outdir.mkdir(parents=True, exist_ok=True)
+    if outdir.exists() and not outdir.is_dir():
+        raise InputError(f"{outdir}: output directory is a file; expected a directory (or a new name)")
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{outdir}: cannot create the output directory ({exc.strerror})") from None
     paths = {key: outdir / name for key, name in OUTPUT_NAMES.items()}
     for var in SENSITIVITY_VARIABLES:
         paths[f"sensitivity_{var}"] = outdir / f"sensitivity_{var}.nc"

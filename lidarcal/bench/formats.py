@@ -135,6 +135,8 @@ def _read_table(path: str | os.PathLike, what: str) -> tuple[pd.DataFrame, dict]
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: {what} file not found")
+    if path.is_dir():
+        raise InputError(f"{path}: {what} path is a directory; expected a CSV file")
     if path.stat().st_size == 0:
         raise InputError(f"{path}: {what} file is empty")
     compression = _compression(path, what)

@@ -62,6 +62,23 @@ class BenchRun:
     response: TrueResponse
     config: dict
 
+    @staticmethod
+    def output_paths(directory: str | os.PathLike, *, overwrite: bool = False,
+                     compress: bool = False) -> tuple[Path, Path]:
+        """Return the RTD and control-log paths :meth:`write` uses; InputError if not writable.
+
+        Call it before simulating, so a bad directory fails before any work.
+        """
+        directory = Path(directory)
+        if not directory.is_dir():
+            what = "is not a directory" if directory.exists() else "does not exist"
+            raise InputError(f"{directory}: output directory {what}")
+        rtd_path = directory / (RTD_NAME_GZ if compress else RTD_NAME)
+        control_path = directory / CONTROL_NAME
+        for path in (rtd_path, control_path):  # fail before writing either file
+            check_writable(path, overwrite=overwrite)
+        return rtd_path, control_path
+
     def write(self, directory: str | os.PathLike, *, overwrite: bool = False,
               compress: bool = False) -> tuple[Path, Path]:
         """Write ``rtd.csv`` and ``control_log.csv`` into ``directory`` (atomically, no overwrite).
@@ -69,13 +86,7 @@ class BenchRun:
         ``compress=True`` writes the RTD gzip-compressed as ``rtd.csv.gz`` (byte-reproducible,
         about a third of the size); the control log stays plain text.
         """
-        directory = Path(directory)
-        if not directory.is_dir():
-            raise InputError(f"{directory}: output directory does not exist")
-        rtd_path = directory / (RTD_NAME_GZ if compress else RTD_NAME)
-        control_path = directory / CONTROL_NAME
-        for path in (rtd_path, control_path):  # fail before writing either file
-            check_writable(path, overwrite=overwrite)
+        rtd_path, control_path = self.output_paths(directory, overwrite=overwrite, compress=compress)
         write_control_log(self.control, control_path, overwrite=overwrite)
         try:
             write_rtd(self.rtd, rtd_path, overwrite=overwrite)

@@ -2,8 +2,9 @@
 
 Each subcommand lives in a small module exposing ``register(subparsers)``; the module's
 handler parses arguments, calls the dataset-level function and writes the artefact.
-Errors derived from :class:`~lidarcal.errors.LidarcalError` are printed as one clear line
-(exit status 2); anything else is a bug and shows its traceback.  The library reports its
+Errors derived from :class:`~lidarcal.errors.LidarcalError`, and operating-system errors
+(:class:`OSError`: disk full, permissions), are printed as one clear line (exit status 2);
+anything else is a bug and shows its traceback.  The library reports its
 progress through :mod:`logging` (``lidarcal.*`` loggers); the command prints those INFO
 messages on stderr, so stdout carries only the command's result.  Shared options are
 declared once in :mod:`lidarcal.cli.options`.
@@ -99,6 +100,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         return int(args.handler(args) or 0)
     except LidarcalError as exc:
         print(f"lidarcal {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # the machine, not lidarcal: disk full, permissions changed mid-run ...
+        where = exc.filename if exc.filename is not None else "input/output"
+        print(f"lidarcal {args.command}: error: {where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

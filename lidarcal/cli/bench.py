@@ -13,7 +13,7 @@ import argparse
 
 from lidarcal.bench.ingest import ingest
 from lidarcal.bench.repeatability import repeatability
-from lidarcal.bench.simulator import simulate_run
+from lidarcal.bench.simulator import BenchRun, simulate_run
 from lidarcal.cli import command_line
 from lidarcal.cli.options import add_output_options, finite, nonnegative, nonnegative_int, positive
 from lidarcal.io import check_writable, write_artefact
@@ -76,6 +76,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def run_simulate(args: argparse.Namespace) -> int:
     """Simulate a run and write its two CSV files."""
+    BenchRun.output_paths(args.output, overwrite=args.overwrite, compress=args.compress)  # before any work
     run = simulate_run(seed=args.seed, accumulation_time=f"{args.accumulation_time} s",
                        lidar_serial=args.serial, operator=args.operator, run_id=args.run_id,
                        bench_id=args.bench_id, start=args.start, bias_scale=args.bias_scale)

@@ -113,10 +113,16 @@ def read_pulse_csv(path: str | os.PathLike) -> PulseSamples:
     """Read a measured pulse file (format in the module docstring); nothing is guessed."""
     path = Path(path)
     name = str(path)
+    if path.is_dir():
+        raise InputError(f"{name}: pulse file path is a directory; expected a CSV file")
     if not path.is_file():
         raise InputError(f"{name}: pulse file not found")
-    with open(path, newline="", encoding="utf-8") as fh:
-        lines = [(i + 1, row) for i, row in enumerate(csv.reader(fh))]
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            lines = [(i + 1, row) for i, row in enumerate(csv.reader(fh))]
+    except (UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(f"{name}: pulse file is not a UTF-8 CSV text file (netCDF or other binary?); "
+                         f"expected a CSV with 'intensity' and a position column: {exc}") from None
     rows = [(n, r) for n, r in lines if r and not r[0].lstrip().startswith("#") and any(c.strip() for c in r)]
     if not rows:
         raise InputError(f"{name}: pulse file is empty; expected a header row and at least 3 samples")
@@ -206,6 +212,11 @@ def compute_rwf(cfg: RwfConfig, measured: PulseSamples | None = None) -> dict[st
             f"found a grid of only ±{cfg.half_width} m")
     if measured is not None:
         clean = k.remove_noise_floor(measured.range_offset, measured.intensity)
+        if not np.nanmax(clean) > 0:
+            found = "a constant intensity" if np.ptp(measured.intensity) == 0 else "no sample above the floor"
+            raise InputError(
+                f"{measured.source}: column 'intensity': expected a pulse above the noise floor; found "
+                f"{found} ({measured.intensity.min():g} to {measured.intensity.max():g})")
         pulse = k.sampled_pulse(z, measured.range_offset, clean)
     else:
         pulse = k.two_sided_gaussian_pulse(z, cfg.pulse_length, cfg.asymmetry, cfg.pulse_offset)
