@@ -40,7 +40,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey,
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
 
 from lidarcal.errors import InputError
-from lidarcal.io import atomic_path, check_writable, open_artefact, write_artefact
+from lidarcal.io import atomic_path, check_writable, open_artefact, source_name, write_artefact
 from lidarcal.provenance import jsonable, read_json_attr, stamp
 from lidarcal.schema import validate_dataset
 from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign, verify_signature
@@ -179,8 +179,11 @@ def _budget_of(obj: xr.Dataset) -> xr.Dataset:
     if obj.attrs.get("lidarcal_artefact") == "certificate" or "lidarcal_components" in obj.attrs:
         return extract_component(obj, "budget")
     if "relative_expanded_uncertainty" not in obj:
-        raise InputError("expected a certificate or an uncertainty_budget; "
-                         "found no variable 'relative_expanded_uncertainty'")
+        kind = obj.attrs.get("lidarcal_artefact")
+        what = f"a {kind!r} artefact" if kind else "a file without a lidarcal_artefact attribute"
+        raise InputError(f"{source_name(obj)}: expected a certificate or an uncertainty_budget; found {what} "
+                         f"without variable 'relative_expanded_uncertainty' (variables "
+                         f"{sorted(map(str, obj.data_vars))})")
     return obj
 
 
