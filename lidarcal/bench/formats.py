@@ -202,6 +202,25 @@ def _numeric(col: pd.Series, name: str, path, what: str) -> np.ndarray:
     return values
 
 
+#: Plausible RTD values: a pulsed lidar's radial velocities stay far inside +-100 m s-1 (the
+#: bench programs +-18 m s-1 and a bench_cube holds biases within +-60 m s-1); its CNR inside the
+#: bench_cube's measured-CNR range.  A value outside is a corrupt record, refused by name here
+#: rather than reported later as a problem of the output cube.
+RTD_VELOCITY_RANGE = (-100.0, 100.0)
+RTD_CNR_RANGE = (-60.0, 20.0)
+
+
+def _check_range(values: np.ndarray, name: str, bounds: tuple[float, float], unit: str, path,
+                 what: str) -> None:
+    bad = (values < bounds[0]) | (values > bounds[1])
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise InputError(
+            f"{path}: {what} column {name!r} data row {i + 1} is {values[i]:g} {unit} (after unit "
+            f"conversion); expected values within [{bounds[0]:g}, {bounds[1]:g}] {unit}; "
+            f"{int(bad.sum())} row(s) outside")
+
+
 def _times(col: pd.Series, name: str, path, what: str) -> np.ndarray:
     text = col.str.strip()
     missing = text.isna().to_numpy() | (text == "").to_numpy()
@@ -251,8 +270,10 @@ def read_rtd(path: str | os.PathLike) -> RtdTable:
     df, _ = _read_table(path, what)
     for name in ("timestamp_utc", "los", "lidar_serial"):
         _require(df, name, path, what)
-    velocity, _ = _unit_column(df, "radial_wind_speed", "m s-1", path, what)
-    cnr, _ = _unit_column(df, "cnr", "dB", path, what)
+    velocity, vname = _unit_column(df, "radial_wind_speed", "m s-1", path, what)
+    cnr, cname = _unit_column(df, "cnr", "dB", path, what)
+    _check_range(velocity, vname, RTD_VELOCITY_RANGE, "m s-1", path, what)
+    _check_range(cnr, cname, RTD_CNR_RANGE, "dB", path, what)
     t = _times(df["timestamp_utc"], "timestamp_utc", path, what)
     _check_increasing(t, "timestamp_utc", path, what)
     los = _los(df["los"], path, what)
