@@ -180,9 +180,9 @@ def _budget_of(obj: xr.Dataset) -> xr.Dataset:
         return extract_component(obj, "budget")
     if "relative_expanded_uncertainty" not in obj:
         kind = obj.attrs.get("lidarcal_artefact")
-        what = f"a {kind!r} artefact" if kind else "a file without a lidarcal_artefact attribute"
+        what = f"a {kind!r} artefact" if kind else "a file with no lidarcal_artefact attribute"
         raise InputError(f"{source_name(obj)}: expected a certificate or an uncertainty_budget; found {what} "
-                         f"without variable 'relative_expanded_uncertainty' (variables "
+                         f"and no variable 'relative_expanded_uncertainty' (variables "
                          f"{sorted(map(str, obj.data_vars))})")
     return obj
 
