@@ -312,20 +312,50 @@ def _find_key(obj: Any, key: str) -> Any:
 
 
 def _serial(ds: xr.Dataset) -> str | None:
-    if ds.attrs.get("lidar_serial"):
-        return str(ds.attrs["lidar_serial"])
+    for name in ("lidar_serial", "lidar_serial_number"):  # the latter: field campaigns from .sta files
+        if ds.attrs.get(name):
+            return str(ds.attrs[name])
     model = read_json_attr(ds, "lidarcal_lidar_model")
     found = _find_key(model, "lidar_serial") if model is not None else None
     return str(found) if found else None
 
 
+def _records_of(ds: xr.Dataset) -> tuple[str | None, str] | None:
+    """``(file, sha256)`` of the records ``ds`` was computed from, if it recorded them."""
+    recorded = read_json_attr(ds, "lidarcal_inputs")
+    for rec in recorded if isinstance(recorded, list) else []:
+        if isinstance(rec, Mapping) and rec.get("role") == "records" and rec.get("sha256"):
+            return rec.get("file"), str(rec["sha256"])
+    return None
+
+
 def _check_consistent(inputs: Mapping[str, xr.Dataset]) -> str | None:
-    """Refuse inputs that describe different lidars or were derived from other files."""
+    """Refuse inputs that describe different lidars or were derived from other files.
+
+    With or without the records themselves: every input naming a lidar must name the same
+    one, and once any input names one, the budget and every sensitivity must name it too (a
+    budget of unknown lidar cannot be vouched for with another lidar's cube); the budget and
+    every sensitivity must have been computed from the same records file (by checksum).
+    """
     serials = {role: s for role, ds in inputs.items() if (s := _serial(ds))}
     distinct = sorted(set(serials.values()))
     if len(distinct) > 1:
         pairs = [f"{_label(r, inputs[r])} has lidar_serial {s!r}" for r, s in serials.items()]
         raise InputError("inputs disagree on the lidar: " + "; ".join(pairs))
+    unnamed = [r for r in inputs if r not in serials and (r == "budget" or r.startswith("sensitivity_"))]
+    if distinct and unnamed:
+        named = ", ".join(f"{_label(r, inputs[r])}" for r in serials)
+        raise InputError(
+            f"inputs may describe different lidars: {', '.join(_label(r, inputs[r]) for r in unnamed)} "
+            f"name(s) no lidar serial (their records did not record one), but {named} describe(s) "
+            f"lidar {distinct[0]!r}; simulate the records with that lidar's cube (lidarcal simulate "
+            "--cube) so that the budget and sensitivities carry its lidar_serial"
+        )
+    chains = {r: found for r, ds in inputs.items() if r != "records" and (found := _records_of(ds))}
+    if len({sha for _, sha in chains.values()}) > 1:
+        parts = [f"{_label(r, inputs[r])} was computed from records {f!r} (sha256 {sha[:12]}...)"
+                 for r, (f, sha) in chains.items()]
+        raise InputError("inputs disagree on the records: " + "; ".join(parts))
     known = {role: ds.attrs.get("lidarcal_source_sha256") for role, ds in inputs.items()}
     for role, ds in inputs.items():
         recorded = read_json_attr(ds, "lidarcal_inputs")

@@ -346,8 +346,9 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edge
     ds = with_bounds(ds, "wind_speed", edges)
     ds.attrs = {"approach": approach, "coverage_factor": k, "min_samples": min_samples,
                 "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown"))}
-    if "lidar_serial" in records.attrs:
-        ds.attrs["lidar_serial"] = records.attrs["lidar_serial"]
+    serial = records.attrs.get("lidar_serial") or records.attrs.get("lidar_serial_number")  # .sta: _number
+    if serial:
+        ds.attrs["lidar_serial"] = serial
     title = {"monte_carlo": "SAFO-MV and Monte Carlo", "iec": "IEC 61400-50-2 field"}[approach]
     return stamp(
         ds, "uncertainty_budget",

@@ -327,8 +327,9 @@ def _assemble(records: xr.Dataset, variable: str, units: str, relative: bool, ed
         "min_samples": config["min_samples"],
         "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")),
     }
-    if "lidar_serial" in records.attrs:
-        ds.attrs["lidar_serial"] = records.attrs["lidar_serial"]
+    serial = records.attrs.get("lidar_serial") or records.attrs.get("lidar_serial_number")  # .sta: _number
+    if serial:
+        ds.attrs["lidar_serial"] = serial
     return stamp(
         ds, "sensitivity",
         title=f"Sensitivity of lidar wind speed to {xname}",

@@ -107,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
         inputs=inputs,
         call=command_line(args),
     )
+    if not args.model and args.cube and cube.attrs.get("lidar_serial"):  # records of the cube's lidar
+        ds.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
     write_artefact(ds, args.output, overwrite=args.overwrite)
     skipped = int(ds.attrs["lidarcal_skipped_count"])
     print(
