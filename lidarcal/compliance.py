@@ -8,10 +8,19 @@ A file *passes* when no high-priority check fails, apart from the documented exc
     decibel such as a sensitivity slope in ``% dB-1``.
 ``standard_name``
     ACDD asks for a ``standard_name`` on every data variable, but most calibration
-    quantities (a bench bias, an uncertainty contribution) have none in the CF table.
-    lidarcal sets a CF standard name wherever one exists and a ``long_name`` everywhere.
+    quantities (a bench bias, a relative or expanded uncertainty, a regression slope) have
+    none in the CF table.  lidarcal sets a CF standard name wherever one exists, with the CF
+    modifiers where they apply (``wind_speed standard_error`` for a standard uncertainty in
+    m s-1, ``wind_speed number_of_observations`` for a bin count), and a ``long_name``
+    everywhere.
+``dimension order``
+    CF §2.4 recommends that dimensions other than T, Z, Y, X come first.  The budget, the
+    sensitivities and the terms are stored ``(height, wind_speed)`` / ``(height, bin)``, the
+    layout of their contract (docs/contracts.md); reordering would break every reader.
 
-Medium- and low-priority findings are returned as warnings.
+Medium- and low-priority findings are returned as warnings; :func:`summary_lines` folds
+repeated findings (one line per check and per documented exception) for ``lidarcal validate``.
+What the stock checker still reports on a default run, and why, is listed in docs/units.md.
 """
 
 from __future__ import annotations
@@ -21,7 +30,7 @@ import re
 import warnings
 from dataclasses import dataclass, field
 
-__all__ = ["ComplianceReport", "check_compliance", "SUITES"]
+__all__ = ["ComplianceReport", "check_compliance", "summary_lines", "SUITES"]
 
 SUITES = ("cf:1.11", "acdd:1.3")
 _DB_UNITS = re.compile(r'units for \S+, "dB( m-1)?" are not recognized by UDUNITS')
@@ -51,10 +60,54 @@ def _failed(result) -> bool:
     return not bool(value)
 
 
+_DIM_ORDER = "spatio-temporal dimensions are not in the recommended order"
+
+
+def exception_kind(line: str) -> str | None:
+    """Name the documented exception a finding line falls under (``dB``, ...), else None."""
+    if _DB_UNITS.search(line) or _PER_DB_UNITS.search(line):
+        return "dB"
+    if line.startswith("acdd") and line.endswith("] standard_name"):
+        return "standard_name"
+    if _DIM_ORDER in line:
+        return "dimension order"
+    return None
+
+
 def _is_exception(suite: str, result, msg: str) -> bool:
-    if suite.startswith("cf") and (_DB_UNITS.search(msg) or _PER_DB_UNITS.search(msg)):
-        return True
-    return suite.startswith("acdd") and msg == "standard_name"
+    return exception_kind(f"{suite} [{result.name}] {msg}") is not None
+
+
+def summary_lines(report: ComplianceReport, *, verbose: bool = False) -> list[str]:
+    """Return the report as lines for a person.
+
+    Failures in full; each documented exception and each warning check folded into one line
+    with its count and the variables it concerns (every line with ``verbose``).
+    """
+    out = [f"compliance: {line}" for line in report.failures]
+    kinds: dict[str, list[str]] = {}
+    for line in report.exceptions:
+        kinds.setdefault(exception_kind(line) or "other", []).append(line)
+    for kind, lines in kinds.items():
+        what = sorted({m.group(1) for line in lines for pat in _SUBJECTS if (m := pat.search(line))})
+        names = f": {', '.join(what[:6])}{' ...' if len(what) > 6 else ''}" if what else ""
+        out.append(f"documented exception ({kind}, see lidarcal.compliance): {len(lines)} finding(s){names}")
+        if verbose:
+            out.extend(f"  {line}" for line in lines)
+    checks: dict[str, list[str]] = {}
+    for line in report.warnings:
+        checks.setdefault(line[: line.index("]") + 1] if "]" in line else line, []).append(line)
+    for check, lines in checks.items():
+        if verbose or len(lines) == 1:
+            out.extend(f"warning: {line}" for line in lines)
+        else:
+            first = lines[0][len(check):].strip()
+            out.append(f"warning: {check} {first[:150]} (and {len(lines) - 1} more like it; -v lists them)")
+    return out
+
+
+_SUBJECTS = (re.compile(r"units for (\S+), "), re.compile(r'variable "([^"]+)"'),
+             re.compile(r"(\S+)'s spatio-temporal"))
 
 
 def check_compliance(path: str | os.PathLike) -> ComplianceReport:
@@ -81,8 +134,10 @@ def check_compliance(path: str | os.PathLike) -> ComplianceReport:
             msgs = [str(m) for m in (result.msgs or [])] or [str(result.name)]
             for msg in msgs:
                 line = f"{name} [{result.name}] {msg}"
-                if result.weight >= 3:
-                    (report.exceptions if _is_exception(name, result, msg) else report.failures).append(line)
+                if _is_exception(name, result, msg):
+                    report.exceptions.append(line)
+                elif result.weight >= 3:
+                    report.failures.append(line)
                 else:
                     report.warnings.append(line)
     return report
