@@ -144,7 +144,7 @@ def sta_field_campaign(
     time_column: str | None = None,
     min_availability: float = 80.0,
 ) -> xr.Dataset:
-    """Build a ``field_campaign`` Dataset (DESIGN 3.1) from ``.sta`` files and a mast CSV.
+    """Build a ``field_campaign`` Dataset (``docs/contracts.md``) from ``.sta`` files and a mast CSV.
 
     Parameters
     ----------

@@ -528,7 +528,7 @@ def _time_bounds(ds: xr.Dataset, end: np.ndarray) -> xr.Dataset:
 
 
 def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True) -> xr.Dataset:
-    """Read ``.sta`` files (one lidar) into a ``conditions`` Dataset (DESIGN 3.1), not yet stamped.
+    """Read ``.sta`` files (one lidar) into a ``conditions`` Dataset (``docs/contracts.md``), not yet stamped.
 
     Parameters
     ----------
