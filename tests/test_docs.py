@@ -22,6 +22,8 @@ DOCS = ROOT / "docs"
 
 # Built from pieces so that this file does not contain the strings it forbids.
 FORBIDDEN = ("DESIGN" + ".md", "STYLE" + ".md", ".." + "/shared")
+#: The same documents cited by a section number (the word, then a digit or a section sign).
+FORBIDDEN_SECTION = re.compile("DESIGN" + r"\s*(?:§|\d)")
 _TEXT_SUFFIXES = {".py", ".md", ".yaml", ".yml", ".toml", ".txt", ".cfg", ".ini", ".csv", ""}
 _SKIP_DIRS = {".git", ".pytest_cache", ".ruff_cache", ".hypothesis", ".benchmarks", "__pycache__"}
 
@@ -59,7 +61,7 @@ def outside_references(files: list[Path], root: Path = ROOT) -> list[str]:
     for path in files:
         text = read_text(path)
         for n, line in enumerate((text or "").splitlines(), 1):
-            if any(word in line for word in FORBIDDEN):
+            if any(word in line for word in FORBIDDEN) or FORBIDDEN_SECTION.search(line):
                 found.append(f"{path.relative_to(root)}:{n}: {line.strip()}")
     return found
 
@@ -92,8 +94,10 @@ def test_the_scanners_find_what_they_look_for(tmp_path):
     (tmp_path / "docs" / "README.md").write_text("x")
     gone, gone_glob = "docs/" + "gone.md", "tests/" + "test_gone*.py"  # pieces: this file is scanned too
     bad = tmp_path / "mod.py"
-    bad.write_text(f"# see {FORBIDDEN[0]} 3.1\n# and docs/README.md, {gone}, {gone_glob}\n")
-    assert outside_references([bad], tmp_path) == [f"mod.py:1: # see {FORBIDDEN[0]} 3.1"]
+    section = "DESIGN" + " 3.2"
+    bad.write_text(f"# see {FORBIDDEN[0]} 3.1\n# and docs/README.md, {gone}, {gone_glob}\n# {section}\n")
+    expected = [f"mod.py:1: # see {FORBIDDEN[0]} 3.1", f"mod.py:3: # {section}"]
+    assert outside_references([bad], tmp_path) == expected
     assert missing_cited_paths([bad], tmp_path) == [f"mod.py: {gone}", f"mod.py: {gone_glob}"]
     # a path inside another path (an output directory, a URL) is not a citation
     assert CITED_PATH.findall("lidarcal-output/docs/x.md https://x.org/docs/y.md") == []
