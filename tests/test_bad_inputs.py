@@ -1,4 +1,4 @@
-"""Every bad input a hostile user tried (issue 9), in one table: exit 2, one message naming the culprit.
+"""Every bad input a hostile user tried, in one table: exit 2, one message naming the culprit.
 
 Each row is a command line (with ``{d}`` the directory of prepared inputs, ``{o}`` a fresh empty
 directory for outputs, ``{ro}`` a directory nothing can be written to, even as root) and a fragment
@@ -271,7 +271,7 @@ def test_sample_directions_nan_stays_missing(tmp_path, capsys):
 
 
 def test_no_case_is_forgotten():
-    """Every command that writes a file has a read-only row (issue 9 counted 9 that crashed)."""
+    """Every command that writes a file has a read-only row (9 of them used to crash)."""
     ro = [c[0] for c in CASES if c[0].startswith("ro-")]
     assert len(ro) == 14, ro
     assert os.path.isdir(RO)
