@@ -29,9 +29,12 @@ def test_every_catalogue_entry_is_complete():
     model_fields = {f.name for f in dataclasses.fields(LidarModel)}
     model = LidarModel.ideal()
     assert set(EFFECTS) == {"none", "zero_distance_offset", "beam_angle_offset", "cnr_gradient_weighting",
-                            "hybrid_weight", "reference_overspeeding"}
-    names = {"zero_distance_offset": "offset", "beam_angle_offset": "offset",
-             "cnr_gradient_weighting": "scale", "hybrid_weight": "p", "reference_overspeeding": "coefficient"}
+                            "hybrid_weight", "reference_overspeeding", "reference_gain",
+                            "reference_flow_distortion"}
+    names = {"zero_distance_offset": ["offset"], "beam_angle_offset": ["offset"],
+             "cnr_gradient_weighting": ["scale"], "hybrid_weight": ["p"],
+             "reference_overspeeding": ["coefficient"], "reference_gain": ["gain"],
+             "reference_flow_distortion": ["centre", "width", "deficit"]}
     for key, eff in EFFECTS.items():
         assert eff.id == key and eff.description and eff.signature
         assert set(eff.drivers) <= set(CONDITION_VARIABLES)
@@ -39,8 +42,8 @@ def test_every_catalogue_entry_is_complete():
         if key == "none":
             assert eff.parameters == () and eff.apply(model, {}) is model
             continue
-        assert [p.name for p in eff.parameters] == [names[key]]  # parameter names of docs/diagnose.md
-        assert eff.drivers, f"{key} has no drivers"
+        assert [p.name for p in eff.parameters] == names[key]  # parameter names of docs/diagnose.md
+        assert eff.drivers or key == "reference_gain", f"{key} has no drivers"  # a gain is constant
         for p in eff.parameters:
             assert p.model_field in model_fields
             _parse(p.units, where=key)  # a valid UDUNITS/pint unit
@@ -100,7 +103,10 @@ def test_every_effect_acts_as_its_signature_says():
 
 
 @pytest.mark.parametrize("effect,params", [("hybrid_weight", {"p": 0.45}),
-                                           ("reference_overspeeding", {"coefficient": 0.07})])
+                                           ("reference_overspeeding", {"coefficient": 0.07}),
+                                           ("reference_gain", {"gain": -0.03}),
+                                           ("reference_flow_distortion",
+                                            {"centre": 195.0, "width": 20.0, "deficit": 0.06})])
 def test_exact_shortcuts_equal_a_full_resimulation(effect, params):
     model = LidarModel.ideal()
     eff = EFFECTS[effect]

@@ -26,6 +26,18 @@ Expected signatures (first order, cone angle φ from vertical, relative to the r
                           σ_r²·(ln 10/20)·s·g along the beam for a Gaussian RWF of std σ_r)
 ``hybrid_weight``         (p − p₀)·(V_scalar − V_vector)/V_ref (grows with TI²)
 ``reference_overspeeding`` −c·TI (the cup over-reads, so the lidar looks low)
+``reference_gain``        −gain/(1 + gain) ≈ −gain (constant: every height and condition alike)
+``reference_flow_distortion`` +deficit/(1 − deficit) for periods whose mean direction lies in the
+                          sector centre ± width/2 (hard edge), 0 elsewhere
+
+**Grid parameters.** Some parameters enter non-linearly and the response is not smooth in them
+(the sector's ``centre`` and ``width``).  Such a parameter declares a ``grid`` of candidate
+values: a fitter scans :meth:`Effect.grid_points` and, at each point, fits the remaining
+(*linear*) parameters from a probe :meth:`Effect.probe` ``(model, at=point)``; the best point is
+the estimate, and the penalty of the BIC counts every parameter, grid ones included.  Without
+``at``, :meth:`Effect.probe` keeps grid parameters at their nominal values (for the mast
+shadow: width 0, i.e. no response), so a fitter that knows nothing of grids sees no signal
+rather than a wrong one.
 """
 
 from __future__ import annotations
@@ -39,6 +51,7 @@ import numpy as np
 
 from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.errors import InputError
+from lidarcal.lidar.model import flow_distortion_factor
 
 __all__ = ["Parameter", "Effect", "EFFECTS", "CONDITION_VARIABLES", "get_effect"]
 
@@ -68,6 +81,9 @@ class Parameter:
         leaves the bounds).
     long_name : str
         Human-readable description.
+    grid : tuple of float, optional
+        Candidate values of a non-linear parameter (see module docstring); ``None`` for a
+        parameter fitted by linearisation.
     """
 
     name: str
@@ -76,6 +92,7 @@ class Parameter:
     model_field: str
     step: float
     long_name: str
+    grid: tuple[float, ...] | None = None
 
 
 def _hybrid_shortcut(records: Records, conditions: Records, nominal: Mapping[str, float],
@@ -93,6 +110,27 @@ def _overspeeding_shortcut(records: Records, conditions: Records, nominal: Mappi
     scale = (1.0 + float(params["coefficient"]) * ti) / (1.0 + float(nominal["coefficient"]) * ti)
     return {"lidar_wind_speed": records["lidar_wind_speed"],
             "reference_wind_speed": records["reference_wind_speed"] * scale}
+
+
+def _ratio_shortcut(factor: Callable[..., np.ndarray | float]):
+    """Shortcut of a reference effect: reference × factor(params) / factor(nominal) (exact)."""
+
+    def shortcut(records: Records, conditions: Records, nominal: Mapping[str, float],
+                 params: Mapping[str, float]) -> dict[str, np.ndarray]:
+        scale = factor(conditions, params) / factor(conditions, nominal)
+        return {"lidar_wind_speed": records["lidar_wind_speed"],
+                "reference_wind_speed": records["reference_wind_speed"] * scale}
+
+    return shortcut
+
+
+def _gain_factor(conditions: Records, params: Mapping[str, float]) -> float:
+    return 1.0 + float(params["gain"])
+
+
+def _shadow_factor(conditions: Records, params: Mapping[str, float]) -> np.ndarray:
+    return flow_distortion_factor(np.asarray(conditions["wind_from_direction"], dtype=float),
+                                  float(params["centre"]), float(params["width"]), float(params["deficit"]))
 
 
 @dataclass(frozen=True)
@@ -141,11 +179,36 @@ class Effect:
             changes[p.model_field] = value
         return dataclasses.replace(model, **changes) if changes else model
 
-    def probe(self, model: Any) -> dict[str, float]:
-        """Parameter values at which the model's response is measured (nominal ± step)."""
+    @property
+    def linear_parameters(self) -> tuple[Parameter, ...]:
+        """Parameters fitted by linearisation (those without a ``grid``)."""
+        return tuple(p for p in self.parameters if p.grid is None)
+
+    @property
+    def grid_parameters(self) -> tuple[Parameter, ...]:
+        """Non-linear parameters scanned over their ``grid`` (see module docstring)."""
+        return tuple(p for p in self.parameters if p.grid is not None)
+
+    def grid_points(self) -> list[dict[str, float]]:
+        """Every combination of the grid parameters' values (``[{}]`` for a fully linear effect)."""
+        points: list[dict[str, float]] = [{}]
+        for p in self.grid_parameters:
+            points = [{**pt, p.name: float(v)} for pt in points for v in p.grid]
+        return points
+
+    def probe(self, model: Any, at: Mapping[str, float] | None = None) -> dict[str, float]:
+        """Parameter values at which the model's response is measured.
+
+        Linear parameters: nominal + step (nominal − step if that leaves the bounds).  Grid
+        parameters: their value in ``at`` (a :meth:`grid_points` entry), else nominal.
+        """
+        at = dict(at or {})
         out = {}
         for p in self.parameters:
             base = float(getattr(model, p.model_field))
+            if p.grid is not None:
+                out[p.name] = float(at.get(p.name, base))
+                continue
             value = base + p.step
             out[p.name] = value if p.bounds[0] <= value <= p.bounds[1] else base - p.step
         return out
@@ -206,6 +269,34 @@ EFFECTS: dict[str, Effect] = {
         drivers=("turbulence_intensity",),
         signature="relative bias ≈ −coefficient·TI",
         shortcut=_overspeeding_shortcut,
+    ),
+    "reference_gain": Effect(
+        id="reference_gain",
+        description="The reference cup's calibration factor is off by a constant fraction: it reads "
+                    "(1 + gain) × the true speed.",
+        parameters=(Parameter("gain", "1", (-0.2, 0.2), "reference_gain", 0.01,
+                              "relative error of the reference's calibration factor"),),
+        drivers=(),
+        signature="relative bias ≈ −gain/(1 + gain): constant over heights and conditions",
+        shortcut=_ratio_shortcut(_gain_factor),
+    ),
+    "reference_flow_distortion": Effect(
+        id="reference_flow_distortion",
+        description="The mast shadows the reference cup for winds from a sector: for periods whose mean "
+                    "direction lies within `width`/2 of `centre` (hard edge) the cup reads "
+                    "(1 − `deficit`) × the true speed.",
+        parameters=(
+            Parameter("centre", "degree", (0.0, 360.0), "reference_flow_distortion_centre", 10.0,
+                      "direction (from) at the centre of the shadowed sector",
+                      grid=tuple(float(c) for c in range(0, 360, 10))),
+            Parameter("width", "degree", (0.0, 180.0), "reference_flow_distortion_width", 10.0,
+                      "full width of the shadowed sector", grid=(20.0, 40.0, 60.0, 90.0, 120.0)),
+            Parameter("deficit", "1", (-0.5, 0.5), "reference_flow_distortion_deficit", 0.02,
+                      "relative under-reading of the reference inside the sector"),
+        ),
+        drivers=("wind_from_direction",),
+        signature="relative bias ≈ +deficit/(1 − deficit) inside the sector centre ± width/2, 0 outside",
+        shortcut=_ratio_shortcut(_shadow_factor),
     ),
 }
 

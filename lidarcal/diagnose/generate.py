@@ -46,6 +46,8 @@ REALISTIC_STRENGTHS: dict[str, dict[str, float]] = {
     "cnr_gradient_weighting": {"scale": 1.0},       # Eq. 2 as written
     "hybrid_weight": {"p": 0.5},                    # WindCube XP firmware vs nominal 2/3
     "reference_overspeeding": {"coefficient": 0.08},  # per unit TI
+    "reference_gain": {"gain": 0.01},               # a cup calibration factor 1 % off
+    "reference_flow_distortion": {"centre": 250.0, "width": 60.0, "deficit": 0.04},  # mast shadow
 }
 
 #: CNR model (lidarcal.conditions.kernels.cnr_model parameters) for hidden-effect campaigns:

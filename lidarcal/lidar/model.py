@@ -4,7 +4,8 @@ A :class:`LidarModel` is a frozen, JSON-serialisable dataclass holding everythin
 lidar needs: the beam geometry, the beam period, the hybrid weight, the RWF as K quadrature
 nodes, the LOS noise (ideal Gaussian or a bench ``ℓcv`` table), the availability, and the
 effects the ``diagnose`` stage can switch on (``zero_distance_offset``, ``beam_angle_offset``,
-``cnr_weighting_scale``, ``hybrid_weight``, ``reference_overspeeding``).
+``cnr_weighting_scale``, ``hybrid_weight``, ``reference_overspeeding``, ``reference_gain``,
+``reference_flow_distortion_*``).
 
 Conventions
 -----------
@@ -32,7 +33,7 @@ from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes, trapez
 from lidarcal.rwf.kernels import barycenter
 from lidarcal.units import convert_variable
 
-__all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD"]
+__all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "flow_distortion_factor"]
 
 
 def _tuplify(value: Any) -> Any:
@@ -129,6 +130,10 @@ class LidarModel:
     beam_angle_offset: float = 0.0  #: true cone = cone_angle + offset (degree)
     cnr_weighting_scale: float = 0.0  #: 0 = no CNR weighting, 1 = Eq. 2 as written
     reference_overspeeding: float = 0.0  #: reference over-reading per unit TI
+    reference_gain: float = 0.0  #: the reference reads (1 + gain) x the true speed
+    reference_flow_distortion_centre: float = 0.0  #: centre of the mast-shadow sector (degree, from)
+    reference_flow_distortion_width: float = 0.0  #: full width of that sector (degree; 0 = no shadow)
+    reference_flow_distortion_deficit: float = 0.0  #: the reference under-reads by this fraction inside it
     description: str = "ideal"  #: free text: where the configuration came from
 
     def __post_init__(self) -> None:
@@ -271,9 +276,34 @@ class LidarModel:
         """Compact JSON text of :meth:`to_dict` (for the ``lidarcal_lidar_model`` attribute)."""
         return json.dumps(self.to_dict(), sort_keys=True)
 
+    def reference_scale(self, direction: Any, turbulence_intensity: Any) -> Any:
+        """Factor by which the virtual reference over-reads the cup's true 10-minute mean speed.
+
+        ``(1 + reference_overspeeding · TI) · (1 + reference_gain) · flow-distortion factor`` for
+        the period's ``direction`` (degree, from) and turbulence intensity: exactly 1 for the
+        nominal model (every factor is then 1.0, so the records stay bit-identical).
+        """
+        return ((1.0 + self.reference_overspeeding * turbulence_intensity) * (1.0 + self.reference_gain)
+                * flow_distortion_factor(direction, self.reference_flow_distortion_centre,
+                                         self.reference_flow_distortion_width,
+                                         self.reference_flow_distortion_deficit))
+
     def replace(self, **changes: Any) -> LidarModel:
         """Return a copy with some fields changed (``dataclasses.replace``)."""
         return dataclasses.replace(self, **changes)
+
+
+def flow_distortion_factor(direction: Any, centre: float, width: float, deficit: float) -> Any:
+    """Mast-shadow factor of the reference: ``1 − deficit`` inside the sector, 1 outside.
+
+    The sector holds the directions (degree, from) within ``width / 2`` of ``centre``, edges
+    included, on the circle; the edge is *hard* (a step on the period's mean direction).
+    ``width = 0`` or ``deficit = 0`` is no shadow (factor exactly 1.0).
+    """
+    if width <= 0.0 or deficit == 0.0:
+        return np.ones_like(np.asarray(direction, dtype=float)) if np.ndim(direction) else 1.0
+    delta = np.abs((np.asarray(direction, dtype=float) - centre + 180.0) % 360.0 - 180.0)
+    return np.where(delta <= 0.5 * width, 1.0 - deficit, 1.0)
 
 
 _FIELD_DEFAULTS = {f.name: f.default for f in dataclasses.fields(LidarModel)}

@@ -31,7 +31,9 @@ from north):
   hybrid with ``p = hybrid_weight`` multiplying the scalar average.
 * **Virtual reference**: the point (0, 0, h) at every simulation time step (1 Hz for a 1-s beam
   period), 10-min mean of ``sqrt((U_h + u)^2 + v^2)`` (a cup's scalar mean), times
-  ``1 + reference_overspeeding · TI``.
+  ``LidarModel.reference_scale(direction, TI)``: ``(1 + reference_overspeeding · TI)``, the
+  gain ``1 + reference_gain`` and the mast shadow ``1 − deficit`` for a period whose mean
+  direction lies in the ``reference_flow_distortion_*`` sector (hard edge).
 """
 
 from __future__ import annotations
@@ -97,7 +99,8 @@ def _simulate_height(model: LidarModel, height: float, U: float, direction: floa
     los = np.where(keep, los, np.nan)
     wfr = reconstruct(los, beam_of_time, model.cone_angle, model.hybrid_weight)
     ref_u, ref_v = turb[0, -1], turb[1, -1]
-    reference = np.mean(np.hypot(U + ref_u, ref_v)) * (1.0 + model.reference_overspeeding * ti)
+    # reference effects (over-speeding, gain, mast shadow): LidarModel.reference_scale
+    reference = np.mean(np.hypot(U + ref_u, ref_v)) * model.reference_scale(direction, ti)
     return {"lidar_wind_speed": wfr["hybrid"], "lidar_wind_speed_scalar": wfr["scalar"],
             "lidar_wind_speed_vector": wfr["vector"], "reference_wind_speed": reference,
             "availability": keep.mean(), "los": los}
