@@ -30,6 +30,8 @@ from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.conditions.kernels import ar1, cnr_model, power_law, shear_exponent, vertical_gradient
 from lidarcal.conditions.load import CONDITION_VARIABLES, load_conditions
 from lidarcal.errors import InputError
+from lidarcal.io import source_name
+from lidarcal.schema import declared_variables
 
 __all__ = ["synthetic_conditions", "conditions_dataset"]
 
@@ -124,6 +126,24 @@ def _extrapolated(base: xr.Dataset, n: int, z: np.ndarray) -> dict[str, np.ndarr
     }
 
 
+def _check_extrapolated_shear(alpha: np.ndarray, times: np.ndarray, z: np.ndarray, source: str) -> None:
+    """Refuse a base whose wind profile, carried to ``z``, gives shear outside the contract's range.
+
+    The problem lies in the base file (speeds that do not form a profile), so it is named, not
+    the output that would fail validation.
+    """
+    lo, hi = declared_variables("conditions")["wind_shear_exponent"]["range"]
+    with np.errstate(invalid="ignore"):
+        bad = (alpha < lo) | (alpha > hi)
+    if bad.any():
+        t, h = np.argwhere(bad)[0]
+        raise InputError(
+            f"{source}: its wind speeds carried to heights {z.tolist()} m give {int(bad.sum())} "
+            f"wind_shear_exponent value(s) outside [{lo:g}, {hi:g}], first {alpha[t, h]:.4g} at "
+            f"time={times[t]!s} (index {t}), height={z[h]:g} m; expected wind speeds that form a "
+            "plausible profile (check the base file's wind_speed at neighbouring heights)")
+
+
 def synthetic_conditions(
     n_periods: int,
     heights=(40, 60, 80, 100, 120, 140, 160, 200),
@@ -201,6 +221,8 @@ def synthetic_conditions(
         )
         hours = (times - times.astype("datetime64[D]")) / np.timedelta64(1, "h")
     vals["wind_shear_exponent"] = shear_exponent(vals["wind_speed"], z)
+    if base is not None:
+        _check_extrapolated_shear(vals["wind_shear_exponent"], times, z, source_name(base))
     cnr = cnr_model(np.asarray(hours, dtype=float), z, rng_cnr, cnr_params)
     missing = ~np.isfinite(vals["wind_speed"])
     cnr[missing] = np.nan
