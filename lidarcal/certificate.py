@@ -94,11 +94,18 @@ def _prefixed(ds: xr.Dataset, prefix: str) -> xr.Dataset:
         for key in ("bounds", "ancillary_variables"):
             if key in var.attrs:
                 var.attrs[key] = " ".join(names.get(t, t) for t in str(var.attrs[key]).split())
+        if "cell_methods" in var.attrs:
+            var.attrs["cell_methods"] = _renamed_cell_methods(var.attrs["cell_methods"], {**names, **dims})
         var.encoding = {}
     out.attrs = {}
     # a scalar coordinate would be attached (``coordinates``) to every variable of the flat
     # file, e.g. giving all heights a second Z axis; store it as a data variable instead
     return out.reset_coords(_scalar_coords(out))
+
+
+def _renamed_cell_methods(text: str, rename: Mapping[str, str]) -> str:
+    """``cell_methods`` with the dimension names (``los: cnr: velocity: mean``) renamed (CF §7.3)."""
+    return " ".join(f"{rename.get(t[:-1], t[:-1])}:" if t.endswith(":") else t for t in str(text).split())
 
 
 def _scalar_coords(ds: xr.Dataset) -> list[str]:
@@ -127,6 +134,8 @@ def extract_component(cert: xr.Dataset, name: str) -> xr.Dataset:
                 var.attrs[key] = " ".join(
                     t[len(prefix) :] if t.startswith(prefix) else t for t in str(var.attrs[key]).split()
                 )
+        if "cell_methods" in var.attrs:
+            var.attrs["cell_methods"] = _renamed_cell_methods(var.attrs["cell_methods"], rename)
     out.attrs = dict(info[name].get("attributes", {}))
     scalars = [n for n in info[name].get("scalar_coordinates", []) if n in out.variables]
     return out.set_coords(scalars)
@@ -415,6 +424,18 @@ def _records_summary(records: xr.Dataset) -> dict[str, Any]:
     return out
 
 
+def _chain_seeds(chain: Iterable[Mapping[str, Any]]) -> dict[str, Any]:
+    """Every seed recorded anywhere in the provenance chain, keyed ``"role (file)"``."""
+    out: dict[str, Any] = {}
+    for rec in chain:
+        if isinstance(rec.get("seeds"), dict) and rec["seeds"]:
+            out.setdefault(f"{rec.get('role')} ({rec.get('file')})", rec["seeds"])
+        if isinstance(rec.get("inputs"), list):
+            for key, value in _chain_seeds(rec["inputs"]).items():
+                out.setdefault(key, value)
+    return out
+
+
 def make_certificate(
     *,
     budget: xr.Dataset,
@@ -493,6 +514,7 @@ def make_certificate(
             }
         )
     chain = [_provenance(role, ds) for role, ds in everything.items()]
+    seeds = _chain_seeds(chain)
     cert.attrs = {
         "certificate_components": " ".join(c["name"] for c in comps),
         "lidarcal_components": json.dumps(jsonable(comps, strict=True), sort_keys=True),
@@ -525,6 +547,7 @@ def make_certificate(
             "function and zero distance, with the provenance of every input and an integrity record."
         ),
         call=call,
+        seeds=seeds,
         input_datasets=everything,
         config=dict(config or {}),
         keywords="Doppler lidar, wind speed, calibration certificate, uncertainty, traceability",
@@ -610,7 +633,6 @@ def write_certificate(cert: xr.Dataset, path: str | os.PathLike, *, overwrite: b
 
     if signing_key is not None and not isinstance(signing_key, Ed25519PrivateKey):
         signing_key = load_private_key(signing_key)
-
 
     if cert.attrs.get("lidarcal_artefact") != "certificate":
         raise InputError(

@@ -214,9 +214,43 @@ def write_artefact(
     ds.attrs = {k: v for k, v in ds.attrs.items() if not k.startswith("lidarcal_source_")}
     if validate:
         validate_dataset(ds, source=str(path), raise_on_error=True)
+    ds = _cf_ready(ds)
     with atomic_path(path, overwrite=overwrite) as tmp:
         ds.to_netcdf(tmp, format="NETCDF4", engine="netcdf4", encoding=_encoding(ds))
     return path
+
+
+def _bounds_names(ds: xr.Dataset) -> list[str]:
+    return [str(v.attrs["bounds"]) for v in ds.variables.values()
+            if str(v.attrs.get("bounds", "")) in ds.variables]
+
+
+def _cf_ready(ds: xr.Dataset) -> xr.Dataset:
+    """Attribute-only CF details settled at write time (values are never touched).
+
+    * Bounds variables are written as plain variables: xarray would otherwise list a
+      coordinate no data variable uses in a global ``coordinates`` attribute, which CF does not
+      define.  :func:`open_artefact` makes them coordinates again.
+    * Times get ``units_metadata = "leap_seconds: none"`` (CF 1.11 §4.4.1): numpy datetimes
+      count no leap seconds (:func:`open_artefact` drops it again: it describes the encoding).
+    * ACDD ties ``time_coverage_start``/``_end`` to a time variable; an artefact without one
+      (a bench cube: the period of the bench run) stores them as ``source_time_coverage_*``,
+      and :func:`open_artefact` gives them their ACDD names back.
+    """
+    out = ds.reset_coords([n for n in _bounds_names(ds) if n in ds.coords and n not in ds.dims])
+    for var in out.variables.values():
+        if var.dtype.kind == "M" and "units_metadata" not in var.attrs:
+            var.attrs = {**var.attrs, "units_metadata": "leap_seconds: none"}
+    if not _has_time(out):
+        out.attrs = {(f"source_{k}" if k in _COVERAGE else k): v for k, v in out.attrs.items()}
+    return out
+
+
+_COVERAGE = ("time_coverage_start", "time_coverage_end")
+
+
+def _has_time(ds: xr.Dataset) -> bool:
+    return any(v.dtype.kind == "M" and v.ndim == 1 for v in ds.variables.values())
 
 
 def open_artefact(
@@ -250,6 +284,13 @@ def open_artefact(
     found = ds.attrs.get("lidarcal_artefact")
     if kind is not None and found is not None and found != kind:
         raise InputError(f"{path}: is a {found!r} artefact; expected a {kind!r} artefact")
+    ds = ds.set_coords([n for n in _bounds_names(ds) if n not in ds.coords])  # see _cf_ready
+    for var in ds.variables.values():
+        if var.dtype.kind == "M" and var.attrs.get("units_metadata") == "leap_seconds: none":
+            var.attrs = {k: v for k, v in var.attrs.items() if k != "units_metadata"}
+    if not _has_time(ds):
+        ds.attrs = {(k[len("source_"):] if k[len("source_"):] in _COVERAGE and k.startswith("source_")
+                     and k[len("source_"):] not in ds.attrs else k): v for k, v in ds.attrs.items()}
     ds.attrs["lidarcal_source_sha256"] = sha256(path)
     ds.attrs["lidarcal_source_file"] = path.name
     return ds

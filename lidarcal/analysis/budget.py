@@ -136,7 +136,8 @@ def _terms_total(
 OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
     "uncertainty": dict(
         long_name="combined standard uncertainty of the lidar wind speed (quadrature sum of contributors)",
-        units="m s-1", ancillary_variables="sample_count bin_flag"),
+        units="m s-1", ancillary_variables="sample_count bin_flag",
+        standard_name="wind_speed standard_error"),
     "relative_uncertainty": dict(
         long_name="combined standard uncertainty relative to the bin mean reference wind speed", units="%"),
     "expanded_uncertainty": dict(long_name="expanded uncertainty (k = {k})", units="m s-1",
@@ -144,12 +145,16 @@ OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
     "relative_expanded_uncertainty": dict(
         long_name="expanded uncertainty (k = {k}) relative to the bin mean reference wind speed", units="%",
         coverage_factor=Param("coverage_factor")),
-    "contribution": dict(long_name="standard uncertainty contribution", units="m s-1"),
+    # CF standard-name modifiers (Appendix C): each contribution is a standard uncertainty of
+    # the wind speed; relative and expanded uncertainties have no CF name (docs/certificate.md)
+    "contribution": dict(long_name="standard uncertainty contribution", units="m s-1",
+                         standard_name="wind_speed standard_error"),
     "relative_contribution": dict(
         long_name="standard uncertainty contribution relative to the bin mean reference wind speed",
         units="%"),
     "sample_count": dict(long_name="number of 10-minute periods in bin", units="1",
-                         coverage_content_type="auxiliaryInformation"),
+                         coverage_content_type="auxiliaryInformation",
+                         standard_name="wind_speed number_of_observations"),
     "mean_reference_wind_speed": dict(long_name="mean reference wind speed in bin", units="m s-1",
                                       standard_name="wind_speed"),
     "mean_lidar_wind_speed": dict(long_name="mean lidar wind speed in bin", units="m s-1",
