@@ -24,6 +24,7 @@ holding the path and the (re-read) dataset of every artefact::
 
 from __future__ import annotations
 
+import json
 import logging
 import os
 import shutil
@@ -115,16 +116,30 @@ def _terms_per_height(records: xr.Dataset, overrides: dict[str, Any]) -> xr.Data
     """Table 4 terms at every simulated height, with that height's median shear exponent."""
     speeds = Q_(np.arange(0.25, 40.01, 0.25), "m/s")
     parts = []
+    heights = ", ".join(f"{z:g}" for z in records.height.values)
     for z in records.height.values:
         # Eq. 11 at this height with the campaign's median shear (Table 4 fixes 100 m, 0.2)
         alpha = abs(float(np.nanmedian(records.wind_shear_exponent.sel(height=z).values)))
         inputs = {**PAPER_INPUTS, "height": Q_(float(z), "m"), "shear_exponent": alpha, **overrides}
-        part = uncertainty_terms(speeds, **inputs, call=f"lidarcal calibrate (terms at {z:g} m)")
+        part = uncertainty_terms(speeds, **inputs, call=f"lidarcal calibrate (terms at {heights} m)")
         parts.append(part)
     if len(parts) == 1:
         return parts[0]
-    return xr.concat(parts, dim="height", data_vars="all", coords="different", compat="equals",
-                     combine_attrs="override")
+    out = xr.concat(parts, dim="height", data_vars="all", coords="different", compat="equals",
+                    combine_attrs="override")
+    # the attributes were the first height's: describe every height (values are per height)
+    config = json.loads(out.attrs.get("lidarcal_config", "{}"))
+    config.update(height=[float(z) for z in out.height.values],
+                  shear_exponent=[float(a) for a in out.shear_exponent.values])
+    out.attrs["lidarcal_config"] = json.dumps(config, sort_keys=True)
+    out.attrs["summary"] = (
+        "Uncertainty terms of the horizontal wind speed not modelled by Monte Carlo (paper Eqs. 6-11, "
+        f"Table 4) at each height z = {heights} m, with that height's median shear exponent "
+        f"(variable shear_exponent, {float(out.shear_exponent.min()):.4g} to "
+        f"{float(out.shear_exponent.max()):.4g}), for {out.sizes['wind_speed']} wind speeds; total "
+        f"{float(out.total.min()):.4f} to {float(out.total.max()):.4f} m/s."
+    )
+    return out
 
 
 @dataclass(frozen=True)
@@ -241,10 +256,13 @@ def calibrate(
 
     # 3. conditions
     cond, cond_inputs = _conditions(cfg)
-    if "lidarcal_artefact" not in cond.attrs or cond.attrs.get("lidarcal_artefact") != "conditions":
+    if cfg.conditions is None or cond.attrs.get("lidarcal_artefact") != "conditions":
+        # made here (the sample carried to other heights): stamped as this run's file, with the
+        # sample and, through it, the raw mast record in its provenance chain
         cond = stamp(cond, "conditions", title="Conditions simulated by lidarcal calibrate",
                      summary="10-minute conditions (lidarcal docs/contracts.md) used as Monte Carlo input.",
-                     call="lidarcal calibrate", inputs=cond_inputs)
+                     call="lidarcal calibrate",
+                     input_datasets={role: open_artefact(p) for role, p in cond_inputs.items()})
     write_artefact(cond, paths["conditions"], overwrite=overwrite)
     done("conditions", f"conditions ({cond.sizes['time']} periods x {cond.sizes['height']} heights)")
 

@@ -22,6 +22,7 @@ from collections.abc import Sequence
 
 from lidarcal import __version__
 from lidarcal.errors import LidarcalError
+from lidarcal.provenance import contact
 
 #: Subcommand modules, in the order they appear in ``lidarcal --help``.
 COMMANDS = (
@@ -97,7 +98,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     logger.addHandler(handler)
     logger.setLevel(logging.INFO)
     try:
-        return int(args.handler(args) or 0)
+        # --creator, --institution ... (options.add_contact_options) for every file written
+        given = {k[len("contact_"):]: v for k, v in vars(args).items() if k.startswith("contact_") and v}
+        with contact(**given):
+            return int(args.handler(args) or 0)
     except LidarcalError as exc:
         print(f"lidarcal {args.command}: error: {exc}", file=sys.stderr)
         return 2

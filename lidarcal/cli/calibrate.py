@@ -20,6 +20,7 @@ from __future__ import annotations
 import argparse
 
 from lidarcal.cli.options import (
+    add_contact_options,
     add_heights_option,
     add_overwrite_option,
     add_parallel_options,
@@ -60,6 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_seed_option(p)
     add_parallel_options(p, workdir=False)  # chunks are cached in OUTDIR/.simulation-chunks
     add_overwrite_option(p)
+    add_contact_options(p)
     add_progress_option(p)
     p.add_argument("--sign", metavar="KEY",
                    help="sign the certificate's seal with this Ed25519 private key (lidarcal keygen); "

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 
 from lidarcal.cli import command_line
-from lidarcal.cli.options import number
+from lidarcal.cli.options import add_contact_options, number
 from lidarcal.conditions.mast import parse_height_columns, sta_field_campaign
 from lidarcal.conditions.sta import sta_conditions
 from lidarcal.io import check_writable, write_artefact
@@ -25,6 +25,7 @@ def _common(p: argparse.ArgumentParser) -> None:
                    metavar="PCT",
                    help="data availability (%%) a period needs at a height, else NaN there (default 80)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    add_contact_options(p)
 
 
 def add_conditions_from_sta(acts: argparse._SubParsersAction) -> None:

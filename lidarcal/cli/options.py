@@ -41,6 +41,8 @@ __all__ = [
     "add_seed_option",
     "add_heights_option",
     "add_output_options",
+    "add_contact_options",
+    "contact_from_args",
     "add_overwrite_option",
     "progress_enabled",
     "simulation_options",
@@ -192,9 +194,44 @@ def add_heights_option(parser: argparse.ArgumentParser, *, default: Sequence[flo
 
 
 def add_output_options(parser: argparse.ArgumentParser, metavar: str, *, help: str | None = None) -> None:
-    """``-o/--output FILE`` (required) and ``--overwrite``."""
+    """``-o/--output FILE`` (required), ``--overwrite`` and the contact options."""
     parser.add_argument("-o", "--output", required=True, metavar=metavar, help=help)
     add_overwrite_option(parser)
+    add_contact_options(parser)
+
+
+#: option -> (attribute recorded by lidarcal.provenance.stamp, environment variable)
+CONTACT_OPTIONS = {
+    "--institution": ("institution", "LIDARCAL_INSTITUTION"),
+    "--creator": ("creator_name", "LIDARCAL_CREATOR"),
+    "--creator-email": ("creator_email", "LIDARCAL_CREATOR_EMAIL"),
+    "--creator-url": ("creator_url", "LIDARCAL_CREATOR_URL"),
+    "--publisher": ("publisher_name", "LIDARCAL_PUBLISHER"),
+    "--publisher-email": ("publisher_email", "LIDARCAL_PUBLISHER_EMAIL"),
+    "--publisher-url": ("publisher_url", "LIDARCAL_PUBLISHER_URL"),
+}
+
+
+def add_contact_options(parser: argparse.ArgumentParser) -> None:
+    """``--institution``, ``--creator``, ``--creator-email`` ... recorded in every file written.
+
+    Each defaults to its environment variable (``LIDARCAL_INSTITUTION`` ...), then to nothing
+    (``creator_name`` "lidarcal", ``institution`` "unspecified").  Adding them twice to one
+    parser is a no-op.
+    """
+    if "--creator" in parser._option_string_actions:
+        return
+    g = parser.add_argument_group("who made the files (ACDD attributes of every file written; "
+                                  "each defaults to its environment variable)")
+    for option, (attr, env) in CONTACT_OPTIONS.items():
+        g.add_argument(option, dest=f"contact_{attr}", metavar="TEXT",
+                       help=f"{attr} attribute (default: ${env})")
+
+
+def contact_from_args(args: argparse.Namespace) -> dict[str, str]:
+    """Return the contact attributes given on the command line (for ``provenance.contact``)."""
+    return {attr: value for attr, _ in CONTACT_OPTIONS.values()
+            if (value := getattr(args, f"contact_{attr}", None))}
 
 
 def add_overwrite_option(parser: argparse.ArgumentParser) -> None:

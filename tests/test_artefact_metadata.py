@@ -1,0 +1,154 @@
+"""What a steward reads in ten years: provenance to the raw record, contacts, CF/ACDD, pint units."""
+
+import json
+import re
+import subprocess
+import sys
+
+import netCDF4
+import numpy as np
+import pytest
+import xarray as xr
+
+from lidarcal.cli import main
+from lidarcal.compliance import ComplianceReport, check_compliance, summary_lines
+from lidarcal.data import sample_file
+from lidarcal.provenance import merge_history
+
+CONTACT = ["--creator", "A. Steward", "--creator-email", "steward@example.org", "--institution", "Test Lab",
+           "--publisher", "Test Archive", "--publisher-email", "archive@example.org",
+           "--publisher-url", "https://archive.example.org", "--creator-url", "https://lab.example.org"]
+
+
+@pytest.fixture(scope="module")
+def run_dir(tmp_path_factory):
+    out = tmp_path_factory.mktemp("meta") / "run"
+    code = main(["calibrate", "--periods", "48", "--heights", "60", "120", "--workers", "1", "--no-progress",
+                 "-o", str(out), *CONTACT])
+    assert code == 0
+    return out
+
+
+def _walk(records):
+    for rec in records or []:
+        yield rec
+        yield from _walk(rec.get("inputs"))
+
+
+def test_every_artefact_names_its_makers(run_dir):
+    for path in sorted(run_dir.glob("*.nc")):
+        with netCDF4.Dataset(path) as nc:
+            attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
+        assert attrs["creator_name"] == "A. Steward", path.name
+        assert attrs["creator_email"] == "steward@example.org" and attrs["institution"] == "Test Lab"
+        assert attrs["publisher_name"] == "Test Archive"
+        assert attrs["date_issued"] == attrs["date_created"]
+        assert "instrument" in attrs and "platform" in attrs
+        software = json.loads(attrs["lidarcal_software"])
+        assert {"python", "pandas", "distributed"} <= set(software)
+        assert "coordinates" not in attrs  # CF defines no global coordinates attribute
+        lines = attrs["history"].splitlines()
+        assert len(lines) == len(set(lines)), path.name
+        stamps = [re.match(r"\[([^\]]+)\]", line).group(1) for line in lines]
+        assert stamps == sorted(stamps), path.name
+
+
+def test_certificate_chain_reaches_the_raw_mast_record(run_dir):
+    cert = xr.open_dataset(run_dir / "certificate.nc")
+    chain = json.loads(cert.attrs["lidarcal_provenance_chain"])
+    # independent reference: the packaged conditions file's own record of its source
+    with netCDF4.Dataset(sample_file("conditions/conditions.nc")) as nc:
+        raw_sha, raw_file = nc.getncattr("source_file_sha256"), nc.getncattr("source_file")
+    found = [r for r in _walk(chain) if r.get("sha256") == raw_sha]
+    assert found and found[0]["file"] == raw_file.rsplit("/", 1)[-1]
+    # the record that used it names its licence and source
+    holders = [r for r in _walk(chain) if any(i.get("sha256") == raw_sha for i in r.get("inputs", []))]
+    assert holders and holders[0]["source_license"] == "MIT"
+    # every seed of the chain at the top: the Monte Carlo base seed and the CNR model's
+    seeds = json.loads(cert.attrs["lidarcal_seeds"])
+    values = json.dumps(seeds)
+    assert '"base_seed": 20240101' in values and '"cnr_model": 20160601' in values
+
+
+def test_terms_describe_every_height(run_dir):
+    terms = xr.open_dataset(run_dir / "terms.nc")
+    assert "60, 120 m" in terms.attrs["summary"] and "terms at 60 m)" not in terms.attrs["history"]
+    config = json.loads(terms.attrs["lidarcal_config"])
+    assert config["height"] == [60.0, 120.0]
+    np.testing.assert_array_equal(config["shear_exponent"], terms.shear_exponent.values)
+
+
+def test_cf_details_of_the_written_files(run_dir):
+    with netCDF4.Dataset(run_dir / "simulated.nc") as nc:
+        assert nc["time"].getncattr("units_metadata") == "leap_seconds: none"
+        assert nc.getncattr("time_coverage_resolution") == "PT600S"
+        assert (nc.getncattr("geospatial_vertical_min"), nc.getncattr("geospatial_vertical_max")) == (60, 120)
+    with netCDF4.Dataset(run_dir / "certificate.nc") as nc:
+        assert nc["cube_los_bias"].getncattr("cell_methods") == "cube_los: cube_cnr: cube_velocity: mean"
+        assert "time_coverage_start" not in nc.ncattrs()  # no time variable in a certificate
+    with netCDF4.Dataset(run_dir / "cube.nc") as nc:
+        assert "time_coverage_start" not in nc.ncattrs() and "source_time_coverage_start" in nc.ncattrs()
+
+
+def test_stock_checker_finds_only_documented_exceptions(run_dir):
+    # the checker takes seconds per file; the cube (cell_methods, dB, bench time) and the
+    # simulated records (time) cover the fixes; the certificate is checked in test_certificate
+    for name in ("cube.nc", "simulated.nc"):
+        report = check_compliance(run_dir / name)
+        assert report.failures == [], report.failures
+        cf = [w for w in report.warnings if w.startswith("cf")]
+        assert cf == [], cf
+        acdd = " ".join(w for w in report.warnings if w.startswith("acdd"))
+        # fixed here: contact given on the command line, dates, instrument, heights, time;
+        # what remains needs a site location or a time variable the artefact does not have
+        for attr in ("creator_email", "creator_url", "publisher_name", "publisher_email", "publisher_url",
+                     "date_issued", "instrument not", "platform not", "comment",
+                     "Could not find time variable"):
+            assert attr not in acdd, (name, attr)
+        # the records have heights (the bench cube has none)
+        assert ("geospatial_vertical_min" in acdd) == (name == "cube.nc")
+        assert "time_coverage_start not present" in acdd if name == "cube.nc" else True
+
+
+def test_validate_folds_repeated_findings():
+    report = ComplianceReport("x.nc", exceptions=[
+        f'cf:1.11 [§3.1 Units] units for v{i}, "dB" are not recognized by UDUNITS' for i in range(40)
+    ], warnings=["acdd:1.3 [Global Attributes] comment not present",
+                 "acdd:1.3 [Global Attributes] creator_url not present"])
+    lines = summary_lines(report)
+    assert len(lines) == 2
+    assert lines[0].startswith("documented exception (dB") and "40 finding(s)" in lines[0]
+    assert "and 1 more like it" in lines[1]
+    assert len(summary_lines(report, verbose=True)) == 1 + 40 + 2
+
+
+def test_merge_history_dedupes_and_orders():
+    a = "[2024-01-02T00:00:00Z] b\n[2024-01-01T00:00:00Z] a"
+    b = "[2024-01-01T00:00:00Z] a\nfree text\n[2024-01-03T00:00:00Z] c"
+    # "a" once; the untimed line stays after the line it followed ("a"), before "b"
+    assert merge_history(a, b).splitlines() == [
+        "[2024-01-01T00:00:00Z] a", "free text", "[2024-01-02T00:00:00Z] b", "[2024-01-03T00:00:00Z] c",
+    ]
+
+
+def test_pint_quantifies_every_artefact_after_import_lidarcal(run_dir):
+    code = (
+        "import sys, glob, lidarcal\n"
+        "assert 'cf_xarray.units' not in sys.modules, 'import lidarcal must stay light'\n"
+        "import pint_xarray, xarray as xr\n"
+        f"files = sorted(glob.glob({str(run_dir)!r} + '/*.nc'))\n"
+        "kinds = set()\n"
+        "for f in files:\n"
+        "    ds = xr.open_dataset(f)\n"
+        "    q = ds.pint.quantify()\n"
+        "    kinds.add(ds.attrs['lidarcal_artefact'])\n"
+        "b = xr.open_dataset([f for f in files if f.endswith('budget.nc')][0]).pint.quantify()\n"
+        "print(sorted(kinds), b.uncertainty.pint.to('km/h').pint.units)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    kinds, unit = done.stdout.rsplit("]", 1)
+    for kind in ("bench_cube", "rwf", "conditions", "simulated_rtd", "uncertainty_terms", "sensitivity",
+                 "uncertainty_budget", "certificate"):
+        assert repr(kind) in kinds
+    assert unit.strip() == "kilometer / hour"
