@@ -25,6 +25,8 @@ What the stock checker still reports on a default run, and why, is listed in doc
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 import re
 import warnings
@@ -98,7 +100,11 @@ def summary_lines(report: ComplianceReport, *, verbose: bool = False) -> list[st
     for line in report.warnings:
         checks.setdefault(line[: line.index("]") + 1] if "]" in line else line, []).append(line)
     for check, lines in checks.items():
-        if verbose or len(lines) == 1:
+        absent = [line[len(check):].strip()[: -len(" not present")] for line in lines
+                  if line.endswith(" not present")]
+        if not verbose and len(absent) == len(lines) > 1:  # ACDD: the attributes it asks for, by name
+            out.append(f"warning: {check} not present ({len(absent)}): {', '.join(absent)}")
+        elif verbose or len(lines) == 1:
             out.extend(f"warning: {line}" for line in lines)
         else:
             first = lines[0][len(check):].strip()
@@ -117,7 +123,7 @@ def check_compliance(path: str | os.PathLike) -> ComplianceReport:
     report = ComplianceReport(str(path))
     suite = CheckSuite()
     suite.load_all_available_checkers()
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):  # its "Using ... table"
         warnings.simplefilter("ignore")
         ds = suite.load_dataset(str(path))
         try:
