@@ -133,8 +133,9 @@ def test_diagnosis_schema_fit_entries_match_the_effect_catalogue():
     for eid, effect in EFFECTS.items():
         for p in effect.parameters:
             base = f"fit_{eid}_{p.name}"
-            expected |= {base, f"{base}_stderr", f"{base}_nominal"}
-            for name in (base, f"{base}_stderr", f"{base}_nominal"):
+            names = (base, f"{base}_stderr", f"{base}_nominal", f"{base}_lower", f"{base}_upper")
+            expected |= set(names)
+            for name in names:
                 assert schema[name]["units"] == p.units, name
                 assert schema[name].get("required") is False, name  # only the fitted candidates are written
             assert tuple(schema[base]["range"]) == p.bounds, base  # fits are clipped to the bounds

@@ -30,7 +30,7 @@ from lidarcal.cli.options import (
     simulation_options,
 )
 from lidarcal.conditions import load_conditions
-from lidarcal.diagnose.core import diagnose
+from lidarcal.diagnose.core import DEFAULT_BOOTSTRAP, DEFAULT_TOLERANCE, diagnose
 from lidarcal.diagnose.dataset import summary, to_dataset
 from lidarcal.diagnose.effects import EFFECTS
 from lidarcal.diagnose.generate import GENERATOR_SEED, generate_field_campaign, hidden_effect_conditions
@@ -58,6 +58,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--alpha", type=probability("--alpha"), default=0.01, help="family-wise false-alarm rate")
     p.add_argument("--bic-threshold", type=nonnegative("--bic-threshold"), default=6.0,
                    help="ΔBIC an effect must beat")
+    p.add_argument("--tolerance", type=nonnegative("--tolerance"), default=DEFAULT_TOLERANCE,
+                   help="practical tolerance, %% of wind speed: an effect must change (L-R)/R by more, and a "
+                        "smaller gap is 'none' (default %(default)g %%: a tenth of the ~1 %% calibration "
+                        "uncertainty)")
+    p.add_argument("--bootstrap", type=positive_int("--bootstrap"), default=DEFAULT_BOOTSTRAP,
+                   help="day-block bootstrap resamples for the uncertainties and 95 %% intervals")
     p.add_argument("--min-wind-speed", type=nonnegative("--min-wind-speed"), default=3.0,
                    help="minimum reference speed, m s-1")
     _sim_args(p)
@@ -104,8 +110,8 @@ def run(args: argparse.Namespace) -> int:
     result = diagnose(
         args.field, cube=cube, rwf=rwf, candidates=args.candidates, base_seed=args.seed, n_bins=args.bins,
         min_bin_count=args.min_bin_count, alpha=args.alpha, bic_threshold=args.bic_threshold,
-        min_wind_speed=args.min_wind_speed, simulate_options=_sim_options(args),
-        progress=progress_enabled(args))
+        tolerance=args.tolerance, n_bootstrap=args.bootstrap, min_wind_speed=args.min_wind_speed,
+        simulate_options=_sim_options(args), progress=progress_enabled(args))
     inputs = {"field": args.field, **({"cube": args.cube} if args.cube else {}),
               **({"rwf": args.rwf} if args.rwf else {})}
     call = command_line(args)
@@ -117,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(js))
     else:
-        print(f"{args.field}: effect {js['effect']} {js['parameters']} (± {js['uncertainties']}); "
+        named = " + ".join(e["effect"] for e in js["effects"]) or js["effect"]
+        print(f"{args.field}: effect {named} {js['parameters']} (± {js['uncertainties']}); "
               f"gap {js['gap_before']:.3f} % -> {js['gap_after']:.3f} % "
               f"(noise floor {js['gap_noise_floor']:.3f} %)\n  {js['note']}\n  wrote {args.output}")
     return 0

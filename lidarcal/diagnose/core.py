@@ -1,4 +1,4 @@
-"""The diagnose workflow: find the gap, name the effect, add it, re-run (``docs/diagnose.md``).
+"""The diagnose workflow: find the gap, name the effect(s), add them, re-run (``docs/diagnose.md``).
 
 :func:`diagnose` takes a ``field_campaign`` (measured lidar/reference pair + conditions) and
 
@@ -6,12 +6,16 @@
    simulates the campaign's own conditions with it;
 2. forms the per-period residual r = (L−R)/R measured − (L−R)/R simulated, bins it per height
    by every environmental variable and tests whether it is zero (:mod:`.stats`);
-3. for every catalogue effect (:mod:`.effects`) re-simulates at a probe value with the SAME
-   seeds (common random numbers), smooths the response on the effect's drivers and fits the
-   parameter by weighted least squares, scoring it by ΔBIC against ``none`` (:mod:`.fit`);
-4. names the best effect — or ``none`` when nothing significant is found or nothing explains a
-   significant part of it — refines its parameter by one re-simulation at the estimate, and
-5. re-simulates with the fitted effect to report the gap before and after.
+3. for every catalogue effect (:mod:`.effects`) measures the response to each parameter with the
+   SAME seeds (common random numbers; grid parameters scanned), fits it alone by weighted least
+   squares and scores it by ΔBIC against ``none`` (:mod:`.fit`);
+4. names effects by forward selection while each addition is strong (ΔBIC) and material (it
+   changes (L−R)/R by more than the practical tolerance and explains a share of the systematic
+   residual) — or answers ``none`` (nothing significant, or below the tolerance) or
+   ``unexplained`` (material, but no catalogue effect qualifies; ``drivers`` then says where the
+   residual lies) — refines the named effects by one re-simulation and gives their parameters
+   day-block bootstrap intervals, and
+5. re-simulates with the fitted effects to report the gap (:data:`.stats.GAP_METRIC`) before and after.
 
 The result is a ``diagnosis`` artefact (:mod:`.dataset`) whose ``lidarcal_lidar_model``
 attribute is the corrected model; :func:`summary` gives the ``--json`` object.
@@ -30,6 +34,7 @@ import xarray as xr
 
 from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.conditions import load_conditions
+from lidarcal.conditions.variables import CONDITIONS
 from lidarcal.diagnose import fit, stats
 from lidarcal.diagnose.effects import CONDITION_VARIABLES, EFFECTS, Effect, get_effect
 from lidarcal.errors import InputError, MissingVariableError
@@ -38,7 +43,7 @@ from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 
 __all__ = ["diagnose", "check_field", "DiagnosisResult", "CandidateFit", "DEFAULT_SEED", "RECORD_NAMES",
-           "min_periods"]
+           "min_periods", "DEFAULT_TOLERANCE", "DEFAULT_MIN_SHARE", "DEFAULT_BOOTSTRAP"]
 
 log = logging.getLogger("lidarcal.diagnose")
 
@@ -48,6 +53,13 @@ DEFAULT_SEED = DEFAULT_BASE_SEED
 RECORD_NAMES = ("lidar_wind_speed", "reference_wind_speed", "lidar_wind_speed_scalar",
                 "lidar_wind_speed_vector")
 MEASURED = ("lidar_wind_speed", "reference_wind_speed")
+#: Practical tolerance (%): a tenth of the ~1 % standard uncertainty of a lidar calibration
+#: (docs/diagnose.md); smaller changes of (L−R)/R are not worth naming.
+DEFAULT_TOLERANCE = 0.1
+#: Share of the systematic residual (the gap metric's square) an added effect must explain.
+DEFAULT_MIN_SHARE = 0.1
+#: Block-bootstrap resamples of the parameter fits.
+DEFAULT_BOOTSTRAP = 400
 
 
 def min_periods(n_bins: int, min_bin_count: int) -> int:
@@ -68,6 +80,17 @@ class CandidateFit:
     probe: dict[str, float]
     refined: bool = False
     clipped: bool = False
+    response: list[np.ndarray] = field(default_factory=list, repr=False)  # ∂d/∂θ per parameter
+    interval: dict[str, tuple[float, float]] = field(default_factory=dict)  # 95 % bootstrap interval
+    contribution: float = float("nan")  # rms change of (L−R)/R the effect makes, %
+    share: float = float("nan")         # share of the systematic residual it explains
+    tied: list[str] = field(default_factory=list)  # catalogue ids it cannot be told from
+
+    @property
+    def bounds(self) -> list[tuple[float, float]]:
+        """Limits of θ − θ₀ for every linear parameter (the catalogue bounds minus the nominal value)."""
+        return [(p.bounds[0] - self.nominal[p.name], p.bounds[1] - self.nominal[p.name])
+                for p in self.effect.linear_parameters]
 
 
 @dataclass
@@ -97,11 +120,15 @@ class DiagnosisResult:
     settings: dict[str, Any] = field(default_factory=dict)
     source: str = "<field campaign>"
     field_dataset: xr.Dataset | None = None
+    selected: list[CandidateFit] = field(default_factory=list)  # named effects, most important first
+    answer: str = "none"            # effects[0] id, "none" or "unexplained"
+    drivers: list[dict] = field(default_factory=list)  # where the residual lies (stats.locate)
+    tolerance: float = 0.1          # %, the practical tolerance
 
     @property
     def effect_id(self) -> str:
-        """Catalogue id of the answer (``none`` when nothing was found)."""
-        return self.chosen.effect.id if self.chosen is not None else "none"
+        """Catalogue id of the answer (``none`` or ``unexplained`` when no effect is named)."""
+        return self.chosen.effect.id if self.chosen is not None else self.answer
 
 
 # -- input ------------------------------------------------------------------------------------
@@ -214,18 +241,6 @@ def _d(records: Mapping[str, np.ndarray]) -> np.ndarray:
 
 # -- fitting ----------------------------------------------------------------------------------
 
-def _fit(effect: Effect, r, d0, d_probe, theta0, theta_probe, conditions, valid, w, n_eff):
-    """Linearised fit of ``effect`` from one probe; returns (estimate, stderr, ΔBIC, explained, clipped)."""
-    p = effect.parameters[0]
-    h = theta_probe - theta0
-    J = fit.smooth_response((d_probe - d0) / h, conditions, effect.drivers, valid, weights=w)
-    lo, hi = p.bounds
-    res = fit.fit_linear(r, J, w, bounds=[(lo - theta0, hi - theta0)])
-    dbic = fit.delta_bic(res.rss, res.rss0, effect.n_parameters, n_eff)
-    explained = 1.0 - res.rss / res.rss0 if res.rss0 > 0 else 0.0
-    return theta0 + float(res.delta[0]), float(res.stderr[0]), dbic, explained, res.clipped
-
-
 @dataclass
 class _Problem:
     """The residual to explain and what every candidate fit shares (common random numbers)."""
@@ -238,18 +253,298 @@ class _Problem:
     d0: np.ndarray
     valid: np.ndarray
     r: np.ndarray
+    clusters: np.ndarray
     weights: np.ndarray | None = None
     n_eff: float = 0.0
     design_effect: float = 1.0
+    groups: stats.BinGroups | None = None
+    clusters_label: str = ""
+    n_boot: int = DEFAULT_BOOTSTRAP
+    seed: int = 0
 
     def records_at(self, effect: Effect, params: Mapping[str, float], label: str) -> dict[str, np.ndarray]:
         """Return the records of the model with ``effect`` at ``params`` (shortcut or re-simulation)."""
         return _records_at(effect, params, self.model, self.base, self.conditions, self.simulate, label)
 
-    def fit(self, effect: Effect, d_probe: np.ndarray, theta0: float, theta_probe: float):
-        """Linearised fit of ``effect`` from the response ``d_probe`` at ``theta_probe``."""
-        return _fit(effect, self.r, self.d0, d_probe, theta0, theta_probe, self.conditions, self.valid,
-                    self.weights, self.n_eff)
+    def records_with(self, cands: Sequence[CandidateFit], label: str) -> tuple[Any, dict[str, np.ndarray]]:
+        """Return (model, records) with every effect of ``cands`` at its estimate.
+
+        Effects without a shortcut are applied to the model and simulated together (one run);
+        the shortcuts (which act after the turbulence is sampled) are then applied in turn.
+        """
+        model, records = self.model, self.base
+        sims = [c for c in cands if c.effect.shortcut is None]
+        for c in sims:
+            model = c.effect.apply(model, c.estimate)
+        if sims:
+            records = self.simulate(model, label)
+        for c in cands:
+            if c.effect.shortcut is not None:
+                nominal = c.effect.nominal(self.model)
+                records = {**records, **c.effect.shortcut(records, self.conditions, nominal, c.estimate)}
+                model = c.effect.apply(model, c.estimate)
+        return model, records
+
+    def smooth(self, effect: Effect, dy: np.ndarray) -> np.ndarray:
+        """E[dy | the effect's drivers] per height, in the fit's weighting (:func:`fit.smooth_response`)."""
+        return fit.smooth_response(dy, self.conditions, effect.drivers, self.valid, weights=self.weights)
+
+    def gap2(self, r: np.ndarray) -> float:
+        """Square of the gap metric (%²) of a residual."""
+        g = stats.joint_gap(r, self.groups)[0]
+        return g * g if np.isfinite(g) else 0.0
+
+
+def _responses(problem: _Problem, eff: Effect, at: Mapping[str, float] | None = None) -> CandidateFit:
+    """Measure ∂d/∂θ of every linear parameter of ``eff`` by one probe each (common random numbers).
+
+    ``at`` fixes the grid parameters (a :meth:`Effect.grid_points` entry).  The response of an
+    effect with grid parameters is exact (a shortcut on the same records, e.g. the hard-edged
+    mast-shadow sector) and is used as it is; smoothing it on its drivers would blur the edge.
+    """
+    at = dict(at or {})
+    theta0 = eff.nominal(problem.model)
+    probe = eff.probe(problem.model, at=at) if at else eff.probe(problem.model)
+    d_at = problem.d0 if not at else _d(problem.records_at(eff, {**theta0, **at}, f"{eff.id} at {at}"))
+    Js = []
+    for p in eff.linear_parameters:
+        params = {**theta0, **at, p.name: probe[p.name]}
+        d_probe = _d(problem.records_at(eff, params, f"{eff.id} probe {p.name}={probe[p.name]:g}"))
+        dy = (d_probe - d_at) / (probe[p.name] - theta0[p.name])
+        Js.append(np.where(problem.valid, dy, np.nan) if eff.grid_parameters else problem.smooth(eff, dy))
+    return CandidateFit(eff, theta0, {**theta0, **at}, {p.name: np.nan for p in eff.parameters}, np.nan, 0.0,
+                        probe, response=Js)
+
+
+def _grid_scan(problem: _Problem, eff: Effect, others: Sequence[CandidateFit]) -> CandidateFit:
+    """Scan the grid parameters of ``eff`` (fitted with ``others``); return the best point's candidate.
+
+    Every point's linear parameters are fitted by least squares together with ``others``; the
+    point with the least weighted RSS wins.  The grid parameters' 95 % intervals come from the
+    same day-block bootstrap: the spread of the winning point over the resamples, widened by
+    half the grid spacing on each side (the grid's own resolution).
+    """
+    if eff.shortcut is None:
+        raise InputError(f"effect {eff.id!r}: grid parameters need an exact shortcut (no re-simulation "
+                         f"per grid point)")
+    points = eff.grid_points()
+    cands = [_responses(problem, eff, at=pt) for pt in points]
+    fixed = _fitted(others) if others else 0.0
+    r = problem.r - np.where(problem.valid, fixed, 0.0)
+    rss = []
+    for c in cands:
+        res = fit.fit_linear(r, c.response, problem.weights, bounds=c.bounds)
+        rss.append(res.rss if np.all(np.isfinite(res.stderr)) else np.inf)
+    best = cands[int(np.argmin(rss))]
+    picks = fit.bootstrap_grid(r, [c.response for c in cands], problem.weights, problem.clusters,
+                               problem.n_boot, problem.seed)
+    for p in eff.grid_parameters:
+        vals = np.array([points[i][p.name] for i in picks])
+        est = best.estimate[p.name]
+        dev = vals - est
+        if p.units == "degree" and p.bounds == (0.0, 360.0):  # a direction: deviations on the circle
+            dev = np.mod(dev + 180.0, 360.0) - 180.0
+        lo, hi = np.quantile(dev, [0.025, 0.975])
+        # the grid resolves the parameter only to its spacing: widen by half a step each side
+        step = float(np.median(np.diff(np.unique(p.grid)))) if len(p.grid) > 1 else 0.0
+        best.stderr[p.name] = float(np.sqrt(np.var(dev, ddof=1) + step**2 / 12.0))
+        best.interval[p.name] = (est + float(lo) - step / 2, est + float(hi) + step / 2)
+    return best
+
+
+def _columns(cands: Sequence[CandidateFit]) -> tuple[list[np.ndarray], list[tuple[float, float]]]:
+    Js, bounds = [], []
+    for c in cands:
+        Js += c.response
+        bounds += c.bounds
+    return Js, bounds
+
+
+def _joint_fit(problem: _Problem, cands: Sequence[CandidateFit],
+               r: np.ndarray | None = None) -> fit.FitResult:
+    """Fit ``r`` (default the residual) on the responses of ``cands`` together; set their estimates."""
+    Js, bounds = _columns(cands)
+    res = fit.fit_linear(problem.r if r is None else r, Js, problem.weights, bounds=bounds)
+    k = 0
+    for c in cands:
+        for p in c.effect.linear_parameters:
+            c.estimate[p.name] = c.nominal[p.name] + float(res.delta[k])
+            c.stderr[p.name] = float(res.stderr[k])
+            k += 1
+        c.clipped = res.clipped
+    return res
+
+
+def _fitted(cands: Sequence[CandidateFit]) -> np.ndarray:
+    """Σ (θ − θ₀)·∂d/∂θ over the parameters of ``cands``: the linearised change of d."""
+    out = 0.0
+    for c in cands:
+        for p, J in zip(c.effect.linear_parameters, c.response, strict=True):
+            out = out + (c.estimate[p.name] - c.nominal[p.name]) * J
+    return out
+
+
+def _contribution(problem: _Problem, cand: CandidateFit) -> float:
+    """Rms change (%) of (L − R)/R over the usable periods that ``cand`` at its estimate makes."""
+    x = _fitted([cand])
+    x = np.asarray(x)[problem.valid] if np.ndim(x) else np.zeros(1)
+    x = x[np.isfinite(x)]
+    return 100.0 * float(np.sqrt(np.mean(x**2))) if x.size else 0.0
+
+
+def _bootstrap(problem: _Problem, cands: Sequence[CandidateFit], r: np.ndarray | None = None) -> None:
+    """Block-bootstrap standard errors and 95 % intervals (days as blocks) of the estimates of ``cands``."""
+    Js, _ = _columns(cands)
+    full, samples = fit.bootstrap_fit(problem.r if r is None else r, Js, problem.weights, problem.clusters,
+                                      problem.n_boot, problem.seed)
+    dev = samples - full
+    k = 0
+    for c in cands:
+        for p in c.effect.linear_parameters:
+            col = dev[:, k][np.isfinite(dev[:, k])]
+            est = c.estimate[p.name]
+            if col.size >= 10:
+                lo, hi = np.quantile(col, [0.025, 0.975])
+                c.stderr[p.name] = float(np.std(col, ddof=1))
+                c.interval[p.name] = (est + float(lo), est + float(hi))
+            else:
+                c.interval[p.name] = (np.nan, np.nan)
+            k += 1
+
+
+def _fit_candidates(problem: _Problem, effects: Sequence[Effect]) -> list[CandidateFit]:
+    """Fit every effect alone from one probe per parameter; score it against ``none``; sort by ΔBIC."""
+    problem.weights = fit.noise_weights(problem.d0, problem.conditions, problem.valid)
+    problem.design_effect = fit.design_effect(np.where(problem.valid, problem.r, 0.0), problem.weights)
+    problem.n_eff = float(problem.valid.sum()) / problem.design_effect
+    fits: list[CandidateFit] = []
+    for eff in effects:
+        c = _grid_scan(problem, eff, []) if eff.grid_parameters else _responses(problem, eff)
+        res = _joint_fit(problem, [c])
+        c.delta_bic = fit.delta_bic(res.rss, res.rss0, eff.n_parameters, problem.n_eff)
+        c.explained = 1.0 - res.rss / res.rss0 if res.rss0 > 0 else 0.0
+        c.contribution = _contribution(problem, c)
+        _bootstrap(problem, [c])
+        fits.append(c)
+        log.info(f"  {eff.id}: "
+                 + ", ".join(f"{k} = {v:.4g} ± {c.stderr[k]:.2g}" for k, v in c.estimate.items())
+                 + f", ΔBIC = {c.delta_bic:.1f}, explains {100 * c.explained:.1f} %, "
+                 f"changes (L-R)/R by {c.contribution:.3f} % rms")
+    fits.sort(key=lambda c: c.delta_bic)
+    return fits
+
+
+def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, tie_threshold: float,
+            tolerance: float, min_share: float) -> tuple[list[CandidateFit], list[str]]:
+    """Forward selection: add the effect that lowers the BIC most while it is strong and material.
+
+    At each step every remaining candidate is fitted together with those already chosen.  It may
+    be added when its ΔBIC against the current model is ≤ −``bic_threshold`` (strong), its fitted
+    change of (L − R)/R is at least ``tolerance`` % rms and it removes at least ``min_share`` of
+    the initial systematic residual (the gap metric squared); the best such candidate is added,
+    and those within ``tie_threshold`` of it that qualify too are recorded as tied with it.
+    Returns the chosen effects (most important first) and one line per step for the note.
+    """
+    chosen: list[CandidateFit] = []
+    steps: list[str] = []
+    rss_cur = float(np.sum(np.where(problem.valid, problem.weights * np.nan_to_num(problem.r) ** 2, 0.0)))
+    g0 = problem.gap2(problem.r)
+    g_cur = g0
+    while True:
+        trials = []
+        for c in fits:
+            if c in chosen:
+                continue
+            if c.effect.grid_parameters and chosen:  # re-scan the grid on what is left
+                scan = _grid_scan(problem, c.effect, chosen)
+                c.estimate, c.response, c.interval = scan.estimate, scan.response, scan.interval
+                c.stderr = scan.stderr
+            saved = (dict(c.estimate), dict(c.stderr), c.clipped)
+            trial = chosen + [c]
+            res = _joint_fit(problem, trial)
+            if not np.all(np.isfinite(res.stderr)):  # collinear with what is chosen: nothing to add
+                c.estimate, c.stderr, c.clipped = saved
+                continue
+            dbic = fit.delta_bic(res.rss, rss_cur, c.effect.n_parameters, problem.n_eff)
+            g2 = problem.gap2(problem.r - np.where(problem.valid, _fitted(trial), 0.0))
+            share = (g_cur - g2) / g0 if g0 > 0 else 0.0
+            trials.append((dbic, c, res, _contribution(problem, c), share, g2,
+                           {x.effect.id: (dict(x.estimate), dict(x.stderr)) for x in trial}))
+            c.estimate, c.stderr, c.clipped = saved
+        trials.sort(key=lambda t: t[0])
+        ok = [t for t in trials if t[0] <= -bic_threshold and t[3] >= tolerance and t[4] >= min_share]
+        if trials and not ok:
+            t = trials[0]
+            why = []
+            if t[0] > -bic_threshold:
+                why.append(f"ΔBIC {t[0]:.1f} > -{bic_threshold:g}")
+            if t[3] < tolerance:
+                why.append(f"changes (L-R)/R by only {t[3]:.3f} % < tolerance {tolerance:g} %")
+            if t[4] < min_share:
+                why.append(f"explains {100 * t[4]:.0f} % < {100 * min_share:.0f} % of the systematic "
+                           "residual")
+            steps.append(f"next best {t[1].effect.id} not added ({'; '.join(why)})")
+        if not ok:
+            break
+        dbic, best, res, contrib, share, g2, est = ok[0]
+        for x in chosen + [best]:
+            x.estimate, x.stderr = dict(est[x.effect.id][0]), dict(est[x.effect.id][1])
+        best.tied = [t[1].effect.id for t in ok[1:] if t[0] - dbic < tie_threshold]
+        best.contribution, best.share = contrib, share
+        chosen.append(best)
+        steps.append(f"{best.effect.id}: ΔBIC {dbic:.1f}, changes (L-R)/R by {contrib:.3f} % rms, explains "
+                     f"{100 * share:.0f} % of the systematic residual"
+                     + (f"; cannot be told apart from {', '.join(best.tied)}" if best.tied else ""))
+        rss_cur, g_cur = res.rss, g2
+    if chosen:
+        _joint_fit(problem, chosen)  # the trials after the last step moved the estimates
+    return chosen, steps
+
+
+def _refine(problem: _Problem, chosen: list[CandidateFit]) -> tuple[Any, dict[str, np.ndarray]]:
+    """Re-simulate at the estimates and correct them; return (corrected model, its records).
+
+    One effect with one parameter: the response is re-measured on the secant [θ₀, θ̂] and the
+    parameter refitted (exact for a response linear in θ, much better than the probe otherwise).
+    Several: one Gauss–Newton step with the probe responses on the residual left at the
+    estimates.  Either way the model is simulated once more if the estimate moved by more than
+    half a standard error.  Uncertainties then come from the block bootstrap of the last fit.
+    """
+    label = " + ".join(c.effect.id for c in chosen)
+    model1, rec1 = problem.records_with(chosen, f"{label} at estimate")
+    before = [dict(c.estimate) for c in chosen]
+    if len(chosen) == 1 and chosen[0].effect.n_parameters == 1:
+        c = chosen[0]
+        name = c.effect.parameters[0].name
+        h = c.estimate[name] - c.nominal[name]
+        if abs(h) > 1e-12:
+            c.response = [problem.smooth(c.effect, (_d(rec1) - problem.d0) / h)]
+            res = _joint_fit(problem, [c])
+            c.delta_bic = fit.delta_bic(res.rss, res.rss0, 1, problem.n_eff)
+            c.explained = 1.0 - res.rss / res.rss0 if res.rss0 > 0 else 0.0
+            c.refined = True
+        _bootstrap(problem, [c])
+    else:
+        r1 = np.where(problem.valid, problem.d_measured - _d(rec1), np.nan)
+        res = fit.fit_linear(r1, _columns(chosen)[0], problem.weights)
+        k = 0
+        for c in chosen:
+            for p in c.effect.linear_parameters:
+                lo, hi = p.bounds
+                c.estimate[p.name] = float(np.clip(c.estimate[p.name] + res.delta[k], lo, hi))
+                k += 1
+            c.refined = True
+        _bootstrap(problem, chosen, r=np.where(problem.valid, problem.r, np.nan))
+    moved = any(abs(c.estimate[p.name] - b[p.name]) > 0.5 * c.stderr[p.name]
+                for c, b in zip(chosen, before, strict=True) for p in c.effect.linear_parameters)
+    for c in chosen:
+        c.contribution = _contribution(problem, c)
+        log.info(f"refined {c.effect.id}: " + ", ".join(
+            f"{k} = {v:.4g} ± {c.stderr[k]:.2g} (95 % {c.interval[k][0]:.4g} to {c.interval[k][1]:.4g})"
+            for k, v in c.estimate.items()))
+    if moved:  # the estimate moved: simulate where it landed
+        model1, rec1 = problem.records_with(chosen, f"{label} at refined estimate")
+    return model1, rec1
 
 
 def diagnose(
@@ -265,6 +560,9 @@ def diagnose(
     alpha: float = 0.01,
     bic_threshold: float = 6.0,
     tie_threshold: float = 2.0,
+    tolerance: float = DEFAULT_TOLERANCE,
+    min_share: float = DEFAULT_MIN_SHARE,
+    n_bootstrap: int = DEFAULT_BOOTSTRAP,
     min_wind_speed: float = 3.0,
     simulate_options: Mapping[str, Any] | None = None,
     progress: bool = False,
@@ -282,17 +580,24 @@ def diagnose(
     candidates : sequence of str, optional
         Catalogue ids to try (default: all but ``none``).
     base_seed : int
-        Base seed of every simulation (common random numbers across candidates).
+        Base seed of every simulation (common random numbers across candidates) and of the bootstrap.
     n_bins, min_bin_count : int
         Quantile bins per environmental variable, and the minimum periods a bin needs to be
         tested and to count in the gap.  A height needs ``n_bins × min_bin_count`` usable periods.
     alpha : float
         Family-wise false-alarm rate of the disagreement tests (Holm over heights × variables).
     bic_threshold : float
-        An effect is named only if it lowers the BIC by more than this against ``none``
-        (6 = "strong evidence", Kass & Raftery 1995).
+        An effect is added only if it lowers the BIC by more than this (6 = "strong evidence",
+        Kass & Raftery 1995).
     tie_threshold : float
-        Candidates within this ΔBIC of the best cannot be told apart (named in ``tied``).
+        Candidates within this ΔBIC of the one added cannot be told apart (named in ``tied``).
+    tolerance : float
+        Practical tolerance, % of wind speed: an effect must change (L − R)/R by at least this
+        (rms), and a residual gap below it is ``none`` (``docs/diagnose.md``).
+    min_share : float
+        Share of the systematic residual (gap metric squared) an added effect must explain.
+    n_bootstrap : int
+        Block-bootstrap resamples (days) for the uncertainties and 95 % intervals.
     min_wind_speed : float
         Periods with a reference below this (m s-1) are not used.
     simulate_options : mapping, optional
@@ -311,31 +616,46 @@ def diagnose(
     simulate = _Simulator(_conditions_input(ds, source), base_seed,
                           {"progress": progress, **(simulate_options or {})}, log.info)
     problem = _residual(ds, usable, model, simulate)
+    problem.n_boot, problem.seed = int(n_bootstrap), int(base_seed)
+    problem.groups = stats.bin_groups(problem.conditions, problem.valid, n_bins,
+                                      [e.drivers[:2] for e in effects if len(e.drivers) >= 2])
     # 2. where do they disagree?
-    edges, drivers, binned0, tests, significant, gap0 = _disagreement(problem, n_bins, min_bin_count, alpha)
-    # 3-4. fit every candidate from one probe, name the best and refine it
+    edges, drivers, binned0, tests, significant = _disagreement(problem, n_bins, min_bin_count, alpha)
+    gap0 = stats.joint_gap(problem.r, problem.groups, min_bin_count)
+    log.info(f"gap before: {gap0[0]:.3f} % (noise floor {gap0[2]:.3f} %, tolerance {tolerance:g} %)")
+    # 3-4. fit every candidate, add effects while strong and material, refine them
     fits = _fit_candidates(problem, effects)
-    chosen, tied, note = _choose(fits, significant, bic_threshold, tie_threshold)
-    corrected, after = (model, problem.base) if chosen is None else _refine(problem, chosen)
+    chosen, steps = _select(problem, fits, bic_threshold, tie_threshold, tolerance, min_share) \
+        if significant else ([], [])
+    answer, note = _answer(chosen, steps, significant, gap0[0], tolerance)
+    corrected, after = (model, problem.base) if not chosen else _refine(problem, chosen)
     fits.sort(key=lambda c: c.delta_bic)  # the refined score may reorder the table
-    # 5. the gap after adding the fitted effect
+    # 5. the gap after adding the fitted effect(s); where the residual lies
     d_after = _d(after)
-    binned1 = stats.bin_residuals(np.where(problem.valid, problem.d_measured - d_after, np.nan), drivers,
-                                  n_bins, edges)
-    gap1 = stats.gap(binned1, min_bin_count)
-    log.info(f"answer: {chosen.effect.id if chosen else 'none'}; gap after: {gap1[0]:.3f} % "
-             f"({simulate.runs} campaign simulations)")
+    r1 = np.where(problem.valid, problem.d_measured - d_after, np.nan)
+    binned1 = stats.bin_residuals(r1, drivers, n_bins, edges)
+    gap1 = stats.joint_gap(r1, problem.groups, min_bin_count)
+    where = [] if answer == "none" else stats.locate(problem.r, problem.groups, problem.conditions, UNITS,
+                                                      min_bin_count, alpha=alpha)
+    log.info(f"answer: {answer}; gap after: {gap1[0]:.3f} % ({simulate.runs} campaign simulations)")
     settings = {"base_seed": int(base_seed), "n_bins": int(n_bins), "min_bin_count": int(min_bin_count),
                 "alpha": float(alpha), "bic_threshold": float(bic_threshold),
-                "tie_threshold": float(tie_threshold), "min_wind_speed": float(min_wind_speed),
+                "tie_threshold": float(tie_threshold), "tolerance": float(tolerance),
+                "min_share": float(min_share), "n_bootstrap": int(n_bootstrap),
+                "bootstrap_blocks": problem.clusters_label, "min_wind_speed": float(min_wind_speed),
                 "candidates": ids, "simulations": simulate.runs,
                 "simulate_options": {k: v for k, v in (simulate_options or {}).items() if k != "scheduler"}}
     return DiagnosisResult(
         heights=ds.height.values, times=ds.time.values, conditions=problem.conditions, valid=problem.valid,
         d_measured=problem.d_measured, d_before=problem.d0, d_after=d_after, binned_before=binned0,
-        binned_after=binned1, tests=tests, significant=significant, candidates=fits, chosen=chosen,
-        tied=tied, note=note, gap_before=gap0, gap_after=gap1, design_effect=problem.design_effect,
-        nominal_model=model, corrected_model=corrected, settings=settings, source=source, field_dataset=ds)
+        binned_after=binned1, tests=tests, significant=significant, candidates=fits,
+        chosen=chosen[0] if chosen else None, tied=list(chosen[0].tied) if chosen else [], note=note,
+        gap_before=gap0, gap_after=gap1, design_effect=problem.design_effect, nominal_model=model,
+        corrected_model=corrected, settings=settings, source=source, field_dataset=ds, selected=chosen,
+        answer=answer, drivers=where, tolerance=float(tolerance))
+
+
+UNITS = {name: v.units for name, v in CONDITIONS.items()}
 
 
 def _conditions_input(ds: xr.Dataset, source: str) -> xr.Dataset:
@@ -350,18 +670,22 @@ def _residual(ds: xr.Dataset, usable: np.ndarray, model, simulate: _Simulator) -
     conditions = {n: np.asarray(ds[n].transpose("time", "height").values, dtype=float)
                   for n in CONDITION_VARIABLES}
     base = simulate(model, "nominal model")
-    d_meas = stats.relative_difference(ds["lidar_wind_speed"].values, ds["reference_wind_speed"].values)
+    d_meas = stats.relative_difference(ds["lidar_wind_speed"].transpose("time", "height").values,
+                                       ds["reference_wind_speed"].transpose("time", "height").values)
     d0 = _d(base)
     valid = usable & np.isfinite(d_meas) & np.isfinite(d0)
     r = np.where(valid, d_meas - d0, np.nan)
-    return _Problem(model, simulate, base, conditions, d_meas, d0, valid, r)
+    clusters, label = fit.day_clusters(ds.time.values)
+    problem = _Problem(model, simulate, base, conditions, d_meas, d0, valid, r, clusters)
+    problem.clusters_label = label
+    return problem
 
 
 def _disagreement(problem: _Problem, n_bins: int, min_bin_count: int, alpha: float):
     """Bin the residual by every condition and test it (Holm).
 
-    Returns the bin edges and drivers per condition, the binned residual, the tests, whether the
-    disagreement is significant at ``alpha`` and the gap before correction.
+    Returns the bin edges and drivers per condition, the binned residual, the tests and whether
+    the disagreement is significant at ``alpha``.
     """
     valid, conditions = problem.valid, problem.conditions
     edges = {n: stats.bin_edges(conditions[n][valid], n_bins) for n in CONDITION_VARIABLES}
@@ -371,73 +695,21 @@ def _disagreement(problem: _Problem, n_bins: int, min_bin_count: int, alpha: flo
     p_all = np.concatenate([tests["p_adjusted"].ravel(), tests["mean_p_adjusted"]])
     p_min = float(np.nanmin(p_all)) if np.isfinite(p_all).any() else 1.0
     significant = p_min < alpha
-    gap0 = stats.gap(binned0, min_bin_count)
-    log.info(f"gap before: {gap0[0]:.3f} % (noise floor {gap0[2]:.3f} %); disagreement "
-             f"{'significant' if significant else 'not significant'} (min Holm p = {p_min:.3g})")
-    return edges, drivers, binned0, tests, significant, gap0
+    log.info(f"disagreement {'significant' if significant else 'not significant'} (min Holm p = {p_min:.3g})")
+    return edges, drivers, binned0, tests, significant
 
 
-def _fit_candidates(problem: _Problem, effects: Sequence[Effect]) -> list[CandidateFit]:
-    """Fit every effect from one probe re-simulation (common random numbers); sorted by ΔBIC."""
-    problem.weights = fit.noise_weights(problem.d0, problem.conditions, problem.valid)
-    problem.design_effect = fit.design_effect(np.where(problem.valid, problem.r, 0.0), problem.weights)
-    problem.n_eff = float(problem.valid.sum()) / problem.design_effect
-    fits: list[CandidateFit] = []
-    for eff in effects:
-        theta0 = eff.nominal(problem.model)
-        probe = eff.probe(problem.model)
-        d_probe = _d(problem.records_at(eff, probe, f"{eff.id} probe {probe}"))
-        name = eff.parameters[0].name
-        est, se, dbic, expl, clipped = problem.fit(eff, d_probe, theta0[name], probe[name])
-        fits.append(CandidateFit(eff, theta0, {name: est}, {name: se}, dbic, expl, probe, clipped=clipped))
-        log.info(f"  {eff.id}: {name} = {est:.4g} ± {se:.2g}, ΔBIC = {dbic:.1f}, explains {100 * expl:.1f} %")
-    fits.sort(key=lambda c: c.delta_bic)
-    return fits
-
-
-def _refine(problem: _Problem, chosen: CandidateFit) -> tuple[Any, dict[str, np.ndarray]]:
-    """Re-simulate at the estimate, refit on the secant over [θ0, θ1]; return (corrected model, records)."""
-    eff = chosen.effect
-    name = eff.parameters[0].name
-    theta0, theta1 = chosen.nominal[name], chosen.estimate[name]
-    rec1 = problem.records_at(eff, {name: theta1}, f"{eff.id} at estimate")
-    after, final = rec1, theta1
-    if abs(theta1 - theta0) > 1e-12:
-        est2, se2, dbic2, expl2, clipped2 = problem.fit(eff, _d(rec1), theta0, theta1)
-        chosen.stderr = {name: se2}
-        chosen.refined = True
-        if abs(est2 - theta1) > 0.5 * se2:  # the estimate moved: simulate where it landed
-            final = est2
-            after = problem.records_at(eff, {name: est2}, f"{eff.id} at refined estimate")
-        chosen.estimate = {name: final}
-        chosen.delta_bic, chosen.explained, chosen.clipped = dbic2, expl2, clipped2
-        log.info(f"refined {eff.id}: {name} = {final:.4g} ± {se2:.2g}")
-    return eff.apply(problem.model, chosen.estimate), after
-
-
-def _choose(fits: list[CandidateFit], significant: bool, bic_threshold: float,
-            tie_threshold: float) -> tuple[CandidateFit | None, list[str], str]:
-    """Apply the decision rule; return (chosen or None, tied ids, note)."""
-    if not fits:
-        return None, [], "no candidate effect was tried"
-    best = fits[0]
+def _answer(chosen: list[CandidateFit], steps: list[str], significant: bool, gap: float,
+            tolerance: float) -> tuple[str, str]:
+    """Return the answer (first effect, ``none`` or ``unexplained``) and its one-paragraph note."""
     if not significant:
-        return None, [], ("no significant disagreement between measurement and nominal model in any "
-                          "height or environmental bin (Holm-corrected)")
-    if best.delta_bic > -bic_threshold:
-        return None, [], (f"the disagreement is significant but no catalogue effect explains a significant "
-                          f"part of it (best: {best.effect.id}, ΔBIC {best.delta_bic:.1f} > "
-                          f"-{bic_threshold:g})")
-    tied = [c.effect.id for c in fits[1:] if c.delta_bic - best.delta_bic < tie_threshold
-            and c.delta_bic <= -bic_threshold]
-    if tied:
-        note = (f"{best.effect.id} and {', '.join(tied)} cannot be told apart with these data "
-                f"(ΔBIC within {tie_threshold:g}); {best.effect.id} is reported as marginally better")
-    else:
-        runner = fits[1] if len(fits) > 1 else None
-        note = (f"{best.effect.id} explains {100 * best.explained:.1f} % of the weighted residual sum of "
-                "squares")
-        if runner is not None:
-            gap = runner.delta_bic - best.delta_bic
-            note += f"; next best {runner.effect.id} is {gap:.1f} BIC units behind"
-    return best, tied, note
+        return "none", ("no significant disagreement between measurement and nominal model in any height or "
+                        "environmental bin (Holm-corrected)")
+    if chosen:
+        return chosen[0].effect.id, "; ".join(steps)
+    if not gap > tolerance:
+        return "none", (f"the disagreement is significant but below the tolerance: gap {gap:.3f} % <= "
+                        f"{tolerance:g} %" + (f"; {steps[-1]}" if steps else ""))
+    return "unexplained", (f"the disagreement is significant and material (gap {gap:.3f} % > tolerance "
+                           f"{tolerance:g} %) but no catalogue effect explains it"
+                           + (f"; {steps[-1]}" if steps else "") + "; drivers lists where the residual lies")

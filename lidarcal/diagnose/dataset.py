@@ -3,7 +3,9 @@
 Layout (``schemas/diagnosis.yaml``): dims ``height``, ``variable`` (the six environmental
 variables the residual is binned by), ``bin`` (quantile bins), ``candidate`` (catalogue ids).
 Per-variable bin limits live in ``<variable>_bin_lower/upper`` (each in its own unit); the
-fitted parameter of each candidate in ``fit_<effect>_<parameter>`` (+ ``_stderr``, ``_nominal``).
+fitted parameter of each candidate in ``fit_<effect>_<parameter>`` (+ ``_stderr``, ``_nominal`` and
+the 95 % block-bootstrap interval ``_lower``/``_upper``); ``candidate_selected`` gives the order in
+which forward selection named the candidates (0: not named).
 The corrected model is the ``lidarcal_lidar_model`` global attribute (the same attribute a
 ``simulated_rtd`` carries), so ``LidarModel.from_dict(ds.attrs["lidarcal_lidar_model"])`` or
 :func:`corrected_model` rebuilds it; the ``--json`` object is in ``diagnosis_json``.
@@ -43,33 +45,51 @@ def _num(x: float) -> float | None:
     return x if math.isfinite(x) else None
 
 
+def _effect_entry(c) -> dict[str, Any]:
+    """One element of ``effects`` (docs/diagnose.md)."""
+    return {
+        "effect": c.effect.id,
+        "parameters": {k: _num(v) for k, v in c.estimate.items()},
+        "uncertainties": {k: _num(v) for k, v in c.stderr.items()},
+        "intervals": {k: [_num(lo), _num(hi)] for k, (lo, hi) in c.interval.items()},
+        "units": {p.name: p.units for p in c.effect.parameters},
+        "change": _num(c.contribution),
+        "tied": list(c.tied),
+    }
+
+
 def summary(result: DiagnosisResult) -> dict[str, Any]:
     """Return the ``--json`` object of ``docs/diagnose.md`` (listed keys exact; a few documented extras).
 
-    ``score`` of a candidate is its ΔBIC against ``none`` (lower is better; ``none`` is 0).
-    Extras: ``uncertainties`` and ``units`` of the parameters, ``significant`` (step-2 test),
-    ``tied`` (candidates that cannot be told apart from the answer), ``note``,
-    ``gap_noise_floor`` and the per-height gaps.
+    ``effect`` is ``effects[0]`` (or ``none`` / ``unexplained``); ``parameters``,
+    ``uncertainties`` (block-bootstrap standard errors), ``intervals`` (95 %) and ``units``
+    are those of ``effects[0]``.  ``drivers`` lists where the residual lies
+    (``{"variable", "range", "units", "z"}``).  ``score`` of a candidate is its ΔBIC against
+    ``none`` fitted alone (lower is better; ``none`` is 0).
     """
-    chosen = result.chosen
+    effects = [_effect_entry(c) for c in result.selected]
+    first = effects[0] if effects else {"parameters": {}, "uncertainties": {}, "intervals": {}, "units": {}}
     cands = [{"effect": "none", "score": 0.0}] + [
         {"effect": c.effect.id, "score": _num(c.delta_bic)} for c in result.candidates]
     cands.sort(key=lambda c: (c["score"] if c["score"] is not None else math.inf))
     heights = [float(h) for h in result.heights]
     out = {
         "effect": result.effect_id,
-        "parameters": {k: _num(v) for k, v in (chosen.estimate if chosen else {}).items()},
-        "drivers": list(chosen.effect.drivers) if chosen else [],
+        "parameters": first["parameters"],
+        "uncertainties": first["uncertainties"],
+        "intervals": first["intervals"],
+        "units": first["units"],
+        "effects": effects,
+        "drivers": [dict(d) for d in result.drivers],
+        "tied": list(result.tied),
         "gap_before": _num(result.gap_before[0]),
         "gap_after": _num(result.gap_after[0]),
         "gap_metric": GAP_METRIC,
-        "candidates": cands,
-        "uncertainties": {k: _num(v) for k, v in (chosen.stderr if chosen else {}).items()},
-        "units": {p.name: p.units for p in (chosen.effect.parameters if chosen else ())},
-        "significant": bool(result.significant),
-        "tied": list(result.tied),
-        "note": result.note,
         "gap_noise_floor": _num(result.gap_before[2]),
+        "tolerance": _num(result.tolerance),
+        "candidates": cands,
+        "significant": bool(result.significant),
+        "note": result.note,
         "gap_before_by_height": dict(zip(map(str, heights), map(_num, result.gap_before[1]), strict=True)),
         "gap_after_by_height": dict(zip(map(str, heights), map(_num, result.gap_after[1]), strict=True)),
     }
@@ -194,14 +214,25 @@ def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagno
         comment="BIC = n_eff ln(RSS/n) + k ln(n_eff), RSS weighted; n_eff = n / design effect"))
     ds["candidate_explained_fraction"] = ("candidate", np.asarray(explained, float), var_attrs(
         "fraction of the weighted residual sum of squares explained by the candidate", "1"))
+    rank = {c.effect.id: i + 1 for i, c in enumerate(result.selected)}
+    ds["candidate_selected"] = ("candidate", np.asarray(
+        [0] + [rank.get(c.effect.id, 0) for c in result.candidates], np.int32), var_attrs(
+        "order in which the candidate was added by forward selection (0: not named)", "1"))
     for c in result.candidates:
         for p in c.effect.parameters:
             base = f"fit_{c.effect.id}_{p.name}"
             ds[base] = ((), c.estimate[p.name], var_attrs(f"fitted {p.long_name} ({c.effect.id})", p.units))
             ds[f"{base}_stderr"] = ((), c.stderr[p.name], var_attrs(
-                f"standard error of fitted {p.long_name} ({c.effect.id})", p.units))
+                f"block-bootstrap standard error of fitted {p.long_name} ({c.effect.id})", p.units))
             ds[f"{base}_nominal"] = ((), c.nominal[p.name], var_attrs(
                 f"nominal {p.long_name} ({c.effect.id})", p.units))
+            lo, hi = c.interval.get(p.name, (np.nan, np.nan))
+            ds[f"{base}_lower"] = ((), lo, var_attrs(
+                f"lower limit of the 95 % block-bootstrap interval of fitted {p.long_name} ({c.effect.id})",
+                p.units))
+            ds[f"{base}_upper"] = ((), hi, var_attrs(
+                f"upper limit of the 95 % block-bootstrap interval of fitted {p.long_name} ({c.effect.id})",
+                p.units))
     if with_sensitivity:
         sens = sensitivity_statistics(result)
         for key, label in (("measured", "field records"), ("before", "nominal model"),
@@ -214,6 +245,8 @@ def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagno
         "diagnosis_note": result.note,
         "diagnosis_json": json.dumps(js, sort_keys=False),
         "gap_metric": GAP_METRIC,
+        "diagnosis_effects": " ".join(c.effect.id for c in result.selected) or result.effect_id,
+        "diagnosis_tolerance": float(result.tolerance),
         "diagnosis_design_effect": float(result.design_effect),
         "nominal_lidar_model": result.nominal_model.to_json(),
         "lidarcal_lidar_model": result.corrected_model.to_json(),

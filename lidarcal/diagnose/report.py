@@ -27,15 +27,24 @@ def _header(ds: xr.Dataset) -> str:
     rows = "".join(
         f"<tr><td>{html.escape(c['effect'])}</td><td>{c['score']:.1f}</td></tr>"
         for c in js["candidates"] if c["score"] is not None)
-    unc, units = js["uncertainties"], js["units"]
-    params = ", ".join(f"{k} = {v:.4g} ± {unc.get(k, float('nan')):.2g} {units.get(k, '')}"
-                       for k, v in js["parameters"].items()) or "—"
+    def params(e):
+        unc, units, ivl = e["uncertainties"], e["units"], e.get("intervals", {})
+        return ", ".join(
+            f"{k} = {v:.4g} ± {unc.get(k) or float('nan'):.2g} {units.get(k, '')}"
+            + (f" (95 %: {ivl[k][0]:.4g} to {ivl[k][1]:.4g})" if k in ivl and None not in ivl[k] else "")
+            for k, v in e["parameters"].items() if v is not None)
+    effects = "<br>".join(f"{html.escape(e['effect'])}: {html.escape(params(e))}"
+                          + (f" (tied with {html.escape(', '.join(e['tied']))})" if e["tied"] else "")
+                          for e in js["effects"]) or "—"
+    drivers = "; ".join(f"{d['variable']} {d['range'][0]:.4g} to {d['range'][1]:.4g} {d['units']} "
+                        f"(z {d['z']:+.1f})" for d in js["drivers"] if None not in d["range"]) or "—"
     return (
         f"<h2>lidarcal diagnose: {html.escape(js['effect'])}</h2>"
-        f"<p><b>Parameters:</b> {html.escape(params)}<br>"
-        f"<b>Drivers:</b> {html.escape(', '.join(js['drivers']) or '—')}"
+        f"<p><b>Effects:</b> {effects}<br>"
+        f"<b>Where the residual lies:</b> {html.escape(drivers)}"
         f"<br><b>Gap:</b> {js['gap_before']:.3f} % → {js['gap_after']:.3f} % "
-        f"(noise floor {js['gap_noise_floor']:.3f} %)<br><b>Note:</b> {html.escape(js['note'])}"
+        f"(noise floor {js['gap_noise_floor']:.3f} %, tolerance {js['tolerance']:g} %)"
+        f"<br><b>Note:</b> {html.escape(js['note'])}"
         f"<br><small>gap metric: {html.escape(js['gap_metric'])}</small></p>"
         f"<table><tr><th>candidate</th><th>score (ΔBIC vs none)</th></tr>{rows}</table>"
     )

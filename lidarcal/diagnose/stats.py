@@ -25,15 +25,23 @@ from lidarcal.binning import binned_statistics
 
 __all__ = [
     "relative_difference", "bin_edges", "binned_means", "BinnedResiduals", "bin_residuals",
-    "holm", "disagreement_tests", "gap", "GAP_METRIC",
+    "holm", "disagreement_tests", "gap", "GAP_METRIC", "BinGroups", "bin_groups", "joint_gap",
+    "locate",
 ]
 
 #: The definition of the gap reported by ``diagnose`` (``gap_metric`` in ``docs/diagnose.md``).
 GAP_METRIC = (
-    "rms, over heights, environmental variables and their quantile bins (bins with at least "
-    "min_bin_count periods), of the bin-mean residual r = (L-R)/R measured minus (L-R)/R "
-    "simulated, in %; per height: the same rms over that height's bins"
+    "systematic rms, in %, of the bin-mean residual r = (L-R)/R measured minus (L-R)/R simulated "
+    "over heights and bins holding at least min_bin_count periods: quantile bins of each of the six "
+    "conditions variables, wind-direction sectors 360/(2 x bins) degree wide (30 degree for 6 bins) "
+    "and, for every candidate effect with two drivers, the joint quantile bins of those drivers "
+    "(3 x 3); systematic = "
+    "sqrt(max(mean(bin mean^2 - bin standard error^2), 0)), i.e. the noise of the bin means removed; "
+    "per height: the same over that height's bins"
 )
+
+#: Bins per driver of the joint (two-driver) bin groups of the gap metric.
+JOINT_BINS = 3
 
 
 def relative_difference(lidar: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -173,3 +181,138 @@ def gap(binned: BinnedResiduals, min_bin_count: int = 10) -> tuple[float, np.nda
         overall = 100.0 * float(np.sqrt(sq.sum() / ok.sum())) if ok.any() else float("nan")
         floor = 100.0 * float(np.sqrt(se2.sum() / ok.sum())) if ok.any() else float("nan")
     return overall, per_height, floor
+
+
+@dataclass
+class BinGroups:
+    """Labelled groups of bins: ``labels[g]`` is an int array (periods × heights), −1 outside any bin.
+
+    ``names[g]`` names the group (e.g. ``"wind_shear_exponent x cnr_gradient"``), ``n_labels[g]`` its
+    number of bins.  The labels are fixed once (from the usable periods) so residuals before and
+    after a correction are binned alike.
+    """
+
+    names: tuple[str, ...]
+    labels: tuple[np.ndarray, ...]
+    n_labels: tuple[int, ...]
+
+
+def _quantile_labels(x: np.ndarray, valid: np.ndarray, n_bins: int) -> tuple[np.ndarray, int]:
+    edges = bin_edges(x[valid], n_bins)
+    lab = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)
+    return np.where(valid & np.isfinite(x), lab, -1), edges.size - 1
+
+
+def bin_groups(conditions: dict[str, np.ndarray], valid: np.ndarray, n_bins: int,
+               joint: list[tuple[str, str]] = ()) -> BinGroups:
+    """Bin groups of the gap metric (:data:`GAP_METRIC`).
+
+    One group of ``n_bins`` quantile bins per conditions variable, direction sectors
+    ``360/(2·n_bins)`` degree wide, and for every pair in ``joint`` the
+    :data:`JOINT_BINS` × :data:`JOINT_BINS` joint quantile bins of that pair of drivers.
+    """
+    names, labels, sizes = [], [], []
+    for name, x in conditions.items():
+        lab, k = _quantile_labels(x, valid, n_bins)
+        names.append(name), labels.append(lab), sizes.append(k)
+    if "wind_from_direction" in conditions:
+        n_sec = 2 * int(n_bins)
+        d = np.mod(conditions["wind_from_direction"], 360.0)
+        lab = np.floor(d / (360.0 / n_sec)).astype(int)
+        lab = np.where(valid & np.isfinite(d), np.clip(lab, 0, n_sec - 1), -1)
+        names.append("wind_from_direction sectors"), labels.append(lab), sizes.append(n_sec)
+    for a, b in dict.fromkeys(tuple(p) for p in joint):
+        la, ka = _quantile_labels(conditions[a], valid, JOINT_BINS)
+        lb, kb = _quantile_labels(conditions[b], valid, JOINT_BINS)
+        lab = np.where((la >= 0) & (lb >= 0), la * kb + lb, -1)
+        names.append(f"{a} x {b}"), labels.append(lab), sizes.append(ka * kb)
+    return BinGroups(tuple(names), tuple(labels), tuple(sizes))
+
+
+def _group_stats(r: np.ndarray, lab: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per (bin, height): count, mean and standard error of ``r`` (two-pass variance)."""
+    n_h = r.shape[1]
+    count, mean, se = (np.zeros((k, n_h)) for _ in range(3))
+    for j in range(n_h):
+        ok = (lab[:, j] >= 0) & np.isfinite(r[:, j])
+        idx, y = lab[ok, j], r[ok, j]
+        c = np.bincount(idx, minlength=k).astype(float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            m = np.bincount(idx, weights=y, minlength=k) / c
+            ss = np.bincount(idx, weights=(y - m[idx]) ** 2, minlength=k)
+            s = np.sqrt(ss / np.maximum(c - 1, 1) / c)
+        count[:, j], mean[:, j], se[:, j] = c, m, s
+    return count, mean, se
+
+
+def joint_gap(r: np.ndarray, groups: BinGroups, min_bin_count: int = 10) -> tuple[float, np.ndarray, float]:
+    """Return the gap of :data:`GAP_METRIC` in %: overall, per height, and its noise floor.
+
+    Over every bin (of every group, at every height) with at least ``min_bin_count`` periods:
+    gap = √max(mean(m² − se²), 0) — the rms of the bin means with their sampling noise removed
+    (an unbiased estimate of the systematic part) — and noise floor = √mean(se²), the rms a
+    perfect model would show.
+    """
+    n_h = r.shape[1]
+    sq, se2, cnt = np.zeros(n_h), np.zeros(n_h), np.zeros(n_h)
+    for lab, k in zip(groups.labels, groups.n_labels, strict=True):
+        c, m, s = _group_stats(r, lab, k)
+        ok = (c >= min_bin_count) & np.isfinite(m) & np.isfinite(s)
+        sq += np.where(ok, m**2, 0.0).sum(axis=0)
+        se2 += np.where(ok, s**2, 0.0).sum(axis=0)
+        cnt += ok.sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_height = 100.0 * np.sqrt(np.maximum(sq - se2, 0.0) / cnt)
+    if cnt.sum() == 0:
+        return float("nan"), per_height, float("nan")
+    overall = 100.0 * float(np.sqrt(max(sq.sum() - se2.sum(), 0.0) / cnt.sum()))
+    floor = 100.0 * float(np.sqrt(se2.sum() / cnt.sum()))
+    return overall, per_height, floor
+
+
+def locate(r: np.ndarray, groups: BinGroups, conditions: dict[str, np.ndarray], units: dict[str, str],
+           min_bin_count: int = 10, z_min: float = 2.0, max_drivers: int = 3,
+           alpha: float = 1.0) -> list[dict]:
+    """Where the residual lies: up to ``max_drivers`` ``{"variable", "range", "units", "z"}`` entries.
+
+    Per one-variable group (the direction sectors stand for ``wind_from_direction``), each bin's
+    mean residual is scored z = mean/se per height and the heights combined as Σz/√m; the group
+    scores χ² = Σ z² over its bins.  The strongest groups (one per variable) are reported, each
+    with the range of the contiguous bins around its largest |z| whose z has the same sign and
+    |z| ≥ ``z_min``; ``z`` is that largest combined score (its sign is the sign of the residual).
+    Only groups whose χ² p-value is below ``alpha`` are kept (but always the strongest one).
+    """
+    found = []
+    for name, lab, k in zip(groups.names, groups.labels, groups.n_labels, strict=True):
+        var = "wind_from_direction" if name == "wind_from_direction sectors" else name
+        if var not in conditions or (var == "wind_from_direction" and name == var):
+            continue  # direction: the sectors locate better than the quantile bins
+        c, m, s = _group_stats(r, lab, k)
+        ok = (c >= min_bin_count) & (s > 0) & np.isfinite(m)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = np.where(ok, m / s, 0.0)
+        zc = z.sum(axis=1) / np.sqrt(np.maximum(ok.sum(axis=1), 1))
+        chi2 = float((z**2).sum())
+        dof = int(ok.sum())
+        if dof == 0:
+            continue
+        p = float(_st.chi2.logsf(chi2, dof))  # log: a strong driver's p underflows to 0
+        b = int(np.argmax(np.abs(zc)))
+        sign = np.sign(zc[b])
+        lo = hi = b
+        while lo - 1 >= 0 and np.sign(zc[lo - 1]) == sign and abs(zc[lo - 1]) >= z_min:
+            lo -= 1
+        while hi + 1 < k and np.sign(zc[hi + 1]) == sign and abs(zc[hi + 1]) >= z_min:
+            hi += 1
+        x = conditions[var]
+        if name == "wind_from_direction sectors":
+            width = 360.0 / k
+            rng = [lo * width, (hi + 1) * width]
+        else:
+            sel = np.isin(lab, np.arange(lo, hi + 1)) & np.isfinite(x)
+            rng = [float(np.min(x[sel])), float(np.max(x[sel]))] if sel.any() else [np.nan, np.nan]
+        found.append((p, {"variable": var, "range": [float(v) for v in rng], "units": units.get(var, ""),
+                          "z": float(zc[b])}))
+    found.sort(key=lambda t: t[0])
+    keep = [f for i, (p, f) in enumerate(found) if p < np.log(alpha) or i == 0]
+    return keep[:max_drivers]
