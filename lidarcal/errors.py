@@ -36,5 +36,12 @@ class ValidationError(InputError):
         super().__init__(f"{source}: {len(self.problems)} problem(s) found:\n{lines}")
 
 
+class ComputeError(LidarcalError, RuntimeError):
+    """A parallel computation could not run or finish.
+
+    Every worker was lost, the scheduler is gone, or the workers cannot run this lidarcal.
+    """
+
+
 class OutputExistsError(LidarcalError, FileExistsError):
     """Refusing to overwrite an existing output without an explicit request."""

@@ -16,12 +16,19 @@
   seed, chunk bounds, heights, duration); a re-run loads finished chunks instead of
   recomputing them, so a killed run resumes and gives the identical result.  With
   ``dask.distributed`` a lost worker's tasks are recomputed elsewhere: it costs time, not data.
+* **Faults** (``dask.distributed``) — before any task, every worker must report this lidarcal
+  version (a probe shipped by value, so it also runs where lidarcal is missing); the dashboard
+  link is logged; while waiting, the scheduler's worker list is polled, and no worker for
+  ``worker_timeout`` s or a scheduler that stops answering ends the run with
+  :class:`~lidarcal.errors.ComputeError` (exit status 2), never a hang or a traceback.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import os
+import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -29,6 +36,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal import __version__
 from lidarcal.campaign.chunks import (
     INPUTS,
     OUTPUTS,
@@ -41,13 +49,15 @@ from lidarcal.campaign.chunks import (
 from lidarcal.campaign.los import los_variables
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.conditions import CONDITION_VARIABLES, load_conditions
-from lidarcal.errors import InputError
+from lidarcal.errors import ComputeError, InputError
 from lidarcal.io import source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 from lidarcal.provenance import stamp
 
-__all__ = ["simulate_campaign", "DEFAULT_BASE_SEED", "BLAS_ENV"]
+__all__ = ["simulate_campaign", "DEFAULT_BASE_SEED", "BLAS_ENV", "WORKER_TIMEOUT"]
+
+log = logging.getLogger(__name__)
 
 DEFAULT_BASE_SEED = 20240101
 #: Environment of every simulation worker: one BLAS/OpenMP thread (docs/performance.md).
@@ -90,29 +100,170 @@ def _connect(address: str, timeout: float):
 
     try:
         return Client(address, timeout=timeout, set_as_default=False)
-    except (OSError, TimeoutError) as exc:
+    except (OSError, TimeoutError, ValueError) as exc:
         raise InputError(
             f"cannot reach the dask scheduler at {address!r} within {timeout:g} s "
             f"({type(exc).__name__}: {exc}); is `dask scheduler` running there?"
         ) from None
 
 
-def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool) -> Iterator[tuple[str, dict]]:
-    from distributed import as_completed
+#: Seconds a distributed run waits while no worker is connected (none yet, or all lost) before
+#: it fails with :class:`~lidarcal.errors.ComputeError`.
+WORKER_TIMEOUT = 60.0
+_POLL = 0.25  # s between checks of the workers while waiting for results
 
+# Run on every worker before any task: defined from source, so cloudpickle ships it by value and
+# it runs (and reports) on a worker where lidarcal cannot even be imported.
+_PROBE_SOURCE = """
+def lidarcal_version_probe():
+    try:
+        import lidarcal
+    except BaseException as exc:
+        return "no importable lidarcal ({}: {})".format(type(exc).__name__, exc)
+    return "lidarcal " + str(getattr(lidarcal, "__version__", "of unknown version"))
+"""
+
+
+def _version_probe():
+    namespace: dict[str, Any] = {}
+    exec(compile(_PROBE_SOURCE, "<lidarcal worker probe>", "exec"), namespace)
+    return namespace["lidarcal_version_probe"]
+
+
+def _scheduler_gone(address: str, exc: BaseException) -> ComputeError:
+    return ComputeError(
+        f"lost the dask scheduler at {address} ({type(exc).__name__}: {exc}); the run stopped. "
+        "Restart the scheduler and workers and run again (with --workdir, finished chunks are kept)"
+    )
+
+
+def _n_workers(client, address: str) -> int:
+    try:
+        return len(client.scheduler_info(n_workers=-1)["workers"])
+    except Exception as exc:  # comm closed, timeout, cancelled: the scheduler is unreachable
+        raise _scheduler_gone(address, exc) from None
+
+
+def _check_workers(client, address: str, worker_timeout: float) -> None:
+    """Wait for a worker, then check that every worker runs this lidarcal (before any task)."""
+    try:
+        client.wait_for_workers(1, timeout=worker_timeout)
+    except TimeoutError:
+        raise ComputeError(
+            f"no dask worker joined the scheduler at {address} within {worker_timeout:g} s; "
+            f"start one with `dask worker {address}`"
+        ) from None
+    except Exception as exc:
+        raise _scheduler_gone(address, exc) from None
+    try:
+        found = client.run(_version_probe(), on_error="return")
+    except Exception as exc:
+        raise _scheduler_gone(address, exc) from None
+    expected = f"lidarcal {__version__}"
+    bad = {w: v if isinstance(v, str) else f"a failed probe ({type(v).__name__}: {v})"
+           for w, v in found.items() if v != expected}
+    if bad:
+        raise ComputeError(
+            f"dask workers at {address} cannot run this calculation (client: {expected}): "
+            + "; ".join(f"worker {w} has {v}" for w, v in sorted(bad.items()))
+            + f"; install lidarcal {__version__} in every worker's environment"
+        )
+
+
+def _close_quietly(client, timeout: float) -> None:
+    """Close our own client; if the scheduler is gone, without distributed's reconnect tracebacks."""
+    loggers = [logging.getLogger(name) for name in ("distributed", "distributed.client")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL)
+    try:
+        with contextlib.suppress(Exception):
+            client.close(timeout=timeout)
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
+
+
+def _log_dashboard(client) -> None:
+    with contextlib.suppress(Exception):
+        if "dashboard" in client.scheduler_info(n_workers=0).get("services", {}):
+            log.info("dask dashboard: %s", client.dashboard_link)
+
+
+def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
+                     worker_timeout: float = WORKER_TIMEOUT) -> Iterator[tuple[str, dict]]:
+    """Run ``tasks`` on a ``distributed.Client``; fail within ``worker_timeout`` s if no worker is left.
+
+    Before submitting: wait for a worker and check every worker's lidarcal version.  While
+    waiting: poll the scheduler's worker list; a scheduler that stops answering, or no worker
+    for ``worker_timeout`` s, ends the run with :class:`~lidarcal.errors.ComputeError`.
+    """
+    from distributed import as_completed
+    from distributed.scheduler import KilledWorker
+
+    address = str(getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler")
+    _log_dashboard(client)
+    _check_workers(client, address, worker_timeout)
     futures = {client.submit(run_chunk, payload, key=name, pure=False): name for name, payload in tasks}
     bar = _bar(len(tasks), progress)
+    finished = False
+    # a lost scheduler is reported once, by the ComputeError below, not by the client's own
+    # reconnect logging (an ERROR with a traceback)
+    quiet = logging.getLogger("distributed.client")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)
     try:
         with client.as_current():  # as_completed looks up the current client
             completed = as_completed(futures)
-        for fut in completed:
-            result = fut.result()
-            name = futures[fut]
-            fut.release()
-            bar.update(1)
-            yield name, result
+        alone_since = None
+        while not completed.is_empty():
+            batch = completed.next_batch(block=False)
+            if not batch:
+                now = time.monotonic()
+                if _n_workers(client, address):
+                    alone_since = None
+                elif alone_since is None:
+                    alone_since = now
+                elif now - alone_since > worker_timeout:
+                    raise ComputeError(
+                        f"every dask worker of the scheduler at {address} is gone and none joined for "
+                        f"{worker_timeout:g} s; {completed.count()} of {len(tasks)} chunks unfinished. Start "
+                        f"workers (`dask worker {address}`) and run again (with --workdir, finished chunks "
+                        "are kept)"
+                    )
+                time.sleep(_POLL)
+                continue
+            for fut in batch:
+                name = futures[fut]
+                if fut.status == "error":
+                    exc = fut.exception()
+                    if isinstance(exc, KilledWorker):
+                        raise ComputeError(
+                            f"chunk {name} was running on dask workers that died each time it was tried "
+                            f"({exc}); out of memory, or killed?"
+                        ) from None
+                    fut.result()  # the task's own error: a LidarcalError, else a bug (traceback)
+                if fut.status == "cancelled":  # the scheduler forgot it: it went away
+                    raise _scheduler_gone(address, RuntimeError(f"chunk {name} was cancelled"))
+                if fut.status != "finished":  # lost with its worker: the scheduler computes it again
+                    completed.add(fut)
+                    continue
+                try:
+                    result = fut.result(timeout=worker_timeout)
+                except Exception:  # its worker died before the result was fetched
+                    _n_workers(client, address)  # a ComputeError if the scheduler is gone
+                    completed.add(fut)  # else computed again
+                    continue
+                fut.release()
+                bar.update(1)
+                yield name, result
+        finished = True
     finally:
         bar.close()
+        if not finished:
+            with contextlib.suppress(Exception):
+                client.cancel(list(futures), force=True)
+        quiet.setLevel(level)
 
 
 def _bar(total: int, enabled: bool):
@@ -144,13 +295,14 @@ def _run_local(
     yield from zip((name for name, _ in tasks), results, strict=True)
 
 
-def _execute(tasks, scheduler, workers, progress, connect_timeout) -> Iterator[tuple[str, dict]]:
+def _execute(tasks, scheduler, workers, progress, connect_timeout,
+             worker_timeout=WORKER_TIMEOUT) -> Iterator[tuple[str, dict]]:
     if not tasks:
         return
     if scheduler is None:
         scheduler = "processes"
     if hasattr(scheduler, "submit"):  # a distributed.Client
-        yield from _run_distributed(scheduler, tasks, progress)
+        yield from _run_distributed(scheduler, tasks, progress, worker_timeout)
         return
     if not isinstance(scheduler, str):
         raise InputError(
@@ -159,9 +311,9 @@ def _execute(tasks, scheduler, workers, progress, connect_timeout) -> Iterator[t
     if "://" in scheduler:
         client = _connect(scheduler, connect_timeout)
         try:
-            yield from _run_distributed(client, tasks, progress)
+            yield from _run_distributed(client, tasks, progress, worker_timeout)
         finally:
-            client.close()
+            _close_quietly(client, connect_timeout)
         return
     if scheduler == "local":
         from distributed import Client, LocalCluster
@@ -174,7 +326,7 @@ def _execute(tasks, scheduler, workers, progress, connect_timeout) -> Iterator[t
             ) as cluster,
             Client(cluster, set_as_default=False) as client,
         ):
-            yield from _run_distributed(client, tasks, progress)
+            yield from _run_distributed(client, tasks, progress, worker_timeout)
         return
     if scheduler not in ("processes", "threads", "synchronous", "sync", "single-threaded"):
         raise InputError(
@@ -216,6 +368,7 @@ def simulate_campaign(
     los_periods: Sequence[int] = (),
     duration: float = 600.0,
     connect_timeout: float = 5.0,
+    worker_timeout: float = WORKER_TIMEOUT,
     call: str | None = None,
     inputs: dict[str, str | os.PathLike] | None = None,
 ) -> xr.Dataset:
@@ -247,6 +400,10 @@ def simulate_campaign(
         Period length in s (600).
     connect_timeout : float
         Seconds to wait for a remote scheduler before raising :class:`~lidarcal.errors.InputError`.
+    worker_timeout : float
+        With ``dask.distributed``: seconds to wait while no worker is connected (none joined yet,
+        or every one was lost) before raising :class:`~lidarcal.errors.ComputeError`.  Workers
+        are checked for this lidarcal version before any task is submitted.
     call : str, optional
         Command line recorded in the history (default: a description of this call).
     inputs : mapping of role to path, optional
@@ -262,7 +419,7 @@ def simulate_campaign(
     camp = _prepare(conditions, model, heights, chunk, los_periods)
     chunk = int(chunk)
     results, tasks, bounds = _schedule(camp, model.to_dict(), base_seed, chunk, duration, workdir)
-    for name, result in _execute(tasks, scheduler, workers, progress, connect_timeout):
+    for name, result in _execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
         results[bounds[name][0]] = result
     out = {name: np.concatenate([results[s][name] for s in sorted(results)], axis=0) for name in OUTPUTS}
     los_data = {p: v for s in sorted(results) for p, v in results[s]["los"].items()}

@@ -17,6 +17,7 @@ import argparse
 import os
 
 from lidarcal.campaign import simulate_campaign
+from lidarcal.campaign.run import WORKER_TIMEOUT
 from lidarcal.cli import command_line
 from lidarcal.cli.options import (
     add_heights_option,
@@ -73,6 +74,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="seconds to wait for a remote scheduler (default 5)",
     )
+    p.add_argument(
+        "--worker-timeout",
+        type=positive("--worker-timeout"),
+        default=WORKER_TIMEOUT,
+        metavar="S",
+        help="dask.distributed: seconds to wait while no worker is connected (none joined, or all "
+        "lost) before stopping with exit status 2 (default %(default)g)",
+    )
     add_progress_option(p)
     add_output_options(p, "SIM.nc")
     p.set_defaults(handler=run)
@@ -104,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
         los_periods=args.los_periods,
         duration=args.duration,
         connect_timeout=args.timeout,
+        worker_timeout=args.worker_timeout,
         inputs=inputs,
         call=command_line(args),
     )
