@@ -33,7 +33,8 @@ from north):
   period), 10-min mean of ``sqrt((U_h + u)^2 + v^2)`` (a cup's scalar mean), times
   ``LidarModel.reference_scale(direction, TI)``: ``(1 + reference_overspeeding · TI)``, the
   gain ``1 + reference_gain`` and the mast shadow ``1 − deficit`` for a period whose mean
-  direction lies in the ``reference_flow_distortion_*`` sector (hard edge).
+  direction lies in the ``reference_flow_distortion_*`` sector (edge smoothed by the spread of
+  the instantaneous direction, 0.8 · TI rad).
 """
 
 from __future__ import annotations
