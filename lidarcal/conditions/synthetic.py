@@ -107,7 +107,10 @@ def _extrapolated(base: xr.Dataset, n: int, z: np.ndarray) -> dict[str, np.ndarr
         w = (np.log(zj) - logz[k]) / (logz[k + 1] - logz[k])
         with np.errstate(divide="ignore", invalid="ignore"):
             out_u[:, j] = np.exp((1 - w) * np.log(u[:, k]) + w * np.log(u[:, k + 1]))
-        out_sig[:, j] = (1 - w) * sig[:, k] + w * sig[:, k + 1]
+        # sigma_u: linear between measured heights, held at the lowest one's below it (carried
+        # linearly, it turned negative: TI < 0 at 40 m from a mast at 80 and 120 m)
+        wc = min(max(w, 0.0), 1.0)
+        out_sig[:, j] = (1 - wc) * sig[:, k] + wc * sig[:, k + 1]
     nearest = np.abs(z[:, None] - zb[None, :]).argmin(axis=1)
     direction = base.wind_from_direction.values[:n][:, nearest]
     with np.errstate(divide="ignore", invalid="ignore"):
