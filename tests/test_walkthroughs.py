@@ -81,9 +81,10 @@ def run_command(command: str, cwd: Path, where: str) -> None:
         _calibrated[command] = cwd
 
 
-def run_page(name: str, cwd: Path, monkeypatch, replace: dict[str, str] | None = None) -> int:
+def run_page(name: str | Path, cwd: Path, monkeypatch, replace: dict[str, str] | None = None) -> int:
     """Run every executable block of ``docs/<name>`` in ``cwd``; returns the number of blocks."""
     page = DOCS / name
+    name = page.name
     found = blocks(page)
     assert found, f"{page} has no console or pycon block"
     monkeypatch.chdir(cwd)
@@ -108,6 +109,21 @@ def run_page(name: str, cwd: Path, monkeypatch, replace: dict[str, str] | None =
 
 def test_block_parser_reads_continuations_and_exit_codes():
     assert commands("$ a \\\n    b\noutput\n$ c  # exits 1\n") == ["a b", "c  # exits 1"]
+
+
+@pytest.mark.parametrize(
+    "block, message",
+    [
+        ("```pycon\n>>> 1 + 1\n3\n```\n", "Failed example:\n      1 + 1"),
+        ("```console\n$ python -c 'import sys; sys.exit(3)'\n```\n", "exited 3, expected 0"),
+        ("```console\n$ python -c 'pass'  # exits 1\n```\n", "exited 0, expected 1"),
+    ],
+)
+def test_a_wrong_output_or_exit_status_fails_the_page(tmp_path, monkeypatch, block, message):
+    page = tmp_path / "page.md"
+    page.write_text("# page\n\n" + block, encoding="utf-8")
+    with pytest.raises(AssertionError, match=re.escape(message)):
+        run_page(page, tmp_path, monkeypatch)
 
 
 def test_steward_walkthrough(tmp_path, monkeypatch):
