@@ -133,7 +133,8 @@ def simulate_period(
         The period's conditions over ``heights`` (m s-1, degree, 1, 1, dB, dB m-1), SI floats;
         scalars broadcast.  A height with any NaN condition gets NaN outputs.
     seed : tuple of int
-        ``(base_seed, period_index)`` from the campaign; each height draws from
+        ``(base_seed, period_key)`` from the campaign (the key: the period's time in whole
+        seconds since 1970, :func:`lidarcal.campaign.chunks.period_keys`); each height draws from
         ``SeedSequence([*seed, round(height * 1000)])``.
     duration : float
         Period length (s); a whole number of ``model.beam_period`` steps.
