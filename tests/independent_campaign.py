@@ -45,7 +45,10 @@ indistinguishable from the reference's mast shadow (``reference_flow_distortion`
 error/(1 + error)), so it is *not* outside the catalogue any more — and one that is,
 ``lidar_low_cnr_bias`` {threshold dB, error: the lidar's 10-minute speed is (1 + error) × its
 value at a (period, height) whose reported CNR is below threshold: a Doppler estimator biased
-at low CNR; no catalogue effect acts through the CNR level}.
+at low CNR; no catalogue effect acts through the CNR level, but its non-zero mean looks like a
+reference gain} and ``lidar_cnr_slope`` {slope per dB, pivot dB: the lidar's speed is
+(1 + slope · (CNR − pivot)) × its value; with the pivot at the campaign's median CNR
+(about −10.3 dB) its mean is near zero, so no constant effect can absorb it}.
 """
 
 from __future__ import annotations
@@ -73,6 +76,7 @@ EFFECT_PARAMETERS: dict[str, tuple[str, ...]] = {
     "reference_gain": ("gain",),
     "lidar_sector_error": ("centre", "width", "error"),
     "lidar_low_cnr_bias": ("threshold", "error"),
+    "lidar_cnr_slope": ("slope", "pivot"),
 }
 
 DURATION = 600.0  # s
@@ -313,6 +317,9 @@ def _make(eff, n, heights, seed, cone, p, fwhm, noise_std, start):
         if "lidar_low_cnr_bias" in eff:
             lc = eff["lidar_low_cnr_bias"]
             out["lidar"][t] *= np.where(cnr[t] < lc["threshold"], 1.0 + lc["error"], 1.0)
+        if "lidar_cnr_slope" in eff:
+            cs = eff["lidar_cnr_slope"]
+            out["lidar"][t] *= 1.0 + cs["slope"] * (cnr[t] - cs["pivot"])
         grad[t] = _cnr_slope(heights, lapse) * np.cos(np.radians(cone))
         truth["speed_80"][t], truth["alpha"][t], truth["direction"][t], truth["ti_80"][t] = (U80, alpha,
                                                                                             direction, ti80)

@@ -129,6 +129,15 @@ def test_lidar_low_cnr_bias_acts_below_the_threshold_only():
     np.testing.assert_array_equal(other.reference_wind_speed.values, base.reference_wind_speed.values)
 
 
+def test_lidar_cnr_slope_is_linear_in_the_cnr_level():
+    cs = {"slope": 0.004, "pivot": -10.3}
+    base, other, _ = paired({"lidar_cnr_slope": cs})
+    ratio = other.lidar_wind_speed.values / base.lidar_wind_speed.values
+    np.testing.assert_allclose(ratio, 1 + cs["slope"] * (base.cnr.values - cs["pivot"]), rtol=1e-12)
+    # pivoted at the CNR model's median, the mean change is a small part of its spread
+    assert abs(np.mean(ratio - 1)) < 0.5 * np.std(ratio - 1)
+
+
 @pytest.mark.parametrize("effects,match", [({"bogus": {}}, "unknown effect"),
                                            ({"reference_gain": {"g": 0.1}}, "needs parameters")])
 def test_bad_effects_are_refused(effects, match):
