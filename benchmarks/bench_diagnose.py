@@ -6,7 +6,8 @@ Usage::
         [--periods 1200] [--heights 40 80 120 160] [--scheduler processes] [--workers 2]
 
 Prints the wall time of generating the campaign and of the diagnosis (and how many campaign
-simulations it ran), the answer, the recovered parameter and the gap before/after.
+simulations it ran), the answer, the recovered parameter with its 95 % interval, the effects
+named by forward selection and the gap before/after.
 """
 
 import argparse
@@ -58,7 +59,9 @@ def main() -> None:
     print(f"diagnose ({sims} simulations):     {t2 - t1:7.1f} s  ({(t2 - t1) / sims:.1f} s per campaign "
           f"simulation, {sims * n / (t2 - t1):.0f} period-heights/s)")
     print(f"diagnosis artefact + slopes:   {t3 - t2:7.1f} s")
-    print(f"answer: {js['effect']} {js['parameters']} ± {js['uncertainties']}")
+    print(f"answer: {js['effect']} {js['parameters']} ± {js['uncertainties']} (95 %: {js['intervals']})")
+    print("named (forward selection):", ", ".join(e["effect"] for e in js["effects"]) or "-",
+          f"; tied: {js['tied']}; tolerance {js['tolerance']} %")
     print(f"gap: {js['gap_before']:.3f} % -> {js['gap_after']:.3f} % "
           f"(noise floor {js['gap_noise_floor']:.3f} %)")
     print("candidates:", ", ".join(f"{c['effect']} {c['score']:.1f}" for c in js["candidates"]))

@@ -358,7 +358,7 @@ def test_forward_selection_names_two_effects_in_order_with_honest_intervals():
     # a 4 m Zd error (~0.4 % at 40 m) and an over-speeding cup (0.08 x TI: ~1.2 %) under 1 % noise
     problem, fits = _selection_problem(lambda J, c: 4.0 * J["zero_distance_offset"]
                                        + 0.08 * J["reference_overspeeding"])
-    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, 0.1)
+    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
     assert [c.effect.id for c in chosen] == ["reference_overspeeding", "zero_distance_offset"]
     core._bootstrap(problem, chosen)
     for c, truth in zip(chosen, (0.08, 4.0), strict=True):
@@ -376,13 +376,13 @@ def test_forward_selection_reports_a_tie_and_ignores_what_is_below_tolerance():
 
     # a constant -0.5 % (a 0.5 % reference gain) is a beam-angle offset just as well: a tie
     problem, fits = _selection_problem(lambda J, c: 0.005 * J["reference_gain"])
-    chosen, _ = core._select(problem, fits, 6.0, 2.0, 0.1, 0.1)
+    chosen, _ = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
     assert len(chosen) == 1 and chosen[0].effect.id in ("reference_gain", "beam_angle_offset")
     assert chosen[0].tied == [({"reference_gain", "beam_angle_offset"} - {chosen[0].effect.id}).pop()]
     # 0.3 x TI over-speeding is significant with 12,000 observations, but changes (L-R)/R by only
     # ~0.05 % rms (TI 0.05-0.25): below the 0.1 % tolerance, so nothing is named
     problem, fits = _selection_problem(lambda J, c: 0.003 * J["reference_overspeeding"], n=4000)
-    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, 0.1)
+    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
     assert chosen == [] and "tolerance" in steps[-1]
     answer, note = core._answer(chosen, steps, True, 0.05, 0.1)
     assert answer == "none" and "below the tolerance" in note
@@ -397,7 +397,7 @@ def test_unexplained_residual_is_located_in_its_direction_sector():
     # the lidar over-reads by 1 % for winds from 280-320 degree: no candidate has that shape
     problem, fits = _selection_problem(
         lambda J, c: 0.01 * ((c["wind_from_direction"] >= 280) & (c["wind_from_direction"] < 320)), n=600)
-    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, 0.1)
+    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
     gap = stats.joint_gap(problem.r, problem.groups)[0]
     answer, note = core._answer(chosen, steps, True, gap, 0.1)
     assert answer == "unexplained", (chosen, steps)

@@ -57,8 +57,11 @@ MEASURED = ("lidar_wind_speed", "reference_wind_speed")
 #: Practical tolerance (%): a tenth of the ~1 % standard uncertainty of a lidar calibration
 #: (docs/diagnose.md); smaller changes of (L−R)/R are not worth naming.
 DEFAULT_TOLERANCE = 0.1
-#: Share of the systematic residual (the gap metric's square) an added effect must explain.
-DEFAULT_MIN_SHARE = 0.1
+#: Share of the systematic residual (the gap metric's square) an added effect must explain.  0 by
+#: default: the share is reported, but it does not gate, because it is not additive when effects
+#: overlap with opposite signs (removing a mast shadow that offsets an over-speeding cup's
+#: negative bias widens the gap the cup leaves in every other bin).
+DEFAULT_MIN_SHARE = 0.0
 #: Block-bootstrap resamples of the parameter fits.
 DEFAULT_BOOTSTRAP = 400
 #: Model-form standard uncertainty of a fitted parameter, as a share of its fitted change θ − θ₀.
@@ -485,7 +488,9 @@ def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, t
                            {x.effect.id: (dict(x.estimate), dict(x.stderr)) for x in trial}))
             c.estimate, c.stderr, c.clipped = saved
         trials.sort(key=lambda t: t[0])
-        ok = [t for t in trials if t[0] <= -bic_threshold and t[3] >= tolerance and t[4] >= min_share]
+        # a fit clipped at a catalogue bound is not an estimate of that effect: never named
+        ok = [t for t in trials if t[0] <= -bic_threshold and t[3] >= tolerance and t[4] >= min_share
+              and not t[2].clipped]
         if trials and not ok:
             t = trials[0]
             why = []
@@ -493,6 +498,8 @@ def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, t
                 why.append(f"ΔBIC {t[0]:.1f} > -{bic_threshold:g}")
             if t[3] < tolerance:
                 why.append(f"changes (L-R)/R by only {t[3]:.3f} % < tolerance {tolerance:g} %")
+            if t[2].clipped:
+                why.append("its fit is clipped at a catalogue bound")
             if t[4] < min_share:
                 why.append(f"explains {100 * t[4]:.0f} % < {100 * min_share:.0f} % of the systematic "
                            "residual")
