@@ -196,11 +196,64 @@ def _cube_plots(cube: xr.Dataset) -> dict[str, Figure]:
             )
         out[f"cube_{name}"] = Figure(
             f"{heading}, per line of sight", panels, kind="grid",
+            png=lambda da=da, cmap=cmap, clim=clim, label=label, heading=heading: _cube_png(
+                cube, da, cmap, clim, label, heading),
             note=f"<p>Colour: {html.escape(label)}; blank cells had no bench samples. "
                  "The colour scale is the same for every line of sight "
                  f"({fmt(clim[0])} to {fmt(clim[1])}, 99th percentile).</p>",
         )
     return out
+
+
+def _grid(n: int, ncol: int, width: float, height: float) -> tuple[Any, Any]:
+    import matplotlib.pyplot as plt
+
+    nrow = int(np.ceil(n / ncol))
+    fig, axes = plt.subplots(nrow, ncol, figsize=(width * ncol, height * nrow), squeeze=False,
+                             layout="constrained")
+    for ax in axes.flat[n:]:
+        ax.set_visible(False)
+    return fig, list(axes.flat[:n])
+
+
+def _cube_png(cube: xr.Dataset, da: xr.DataArray, cmap: str, clim: tuple, label: str, heading: str) -> Any:
+    """All lines of sight as heatmaps on one colour scale, drawn with matplotlib (fast)."""
+    fig, axes = _grid(da.sizes["los"], 3, 4.6, 3.6)
+    mesh = None
+    for ax, los in zip(axes, da.los.values, strict=False):
+        mesh = ax.pcolormesh(cube.velocity.values, cube.cnr.values, da.sel(los=los).values, cmap=cmap,
+                             vmin=clim[0], vmax=clim[1], shading="nearest")
+        ax.set_title(_los_label(cube, los), fontsize=10)
+        ax.set_xlabel(f"programmed radial velocity{_units(cube.velocity)}", fontsize=9)
+        ax.set_ylabel(f"CNR{_units(cube.cnr)}", fontsize=9)
+    fig.suptitle(heading)
+    if mesh is not None:
+        fig.colorbar(mesh, ax=axes, label=label, shrink=0.8)
+    return fig
+
+
+def _sensitivity_png(ds: xr.Dataset, readable: str, xl: str, yl: str, units: str) -> Any:
+    """Every height's bin means, fit and 95 % band, drawn with matplotlib (fast)."""
+    fig, axes = _grid(ds.sizes["height"], 2, 6.0, 3.4)
+    for ax, h in zip(axes, ds.height.values, strict=False):
+        one = ds.sel(height=h)
+        used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
+        xb, yb = one["bin"].values[used], one["mean_difference"].values[used]
+        sem = (one["std_difference"].values / np.sqrt(np.maximum(one["sample_count"].values, 1)))[used]
+        ax.errorbar(xb, yb, yerr=sem, fmt="o", color="black", ms=4, label="bin mean ± s.e.")
+        if used.sum() >= 2 and np.isfinite(float(one["slope"])):
+            x = np.linspace(xb.min(), xb.max(), 60)
+            fit, lo, hi = confidence_band(ds, h, x)
+            ax.fill_between(x, lo, hi, color="#1f77b4", alpha=0.25, lw=0, label="95 % confidence band")
+            ax.plot(x, fit, color="#1f77b4", lw=2, label="regression")
+        se = float(one["slope_standard_error"]) if "slope_standard_error" in one else np.nan
+        ax.set_title(f"{fmt(h)} m: m = {fmt(float(one['slope']))} ± {fmt(se)} {units}, "
+                     f"R = {fmt(float(one['correlation']), 2)}", fontsize=10)
+        ax.set_xlabel(xl, fontsize=9)
+        ax.set_ylabel(yl, fontsize=8)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"Sensitivity to {readable}")
+    return fig
 
 
 def _rwf_plots(rwf: xr.Dataset) -> dict[str, Figure]:
@@ -317,7 +370,8 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
                  rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
                        "Eq. 13: |m·std·R| > 0.1 %)")
     )
-    return Figure(f"Sensitivity to {readable}", panels, kind="select", note=note)
+    return Figure(f"Sensitivity to {readable}", panels, kind="select", note=note,
+                  png=lambda: _sensitivity_png(ds, readable, xl, yl, units))
 
 
 def _sensitivity_plots(sens: Iterable[xr.Dataset]) -> dict[str, Figure]:
