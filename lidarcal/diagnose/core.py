@@ -500,7 +500,7 @@ def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, t
                 why.append(f"changes (L-R)/R by only {t[3]:.3f} % < tolerance {tolerance:g} %")
             if t[2].clipped:
                 why.append("its fit is clipped at a catalogue bound")
-            if t[4] < min_share:
+            if min_share > 0 and t[4] < min_share:
                 why.append(f"explains {100 * t[4]:.0f} % < {100 * min_share:.0f} % of the systematic "
                            "residual")
             steps.append(f"next best {t[1].effect.id} not added ({'; '.join(why)})")
@@ -655,6 +655,7 @@ def diagnose(
     fits = _fit_candidates(problem, effects)
     chosen, steps = _select(problem, fits, bic_threshold, tie_threshold, tolerance, min_share) \
         if significant else ([], [])
+    chosen, steps = _adequate(problem, chosen, steps, gap0[0], tolerance)
     corrected, after = (model, problem.base) if not chosen else _refine(problem, chosen)
     fits.sort(key=lambda c: c.delta_bic)  # the refined score may reorder the table
     chosen.sort(key=lambda c: -c.contribution)  # importance: the size of the change each makes
@@ -731,6 +732,25 @@ def _disagreement(problem: _Problem, n_bins: int, min_bin_count: int, alpha: flo
     significant = p_min < alpha
     log.info(f"disagreement {'significant' if significant else 'not significant'} (min Holm p = {p_min:.3g})")
     return edges, drivers, binned0, tests, significant
+
+
+def _adequate(problem: _Problem, chosen: list[CandidateFit], steps: list[str], gap: float,
+              tolerance: float) -> tuple[list[CandidateFit], list[str]]:
+    """Keep the named effects only if together they explain the disagreement.
+
+    A correct explanation removes most of the systematic residual: if the gap left by the named
+    effects (linearised) is above the tolerance *and* above half the gap before, they only
+    absorb part of something the catalogue does not hold (a lidar error in one direction sector
+    fitted as a constant or a TI-proportional bias), and the answer is ``unexplained``.
+    """
+    if not chosen:
+        return chosen, steps
+    left = np.sqrt(problem.gap2(problem.r - np.where(problem.valid, _fitted(chosen), 0.0)))
+    if left > tolerance and left > 0.5 * gap:
+        ids = ", ".join(c.effect.id for c in chosen)
+        return [], steps + [f"the effects that qualified ({ids}) leave a gap of {left:.3f} % of {gap:.3f} % "
+                            f"(more than half, above the tolerance): they do not explain the disagreement"]
+    return chosen, steps
 
 
 def _answer(chosen: list[CandidateFit], steps: list[str], significant: bool, gap: float,
