@@ -36,7 +36,7 @@ def small_run(tmp_path_factory):
     level = logger.level
     logger.setLevel(logging.INFO)
     try:
-        cfg = CalibrationConfig(periods=48, heights=(60.0, 120.0), workers=1, chunk=16)
+        cfg = CalibrationConfig(periods=48, heights=(60.0, 120.0), workers=1, chunk=16, min_samples=3)
         result = calibrate(out, cfg)
     finally:
         logger.removeHandler(handler)
@@ -96,7 +96,8 @@ def test_calibrate_refuses_existing_outputs_before_any_work(small_run):
 
 def test_cli_calibrate_runs_from_any_directory(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the sample data is found from the package, not the cwd
-    code = main(["calibrate", "--periods", "48", "--heights", "80", "100", "--workers", "1", "--no-progress"])
+    code = main(["calibrate", "--periods", "48", "--min-samples", "3", "--heights", "80", "100", "--workers", "1",
+                 "--no-progress"])
     assert code == 0
     assert (tmp_path / "lidarcal-output" / "certificate.nc").exists()
     captured = capsys.readouterr()
@@ -104,7 +105,8 @@ def test_cli_calibrate_runs_from_any_directory(tmp_path, capsys, monkeypatch):
     # the stage lines go to stderr through logging, one per artefact, none to stdout
     assert captured.err.count("lidarcal calibrate: [") >= len(OUTPUT_NAMES)
     assert "lidarcal calibrate: [" not in captured.out
-    assert main(["calibrate", "--periods", "48", "--heights", "80", "100"]) == 2  # exists: refused
+    # exists: refused
+    assert main(["calibrate", "--periods", "48", "--min-samples", "3", "--heights", "80", "100"]) == 2
     assert "file exists" in capsys.readouterr().err
 
 
@@ -140,7 +142,7 @@ def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
     ref_dir, _, _ = small_run
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "lidarcal", "calibrate", "-o", str(out), "--periods", "48",
-           "--heights", "60", "120", "--workers", "1", "--chunk", "16", "--no-progress"]
+           "--min-samples", "3", "--heights", "60", "120", "--workers", "1", "--chunk", "16", "--no-progress"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     chunks = out / ".simulation-chunks"
     deadline = time.monotonic() + 120
@@ -152,8 +154,8 @@ def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
         proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert not (out / "certificate.nc").exists()  # killed before the end
-    assert main(["calibrate", "-o", str(out), "--periods", "48", "--heights", "60", "120",
-                 "--workers", "1", "--chunk", "16", "--no-progress", "--overwrite"]) == 0
+    assert main(["calibrate", "-o", str(out), "--periods", "48", "--min-samples", "3", "--heights", "60",
+                 "120", "--workers", "1", "--chunk", "16", "--no-progress", "--overwrite"]) == 0
     assert not chunks.exists()  # scratch removed once the simulation is written
     resumed = xr.open_dataset(out / "simulated.nc")
     reference = xr.open_dataset(ref_dir / "simulated.nc")
