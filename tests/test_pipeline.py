@@ -96,7 +96,8 @@ def test_calibrate_refuses_existing_outputs_before_any_work(small_run):
 
 def test_cli_calibrate_runs_from_any_directory(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the sample data is found from the package, not the cwd
-    code = main(["calibrate", "--periods", "48", "--min-samples", "3", "--heights", "80", "100", "--workers", "1",
+    code = main(["calibrate", "--periods", "48", "--min-samples", "3", "--heights", "80", "100",
+                 "--workers", "1",
                  "--no-progress"])
     assert code == 0
     assert (tmp_path / "lidarcal-output" / "certificate.nc").exists()
