@@ -132,13 +132,16 @@ class _Magnitudes:
         self.z = np.array([_Z_KAIMAL]) if self.uniform else np.linspace(
             z_lo, top, max(2, int(np.ceil((top - z_lo) / 2.0)) + 1))
         self.m = spectral_magnitudes(f_all, self.z, wind_speed, sigma, nt)[:, 1:, :]  # (3, nf, nz)
-        # joint low-rank factorisation m_c(f, z) = Σ_k U[c, f, k] V[k, z] (smooth in f and z: rank 3-4
-        # reaches 1e-4 of the leading singular value)
+        # joint low-rank factorisation m_c(f, z) = Σ_k U[c, f, k] V[k, z] (smooth in f and z)
         n_f = self.m.shape[1]
         u, sv, vt = np.linalg.svd(self.m.reshape(3 * n_f, -1), full_matrices=False)
-        r = int(np.count_nonzero(sv > 1e-4 * sv[0]))
-        self.U = (u[:, :r] * sv[:r]).reshape(3, n_f, r)
-        self.V = vt[:r]  # (r, nz)
+        self._svd = (u, sv, vt)
+
+    def factors(self, tol: float) -> tuple[np.ndarray, np.ndarray]:
+        """``U (3, nf, r)`` and ``V (r, nz)`` keeping singular values above ``tol`` times the largest."""
+        u, sv, vt = self._svd
+        r = int(np.count_nonzero(sv > tol * sv[0]))
+        return (u[:, :r] * sv[:r]).reshape(3, -1, r), vt[:r]
 
     def weights(self, z: np.ndarray) -> np.ndarray:
         """Interpolation matrix ``(nz, len(z))`` (clamped at both ends; above 60 m the last column)."""
@@ -179,7 +182,7 @@ def _side_integral(P: np.ndarray, h: float, z: np.ndarray) -> np.ndarray:
     """
     phi0, phi1 = _phi(z)
     rho = np.exp(z)
-    Pt = np.moveaxis(np.asarray(P), -1, 0)
+    Pt = np.ascontiguousarray(np.moveaxis(np.asarray(P), -1, 0))
     n = Pt.shape[0]
     # Σ_j ρ^j (P_j φ0 + P_(j+1) φ1) = φ0 Σ_j ρ^j P_j + φ1 Σ_j ρ^j P_(j+1), j = 0 .. n-2
     tail = np.zeros(np.broadcast_shapes(rho.shape, Pt.shape[1:]), dtype=complex)
@@ -219,21 +222,14 @@ def _autocorrelation(F: np.ndarray, h: float, mags: _Magnitudes, z_line: np.ndar
     """
     if mags.uniform:
         return (np.correlate(F, F, mode="full")[F.size - 1:] * h)[None, None, :]
-    G = F * (mags.V @ mags.weights(z_line))  # (r, N)
+    Uf, Vz = mags.factors(1e-6)
+    G = F * (Vz @ mags.weights(z_line))  # (r, N)
     r = G.shape[0]
     corr = np.empty((r, r, F.size))
     for a in range(r):
         for b in range(r):
             corr[a, b] = np.correlate(G[b], G[a], mode="full")[F.size - 1:]  # Σ_i G_a(i) G_b(i + j)
-    return np.einsum("cfa,cfb,abj->cfj", mags.U, mags.U, corr) * h
-
-
-def _gauss_pair(Ua: np.ndarray, Ub: np.ndarray, r: np.ndarray, beta: np.ndarray, proj2: np.ndarray) -> np.ndarray:
-    """``Σ_c proj2_c Σ_pq Ua_cp exp(-β_c r_pq) conj(Ub_cq)`` per frequency (product Gauss rule)."""
-    E = np.exp(-beta[:, :, None, None] * r)  # (3, nf, p, q)
-    vb = np.conj(Ub)  # (3, nf, q)
-    t = np.matmul(E, vb.real[..., None])[..., 0] + 1j * np.matmul(E, vb.imag[..., None])[..., 0]
-    return np.einsum("c,cfp->f", proj2, Ua * t)
+    return np.einsum("cfa,cfb,abj->cfj", Uf, Uf, corr) * h
 
 
 def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitudes, U, n_f, df, proj2):
@@ -244,13 +240,16 @@ def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitu
     alpha = 1.0 - eps**2 / 4.0
     hr = h * min(qa, qb)
     rho_lo, rho_hi = (R + s[0]) * min(qa, qb), (R + s[-1]) * max(qa, qb)
-    rb = rho_lo + hr * np.arange(int(np.ceil((rho_hi - rho_lo) / hr)) + 1)
+    # ρ̄ carries a smooth envelope times exp(-i k ρ̄ (pa - pb)): the trapezoid rule on twice the grid
+    # spacing is spectrally accurate while k |pa - pb| 2 hr < π/2
+    step = 2 if 2.0 * float(k.max()) * abs(pa - pb) * 2.0 * hr < np.pi / 2 else 1
+    rb = rho_lo + step * hr * np.arange(int(np.ceil((rho_hi - rho_lo) / (step * hr))) + 1)
     j0 = int(np.ceil((rho_hi - rho_lo) / hr))
     D = (np.arange(2 * j0 + 1) - j0) * hr
     Fa = np.interp((rb[None, :] + D[:, None] / 2) / qa - R, s, F, left=0.0, right=0.0)
     Fb = np.interp((rb[None, :] - D[:, None] / 2) / qb - R, s, F, left=0.0, right=0.0)
-    Phi = Fa * Fb * (hr / (qa * qb))
-    big = Phi > 1e-8 * Phi.max()
+    Phi = Fa * Fb * (step * hr / (qa * qb))
+    big = Phi > 1e-7 * Phi.max()
     rows, cols = np.flatnonzero(big.any(axis=1)), np.flatnonzero(big.any(axis=0))
     jlo, jhi = min(rows[0], j0), max(rows[-1], j0)
     Phi, D, rb = Phi[jlo:jhi + 1, cols[0]:cols[-1] + 1], D[jlo:jhi + 1], rb[cols[0]:cols[-1] + 1]
@@ -259,17 +258,21 @@ def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitu
     if mags.uniform:
         Va = Vb = np.ones((1, D.size, rb.size))
     else:
+        Uf, Vz = mags.factors(_COLLINEAR_RANK_TOL)
         za = np.clip((rb[None, :] + D[:, None] / 2) * up / qa, mags.z[0], mags.z[-1])
         zb = np.clip((rb[None, :] - D[:, None] / 2) * up / qb, mags.z[0], mags.z[-1])
-        Va = np.stack([np.interp(za, mags.z, v) for v in mags.V])  # (r, J, L)
-        Vb = np.stack([np.interp(zb, mags.z, v) for v in mags.V])
+        Va = np.stack([np.interp(za, mags.z, v) for v in Vz])  # (r, J, L)
+        Vb = np.stack([np.interp(zb, mags.z, v) for v in Vz])
     rank = Va.shape[0]
-    # slabs: midpoint error of exp(-β r0) over a slab ~ (β ε width)² / 24 < 0.5 %, counting only β where
-    # the coherence at the gate, exp(-β ε ρ_centre), is not negligible
-    rho_c = float(np.sum(rb * Phi.sum(0)) / Phi.sum())
+    # slabs of equal weight in ρ̄: midpoint error of exp(-β r0) over a slab ~ (β ε width)² / 24 < 0.5 %,
+    # counting only β where the coherence at the weighted centre, exp(-β ε ρ_centre), is not negligible
+    mass = np.cumsum(Phi.sum(0))
+    mass /= mass[-1]
+    rho_c = float(np.interp(0.5, mass, rb))
+    width = float(np.interp(0.995, mass, rb) - np.interp(0.005, mass, rb))
     beta_eff = min(float(beta.max()), 8.0 / max(eps * rho_c, 1e-12))
-    n_slab = int(np.clip(np.ceil(beta_eff * eps * (rb[-1] - rb[0]) / 0.35), 1, 16))
-    edges = np.linspace(0, rb.size, n_slab + 1).astype(int)
+    n_slab = int(np.clip(np.ceil(beta_eff * eps * width / 0.35), 1, 16))
+    edges = np.unique(np.concatenate([[0, rb.size], np.searchsorted(mass, np.arange(1, n_slab) / n_slab)]))
     total = 0.0
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         if b <= a:
@@ -280,7 +283,7 @@ def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitu
         if mags.uniform:
             P = (Y[0, :, :n_f] + 1j * Y[0, :, n_f:]).T[None]  # (1, nf, J)
         else:
-            UU = (mags.U[:, :, :, None] * mags.U[:, :, None, :]).reshape(3, n_f, rank**2).transpose(1, 0, 2)
+            UU = (Uf[:, :, :, None] * Uf[:, :, None, :]).reshape(3, n_f, rank**2).transpose(1, 0, 2)
             Yt = Y.transpose(2, 0, 1)  # (2 nf, r², J)
             Pre = np.matmul(UU, Yt[:n_f])  # (nf, 3, J)
             Pim = np.matmul(UU, Yt[n_f:])
@@ -294,6 +297,8 @@ def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitu
     return np.einsum("c,cf->f", proj2, total)
 
 
+#: Singular-value tolerance of the spectra's z-dependence in the near-collinear pairs (r² products per slab).
+_COLLINEAR_RANK_TOL = 2e-3
 #: Beam pairs whose y-z lines pass closer than this (m, at the gate) get the cusp-exact treatment.
 R_COLLINEAR = 4.0
 #: ... and closer than this twice the Gauss nodes.
@@ -358,51 +363,53 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
     for b in range(4):
         C[:, 2 + b, 2 + b] = np.einsum("c,cf->f", proj[b] ** 2, same[b])
 
-    # -- beam - reference: 1-D, r² = q² (s - s0)² + d² (cusp at s0 when the beam's y-z line hits the reference)
-    for b in range(4):
-        s0 = height * up / q[b] ** 2 - R
-        d = height * abs(across[b]) / q[b]
-        j0 = int(np.ceil((s0 - s[0]) / h))
-        D = (np.arange(int(np.ceil((s[-1] - s0) / h)) + j0 + 1) - j0) * h
-        Fd = np.interp(s0 + D, s, F, left=0.0, right=0.0)
-        md = mags((R + s0 + D) * up)[:2]  # (2, nf, J)
-        excess = np.hypot(q[b] * D, d) - q[b] * np.abs(D)  # r - q|D| >= 0, smooth away from D = 0
-        P = Fd * md * np.exp(-beta[:2, :, None] * excess)
-        val = _cusp_integral(P, j0, h, beta[:2] * q[b], k[None] * along[b])  # (2, nf)
-        val *= np.exp(1j * k * along[b] * (R + s0)) * m_ref[:2] * proj[b, :2, None]
-        C[:, :2, 2 + b] = val.T
-        C[:, 2 + b, :2] = np.conj(val.T)
+    # -- beam - reference: 1-D, r² = q² (s - s0)² + d², cusp at s0 when the y-z line meets the reference;
+    # all beams on one grid D_j = (j - j0) h about their own s0
+    s0 = height * up / q**2 - R  # (4,)
+    d = height * np.abs(across) / q
+    j0 = int(np.ceil(np.max(s0 - s[0]) / h))
+    D = (np.arange(j0 + int(np.ceil(np.max(s[-1] - s0) / h)) + 1) - j0) * h  # (J,)
+    sd = s0[:, None] + D  # (4, J)
+    Fd = np.interp(sd, s, F, left=0.0, right=0.0)
+    md = (mags.m[:2] @ mags.weights(((R + sd) * up).ravel())).reshape(2, n_f, 4, D.size).transpose(2, 0, 1, 3)
+    excess = np.hypot(q[:, None] * D, d[:, None]) - q[:, None] * np.abs(D)  # r - q|D| >= 0, smooth at D != 0
+    P = Fd[:, None, None, :] * md * np.exp(-beta[None, :2, :, None] * excess[:, None, None, :])  # (4, 2, nf, J)
+    val = _cusp_integral(P, j0, h, beta[None, :2] * q[:, None, None], (k[None, :] * along[:, None])[:, None])
+    val *= np.exp(1j * k[None, :] * (along * (R + s0))[:, None])[:, None] * m_ref[None, :2] * proj[:, :2, None]
+    C[:, :2, 2:] = val.transpose(2, 1, 0)
+    C[:, 2:, :2] = np.conj(val.transpose(2, 0, 1))
 
     # -- beam - beam
     rho_c = R * q  # y-z distance of each gate centre from the lidar
-    cache = {}
-
-    def gauss(n):
-        if n not in cache:
-            nodes, node_w = _line_nodes(*key, n_cut, n)
-            wn = node_w * 10.0 ** (scale * nodes)
-            wn /= wn.sum()
-            rn = R + nodes
-            ph = _phases(rn[None, :] * along[:, None], U, n_f, df)  # (4, n, nf)
-            Ub = wn * mags(rn * up)[None] * np.swapaxes(ph, 1, 2)[:, None]  # (4, 3, nf, n)
-            cache[n] = (rn[None, :] * across[:, None], rn * up, Ub)
-        return cache[n]
-
+    groups: dict[int, list] = {}
     for b in range(4):
         for b2 in range(b + 1, 4):
             cos_g = np.clip((across[b] * across[b2] + up**2) / (q[b] * q[b2]), -1.0, 1.0)
             eps = 2.0 * np.sin(0.5 * np.arccos(cos_g))
-            proj2 = proj[b] * proj[b2]
             r0 = eps * 0.5 * (rho_c[b] + rho_c[b2])
             if r0 < R_COLLINEAR:
                 total = _collinear_pair(F, s, h, R, up, q[b], q[b2], along[b] / q[b], along[b2] / q[b2], eps,
-                                        beta, k, mags, U, n_f, df, proj2)
+                                        beta, k, mags, U, n_f, df, proj[b] * proj[b2])
+                C[:, 2 + b, 2 + b2] = total
+                C[:, 2 + b2, 2 + b] = np.conj(total)
             else:
-                yw, zw, Ub = gauss(2 * n_cross if r0 < R_FINE else n_cross)
-                r = np.hypot(yw[b][:, None] - yw[b2][None, :], zw[:, None] - zw[None, :])
-                total = _gauss_pair(Ub[b], Ub[b2], r, beta, proj2)
-            C[:, 2 + b, 2 + b2] = total
-            C[:, 2 + b2, 2 + b] = np.conj(total)
+                groups.setdefault(2 * n_cross if r0 < R_FINE else n_cross, []).append((b, b2))
+    for n, pairs in groups.items():
+        nodes, node_w = _line_nodes(*key, n_cut, n)
+        wn = node_w * 10.0 ** (scale * nodes)
+        wn /= wn.sum()
+        rn = R + nodes
+        ph = _phases(rn[None, :] * along[:, None], U, n_f, df)  # (4, n, nf)
+        Ub = wn * mags(rn * up)[None] * np.swapaxes(ph, 1, 2)[:, None]  # (4, 3, nf, n)
+        ia, ib = (np.array(x) for x in zip(*pairs, strict=True))
+        yw = rn[None, :] * across[:, None]
+        r = np.hypot(yw[ia][:, :, None] - yw[ib][:, None, :], (rn[:, None] - rn[None, :]) * up)  # (P, n, n)
+        E = np.exp(-beta[None, :, :, None, None] * r[:, None, None])  # (P, 3, nf, n, n)
+        vb = np.conj(Ub[ib])
+        t = np.einsum("pcfij,pcfj->pcfi", E, vb.real) + 1j * np.einsum("pcfij,pcfj->pcfi", E, vb.imag)
+        total = np.einsum("pc,pcf->pf", proj[ia] * proj[ib], np.sum(Ub[ia] * t, axis=-1))
+        C[:, 2 + ia, 2 + ib] = total.T
+        C[:, 2 + ib, 2 + ia] = np.conj(total.T)
     return C
 
 
