@@ -169,7 +169,7 @@ def test_drawn_signals_have_the_matrix_second_order_statistics():
     expected = covariance(C)
     for amplitudes in ("deterministic", "rayleigh"):
         covs = []
-        for i in range(200):
+        for i in range(400):
             x = synthesise(draw_coefficients(C, np.random.default_rng([4, i]), amplitudes, NT), NT)
             covs.append(x @ x.T / NT)
         covs = np.array(covs)
@@ -177,9 +177,9 @@ def test_drawn_signals_have_the_matrix_second_order_statistics():
         # every variance and covariance within 4 standard errors of the analytic value (+ the 1e-10
         # diagonal jitter of the factorisation: the reference's deterministic variance has se = 0)
         np.testing.assert_array_less(np.abs(covs.mean(axis=0) - expected), 4 * se + 1e-9 * expected.max())
-        # and resolved: 4 SE of the LOS variances below 5 % (the LOS signals mix several phasors, so
-        # they scatter by ~8 % per period with either amplitude model)
-        assert np.all(4 * se[np.arange(2, 6), np.arange(2, 6)] < 0.05 * np.diag(expected)[2:])
+        # and resolved: 4 SE of the LOS variances below 6 % (a 10-min LOS variance scatters by ~17 %
+        # with deterministic amplitudes, the LOS being a mixture of phasors, and ~24 % with Rayleigh)
+        assert np.all(4 * se[np.arange(2, 6), np.arange(2, 6)] < 0.06 * np.diag(expected)[2:])
 
 
 def test_simulated_los_samples_have_the_continuous_rwf_variance():
