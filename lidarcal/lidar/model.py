@@ -176,8 +176,8 @@ class LidarModel:
             prof = np.asarray(self.rwf_profile, dtype=float)
             if (prof.ndim != 2 or prof.shape[0] != 2 or prof.shape[1] < 8 or np.any(np.diff(prof[0]) <= 0)
                     or not np.all(np.isfinite(prof)) or prof[1].max() <= 0):
-                problems.append("rwf_profile must be (offsets, values): >= 8 increasing offsets (m) and finite "
-                                "values with a positive maximum")
+                problems.append("rwf_profile must be (offsets, values): >= 8 increasing offsets (m) and "
+                                "finite values with a positive maximum")
         if problems:
             raise InputError("LidarModel: " + "; ".join(problems))
 
