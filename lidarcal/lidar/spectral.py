@@ -131,16 +131,19 @@ class _Magnitudes:
     Exact above 60 m (one column), linear interpolation on a 2-m grid below (smooth in z).
     """
 
-    def __init__(self, z_lo: float, z_hi: float, f_all: np.ndarray, wind_speed: float, sigma, nt: int):
+    def __init__(self, z_lo: float, z_hi: float, f_all: np.ndarray, wind_speed: float, sigma, nt: int,
+                 z_weight=None):
         self.uniform = z_lo >= _Z_KAIMAL
         top = min(z_hi, _Z_KAIMAL)
         self.z = np.array([_Z_KAIMAL]) if self.uniform else np.linspace(
             z_lo, top, max(2, int(np.ceil((top - z_lo) / 2.0)) + 1))
         self.m = spectral_magnitudes(f_all, self.z, wind_speed, sigma, nt)[:, 1:, :]  # (3, nf, nz)
-        # joint low-rank factorisation m_c(f, z) = Σ_k U[c, f, k] V[k, z] (smooth in f and z)
+        # joint low-rank factorisation m_c(f, z) = Σ_k U[c, f, k] V[k, z] (smooth in f and z), in the norm
+        # weighted by where the RWF puts its weight (z_weight(z), default uniform)
         n_f = self.m.shape[1]
-        u, sv, vt = np.linalg.svd(self.m.reshape(3 * n_f, -1), full_matrices=False)
-        self._svd = (u, sv, vt)
+        w = np.ones(self.z.size) if z_weight is None else np.sqrt(np.maximum(z_weight(self.z), 1e-6))
+        u, sv, vt = np.linalg.svd(self.m.reshape(3 * n_f, -1) * w, full_matrices=False)
+        self._svd = (u, sv, vt / w)
 
     def factors(self, tol: float) -> tuple[np.ndarray, np.ndarray]:
         """``U (3, nf, r)`` and ``V (r, nz)`` keeping singular values above ``tol`` times the largest."""
@@ -361,7 +364,8 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
     # spectra vary with z below 60 m: tabulated where the RWF carries weight (> 1e-3 of its peak,
     # clamped beyond: the tails hold < 3e-4 of the weight)
     z_w = z_line[F > 1e-3 * F.max()]
-    mags = _Magnitudes(float(min(z_w.min(), height)), float(max(z_w.max(), height)), f_all, U, sigma, nt)
+    mags = _Magnitudes(float(min(z_w.min(), height)), float(max(z_w.max(), height)), f_all, U, sigma, nt,
+                       z_weight=lambda z: np.interp(z, z_line, F) / F.max())
     C = np.zeros((n_f, 6, 6), dtype=complex)
 
     # -- reference - reference
