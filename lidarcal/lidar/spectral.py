@@ -26,7 +26,8 @@ turbulence gives the phase).  Three kinds of entries:
   integrated *exactly* against the exponential for piecewise-linear ``A`` (product
   integration: the cusp costs nothing).  ``A`` is frequency-independent (times ``m_c(f)²``)
   when the whole gate is above 60 m, where the Kaimal spectrum stops depending on ``z``;
-  below, it is computed per frequency by FFT.
+  below, ``m_c(f, z)`` is factorised at low rank (``Σ_k U_k(f) V_k(z)``, by an SVD weighted by
+  the RWF) and ``A`` assembled from ``rank²`` frequency-independent correlations.
 * **Beam – beam and beam – reference.**  Smooth unless the two y-z lines nearly coincide (a
   beam pair when the wind blows along their axis or at 45° to it; a beam and the reference when
   the wind blows along the beam).  When they pass within :data:`R_COLLINEAR` of each other at
