@@ -140,12 +140,20 @@ class LidarModel:
     reference_flow_distortion_centre: float = 0.0  #: centre of the mast-shadow sector (degree, from)
     reference_flow_distortion_width: float = 0.0  #: full width of that sector (degree; 0 = no shadow)
     reference_flow_distortion_deficit: float = 0.0  #: the reference under-reads by this fraction inside it
+    #: turbulence Fourier amplitudes: ``"deterministic"`` (PyConTurb: fixed magnitudes, random phases;
+    #: the reference's realised 10-min TI equals the period's) or ``"rayleigh"`` (Gaussian process)
+    turbulence_amplitudes: str = "deterministic"
+    #: the continuous RWF ``(offsets (m), values)`` that filters turbulence; ``None``: the Gaussian with
+    #: the quadrature nodes' mean and variance (exact for the ideal lidar)
+    rwf_profile: tuple[tuple[float, ...], tuple[float, ...]] | None = None
     description: str = "ideal"  #: free text: where the configuration came from
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "azimuths", _tuplify(self.azimuths))
         object.__setattr__(self, "rwf_offsets", _tuplify(self.rwf_offsets))
         object.__setattr__(self, "rwf_weights", _tuplify(self.rwf_weights))
+        if self.rwf_profile is not None:
+            object.__setattr__(self, "rwf_profile", _tuplify(self.rwf_profile))
         if isinstance(self.noise_table, Mapping):
             object.__setattr__(self, "noise_table", NoiseTable(**self.noise_table))
         problems = []
@@ -177,6 +185,15 @@ class LidarModel:
             problems.append(f"cnr_threshold must be a finite CNR in dB or None; got {self.cnr_threshold}")
         if self.noise_table is not None and len(self.noise_table.bias) != 4:
             problems.append(f"noise_table must have 4 beams; has {len(self.noise_table.bias)}")
+        if self.turbulence_amplitudes not in ("deterministic", "rayleigh"):
+            problems.append(f"turbulence_amplitudes must be 'deterministic' or 'rayleigh'; got "
+                            f"{self.turbulence_amplitudes!r}")
+        if self.rwf_profile is not None:
+            prof = np.asarray(self.rwf_profile, dtype=float)
+            if (prof.ndim != 2 or prof.shape[0] != 2 or prof.shape[1] < 8 or np.any(np.diff(prof[0]) <= 0)
+                    or not np.all(np.isfinite(prof)) or prof[1].max() <= 0):
+                problems.append("rwf_profile must be (offsets, values): >= 8 increasing offsets (m) and "
+                                "finite values with a positive maximum")
         if problems:
             raise InputError("LidarModel: " + "; ".join(problems))
 
@@ -243,8 +260,8 @@ class LidarModel:
         kw: dict[str, Any] = {"rwf_offsets": offsets, "rwf_weights": weights}
         described = []
         if rwf is not None:
-            offsets, weights = _rwf_nodes(rwf, n_nodes)
-            kw.update(rwf_offsets=offsets, rwf_weights=weights, cnr_weighting_scale=1.0)
+            offsets, weights, profile = _rwf_nodes(rwf, n_nodes)
+            kw.update(rwf_offsets=offsets, rwf_weights=weights, cnr_weighting_scale=1.0, rwf_profile=profile)
             described.append(f"RWF {source_name(rwf)} ({n_nodes} nodes)")
         else:
             described.append(f"ideal Gaussian RWF FWHM {rwf_fwhm:g} m ({n_nodes} nodes)")
@@ -356,7 +373,7 @@ def lidar_attributes(ds: xr.Dataset, *, source: str | None = None) -> dict[str, 
     return out
 
 
-def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray, tuple]:
     src = source_name(rwf)
     if "rwf" not in rwf.variables:
         raise MissingVariableError(f"{src}: rwf artefact has no variable 'rwf'; "
@@ -381,7 +398,12 @@ def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
         nodes, weights = gauss_rwf_nodes(s, g, n_nodes)
     except ValueError as exc:
         raise InputError(f"{src}: variable 'rwf' cannot be reduced to {n_nodes} nodes: {exc}") from None
-    return nodes - zd, weights
+    # the continuous RWF for the turbulence filter, on a 0.5-m grid where it exceeds 1e-6 of its peak
+    keep = np.flatnonzero(g > 1e-6 * g.max())
+    grid = np.arange(np.ceil(s[keep[0]] / 0.5), np.floor(s[keep[-1]] / 0.5) + 1) * 0.5
+    profile = (tuple(np.round(grid - zd, 6).tolist()),
+               tuple(float(v) for v in np.interp(grid, s, g / g.max()).round(9)))
+    return nodes - zd, weights, profile
 
 
 def _fill_nearest(values: np.ndarray) -> np.ndarray:
