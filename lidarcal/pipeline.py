@@ -135,6 +135,8 @@ def _terms_per_height(records: xr.Dataset, overrides: dict[str, Any]) -> xr.Data
     config.update(height=[float(z) for z in out.height.values],
                   shear_exponent=[float(a) for a in out.shear_exponent.values])
     out.attrs["lidarcal_config"] = json.dumps(config, sort_keys=True)
+    out.attrs.update(geospatial_vertical_min=float(out.height.min()),
+                     geospatial_vertical_max=float(out.height.max()))
     out.attrs["summary"] = (
         "Uncertainty terms of the horizontal wind speed not modelled by Monte Carlo (paper Eqs. 6-11, "
         f"Table 4) at each height z = {heights} m, with that height's median shear exponent "

@@ -78,6 +78,7 @@ def test_terms_describe_every_height(run_dir):
     config = json.loads(terms.attrs["lidarcal_config"])
     assert config["height"] == [60.0, 120.0]
     np.testing.assert_array_equal(config["shear_exponent"], terms.shear_exponent.values)
+    assert (terms.attrs["geospatial_vertical_min"], terms.attrs["geospatial_vertical_max"]) == (60, 120)
 
 
 def test_cf_details_of_the_written_files(run_dir):

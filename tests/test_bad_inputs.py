@@ -275,3 +275,22 @@ def test_no_case_is_forgotten():
     ro = [c[0] for c in CASES if c[0].startswith("ro-")]
     assert len(ro) == 14, ro
     assert os.path.isdir(RO)
+
+
+def test_synthetic_below_the_lowest_base_height_stays_valid(tmp_path, capsys):
+    """sigma_u is held below the lowest measured height (the fuzz found TI = -0.58 at 40 m from 80/120 m)."""
+    base = conditions(n=6, heights=(80.0, 120.0))
+    base["wind_speed"][:, 1] = base.wind_speed[:, 0] * 1.5**0.2  # a power-law profile, alpha = 0.2
+    # sigma_u 1.7 times larger at 120 m: carried linearly in log-height to 40 m (w = -1.71) it would be
+    # (1 + 1.71 - 1.71 * 1.7) = -0.2 times sigma_u(80 m), a negative TI
+    base["turbulence_intensity"][:, 1] = base.turbulence_intensity[:, 0] * 1.7 / 1.5**0.2
+    base.to_netcdf(tmp_path / "base.nc")
+    out = tmp_path / "c.nc"
+    rc = main(["conditions", "synthetic", "--base", str(tmp_path / "base.nc"), "--heights", "40", "80",
+               "-o", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    ti = xr.open_dataset(out).turbulence_intensity.sel(height=40.0).values
+    # sigma_u held at its 80-m value over a smaller speed: TI(40 m) = TI(80 m) * 2**0.2 exactly
+    ti80 = xr.open_dataset(tmp_path / "base.nc").turbulence_intensity.sel(height=80.0).values
+    np.testing.assert_allclose(ti, ti80 * 2**0.2, rtol=1e-12)
+    assert main(["validate", "--no-compliance", str(out)]) == 0

@@ -8,6 +8,7 @@ import sys
 import time
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from lidarcal.campaign import BLAS_ENV, simulate_campaign
@@ -27,7 +28,8 @@ RESULTS = [
     "reference_wind_speed",
     "availability",
     "simulated",
-    "period_index",
+    "period_key",
+    "base_seed",
 ]
 
 
@@ -63,7 +65,10 @@ def free_port():
 def test_result_is_the_engine_run_per_period(cond, model, reference):
     assert reference.sizes == {"time": 24, "height": 3}
     assert reference.lidar_wind_speed.attrs["units"] == "m s-1"
-    assert reference.period_index.values.tolist() == list(range(24))
+    # the seed key is the period's time in whole seconds since 1970, computed here independently
+    seconds = [int(pd.Timestamp(t).timestamp()) for t in cond.time.values]
+    assert reference.period_key.values.tolist() == seconds
+    assert reference.base_seed.values.tolist() == [20240101] * 24
     i = 17
     direct = simulate_period(
         model,
@@ -79,7 +84,7 @@ def test_result_is_the_engine_run_per_period(cond, model, reference):
                 "cnr_gradient",
             )
         },
-        seed=(20240101, i),
+        seed=(20240101, seconds[i]),
     )
     for name in ("lidar_wind_speed", "reference_wind_speed"):
         np.testing.assert_array_equal(reference[name].values[i], direct[name])

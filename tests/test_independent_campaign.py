@@ -117,6 +117,18 @@ def test_lidar_sector_error_is_outside_the_catalogue_and_acts_on_the_lidar_only(
     np.testing.assert_array_equal(other.reference_wind_speed.values, base.reference_wind_speed.values)
 
 
+def test_lidar_low_cnr_bias_acts_below_the_threshold_only():
+    lc = {"threshold": -12.0, "error": 0.02}
+    base, other, _ = paired({"lidar_low_cnr_bias": lc})
+    ratio = other.lidar_wind_speed.values / base.lidar_wind_speed.values
+    low = base.cnr.values < lc["threshold"]
+    # the CNR model puts about a quarter of the (period, height) pairs below -12 dB
+    assert 0.1 < low.mean() < 0.6, low.mean()
+    np.testing.assert_allclose(ratio[low], 1 + lc["error"], rtol=1e-12)
+    np.testing.assert_allclose(ratio[~low], 1.0, rtol=1e-12)
+    np.testing.assert_array_equal(other.reference_wind_speed.values, base.reference_wind_speed.values)
+
+
 @pytest.mark.parametrize("effects,match", [({"bogus": {}}, "unknown effect"),
                                            ({"reference_gain": {"g": 0.1}}, "needs parameters")])
 def test_bad_effects_are_refused(effects, match):

@@ -194,6 +194,28 @@ def test_reference_overspeeding_scales_reference():
     assert over["lidar_wind_speed"][0] == base["lidar_wind_speed"][0]
 
 
+def test_reference_gain_and_mast_shadow_scale_the_reference():
+    base = run(LidarModel.ideal(), turbulence_intensity=0.1, wind_from_direction=250.0)
+    gain = run(LidarModel.ideal(reference_gain=0.02), turbulence_intensity=0.1, wind_from_direction=250.0)
+    ref = base["reference_wind_speed"][0]
+    assert gain["reference_wind_speed"][0] == pytest.approx(ref * 1.02, rel=1e-14)
+    # a 60-degree shadow of 5 % centred 20 degrees from the period's direction, TI 0.1: the
+    # instantaneous direction is Gaussian with sigma = 0.8 x 0.1 rad = 4.58 degrees, so the
+    # shadowed fraction is P(-50 < theta' < 10 degrees), integrated here by brute force
+    shadow = LidarModel.ideal(reference_flow_distortion_centre=270.0, reference_flow_distortion_width=60.0,
+                              reference_flow_distortion_deficit=0.05)
+    out = run(shadow, turbulence_intensity=0.1, wind_from_direction=250.0)
+    sigma = np.degrees(0.08)
+    frac = quad(lambda x: np.exp(-0.5 * (x / sigma) ** 2) / (sigma * np.sqrt(2 * np.pi)), -50.0, 10.0)[0]
+    assert 0.98 < frac < 0.99
+    assert out["reference_wind_speed"][0] == pytest.approx(ref * (1 - 0.05 * frac), rel=1e-9)
+    assert out["lidar_wind_speed"][0] == base["lidar_wind_speed"][0]
+    # far outside the sector (100 degrees from its centre) the cup is not shadowed
+    far = run(shadow, turbulence_intensity=0.1, wind_from_direction=170.0)
+    plain = run(LidarModel.ideal(), turbulence_intensity=0.1, wind_from_direction=170.0)
+    assert far["reference_wind_speed"][0] == pytest.approx(plain["reference_wind_speed"][0], rel=1e-12)
+
+
 def test_cnr_gradient_weighting_shifts_speed_under_shear():
     alpha, g, h = 0.2, 0.1, 100.0
     off = run(LidarModel.ideal(los_noise_std=0.0), wind_shear_exponent=alpha, cnr_gradient=g)

@@ -229,7 +229,9 @@ def _stamp(ds, records, values, *, repeats, call, inputs) -> xr.Dataset:
         config["chunk"] = run["chunk"]
     if "lidarcal_lidar_model" in records.attrs:
         config["lidar_model"] = json.loads(records.attrs["lidarcal_lidar_model"])
-    seeds = {"scheme": "SeedSequence([base_seed, grid_index * repeats + replicate, round(height_m * 1000)])"}
+    seeds = {"scheme": "SeedSequence([base_seed, period_key, round(height_m * 1000)]), period_key = seconds "
+                       "since 1970 of the synthetic time 2000-01-01T00:00 + 600 s * (grid_index * repeats "
+                       "+ replicate)"}
     if "lidarcal_base_seed" in records.attrs:
         seeds = {"base_seed": int(records.attrs["lidarcal_base_seed"]), **seeds}
     return stamp(

@@ -3,8 +3,10 @@
 Everything here runs inside a Dask task (thread, process or ``dask.distributed`` worker), so
 the task payload is plain data (model as a dict, numpy arrays) and the function is pure: a
 period's result depends only on the model, its conditions and the seed entropy
-``(base_seed, period_index)`` — never on the chunk it lands in, the worker or the order of
-execution.  That is what makes any chunking and any number of workers bit-identical.
+``(base_seed, period_key)``, where :func:`period_keys` derives the key from the period's
+timestamp — never on the chunk it lands in, its position in the file, the worker or the order
+of execution.  That is what makes any chunking, any number of workers and any split of a
+conditions file into parts bit-identical.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.io import part_path, publish, remove_stale_parts
 from lidarcal.lidar import LidarModel, simulate_period
 
-__all__ = ["OUTPUTS", "chunk_key", "chunk_path", "load_chunk", "run_chunk"]
+__all__ = ["OUTPUTS", "chunk_key", "chunk_path", "load_chunk", "period_keys", "run_chunk", "seed_entropy"]
 
 #: Per-height outputs of :func:`lidarcal.lidar.simulate_period` stored by the campaign.
 OUTPUTS = (
@@ -35,7 +37,24 @@ OUTPUTS = (
 #: Inputs passed to the engine, in the order of the conditions contract.
 INPUTS = CONDITION_NAMES
 
-_FORMAT = 1  # bump when the chunk file layout or the result of a chunk changes meaning
+_FORMAT = 2  # bump when the chunk file layout or the result of a chunk changes meaning (2: timestamp keys)
+
+
+def period_keys(times: np.ndarray) -> np.ndarray:
+    """Seed key of each period: whole seconds of its timestamp since 1970-01-01T00:00:00 (int64).
+
+    A period's random streams are keyed by this (and its height), never by its position in the
+    conditions file, so a period gets the same draws in any file it appears in.
+    """
+    t = np.asarray(times)
+    if t.dtype.kind != "M":
+        raise TypeError(f"period times must be numpy datetime64; got {t.dtype}")
+    return t.astype("datetime64[s]").astype(np.int64)
+
+
+def seed_entropy(base_seed: int, key: int) -> tuple[int, int]:
+    """``(base_seed, key)`` as SeedSequence entropy (non-negative: times before 1970 wrap modulo 2**64)."""
+    return int(base_seed), int(key) % 2**64
 
 
 def chunk_key(
@@ -47,8 +66,13 @@ def chunk_key(
     heights: np.ndarray,
     duration: float,
     los_periods: tuple[int, ...],
+    keys: np.ndarray | None = None,
 ) -> str:
-    """SHA-256 naming a chunk's result: same key ⇔ same inputs ⇔ same numbers."""
+    """SHA-256 naming a chunk's result: same key ⇔ same inputs ⇔ same numbers.
+
+    ``keys`` are the chunk's period seed keys (:func:`period_keys`); the conditions checksum
+    with the chunk bounds fixes its input values.
+    """
     los = [int(i) for i in los_periods if start <= i < stop]
     text = json.dumps(
         {
@@ -61,6 +85,7 @@ def chunk_key(
             "heights": [float(h) for h in heights],
             "duration": float(duration),
             "los": los,
+            "period_keys": [int(k) for k in (keys if keys is not None else [])],
         },
         sort_keys=True,
     )
@@ -109,8 +134,9 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
     """Simulate the periods of one chunk (runs on a worker).
 
     ``task`` holds ``model`` (dict), ``heights`` (h,), the six ``INPUTS`` arrays (n, h),
-    ``valid`` (n, h) bool, ``period_index`` (n,), ``los`` (n,) bool, ``base_seed``,
-    ``duration``, and optionally ``workdir``/``key`` to cache the result atomically.
+    ``valid`` (n, h) bool, ``period_index`` (n,) (position in the file: names the stored LOS
+    series), ``period_key`` (n,) (seed key, :func:`period_keys`), ``los`` (n,) bool,
+    ``base_seed``, ``duration``, and optionally ``workdir``/``key`` to cache the result atomically.
     Returns ``{output: (n, h) array}`` plus ``los`` (``{period_index: {name: array}}``).
     """
     model = LidarModel.from_dict(task["model"])
@@ -129,7 +155,7 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
             model,
             heights=heights[cols],
             **{name: np.asarray(task[name][i, cols], dtype=float) for name in INPUTS},
-            seed=(int(task["base_seed"]), pidx),
+            seed=seed_entropy(task["base_seed"], task["period_key"][i]),
             duration=float(task["duration"]),
             return_los=want_los,
         )

@@ -4,16 +4,21 @@
 ``chunk`` consecutive periods, runs one Dask task per chunk (deterministic task names
 ``lidarcal-chunk-<key>-<start>-<stop>``) and assembles the ``simulated_rtd`` artefact.
 
-* **Seeds** — period ``i`` (its position in the conditions file) uses the entropy
-  ``(base_seed, i)``; the engine adds ``round(height * 1000)``.  Results therefore do not
-  depend on chunk size, worker count, scheduler or which other heights are simulated.
+* **Seeds** — a period uses the entropy ``(base_seed, period_key)``, the key being the whole
+  seconds of its timestamp since 1970-01-01 (:func:`~lidarcal.campaign.chunks.period_keys`),
+  never its position; the engine adds ``round(height * 1000)``.  Results therefore do not
+  depend on chunk size, worker count, scheduler, which other heights are simulated, or how a
+  conditions file is split: parts simulated separately and concatenated (``xr.concat``,
+  ``xr.open_mfdataset``) equal the whole run bit for bit.  Every record carries its
+  ``period_key`` and ``base_seed`` (time variables), so ensemble members with different base
+  seeds stay distinguishable after concatenation.
 * **Schedulers** — ``None``/``"processes"`` (local process pool, the default), ``"threads"``,
   ``"synchronous"``, ``"local"`` (a ``distributed.LocalCluster`` of single-threaded worker
   processes), an address ``"tcp://host:port"`` of a running ``dask.distributed`` scheduler,
   or a ``distributed.Client``.  Worker processes get ``OPENBLAS/MKL/OMP_NUM_THREADS=1``.
 * **Resume** — with ``workdir`` every finished chunk is saved atomically as
   ``chunk-<start>-<stop>-<key>.npz`` where the key hashes (conditions checksum, model, base
-  seed, chunk bounds, heights, duration); a re-run loads finished chunks instead of
+  seed, chunk bounds, period keys, heights, duration); a re-run loads finished chunks instead of
   recomputing them, so a killed run resumes and gives the identical result.  With
   ``dask.distributed`` a lost worker's tasks are recomputed elsewhere: it costs time, not data.
 * **Faults** (``dask.distributed``) — before any task, every worker must report this lidarcal
@@ -43,6 +48,7 @@ from lidarcal.campaign.chunks import (
     chunk_key,
     chunk_path,
     load_chunk,
+    period_keys,
     run_chunk,
     unflatten_los,
 )
@@ -383,7 +389,8 @@ def simulate_campaign(
     heights : sequence of float, optional
         Heights (m) to simulate; each must be one of the conditions' heights.  Default: all.
     base_seed : int
-        Period ``i`` uses ``SeedSequence([base_seed, i, round(height * 1000)])``.
+        A period at time ``t`` uses ``SeedSequence([base_seed, period_key, round(height * 1000)])``
+        with ``period_key`` the whole seconds of ``t`` since 1970-01-01T00:00:00 (docs/seeds.md).
     chunk : int
         Periods per Dask task (does not change the result).
     scheduler : None, str or distributed.Client
@@ -414,7 +421,8 @@ def simulate_campaign(
     xarray.Dataset
         A ``simulated_rtd`` artefact (CONTRIBUTING.md): dims ``time``, ``height``; the six
         conditions variables used, the four wind speeds, ``availability``, ``simulated``
-        (0 where a period was skipped for missing input) and ``period_index``.
+        (0 where a period was skipped for missing input), ``period_key`` and ``base_seed`` (the
+        seed entropy of each period).
     """
     camp = _prepare(conditions, model, heights, chunk, los_periods)
     chunk = int(chunk)
@@ -423,7 +431,7 @@ def simulate_campaign(
         results[bounds[name][0]] = result
     out = {name: np.concatenate([results[s][name] for s in sorted(results)], axis=0) for name in OUTPUTS}
     los_data = {p: v for s in sorted(results) for p, v in results[s]["los"].items()}
-    ds = _assemble(camp.cond, camp.hidx, out, camp.valid, los_data)
+    ds = _assemble(camp.cond, camp.hidx, out, camp.valid, los_data, camp.keys, base_seed)
     return _describe(ds, camp, model, base_seed=base_seed, chunk=chunk, duration=duration,
                      scheduler=scheduler, workers=workers, call=call, inputs=inputs)
 
@@ -439,6 +447,7 @@ class _Campaign:
     los: list[int]  # periods whose LOS time series are kept
     arrays: dict[str, np.ndarray]  # INPUTS at the simulated heights, (time, height)
     valid: np.ndarray  # (time, height): complete input and wind > 0
+    keys: np.ndarray  # (time,): seed key of each period, from its timestamp
 
     @property
     def z(self) -> np.ndarray:
@@ -473,11 +482,22 @@ def _prepare(conditions, model, heights, chunk, los_periods) -> _Campaign:
     bad = [i for i in los if not 0 <= i < n]
     if bad:
         raise InputError(f"los_periods {bad} outside the {n} periods of {source}")
+    keys = period_keys(cond["time"].values)
+    order = np.argsort(keys, kind="stable")
+    same = np.flatnonzero(np.diff(keys[order]) == 0)
+    if same.size:
+        i, j = sorted((int(order[same[0]]), int(order[same[0] + 1])))
+        raise InputError(
+            f"{source}: periods {i} and {j} have the same time to the second "
+            f"({np.datetime_as_string(cond['time'].values[j], unit='s')}); a period's random streams are "
+            "keyed by its time, so every period needs its own"
+        )
     arrays = {name: cond[name].values[:, hidx] for name in INPUTS}
     # a calm period (0 m/s) is valid input but has no turbulence box to simulate: skip it too
     with np.errstate(invalid="ignore"):
         valid = cond["input_complete"].values[:, hidx].astype(bool) & (arrays["wind_speed"] > 0)
-    return _Campaign(cond=cond, path=path, source=source, hidx=hidx, los=los, arrays=arrays, valid=valid)
+    return _Campaign(cond=cond, path=path, source=source, hidx=hidx, los=los, arrays=arrays, valid=valid,
+                     keys=keys)
 
 
 def _schedule(
@@ -492,7 +512,8 @@ def _schedule(
     bounds: dict[str, tuple[int, int]] = {}
     for start in range(0, camp.n, chunk):
         stop = min(start + chunk, camp.n)
-        key = chunk_key(camp.checksum, model_dict, base_seed, start, stop, z, duration, tuple(camp.los))
+        key = chunk_key(camp.checksum, model_dict, base_seed, start, stop, z, duration, tuple(camp.los),
+                        keys=camp.keys[start:stop])
         if workdir is not None:
             cached = load_chunk(chunk_path(workdir, start, stop, key), key, stop - start, z.size)
             if cached is not None:
@@ -506,6 +527,7 @@ def _schedule(
             **{k: v[start:stop] for k, v in camp.arrays.items()},
             "valid": camp.valid[start:stop],
             "period_index": np.arange(start, stop),
+            "period_key": camp.keys[start:stop],
             "los": np.isin(np.arange(start, stop), camp.los),
             "base_seed": int(base_seed),
             "duration": float(duration),
@@ -553,7 +575,8 @@ def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, chunk, durat
         config=config,
         seeds={
             "base_seed": int(base_seed),
-            "scheme": "numpy SeedSequence([base_seed, period_index, round(height_m * 1000)])",
+            "scheme": "numpy SeedSequence([base_seed, period_key, round(height_m * 1000)]), period_key = "
+                      "whole seconds of the period's time since 1970-01-01T00:00:00 (modulo 2**64)",
         },
         keywords="Doppler lidar, wind speed, Monte Carlo, calibration, simulation",
     )
@@ -565,6 +588,8 @@ def _assemble(
     out: dict[str, np.ndarray],
     valid: np.ndarray,
     los_data: dict[int, dict],
+    keys: np.ndarray,
+    base_seed: int,
 ) -> xr.Dataset:
     dims = ("time", "height")
     ds = xr.Dataset(
@@ -591,14 +616,23 @@ def _assemble(
             "coverage_content_type": "qualityInformation",
         },
     )
-    ds["period_index"] = (
+    # the seed entropy of every period, as time variables: position-free, so parts of a campaign
+    # concatenate to the whole, and members of an ensemble keep their base seed when joined
+    ds["period_key"] = (
         "time",
-        np.arange(cond.sizes["time"], dtype=np.int64),
+        np.asarray(keys, dtype=np.int64),
         var_attrs(
-            "position of the period in the conditions input (seed entropy)",
-            "1",
+            "seed key of the period: whole seconds of its time since 1970-01-01T00:00:00 "
+            "(random streams: SeedSequence([base_seed, period_key, round(height_m * 1000)]))",
+            "s",
             coverage_content_type="auxiliaryInformation",
         ),
+    )
+    ds["base_seed"] = (
+        "time",
+        np.full(cond.sizes["time"], int(base_seed), dtype=np.int64),
+        var_attrs("base seed of the Monte Carlo run that simulated the period", "1",
+                  coverage_content_type="auxiliaryInformation"),
     )
     if los_data:
         ds = ds.merge(los_variables(los_data, ds.height.values))

@@ -30,7 +30,7 @@ from lidarcal.cli.options import (
     simulation_options,
 )
 from lidarcal.conditions import load_conditions
-from lidarcal.diagnose.core import DEFAULT_BOOTSTRAP, DEFAULT_TOLERANCE, diagnose
+from lidarcal.diagnose.core import DEFAULT_BOOTSTRAP, DEFAULT_MODEL_UNCERTAINTY, DEFAULT_TOLERANCE, diagnose
 from lidarcal.diagnose.dataset import summary, to_dataset
 from lidarcal.diagnose.effects import EFFECTS
 from lidarcal.diagnose.generate import GENERATOR_SEED, generate_field_campaign, hidden_effect_conditions
@@ -64,6 +64,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "uncertainty)")
     p.add_argument("--bootstrap", type=positive_int("--bootstrap"), default=DEFAULT_BOOTSTRAP,
                    help="day-block bootstrap resamples for the uncertainties and 95 %% intervals")
+    p.add_argument("--model-uncertainty", type=nonnegative("--model-uncertainty"),
+                   default=DEFAULT_MODEL_UNCERTAINTY,
+                   help="model-form standard uncertainty of a fitted parameter, as a share of its fitted "
+                        "change (added to the bootstrap)")
     p.add_argument("--min-wind-speed", type=nonnegative("--min-wind-speed"), default=3.0,
                    help="minimum reference speed, m s-1")
     _sim_args(p)
@@ -110,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
     result = diagnose(
         args.field, cube=cube, rwf=rwf, candidates=args.candidates, base_seed=args.seed, n_bins=args.bins,
         min_bin_count=args.min_bin_count, alpha=args.alpha, bic_threshold=args.bic_threshold,
-        tolerance=args.tolerance, n_bootstrap=args.bootstrap, min_wind_speed=args.min_wind_speed,
+        tolerance=args.tolerance, n_bootstrap=args.bootstrap, model_uncertainty=args.model_uncertainty,
+        min_wind_speed=args.min_wind_speed,
         simulate_options=_sim_options(args), progress=progress_enabled(args))
     inputs = {"field": args.field, **({"cube": args.cube} if args.cube else {}),
               **({"rwf": args.rwf} if args.rwf else {})}

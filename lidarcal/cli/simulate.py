@@ -53,7 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model", metavar="FILE.nc", help="use the LidarModel in FILE's lidarcal_lidar_model "
                    "attribute, e.g. a diagnosis with its fitted effect added (instead of --cube/--rwf)")
     add_heights_option(p, help="heights to simulate, m (default: all heights of the conditions)")
-    add_seed_option(p, help="base seed; period i uses SeedSequence([seed, i, height_mm])")
+    add_seed_option(p, help="base seed; the period at time t uses SeedSequence([seed, t in whole "
+                    "seconds since 1970, height_mm])")
     add_parallel_options(p)
     p.add_argument(
         "--los-periods",

@@ -37,7 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--shear", type=number("--shear", lo=-2, hi=2), default=0.0, metavar="ALPHA",
                    help="power-law shear exponent (0)")
     p.add_argument("--seed", type=nonnegative_int("--seed"), nargs="+", default=[0], metavar="INT",
-                   help="seed tuple as simulate_period takes it, e.g. BASE_SEED PERIOD_INDEX (0)")
+                   help="seed tuple as simulate_period takes it, e.g. BASE_SEED PERIOD_KEY (a "
+                   "simulated_rtd's period_key) (0)")
     p.add_argument("--duration", type=positive("--duration"), default=600.0, metavar="S",
                    help="period length, s (600)")
     p.add_argument("--cone-angle", type=number("--cone-angle", lo=0, hi=90, lo_open=True, hi_open=True),

@@ -115,7 +115,10 @@ def _extrapolated(base: xr.Dataset, n: int, z: np.ndarray) -> dict[str, np.ndarr
         w = (np.log(zj) - logz[k]) / (logz[k + 1] - logz[k])
         with np.errstate(divide="ignore", invalid="ignore"):
             out_u[:, j] = np.exp((1 - w) * np.log(u[:, k]) + w * np.log(u[:, k + 1]))
-        out_sig[:, j] = (1 - w) * sig[:, k] + w * sig[:, k + 1]
+        # sigma_u: linear between measured heights, held at the lowest one's below it (carried
+        # linearly, it turned negative: TI < 0 at 40 m from a mast at 80 and 120 m)
+        wc = min(max(w, 0.0), 1.0)
+        out_sig[:, j] = (1 - wc) * sig[:, k] + wc * sig[:, k + 1]
     nearest = np.abs(z[:, None] - zb[None, :]).argmin(axis=1)
     direction = base.wind_from_direction.values[:n][:, nearest]
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -134,22 +137,26 @@ def _extrapolated(base: xr.Dataset, n: int, z: np.ndarray) -> dict[str, np.ndarr
     }
 
 
-def _check_extrapolated_shear(alpha: np.ndarray, times: np.ndarray, z: np.ndarray, source: str) -> None:
-    """Refuse a base whose wind profile, carried to ``z``, gives shear outside the contract's range.
+def _check_extrapolated(vals: dict[str, np.ndarray], times: np.ndarray, z: np.ndarray, source: str) -> None:
+    """Refuse a base whose values, carried to ``z``, leave the contract's ranges.
 
-    The problem lies in the base file (speeds that do not form a profile), so it is named, not
-    the output that would fail validation.
+    The problem lies in the base file (speeds that do not form a profile: a strongly negative
+    shear carried down gives 100 m/s at 40 m), so it is named, not the output that would fail
+    validation.
     """
-    lo, hi = declared_variables("conditions")["wind_shear_exponent"]["range"]
-    with np.errstate(invalid="ignore"):
-        bad = (alpha < lo) | (alpha > hi)
-    if bad.any():
-        t, h = np.argwhere(bad)[0]
-        raise InputError(
-            f"{source}: its wind speeds carried to heights {z.tolist()} m give {int(bad.sum())} "
-            f"wind_shear_exponent value(s) outside [{lo:g}, {hi:g}], first {alpha[t, h]:.4g} at "
-            f"time={times[t]!s} (index {t}), height={z[h]:g} m; expected wind speeds that form a "
-            "plausible profile (check the base file's wind_speed at neighbouring heights)")
+    declared = declared_variables("conditions")
+    for name in ("wind_speed", "turbulence_intensity", "wind_shear_exponent"):
+        lo, hi = declared[name]["range"]
+        values = vals[name]
+        with np.errstate(invalid="ignore"):
+            bad = (values < lo) | (values > hi)
+        if bad.any():
+            t, h = np.argwhere(bad)[0]
+            raise InputError(
+                f"{source}: its wind speeds and turbulence carried to heights {z.tolist()} m give "
+                f"{int(bad.sum())} {name} value(s) outside [{lo:g}, {hi:g}], first {values[t, h]:.4g} at "
+                f"time={times[t]!s} (index {t}), height={z[h]:g} m; expected values that form a plausible "
+                "profile (check the base file's wind_speed at neighbouring heights)")
 
 
 def synthetic_conditions(
@@ -236,7 +243,7 @@ def synthetic_conditions(
         hours = (times - times.astype("datetime64[D]")) / np.timedelta64(1, "h")
     vals["wind_shear_exponent"] = shear_exponent(vals["wind_speed"], z)
     if base is not None:
-        _check_extrapolated_shear(vals["wind_shear_exponent"], times, z, source_name(base))
+        _check_extrapolated(vals, times, z, source_name(base))
     cnr = cnr_model(np.asarray(hours, dtype=float), z, rng_cnr, cnr_params)
     missing = ~np.isfinite(vals["wind_speed"])
     cnr[missing] = np.nan

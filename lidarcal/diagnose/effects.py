@@ -28,7 +28,8 @@ Expected signatures (first order, cone angle φ from vertical, relative to the r
 ``reference_overspeeding`` −c·TI (the cup over-reads, so the lidar looks low)
 ``reference_gain``        −gain/(1 + gain) ≈ −gain (constant: every height and condition alike)
 ``reference_flow_distortion`` +deficit/(1 − deficit) for periods whose mean direction lies in the
-                          sector centre ± width/2 (hard edge), 0 elsewhere
+                          sector centre ± width/2, 0 elsewhere; the edge is smoothed over the
+                          spread of the instantaneous direction (0.8·TI rad)
 
 **Grid parameters.** Some parameters enter non-linearly and the response is not smooth in them
 (the sector's ``centre`` and ``width``).  Such a parameter declares a ``grid`` of candidate
@@ -51,7 +52,7 @@ import numpy as np
 
 from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.errors import InputError
-from lidarcal.lidar.model import flow_distortion_factor
+from lidarcal.lidar.model import direction_spread, flow_distortion_factor
 
 __all__ = ["Parameter", "Effect", "EFFECTS", "CONDITION_VARIABLES", "get_effect"]
 
@@ -130,7 +131,8 @@ def _gain_factor(conditions: Records, params: Mapping[str, float]) -> float:
 
 def _shadow_factor(conditions: Records, params: Mapping[str, float]) -> np.ndarray:
     return flow_distortion_factor(np.asarray(conditions["wind_from_direction"], dtype=float),
-                                  float(params["centre"]), float(params["width"]), float(params["deficit"]))
+                                  float(params["centre"]), float(params["width"]), float(params["deficit"]),
+                                  direction_spread(conditions["turbulence_intensity"]))
 
 
 @dataclass(frozen=True)
@@ -282,9 +284,10 @@ EFFECTS: dict[str, Effect] = {
     ),
     "reference_flow_distortion": Effect(
         id="reference_flow_distortion",
-        description="The mast shadows the reference cup for winds from a sector: for periods whose mean "
-                    "direction lies within `width`/2 of `centre` (hard edge) the cup reads "
-                    "(1 − `deficit`) × the true speed.",
+        description="The mast shadows the reference cup for winds from a sector: every sample whose "
+                    "direction lies within `width`/2 of `centre` reads (1 − `deficit`) × the true speed; "
+                    "a period's mean is shadowed by the fraction of its samples in the sector (a "
+                    "Gaussian spread of 0.8·TI rad about the mean direction: a smooth edge).",
         parameters=(
             Parameter("centre", "degree", (0.0, 360.0), "reference_flow_distortion_centre", 10.0,
                       "direction (from) at the centre of the shadowed sector",

@@ -26,7 +26,7 @@ from lidarcal.binning import binned_statistics
 __all__ = [
     "relative_difference", "bin_edges", "binned_means", "BinnedResiduals", "bin_residuals",
     "holm", "disagreement_tests", "gap", "GAP_METRIC", "BinGroups", "bin_groups", "joint_gap",
-    "locate",
+    "locate", "group_p_values",
 ]
 
 #: The definition of the gap reported by ``diagnose`` (``gap_metric`` in ``docs/diagnose.md``).
@@ -316,3 +316,24 @@ def locate(r: np.ndarray, groups: BinGroups, conditions: dict[str, np.ndarray], 
     found.sort(key=lambda t: t[0])
     keep = [f for i, (p, f) in enumerate(found) if p < np.log(alpha) or i == 0]
     return keep[:max_drivers]
+
+
+def group_p_values(r: np.ndarray, groups: BinGroups, min_bin_count: int = 10,
+                   names: tuple[str, ...] | None = None) -> np.ndarray:
+    """Raw p-values (groups × heights) of the chi-square "all bin means are zero" per bin group.
+
+    The same test as :func:`disagreement_tests` (t scores of the bin means turned into normal
+    scores, squared and summed) on the groups named in ``names`` (default all): the direction
+    sectors and joint-driver bins see effects the one-variable bins average out.
+    """
+    out = []
+    for name, lab, k in zip(groups.names, groups.labels, groups.n_labels, strict=True):
+        if names is not None and name not in names:
+            continue
+        c, m, s = _group_stats(r, lab, k)
+        ok = (c >= min_bin_count) & (s > 0) & np.isfinite(m)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            z = np.where(ok, _t_to_z(m / s, c), 0.0)
+        dof = ok.sum(axis=0)
+        out.append(np.where(dof > 0, _st.chi2.sf((z**2).sum(axis=0), np.maximum(dof, 1)), np.nan))
+    return np.array(out).reshape(len(out), r.shape[1])

@@ -33,9 +33,11 @@ from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import source_name
 from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes, trapezoid_weights
 from lidarcal.rwf.kernels import barycenter
+from lidarcal.turbulence.kernels import SIGMA_RATIOS
 from lidarcal.units import convert_variable
 
-__all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "flow_distortion_factor"]
+__all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "flow_distortion_factor",
+           "direction_spread"]
 
 
 def _tuplify(value: Any) -> Any:
@@ -306,30 +308,48 @@ class LidarModel:
         """Factor by which the virtual reference over-reads the cup's true 10-minute mean speed.
 
         ``(1 + reference_overspeeding · TI) · (1 + reference_gain) · flow-distortion factor`` for
-        the period's ``direction`` (degree, from) and turbulence intensity: exactly 1 for the
-        nominal model (every factor is then 1.0, so the records stay bit-identical).
+        the period's mean ``direction`` (degree, from) and turbulence intensity; the sector's
+        edge is smoothed by the spread of the instantaneous direction, σ_θ = σ_v / U =
+        0.8 · TI rad (:func:`flow_distortion_factor`).  Exactly 1 for the nominal model (every
+        factor is then 1.0, so the records stay bit-identical).
         """
+        spread = direction_spread(turbulence_intensity)
         return ((1.0 + self.reference_overspeeding * turbulence_intensity) * (1.0 + self.reference_gain)
                 * flow_distortion_factor(direction, self.reference_flow_distortion_centre,
                                          self.reference_flow_distortion_width,
-                                         self.reference_flow_distortion_deficit))
+                                         self.reference_flow_distortion_deficit, spread))
 
     def replace(self, **changes: Any) -> LidarModel:
         """Return a copy with some fields changed (``dataclasses.replace``)."""
         return dataclasses.replace(self, **changes)
 
 
-def flow_distortion_factor(direction: Any, centre: float, width: float, deficit: float) -> Any:
-    """Mast-shadow factor of the reference: ``1 − deficit`` inside the sector, 1 outside.
+def direction_spread(turbulence_intensity: Any) -> Any:
+    """Return the standard deviation (degree) of the instantaneous direction: σ_v / U = 0.8 · TI rad."""
+    return np.degrees(SIGMA_RATIOS[1] * np.asarray(turbulence_intensity, dtype=float))
 
-    The sector holds the directions (degree, from) within ``width / 2`` of ``centre``, edges
-    included, on the circle; the edge is *hard* (a step on the period's mean direction).
-    ``width = 0`` or ``deficit = 0`` is no shadow (factor exactly 1.0).
+
+def flow_distortion_factor(direction: Any, centre: float, width: float, deficit: float,
+                           spread: Any = 0.0) -> Any:
+    """Mast-shadow factor of a 10-minute mean reference: ``1 − deficit · P(in sector)``.
+
+    The sector holds the directions (degree, from) within ``width / 2`` of ``centre`` on the
+    circle.  The cup is shadowed sample by sample, so for a period of mean ``direction`` whose
+    instantaneous direction is Gaussian with standard deviation ``spread`` (degree) the factor
+    is ``1 − deficit · [Φ((w/2 − Δ)/spread) − Φ((−w/2 − Δ)/spread)]``, Δ the signed offset from
+    ``centre``: a smooth edge about ``spread`` wide.  ``spread = 0`` is a hard edge (edges
+    included).  ``width = 0`` or ``deficit = 0`` is no shadow (factor exactly 1.0).
     """
     if width <= 0.0 or deficit == 0.0:
         return np.ones_like(np.asarray(direction, dtype=float)) if np.ndim(direction) else 1.0
-    delta = np.abs((np.asarray(direction, dtype=float) - centre + 180.0) % 360.0 - 180.0)
-    return np.where(delta <= 0.5 * width, 1.0 - deficit, 1.0)
+    from scipy.special import ndtr
+
+    delta = (np.asarray(direction, dtype=float) - centre + 180.0) % 360.0 - 180.0
+    spread = np.asarray(spread, dtype=float)
+    hard = np.where(np.abs(delta) <= 0.5 * width, 1.0, 0.0)
+    s = np.where(spread > 0, spread, 1.0)
+    smooth = ndtr((0.5 * width - delta) / s) - ndtr((-0.5 * width - delta) / s)
+    return 1.0 - deficit * np.where(spread > 0, smooth, hard)
 
 
 _FIELD_DEFAULTS = {f.name: f.default for f in dataclasses.fields(LidarModel)}

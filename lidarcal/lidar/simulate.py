@@ -37,7 +37,8 @@ from north):
   period), 10-min mean of ``sqrt((U_h + u)^2 + v^2)`` (a cup's scalar mean), times
   ``LidarModel.reference_scale(direction, TI)``: ``(1 + reference_overspeeding · TI)``, the
   gain ``1 + reference_gain`` and the mast shadow ``1 − deficit`` for a period whose mean
-  direction lies in the ``reference_flow_distortion_*`` sector (hard edge).
+  direction lies in the ``reference_flow_distortion_*`` sector (edge smoothed by the spread of
+  the instantaneous direction, 0.8 · TI rad).
 """
 
 from __future__ import annotations
@@ -132,7 +133,8 @@ def simulate_period(
         The period's conditions over ``heights`` (m s-1, degree, 1, 1, dB, dB m-1), SI floats;
         scalars broadcast.  A height with any NaN condition gets NaN outputs.
     seed : tuple of int
-        ``(base_seed, period_index)`` from the campaign; each height draws from
+        ``(base_seed, period_key)`` from the campaign (the key: the period's time in whole
+        seconds since 1970, :func:`lidarcal.campaign.chunks.period_keys`); each height draws from
         ``SeedSequence([*seed, round(height * 1000)])``.
     duration : float
         Period length (s); a whole number of ``model.beam_period`` steps.
