@@ -39,7 +39,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.budget import budget
-from lidarcal.analysis.sensitivity import sensitivity
+from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES, sensitivity
 from lidarcal.analysis.sweep import analyse_sweep
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.bench.ingest import ingest
@@ -88,6 +88,8 @@ class CalibrationConfig:
 
     Paths left as ``None`` use the embedded sample data.  ``periods`` limits the number of
     10-minute periods taken from the start of the conditions record (``None`` = all).
+    ``min_samples`` is the fewest periods a sensitivity bin needs to enter the regression; a
+    short run (a few hundred periods) may need fewer than the default.
     """
 
     bench_rtd: str | None = None
@@ -103,6 +105,7 @@ class CalibrationConfig:
     workers: int | None = None
     scheduler: str | None = None
     fft_size: int = 64
+    min_samples: int = DEFAULT_MIN_SAMPLES
     terms: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -295,7 +298,8 @@ def calibrate(
     sens = {}
     for var in SENSITIVITY_VARIABLES:
         key = f"sensitivity_{var}"
-        ds = sensitivity(records, var, call=f"lidarcal calibrate (sensitivity {var})")
+        ds = sensitivity(records, var, min_samples=cfg.min_samples,
+                         call=f"lidarcal calibrate (sensitivity {var})")
         write_artefact(ds, paths[key], overwrite=overwrite)
         sens[var] = open_artefact(paths[key], "sensitivity")
         done(key, f"sensitivity to {var}")

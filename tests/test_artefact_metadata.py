@@ -23,7 +23,9 @@ CONTACT = ["--creator", "A. Steward", "--creator-email", "steward@example.org", 
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("meta") / "run"
-    code = main(["calibrate", "--periods", "48", "--heights", "60", "120", "--workers", "1", "--no-progress",
+    code = main(["calibrate", "--periods", "48", "--min-samples", "3", "--heights", "60", "120",
+                 "--workers", "1",
+                 "--no-progress",
                  "-o", str(out), *CONTACT])
     assert code == 0
     return out

@@ -220,3 +220,19 @@ def test_dask_records_same_budget():
     a = budget(recs)
     b = budget(recs.chunk(time=128, height=1))
     xr.testing.assert_identical(a.drop_attrs(), b.drop_attrs())
+
+
+
+def test_noise_terms_option_reaches_the_budget():
+    # without a terms file the budget computes Table 4 itself, in the form asked for
+    b = budget(tiny_records(heights=(100.0,)), noise_terms="derived")
+    vref = b.contribution.sel(contributor="virtual_reference", height=100.0).values
+    u = Q_(b.wind_speed.values, "m s-1")
+    inputs = {**PAPER_INPUTS, "height": Q_(100.0, "m")}
+    np.testing.assert_allclose(vref, uncertainty_terms(u, **inputs, noise_terms="derived").total.values,
+                               rtol=1e-12)
+    # Eq. 6 0.041 -> 0.0035 outweighs Eq. 7 0.0026 -> 0.032 in the quadrature sum
+    assert (vref < uncertainty_terms(u, **inputs).total.values).all()
+    # a terms artefact of the other form is refused, not silently mixed
+    with pytest.raises(InputError, match="noise_terms='printed'; asked for 'derived'"):
+        budget(tiny_records(heights=(100.0,)), terms=uncertainty_terms(u, **inputs), noise_terms="derived")

@@ -11,6 +11,7 @@ import xarray as xr
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.conditions import (
     SkippedPeriodsWarning,
+    cnr_gradient_along_beam,
     load_conditions,
     sample_conditions_path,
     shear_exponent,
@@ -74,6 +75,37 @@ def test_shear_exponent_recovers_power_law_and_uses_neighbours():
     assert a[3] == pytest.approx(np.log(7.0 / 6.0) / np.log(120.0 / 80.0), rel=1e-14)
     # non-positive or missing speeds give NaN, never a number
     assert np.isnan(shear_exponent(np.array([0.0, 5.0, 6.0]), z[:3])[:2]).all()
+
+
+def test_cnr_gradient_is_along_the_beam_hand_computed():
+    # CNR falling linearly by 0.09 dB per metre of HEIGHT.  Along a beam tilted 28 deg from the
+    # vertical one metre of range climbs cos 28 deg = 0.882948 m, so the CNR falls
+    # 0.09 * 0.882948 = 0.0794653 dB per metre of RANGE (the contract's unit) at every height.
+    z = np.array([40.0, 60.0, 100.0, 200.0])
+    cnr = -12.0 - 0.09 * (z - 40.0)
+    np.testing.assert_allclose(cnr_gradient_along_beam(cnr, z, 28.0), -0.0794653, rtol=1e-6)
+    # default cone angle is LidarModel's (28 deg); a 45 deg beam gives 0.09 / sqrt(2) = 0.0636396
+    np.testing.assert_allclose(cnr_gradient_along_beam(cnr, z), -0.0794653, rtol=1e-6)
+    np.testing.assert_allclose(cnr_gradient_along_beam(cnr, z, 45.0), -0.0636396, rtol=1e-6)
+    # vertical beam: the height derivative itself
+    np.testing.assert_allclose(cnr_gradient_along_beam(cnr, z, 0.0), -0.09, rtol=1e-12)
+    assert LidarModel().cone_angle == 28.0
+
+
+def test_cnr_model_gradient_crosses_zero_near_the_focus_as_figure_3():
+    # paper Figure 3 (right): the CNR gradient changes sign near 110 m, the focal distance.
+    # Mean over many periods (AR(1) lapse scatter averages out): positive below, negative above.
+    from lidarcal.conditions.kernels import cnr_model
+
+    z = np.arange(40.0, 201.0, 10.0)
+    hours = np.arange(20000) * (10 / 60) % 24
+    cnr = cnr_model(hours, z, np.random.default_rng(1))
+    g = cnr_gradient_along_beam(cnr, z).mean(axis=0)
+    assert (g[z <= 90] > 0.02).all() and (g[z >= 130] < -0.02).all()
+    crossing = np.interp(0.0, -g, z)  # g decreases through zero
+    assert 95.0 < crossing < 115.0
+    # and within the figure's extremes of +-0.1 dB/m
+    assert np.abs(g).max() < 0.1
 
 
 def test_vertical_gradient_is_exact_for_linear_profiles():
@@ -216,9 +248,14 @@ def test_synthetic_is_seeded_valid_and_power_law():
         out.turbulence_intensity.values < 0.599
     ).all(1)
     np.testing.assert_allclose(sig[unclipped], sig[unclipped][:, :1].repeat(8, axis=1), rtol=1e-12)
-    np.testing.assert_allclose(
-        out.cnr_gradient, vertical_gradient(out.cnr.values, out.height.values), atol=1e-15
-    )
+    # the CNR gradient is along the 28 deg beam: cos 28 deg times the vertical difference quotient
+    # of neighbouring heights, written out by hand here (40 m: 40/60, 60 m: 40/80, ...)
+    cnr, zz = out.cnr.values, out.height.values
+    lo = np.array([0, 0, 1, 2, 3, 4, 5, 6])
+    hi = np.array([1, 2, 3, 4, 5, 6, 7, 7])
+    dcdz = (cnr[:, hi] - cnr[:, lo]) / (zz[hi] - zz[lo])
+    np.testing.assert_allclose(out.cnr_gradient, dcdz * np.cos(np.radians(28.0)), rtol=1e-12, atol=1e-15)
+    assert out.attrs["lidarcal_synthetic_cone_angle"] == 28.0
     # median speed at the 80 m reference is near the requested 8 m/s (lognormal AR(1) with
     # sigma 0.45 over 500 correlated periods: generous 35 % band)
     assert 8 * 0.65 < float(np.median(out.wind_speed.sel(height=80))) < 8 * 1.35

@@ -3,8 +3,10 @@
 import numpy as np
 import pytest
 
+from lidarcal.errors import InputError
+from lidarcal.lidar import LidarModel
 from lidarcal.lidar.quadrature import cnr_weights, gauss_hermite_rwf, gauss_rwf_nodes
-from lidarcal.lidar.wfr import hold_latest, reconstruct, sliding_components
+from lidarcal.lidar.wfr import hold_latest, hybrid_speed, reconstruct, sliding_components
 from lidarcal.rwf.kernels import cnr_weighted_rwf
 
 PHI = 28.0
@@ -131,3 +133,31 @@ def test_eq2_kernel_is_shared_guarded_and_as_written_for_moderate_gradients():
     expected = 10.0 ** (logw - logw.max())
     np.testing.assert_allclose(steep[0], expected / expected.sum(), rtol=1e-12, atol=1e-300)
     np.testing.assert_allclose(steep[1], (expected / expected.sum())[::-1], rtol=1e-12, atol=1e-300)
+
+
+def test_hybrid_conventions_p_on_scalar_or_on_vector():
+    # Eq. 5's "p and (1 - p)": p on the scalar average (default) or on the vector average.
+    # Isotropic Gaussian fluctuations, TI 0.2 (sigma 1.6 m/s on 8 m/s) in u and v, independent
+    # samples: the scalar mean exceeds the vector mean by ~sigma_v^2 / (2 U) = 2 % of U, so the
+    # two readings differ by (2p - 1) x 2 % = 0.67 % for p = 2/3 (sampling error ~0.1 %).
+    rng = np.random.default_rng(4)
+    beam = np.arange(6000) % 4
+    u = 8.0 + rng.normal(0, 1.6, 6000)
+    v = rng.normal(0, 1.6, 6000)
+    los = radial(u, v, 0.0, beam)
+    a = reconstruct(los, beam, PHI, 2 / 3)
+    b = reconstruct(los, beam, PHI, 2 / 3, convention="vector")
+    assert a["hybrid"] == pytest.approx(2 / 3 * a["scalar"] + 1 / 3 * a["vector"], rel=1e-14)
+    assert b["hybrid"] == pytest.approx(2 / 3 * b["vector"] + 1 / 3 * b["scalar"], rel=1e-14)
+    assert a["hybrid"] - b["hybrid"] == pytest.approx((a["scalar"] - a["vector"]) / 3, rel=1e-12)
+    assert 0.2 < 100 * (a["hybrid"] - b["hybrid"]) / a["vector"] < 1.5
+    # p = 1/2 (WindCube XP): the two readings coincide
+    assert hybrid_speed(10.3, 10.0, 0.5, "vector") == hybrid_speed(10.3, 10.0, 0.5, "scalar")
+    with pytest.raises(ValueError, match="'scalar' or 'vector'"):
+        hybrid_speed(1.0, 1.0, 0.5, "mean")
+    # the convention is a recorded, serialised field of the lidar model; today's reading is the default
+    assert LidarModel().hybrid_convention == "scalar"
+    m = LidarModel(hybrid_convention="vector")
+    assert LidarModel.from_dict(m.to_json()) == m and '"hybrid_convention": "vector"' in m.to_json()
+    with pytest.raises(InputError, match="hybrid_convention"):
+        LidarModel(hybrid_convention="rms")

@@ -8,12 +8,14 @@ from analysis_factories import make_records
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from lidarcal.analysis import compare_slopes, sensitivity
+from lidarcal.analysis import compare_slopes, kernels, sensitivity
 from lidarcal.analysis.kernels import bin_statistics, edges_from_width, linear_regression, significance
+from lidarcal.campaign import simulate_campaign
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.cli import main
 from lidarcal.errors import InputError, MissingVariableError, UnitError
 from lidarcal.io import open_artefact, write_artefact
+from lidarcal.lidar import LidarModel
 from lidarcal.schema import validate_dataset
 
 # ---------------------------------------------------------------- kernels
@@ -128,7 +130,8 @@ def test_known_slope_is_recovered_exactly():
     slopes = np.array([4.0, -2.5])
     means = slopes[:, None] * centres[None, :] + np.array([[0.3], [-0.1]])
     recs, alpha = exact_records(means, centres, heights=(80.0, 140.0))
-    s = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None)
+    # 5 periods per bin: below the default minimum of 10, so the minimum is lowered here
+    s = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None, min_samples=3)
     assert s.sizes == {"height": 2, "bin": 5, "nv": 2}
     np.testing.assert_allclose(s.bin.values, centres, atol=1e-12)
     np.testing.assert_allclose(s.bin_bounds.values[:, 0], centres - 0.025, atol=1e-12)
@@ -151,7 +154,9 @@ def _scaled_case(target_stat, which):
     centres = np.array([0.025, 0.075, 0.125, 0.175, 0.225])
     base = 3.0 * centres + np.array([0.05, -0.04, 0.03, 0.02, -0.05])  # R < 1
     recs, alpha = exact_records(base, centres)
-    s0 = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None)
+    # the paper's 50-2 procedure (unweighted fit on bin centres), 5 periods per bin
+    opts = dict(bin_width=0.05, reference_range=None, min_samples=3, regression="unweighted")
+    s0 = sensitivity(recs, "wind_shear_exponent", **opts)
     # independent expectation: scipy on the bin means, std of alpha by formula
     reg = scipy.stats.linregress(centres, base)
     std = np.std(alpha[:, 0], ddof=1)
@@ -160,7 +165,7 @@ def _scaled_case(target_stat, which):
     np.testing.assert_allclose(s0.correlation.values[0], reg.rvalue, rtol=1e-9)
     scale = target_stat / stat  # slope scales with the differences; R and std do not
     recs2, _ = exact_records(base * scale, centres)
-    return sensitivity(recs2, "wind_shear_exponent", bin_width=0.05, reference_range=None)
+    return sensitivity(recs2, "wind_shear_exponent", **opts)
 
 
 @pytest.mark.parametrize(
@@ -325,3 +330,147 @@ def test_compare_slopes_lines_up_simulated_and_measured():
     assert float(both.slope.sel(source="measured", height=80.0)) == float(meas.slope.sel(height=80.0))
     with pytest.raises(InputError, match="different variables"):
         compare_slopes({"a": sim, "b": sensitivity(make_records(n=600), "turbulence_intensity")})
+
+
+# -- weighted regression ----------------------------------------------------------------------
+
+
+def test_weighted_regression_matches_numpy_polyfit_and_t_interval():
+    rng = np.random.default_rng(5)
+    x = np.linspace(0.0, 1.0, 9)
+    sigma = rng.uniform(0.05, 0.4, x.size)
+    y = 2.0 - 3.0 * x + rng.normal(0.0, sigma)
+    w = 1.0 / sigma**2
+    out = kernels.weighted_linear_regression(x, y, w)
+    # independent reference: numpy's weighted polyfit (its w multiplies residuals: sqrt of ours)
+    # with the unscaled covariance (errors known), scaled by the reduced chi-square if > 1
+    coef, cov = np.polyfit(x, y, 1, w=np.sqrt(w), cov="unscaled")
+    chi2 = np.sum(w * (y - np.polyval(coef, x)) ** 2) / (x.size - 2)
+    se = np.sqrt(cov[0, 0] * max(1.0, chi2))
+    np.testing.assert_allclose([out["slope"], out["intercept"]], coef, rtol=1e-10)
+    np.testing.assert_allclose(out["chi2_reduced"], chi2, rtol=1e-10)
+    np.testing.assert_allclose(out["stderr"], se, rtol=1e-10)
+    t = scipy.stats.t.ppf(0.975, x.size - 2)  # 2.365 for 7 degrees of freedom
+    np.testing.assert_allclose([out["ci_low"], out["ci_high"]], [coef[0] - t * se, coef[0] + t * se],
+                               rtol=1e-10)
+    # equal weights: the same line as scipy.stats.linregress
+    ref = scipy.stats.linregress(x, y)
+    eq = kernels.weighted_linear_regression(x, y, np.ones_like(x))
+    np.testing.assert_allclose([eq["slope"], eq["intercept"], eq["r"]],
+                               [ref.slope, ref.intercept, ref.rvalue], rtol=1e-10)
+
+
+def test_bins_with_zero_spread_or_one_period_take_the_pooled_variance():
+    # pooled variance over the usable bins: (3 * 4.0 + 8 * 1.0) / (3 + 8) = 20/11
+    n = np.array([[4, 1, 9, 5, 0]])
+    s = np.array([[2.0, np.nan, 1.0, 0.0, np.nan]])
+    w = kernels.bin_mean_weights(n, s)
+    np.testing.assert_allclose(w, [[4 / 4.0, 1 / (20 / 11), 9 / 1.0, 5 / (20 / 11), 0.0]], rtol=1e-12)
+    # in a fit: a 5-period bin of identical values gets a finite weight, not an infinite one
+    centres = np.array([0.025, 0.075, 0.125, 0.175])
+    recs, _ = exact_records(2.0 * centres, centres)
+    extra = recs.isel(time=slice(0, 5)).copy(deep=True)
+    extra["time"] = extra.time + np.timedelta64(1, "D")
+    extra["wind_shear_exponent"][:] = 0.225
+    extra["lidar_wind_speed"][:] = 8.0 * (1 + 0.45 / 100)  # +0.45 % = 2 x 0.225: on the line, s = 0
+    sens = sensitivity(xr.concat([recs, extra], dim="time"), "wind_shear_exponent", bin_width=0.05,
+                       reference_range=None, min_samples=3)
+    assert np.isfinite(sens.regression_weight.values).all() and sens.bins_used.values[0] == 5
+    np.testing.assert_allclose(sens.slope.values[0], 2.0, atol=1e-9)
+
+
+def test_default_minimum_count_drops_sparse_tail_bins():
+    # 3 periods at alpha = 1.21 far off the line: with the default minimum (10) they are dropped
+    recs = make_records(n=2000, shear_slope=(2.0, -1.0), noise=0.3, seed=8)
+    tail = recs.isel(time=slice(0, 3)).copy(deep=True)
+    tail["time"] = tail.time + np.timedelta64(30, "D")
+    tail["wind_shear_exponent"][:] = 1.21
+    tail["lidar_wind_speed"][:] = tail["reference_wind_speed"] * 0.9  # -10 %
+    both = xr.concat([recs, tail], dim="time")
+    s = sensitivity(both, "wind_shear_exponent")
+    assert s.attrs["min_samples"] == 10
+    assert (s.bin_flag.sel(bin=1.225).values == 1).all()
+    assert (np.abs(s.slope.values - [2.0, -1.0]) < 4 * s.slope_standard_error.values).all()
+    # with the old minimum of 3 and the unweighted fit on bin centres the tail bin decides the slope
+    old = sensitivity(both, "wind_shear_exponent", min_samples=3, regression="unweighted")
+    assert (old.slope.values < -4.0).all()
+
+
+# -- slopes of the virtual lidar against a deterministic reference ---------------------------------
+#
+# Conditions with the shear exponent drawn independently of TI and speed, an ideal lidar
+# (Gaussian RWF, FWHM 30 m) whose gates sit ZD = 3 m beyond nominal.  Under a power law
+# U(z) = U(h) (z/h)^alpha the lidar's mean relative error is the RWF-weighted profile along
+# the beam, a deterministic function of alpha:
+#     b(alpha) = ∫ RWF(s) ((h/cos(phi) + ZD + s) cos(phi) / h)^alpha ds − 1,
+# computed below by a direct fine quadrature (0.06 m steps) of the Gaussian RWF, written here
+# and not taken from lidarcal.  Turbulence, LOS noise and the scalar/vector averages add a
+# random part and a TI-dependent part independent of alpha, so the population slope of the
+# simulated lidar − reference difference on alpha is the least-squares slope of 100 b(alpha_i)
+# over the same periods.  The test asks that the weighted slope from the binned simulation
+# agrees with it within 3 reported standard errors at every height (a 0.3 % two-sided
+# tail per height, ~2 % for 8 heights) and that the error is small enough for the
+# comparison to mean something.
+
+_ZD = 3.0
+
+
+def _shear_conditions(n, heights, seed):
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 12]))
+    z = np.asarray(heights, dtype=float)
+    alpha = rng.uniform(-0.1, 0.5, n)
+    u80 = rng.uniform(6.0, 12.0, n)
+    ti = rng.uniform(0.06, 0.14, n)
+    shape = (n, z.size)
+    data = {
+        "wind_speed": ("m s-1", u80[:, None] * (z / 80.0) ** alpha[:, None]),
+        "wind_from_direction": ("degree", np.repeat(rng.uniform(0, 360, n)[:, None], z.size, 1)),
+        "turbulence_intensity": ("1", np.repeat(ti[:, None], z.size, 1)),
+        "wind_shear_exponent": ("1", np.repeat(alpha[:, None], z.size, 1)),
+        "cnr": ("dB", np.full(shape, -15.0)),
+        "cnr_gradient": ("dB m-1", np.zeros(shape)),
+    }
+    return xr.Dataset(
+        {k: (("time", "height"), v, var_attrs(k.replace("_", " "), u)) for k, (u, v) in data.items()},
+        coords={"time": time_coord(np.datetime64("2024-01-01") + np.arange(n) * np.timedelta64(600, "s")),
+                "height": height_coord(z)},
+    )
+
+
+def _deterministic_bias(alpha, h, fwhm=30.0, cone=28.0):
+    """Relative shear bias of the RWF-weighted LOS: direct quadrature of the Gaussian RWF."""
+    phi = np.radians(cone)
+    s = np.linspace(-4 * fwhm, 4 * fwhm, 4001)
+    z = (h / np.cos(phi) + _ZD + s) * np.cos(phi)
+    rwf = np.exp(-0.5 * (s * 2 * np.sqrt(2 * np.log(2)) / fwhm) ** 2) * (z > 1.0)  # above ground only
+    rwf /= rwf.sum()
+    ratio = np.maximum(z, 1.0)[None, :] / h
+    return (ratio ** np.asarray(alpha, dtype=float)[:, None] * rwf).sum(axis=1) - 1.0
+
+
+def _check_slopes_against_deterministic(n, heights, seed):
+    model = LidarModel.ideal(los_noise_std=0.1, zero_distance_offset=_ZD)
+    recs = simulate_campaign(_shear_conditions(n, heights, seed), model, scheduler="synchronous")
+    sens = sensitivity(recs, "wind_shear_exponent")
+    rows = []
+    for j, h in enumerate(heights):
+        ref = recs.reference_wind_speed.values[:, j]
+        used = (ref > 4.0) & (ref <= 16.0) & np.isfinite(recs.lidar_wind_speed.values[:, j])
+        alpha = recs.wind_shear_exponent.values[used, j]
+        expected = np.polyfit(alpha, 100.0 * _deterministic_bias(alpha, h), 1)[0]
+        rows.append((h, float(sens.slope[j]), float(sens.slope_standard_error[j]), expected))
+    for _h, slope, se, expected in rows:
+        assert abs(slope - expected) < 3.0 * se, rows
+        assert se < 0.1 * abs(expected) + 0.05, rows  # informative: ZD = 3 m gives 1-4 %/unit alpha
+    return rows
+
+
+def test_weighted_slopes_agree_with_a_deterministic_reference():
+    # 400 periods at 40 and 120 m (~5 s): slopes near +4.2 and +1.9 % per unit alpha
+    _check_slopes_against_deterministic(400, (40.0, 120.0), seed=1)
+
+
+@pytest.mark.slow
+def test_weighted_slopes_agree_with_a_deterministic_reference_default_size():
+    # the default campaign size: 2016 periods at the 8 default heights (~2-4 min on one core)
+    _check_slopes_against_deterministic(2016, (40.0, 60.0, 80.0, 100.0, 120.0, 140.0, 160.0, 200.0), seed=2)

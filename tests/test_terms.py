@@ -9,6 +9,7 @@ import xarray as xr
 
 from lidarcal.analysis.terms import (
     CONTRIBUTORS,
+    NOISE_TERMS,
     PAPER_INPUTS,
     TABLE4_WIND_SPEEDS,
     format_table,
@@ -16,11 +17,15 @@ from lidarcal.analysis.terms import (
     table4_kernel,
     uncertainty_terms,
 )
-from lidarcal.cf import var_attrs
+from lidarcal.bench.ingest import ingest
+from lidarcal.campaign import simulate_campaign
+from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.cli import main
 from lidarcal.compliance import check_compliance
+from lidarcal.data import sample_file
 from lidarcal.errors import InputError, MissingVariableError, UnitError
 from lidarcal.io import open_artefact, write_artefact
+from lidarcal.lidar import LidarModel, NoiseTable
 from lidarcal.schema import validate_dataset
 from lidarcal.units import Q_
 
@@ -208,3 +213,146 @@ def test_table_text_and_roundtrip(tmp_path, table4):
     xr.testing.assert_allclose(back.uncertainty, table4.uncertainty)
     assert list(back.contributor.values) == list(CONTRIBUTORS)
     assert float(back.beam_angle_coefficient) == 0.00248
+
+
+# -- Eqs. 6-7: printed vs derived -----------------------------------------------------------------
+# Paper inputs: s_s = 0.027 m/s, s_delta = 0.021 m/s, phi = 28 deg, N = 150 LOS samples per
+# 10 minutes.  sqrt(2) sin 28 deg = 1.4142136 x 0.4694716 = 0.6639364.
+SIN = 0.4694716
+DENOM = 1.4142136 * SIN
+PRINTED_EQ6 = 0.027 / DENOM  # 0.04067 (Table 4: 0.041)
+PRINTED_EQ7 = 0.021 / (DENOM * np.sqrt(150))  # 0.00258 (Table 4: 0.0026)
+DERIVED_EQ6_NOISE = 0.027 / (DENOM * np.sqrt(150))  # 0.00332: the mean of N samples per beam
+DERIVED_EQ7 = 0.021 / DENOM  # 0.03163: a bin's bias error does not average away
+
+
+def test_derived_noise_terms_hand_computed():
+    ds = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, noise_terms="derived")
+    u = TABLE4_WIND_SPEEDS.magnitude
+    # noise bias of the scalar average, p sigma s_s / (2 sin^2 phi U), sigma = 0.1 m/s, p = 2/3:
+    # 0.0018 / (0.4408 U) = 0.00102 m/s at 4 m/s; in quadrature with the sqrt(N) part
+    bias_part = (2 / 3) * 0.1 * 0.027 / (2 * SIN**2 * u)
+    np.testing.assert_allclose(ds.uncertainty.sel(contributor="bench_std_repeatability"),
+                               np.sqrt(DERIVED_EQ6_NOISE**2 + bias_part**2), rtol=1e-6)
+    np.testing.assert_allclose(ds.uncertainty.sel(contributor="bench_bias_repeatability"), DERIVED_EQ7,
+                               rtol=1e-6)
+    assert round(float(ds.uncertainty.sel(wind_speed=4, contributor="bench_std_repeatability")), 4) == 0.0035
+    assert round(float(ds.uncertainty.sel(wind_speed=16, contributor="bench_std_repeatability")), 4) == 0.0033
+    assert round(DERIVED_EQ7, 3) == 0.032
+    assert ds.attrs["noise_terms"] == "derived" and float(ds.los_noise_std) == 0.1
+    # the default stays the printed forms (Table 4 reproduced, see the tests above)
+    printed = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS)
+    assert printed.attrs["noise_terms"] == "printed" and "los_noise_std" not in printed
+    np.testing.assert_allclose(printed.uncertainty.sel(contributor="bench_std_repeatability"), PRINTED_EQ6,
+                               rtol=1e-6)
+    np.testing.assert_allclose(printed.uncertainty.sel(contributor="bench_bias_repeatability"), PRINTED_EQ7,
+                               rtol=1e-6)
+    assert NOISE_TERMS == ("printed", "derived")
+    with pytest.raises(InputError, match="noise_terms"):
+        uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, noise_terms="both")
+    with pytest.raises(InputError, match="only apply with noise_terms='derived'"):
+        uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, los_noise_std=Q_(0.2, "m/s"))
+
+
+def test_cli_terms_noise_terms_derived(tmp_path, capsys):
+    out = tmp_path / "t.nc"
+    assert main(["terms", "--noise-terms", "derived", "--los-noise-std", "0.2", "-o", str(out)]) == 0
+    ds = open_artefact(out, "uncertainty_terms")
+    assert ds.attrs["noise_terms"] == "derived" and float(ds.los_noise_std) == 0.2
+    np.testing.assert_allclose(ds.uncertainty.sel(contributor="bench_bias_repeatability"), DERIVED_EQ7,
+                               rtol=1e-6)
+    assert "0.0316" in capsys.readouterr().out
+
+
+def _tiny_dbs_speed(samples, p=2 / 3):
+    """Hybrid 10-minute speed from (period, 4 beams at 0/90/180/270 deg, N) radial samples."""
+    phi = np.radians(28.0)
+    u = (samples[:, 0] - samples[:, 2]) / (2 * np.sin(phi))
+    v = (samples[:, 1] - samples[:, 3]) / (2 * np.sin(phi))
+    return p * np.hypot(u, v).mean(-1) + (1 - p) * np.hypot(u.mean(-1), v.mean(-1))
+
+
+def test_tiny_independent_simulation_decides_where_sqrt_n_belongs():
+    # Written here, independent of lidarcal: 4000 periods of 150 samples per beam of a steady
+    # 8 m/s wind from a random direction, Gaussian LOS noise (sigma 0.1 m/s) plus each beam's
+    # bin bias.  A rerun of the bench changes each bin's sigma by N(0, s_s) and its bias by
+    # N(0, s_delta); a period samples one bin per beam.  The same noise draws are reused, so
+    # the change of the 10-minute speed is due to the perturbation alone.
+    rng = np.random.default_rng(0)
+    m, n, phi = 4000, 150, np.radians(28.0)
+    az = np.radians([0.0, 90.0, 180.0, 270.0])
+    radial = 8.0 * np.sin(phi) * np.cos(rng.uniform(0, 2 * np.pi, m)[:, None] - az[None, :])
+    z = rng.standard_normal((m, 4, n))
+    mu = rng.normal(0.0, 0.02, (m, 4))[..., None]
+    base = _tiny_dbs_speed(radial[..., None] + mu + 0.1 * z)
+    d_sigma = rng.normal(0.0, 0.027, (m, 4))[..., None]
+    d_mu = rng.normal(0.0, 0.021, (m, 4))[..., None]
+    sigma_run = _tiny_dbs_speed(radial[..., None] + mu + (0.1 + d_sigma) * z)
+    mu_run = _tiny_dbs_speed(radial[..., None] + mu + d_mu + 0.1 * z)
+    moved_sigma = np.sqrt(np.mean((sigma_run - base) ** 2))
+    moved_mu = np.sqrt(np.mean((mu_run - base) ** 2))
+    # sampling error of an RMS over 4000 periods: ~1/sqrt(2 x 4000) = 1.1 %; allow 5 %
+    assert moved_sigma == pytest.approx(DERIVED_EQ6_NOISE, rel=0.05)  # 0.0033, not 0.041
+    assert moved_mu == pytest.approx(DERIVED_EQ7, rel=0.05)  # 0.032, not 0.0026
+    assert moved_sigma < PRINTED_EQ6 / 10 and moved_mu > 10 * PRINTED_EQ7
+
+
+def _steady_conditions(n, seed=0, cnr=-15.0):
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 5]))
+    shape = (n, 1)
+    data = {"wind_speed": ("m s-1", rng.uniform(4.0, 16.0, shape)),
+            "wind_from_direction": ("degree", rng.uniform(0.0, 360.0, shape)),
+            "turbulence_intensity": ("1", np.full(shape, 0.1)),
+            "wind_shear_exponent": ("1", np.full(shape, 0.2)),
+            "cnr": ("dB", np.full(shape, cnr)), "cnr_gradient": ("dB m-1", np.zeros(shape))}
+    return xr.Dataset(
+        {k: (("time", "height"), v, var_attrs(k.replace("_", " "), u)) for k, (u, v) in data.items()},
+        coords={"time": time_coord(np.datetime64("2024-01-01") + np.arange(n) * np.timedelta64(600, "s")),
+                "height": height_coord([100.0])},
+    )
+
+
+def _perturbed(model, seed, d_std=0.0, d_bias=0.0):
+    """The model with every (beam, CNR, velocity) bin's std and bias moved by N(0, d_std), N(0, d_bias)."""
+    t = model.noise_table
+    rng = np.random.default_rng(seed)
+    bias, std = np.asarray(t.bias), np.asarray(t.std)
+    return model.replace(noise_table=NoiseTable(
+        t.cnr, t.velocity, bias + d_bias * rng.standard_normal(bias.shape),
+        np.abs(std + d_std * rng.standard_normal(std.shape))))
+
+
+def _virtual_lidar_moves(n_periods, draws):
+    cube = ingest(sample_file("bench/rtd.csv.gz"), sample_file("bench/control_log.csv"))
+    model = LidarModel.from_artefacts(cube=cube)
+    cond = _steady_conditions(n_periods)
+    run = lambda m: simulate_campaign(cond, m, scheduler="synchronous").lidar_wind_speed.values[:, 0]  # noqa: E731
+    base = run(model)
+    rms = lambda a: float(np.sqrt(np.nanmean((a - base) ** 2)))  # noqa: E731
+    sigma = [rms(run(_perturbed(model, s, d_std=0.027))) for s in draws]
+    mu = [rms(run(_perturbed(model, s, d_bias=0.021))) for s in draws]
+    return sigma, mu
+
+
+def _check_virtual_lidar(sigma, mu):
+    # The virtual lidar interpolates the cube bilinearly in CNR and radial velocity, so a
+    # period at -15 dB averages two CNR bins' independent errors (1/sqrt 2) and its turbulent
+    # radial velocities spread over a few velocity bins: the moves are below the one-bin
+    # values of the derived forms (measured 0.5-0.65 x for sigma, 0.3-0.6 x for mu with 1000
+    # periods and 4 draws), and far from the printed forms on the other side.
+    for s in sigma:
+        assert 0.25 * DERIVED_EQ6_NOISE < s < 1.2 * DERIVED_EQ6_NOISE  # ~0.002 m/s
+        assert s < PRINTED_EQ6 / 10  # the printed Eq. 6 (0.041) overstates it > 10 x
+    for m in mu:
+        assert 0.15 * DERIVED_EQ7 < m < 1.2 * DERIVED_EQ7  # ~0.01-0.02 m/s
+        assert m > 3 * PRINTED_EQ7  # the printed Eq. 7 (0.0026) understates it > 3 x
+
+
+def test_virtual_lidar_monte_carlo_decides_where_sqrt_n_belongs():
+    # the sample bench cube, 200 periods at 100 m, one perturbation draw each (~10 s)
+    _check_virtual_lidar(*_virtual_lidar_moves(200, draws=(1,)))
+
+
+@pytest.mark.slow
+def test_virtual_lidar_monte_carlo_decides_where_sqrt_n_belongs_large():
+    _check_virtual_lidar(*_virtual_lidar_moves(1000, draws=(1, 2, 3, 4)))

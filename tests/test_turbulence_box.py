@@ -9,8 +9,9 @@ from lidarcal.cli import main
 from lidarcal.compliance import check_compliance
 from lidarcal.errors import UnitError
 from lidarcal.io import open_artefact
-from lidarcal.lidar import LidarModel, simulate_period
+from lidarcal.lidar import LidarModel
 from lidarcal.lidar.box import lidar_turbulence_box
+from lidarcal.lidar.geometry import period_points
 from lidarcal.schema import validate_dataset
 from lidarcal.turbulence.box import turbulence_box
 from lidarcal.units import Q_
@@ -36,16 +37,17 @@ def test_cli_writes_valid_box_and_refuses_overwrite(tmp_path, capsys):
     assert "file exists" in capsys.readouterr().err
 
 
-def test_box_is_the_turbulence_simulate_period_samples():
+def test_box_points_are_the_simulators_rwf_nodes_and_reference():
+    # simulate_period draws its LOS signals from their continuous-RWF cross-spectra
+    # (lidarcal.lidar.spectral), so the box no longer holds its exact series; it holds the
+    # turbulence at the lidar's RWF quadrature nodes and the reference of that height
     model = LidarModel.ideal(los_noise_std=0.0)
-    kw = dict(wind_speed=9.0, turbulence_intensity=0.14, wind_from_direction=37.0, wind_shear_exponent=0.0)
     box = lidar_turbulence_box(model, height=Q_(80.0, "m"), wind_speed=Q_(9.0, "m/s"),
                                turbulence_intensity=0.14, wind_from_direction=Q_(37.0, "degree"), seed=(4, 2))
-    sim = simulate_period(model, heights=[80.0], cnr=-15.0, cnr_gradient=0.0, seed=(4, 2), **kw)
-    ref = box.sel(point=box.point_label == "reference")
-    cup = np.mean(np.hypot(9.0 + ref.u.values, ref.v.values))
-    # the reference speed recomputed from the file equals simulate_period's (same points, same stream)
-    assert cup == pytest.approx(sim["reference_wind_speed"][0], abs=1e-12)
+    pts = period_points(model, 80.0, 37.0)
+    np.testing.assert_array_equal(box.point_label.values, pts["label"])
+    np.testing.assert_allclose(np.stack([box.x.values, box.y.values, box.z.values], axis=-1), pts["wind"],
+                               atol=1e-9)
 
 
 def test_pyconturb_generator_same_layout():

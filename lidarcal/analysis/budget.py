@@ -74,7 +74,7 @@ def _fraction(value: Any, name: str) -> float:
 
 
 def _terms_total(
-    terms: xr.Dataset | None, centres: np.ndarray, heights: np.ndarray
+    terms: xr.Dataset | None, centres: np.ndarray, heights: np.ndarray, noise_terms: str = "printed"
 ) -> tuple[np.ndarray, str]:
     """Table 4 total (m s-1) on (height, bin centre) and a description of where it came from.
 
@@ -86,9 +86,14 @@ def _terms_total(
     if terms is None:
         out = np.full((len(heights), len(centres)), np.nan)
         for i, h in enumerate(heights):
-            inputs = {**PAPER_INPUTS, "height": f"{h} m"}
+            inputs = {**PAPER_INPUTS, "height": f"{h} m", "noise_terms": noise_terms}
             out[i, positive] = uncertainty_terms(Q_(centres[positive], "m s-1"), **inputs).total.values
-        return out, "lidarcal.analysis.terms.uncertainty_terms(**PAPER_INPUTS) at each budget height"
+        how = "" if noise_terms == "printed" else f", noise_terms={noise_terms!r}"
+        return out, f"lidarcal.analysis.terms.uncertainty_terms(**PAPER_INPUTS{how}) at each budget height"
+    if noise_terms != "printed" and terms.attrs.get("noise_terms", "printed") != noise_terms:
+        raise InputError(f"{source_name(terms, '<terms>')}: the terms artefact has noise_terms="
+                         f"{terms.attrs.get('noise_terms', 'printed')!r}; asked for {noise_terms!r} "
+                         "(recompute it with lidarcal terms --noise-terms)")
     src = source_name(terms, "<terms>")
     name = next((n for n in TERMS_TOTAL_NAMES if n in terms.data_vars), None)
     if name is None:
@@ -187,6 +192,7 @@ def budget(
     mounting: Any = 0.0,
     separation: Any = 0.0,
     flow_inhomogeneity: Any = 0.0,
+    noise_terms: str = "printed",
     source: str | None = None,
     call: str | None = None,
 ) -> xr.Dataset:
@@ -200,6 +206,9 @@ def budget(
     terms : xarray.Dataset, optional
         ``uncertainty_terms`` artefact (Table 4 total on a ``wind_speed`` dim, optionally also
         ``height``); Monte Carlo approach only.  Default: :mod:`lidarcal.analysis.terms` defaults.
+    noise_terms : {"printed", "derived"}
+        Form of Eqs. 6-7 when the terms are computed here (no ``terms`` given); see
+        :mod:`lidarcal.analysis.terms`.  With ``terms`` the artefact's own form is used.
     approach : {"monte_carlo", "iec"}
     bin_width : quantity or str
         Wind-speed bin width (default 0.5 m s-1).
@@ -239,7 +248,7 @@ def budget(
                               "relative_to": "mean reference wind speed in the bin"}
     if approach == "monte_carlo":
         vref, config["virtual_reference_terms"] = _terms_total(
-            terms, centres, np.asarray(records["height"].values, dtype=float))
+            terms, centres, np.asarray(records["height"].values, dtype=float), noise_terms)
         parts = _monte_carlo_parts(binned, vref)
     else:
         u_abs, rel = _iec_inputs(terms, reference_uncertainty, dict(zip(_IEC_FRACTIONS, (

@@ -11,6 +11,7 @@ broadcast over any leading axes, so the dataset layer can hand them ``(..., time
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
 
 from lidarcal.binning import bin_index
 from lidarcal.binning import binned_statistics as bin_statistics  # the one binning engine
@@ -20,6 +21,8 @@ __all__ = [
     "centred_edges",
     "bin_statistics",
     "linear_regression",
+    "bin_mean_weights",
+    "weighted_linear_regression",
     "significance",
     "std_in_kept_bins",
     "quadrature",
@@ -93,6 +96,76 @@ def linear_regression(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, ...]:
         resid = np.maximum(syy - slope * sxy, 0.0)
         stderr = np.where(valid & (n > 2), np.sqrt(resid / np.maximum(n - 2, 1) / sxx), np.nan)
     return slope, intercept, r, stderr
+
+
+def bin_mean_weights(count: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """Inverse-variance weights ``1 / SE² = n / s²`` of bin means, over the last (bin) axis.
+
+    ``count`` and ``std`` (ddof = 1) are per bin.  A bin whose own spread is unusable —
+    fewer than two values, or ``s = 0`` (identical values: a spread of zero is a sampling
+    accident, not an infinitely precise mean) — takes the **pooled** within-bin variance of
+    its row, ``s_p² = Σ (n_i − 1) s_i² / Σ (n_i − 1)`` over the bins with a usable spread,
+    so every non-empty bin gets a finite positive weight.  Empty bins (and rows without any
+    usable spread) get weight 0 or NaN respectively.
+
+    >>> bin_mean_weights(np.array([4, 1, 9]), np.array([2.0, np.nan, 1.0])).round(4).tolist()
+    [1.0, 0.55, 9.0]
+    """
+    n = np.asarray(count, dtype=float)
+    s = np.asarray(std, dtype=float)
+    usable = (n >= 2) & np.isfinite(s) & (s > 0)
+    dof = np.where(usable, n - 1.0, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pooled = (dof * np.where(usable, s * s, 0.0)).sum(axis=-1) / dof.sum(axis=-1)
+        var = np.where(usable, s * s, pooled[..., None])
+        return np.where(n > 0, n / var, 0.0)
+
+
+def weighted_linear_regression(x: np.ndarray, y: np.ndarray, w: np.ndarray,
+                               confidence: float = 0.95) -> dict[str, np.ndarray]:
+    """Weighted least-squares line ``y = slope x + intercept`` over the last axis.
+
+    ``w`` are inverse variances of ``y`` (e.g. :func:`bin_mean_weights`); points where ``x``,
+    ``y`` or ``w`` is not finite, or ``w <= 0``, are left out.  With ``k`` points,
+    ``S = Σ w (x − x̄_w)²`` and ``χ²_ν = Σ w r² / (k − 2)`` of the residuals ``r``:
+
+    * ``stderr = sqrt(max(1, χ²_ν) / S)``: the weights' own error scale, inflated by the
+      Birge ratio when the bin means scatter more about the line than their errors allow
+      (curvature, or spreads underestimated from few periods); never deflated below it;
+    * ``ci_low, ci_high = slope ∓ t(1 − (1 − confidence)/2; k − 2) · stderr`` (Student t);
+    * ``r`` is the weighted Pearson correlation coefficient (the R of Eq. 13).
+
+    Returns a dict of arrays (...): ``slope, intercept, r, stderr, ci_low, ci_high,
+    chi2_reduced, n_points``; NaN where fewer than two distinct ``x`` remain (stderr, CI and
+    χ² also where ``k < 3``).  With equal weights ``slope``, ``intercept`` and ``r`` equal
+    :func:`linear_regression`'s.
+    """
+    x, y, w = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in (x, y, w)))
+    ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(w) & (w > 0)
+    wz = np.where(ok, w, 0.0)
+    xz = np.where(ok, x, 0.0)
+    yz = np.where(ok, y, 0.0)
+    k = ok.sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sw = wz.sum(axis=-1)
+        mx = (wz * xz).sum(axis=-1) / sw
+        my = (wz * yz).sum(axis=-1) / sw
+        dx = np.where(ok, x - mx[..., None], 0.0)
+        dy = np.where(ok, y - my[..., None], 0.0)
+        sxx = (wz * dx * dx).sum(axis=-1)
+        syy = (wz * dy * dy).sum(axis=-1)
+        sxy = (wz * dx * dy).sum(axis=-1)
+        valid = (k >= 2) & (sxx > 0)
+        slope = np.where(valid, sxy / sxx, np.nan)
+        intercept = np.where(valid, my - slope * mx, np.nan)
+        r = np.clip(np.where(valid & (syy > 0), sxy / np.sqrt(sxx * syy), np.nan), -1.0, 1.0)
+        dof = np.where(k > 2, k - 2, 1)
+        chi2 = np.where(valid & (k > 2), np.maximum(syy - slope * sxy, 0.0) / dof, np.nan)
+        stderr = np.where(valid & (k > 2), np.sqrt(np.maximum(1.0, chi2) / sxx), np.nan)
+        tq = stats.t.ppf(0.5 + confidence / 2.0, dof)
+    return {"slope": slope, "intercept": intercept, "r": r, "stderr": stderr,
+            "ci_low": slope - tq * stderr, "ci_high": slope + tq * stderr,
+            "chi2_reduced": chi2, "n_points": k}
 
 
 def significance(

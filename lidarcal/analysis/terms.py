@@ -38,6 +38,22 @@ rounded total divided by U.  lidarcal sums the unrounded terms, which gives tota
 0.0003 m/s (0.07 percentage points at 4 m/s) below the printed ones; ``tests/test_terms.py``
 shows both.
 
+*Eqs. 6–7: where the √N belongs* (``noise_terms``).  The printed forms divide the bias
+repeatability (Eq. 7) by √N and not the std repeatability (Eq. 6).  Propagating each error
+through the 10-minute DBS average gives the opposite (``docs/noise_terms.md``):
+
+* an error δσ in the LOS noise std changes the 10-minute speed only through the noise of
+  the mean of N samples per beam, ``δσ / (√2 √N sin φ)``, and the change of the scalar
+  average's noise bias ``p σ δσ / (2 sin²φ U)`` (added in quadrature: the first has zero
+  mean): with s_s = 0.027 m/s, N = 150, σ = 0.1 m/s, p = 2/3: 0.0033 m/s ⊕ 0.0010 (4 m/s)
+  … 0.0003 (16 m/s) m/s = 0.0035 … 0.0033 m/s;
+* an error δμ in a bin's mean bias does not average away: a 10-minute period keeps sampling
+  the same few (CNR, velocity) bins of each beam, so ``s_δ / (√2 sin φ)`` = 0.032 m/s.
+
+``noise_terms="printed"`` (default) keeps Eqs. 6–7 as printed, so Table 4 is reproduced;
+``noise_terms="derived"`` uses the propagated forms.  ``tests/test_terms.py`` checks both
+against a Monte Carlo run of the virtual lidar with the bench cube perturbed by s_s and s_δ.
+
 *Zd uncertainty along the beam.*  Eq. 11 uses the 0.45 m range uncertainty as a height
 uncertainty; the height error of an oblique beam is dz cos(phi) (0.40 m), so Eq. 11 as
 written is slightly conservative.  lidarcal follows Eq. 11.
@@ -62,6 +78,7 @@ __all__ = [
     "CONTRIBUTORS",
     "PAPER_INPUTS",
     "TABLE4_WIND_SPEEDS",
+    "NOISE_TERMS",
     "table4_kernel",
     "uncertainty_terms",
     "repeatability_inputs",
@@ -90,6 +107,11 @@ PAPER_INPUTS: dict[str, Any] = {
     "height": Q_(100.0, "m"),
     "cone_angle": Q_(28.0, "degree"),
 }
+#: Forms of Eqs. 6-7 (see module docstring and ``docs/noise_terms.md``).
+NOISE_TERMS = ("printed", "derived")
+#: LOS noise std and hybrid weight used by the derived Eq. 6's noise-bias part when none is given:
+#: the ideal lidar's defaults (:class:`lidarcal.lidar.LidarModel`).
+DERIVED_DEFAULTS: dict[str, Any] = {"los_noise_std": Q_(0.1, "m/s"), "hybrid_weight": 2.0 / 3.0}
 #: Wind speeds of Table 4's columns.
 TABLE4_WIND_SPEEDS = Q_(np.arange(4.0, 17.0, 2.0), "m/s")
 
@@ -108,16 +130,31 @@ def table4_kernel(
     height: float,
     cone_angle: float,
     beam_angle_coefficient: float | None = None,
+    noise_terms: str = "printed",
+    los_noise_std: float = 0.1,
+    hybrid_weight: float = 2.0 / 3.0,
 ) -> np.ndarray:
     """Eqs. 6–9 and 11 on SI floats; returns shape (len(wind_speed), 5) in m s-1.
 
     Angles are in radians; ``n_bias`` is the N of Eq. 7; ``bench_uncertainty`` is already a
-    standard uncertainty.  Columns follow :data:`CONTRIBUTORS`.
+    standard uncertainty.  Columns follow :data:`CONTRIBUTORS`.  ``noise_terms="derived"``
+    replaces Eqs. 6–7 by ``s_s / (√2 √N_los sin φ) ⊕ p σ s_s / (2 sin²φ U)`` and
+    ``s_δ / (√2 sin φ)`` (``los_noise_std`` σ and ``hybrid_weight`` p enter only there).
     """
     u = np.asarray(wind_speed, dtype=float)
     denom = np.sqrt(2.0) * np.sin(cone_angle)
-    eq6 = std_repeatability / denom
-    eq7 = bias_repeatability / (denom * np.sqrt(n_bias))
+    if noise_terms == "printed":
+        eq6 = std_repeatability / denom
+        eq7 = bias_repeatability / (denom * np.sqrt(n_bias))
+    elif noise_terms == "derived":
+        # the mean of N noisy samples per beam (a zero-mean error, delta-sigma times the mean of
+        # N unit normals) and the scalar average's noise bias p sigma_u^2 / (2 U), sigma_u =
+        # sigma / (sqrt(2) sin phi), differentiated in sigma (a shift): uncorrelated, so in quadrature
+        noise_bias = hybrid_weight * los_noise_std * std_repeatability / (2.0 * np.sin(cone_angle) ** 2 * u)
+        eq6 = np.hypot(std_repeatability / (denom * np.sqrt(n_los_samples)), noise_bias)
+        eq7 = bias_repeatability / denom  # a period keeps sampling the same bins: no 1/sqrt(N)
+    else:
+        raise ValueError(f"noise_terms must be one of {NOISE_TERMS}; got {noise_terms!r}")
     eq8 = bench_uncertainty / (denom * np.sqrt(n_los_samples))
     if beam_angle_coefficient is None:
         eq9 = u * beam_angle_uncertainty / np.tan(cone_angle)
@@ -149,6 +186,8 @@ INPUT_ATTRS: dict[str, tuple[str, str]] = {
     "shear_exponent": ("1", "wind shear power-law exponent (Eq. 10)"),
     "cone_angle": ("degree", "beam cone angle from vertical"),
     "beam_angle_coefficient": ("1", "coefficient replacing cot(phi) dphi in Eq. 9"),
+    "los_noise_std": ("m s-1", "LOS noise standard deviation in the derived Eq. 6 (noise bias part)"),
+    "hybrid_weight": ("1", "hybrid weight p in the derived Eq. 6 (noise bias part)"),
 }
 
 #: Declared CF attributes of the result variables (:func:`lidarcal.cf.declared_attrs`).
@@ -191,6 +230,9 @@ def uncertainty_terms(
     beam_angle_coefficient: float | None = None,
     bias_repeatability_n: Literal["los_samples", "runs"] = "los_samples",
     bench_coverage_factor: float = 1.0,
+    noise_terms: Literal["printed", "derived"] = "printed",
+    los_noise_std: Any = None,
+    hybrid_weight: float | None = None,
     repeatability: xr.Dataset | None = None,
     call: str = "lidarcal.analysis.terms.uncertainty_terms",
 ) -> xr.Dataset:
@@ -225,6 +267,12 @@ def uncertainty_terms(
         Which N divides Eq. 7: ``n_los_samples`` (reproduces Table 4) or ``n_runs`` (the text).
     bench_coverage_factor : float
         k dividing ``bench_uncertainty``; 1 reproduces Table 4, 2 converts the k = 2 value.
+    noise_terms : {"printed", "derived"}
+        Eqs. 6–7 as printed (reproduces Table 4) or as propagated through the 10-minute
+        average (module docstring, ``docs/noise_terms.md``).
+    los_noise_std, hybrid_weight : optional
+        σ (speed) and p of the derived Eq. 6's noise-bias part (default 0.1 m/s and 2/3);
+        only with ``noise_terms="derived"``.
     repeatability : xarray.Dataset, optional
         The repeatability artefact the inputs came from (recorded in provenance).
     call : str
@@ -258,6 +306,22 @@ def uncertainty_terms(
     if beam_angle_coefficient is not None:
         beam_angle_coefficient = _positive(beam_angle_coefficient, "beam_angle_coefficient", "")
         inputs["beam_angle_coefficient"] = beam_angle_coefficient
+    if noise_terms not in NOISE_TERMS:
+        raise InputError(f"argument 'noise_terms': expected one of {list(NOISE_TERMS)}; "
+                         f"found {noise_terms!r}")
+    derived = {}
+    if noise_terms == "derived":
+        sigma = DERIVED_DEFAULTS["los_noise_std"] if los_noise_std is None else los_noise_std
+        p = DERIVED_DEFAULTS["hybrid_weight"] if hybrid_weight is None else hybrid_weight
+        sigma = to_magnitude(sigma, "m s-1", name="los_noise_std")
+        derived["los_noise_std"] = _positive(sigma, "los_noise_std", "m s-1")
+        derived["hybrid_weight"] = float(p)
+        if not 0.0 <= derived["hybrid_weight"] <= 1.0:
+            raise InputError(f"argument 'hybrid_weight': expected a value in [0, 1]; found {p}")
+        inputs.update(derived)
+    elif los_noise_std is not None or hybrid_weight is not None:
+        raise InputError("arguments 'los_noise_std' and 'hybrid_weight' only apply with "
+                         "noise_terms='derived'")
     n_bias = inputs["n_los_samples"] if bias_repeatability_n == "los_samples" else inputs["n_runs"]
     terms = table4_kernel(
         ws, std_repeatability=inputs["mean_between_run_std_std"],
@@ -268,13 +332,15 @@ def uncertainty_terms(
         zero_distance_uncertainty=inputs["zero_distance_uncertainty"],
         shear_exponent=inputs["shear_exponent"],
         height=z, cone_angle=np.deg2rad(inputs["cone_angle"]), beam_angle_coefficient=beam_angle_coefficient,
+        noise_terms=noise_terms, **derived,
     )
     config = {**inputs, "height": z, "wind_speed": ws, "bias_repeatability_n": bias_repeatability_n,
-              "beam_angle_coefficient": beam_angle_coefficient}
+              "beam_angle_coefficient": beam_angle_coefficient, "noise_terms": noise_terms}
     ds = _to_dataset(ws, terms, z, inputs)
     ds.attrs.update({
         "bias_repeatability_n": bias_repeatability_n,
-        "eq7_sample_count": np.int32(n_bias),
+        "eq7_sample_count": np.int32(n_bias) if noise_terms == "printed" else np.int32(1),
+        "noise_terms": noise_terms,
         "beam_angle_method": "coefficient" if beam_angle_coefficient is not None else "cot(phi) dphi (Eq. 9)",
     })
     summary = (

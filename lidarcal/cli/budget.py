@@ -30,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_output_options(p, "BUDGET.nc")
     p.add_argument("--approach", choices=("monte_carlo", "iec"), default="monte_carlo")
     p.add_argument("--terms", metavar="TERMS.nc", help="uncertainty_terms artefact (Monte Carlo approach)")
+    p.add_argument("--noise-terms", choices=("printed", "derived"), default="printed",
+                   help="Eqs. 6-7 of the terms computed when no --terms is given: as printed (default) "
+                   "or as propagated through the 10-minute average (docs/noise_terms.md)")
     p.add_argument("--bin-width", type=positive_quantity("--bin-width", "m s-1"), default="0.5 m s-1",
                    help="wind speed bin width (default '0.5 m s-1')")
     p.add_argument(
@@ -90,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         min_samples=args.min_samples,
         heights=args.height,
         coverage_factor=args.coverage_factor,
+        noise_terms=args.noise_terms,
         source=args.records,
         call=call,
         **extra,

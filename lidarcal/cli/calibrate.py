@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 
+from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES
 from lidarcal.cli.options import (
     add_contact_options,
     add_heights_option,
@@ -26,6 +27,7 @@ from lidarcal.cli.options import (
     add_parallel_options,
     add_progress_option,
     add_seed_option,
+    positive_int,
     progress_enabled,
 )
 from lidarcal.pipeline import DEFAULT_HEIGHTS, CalibrationConfig, calibrate
@@ -58,6 +60,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--periods", type=_periods, default=2016, metavar="N",
                    help="10-minute periods from the start of the record (default %(default)s = 2 weeks; "
                    "0 = all)")
+    p.add_argument("--noise-terms", choices=("printed", "derived"), default="printed",
+                   help="Eqs. 6-7 as printed (reproduces Table 4, default) or as propagated through the "
+                   "10-minute average (docs/noise_terms.md)")
+    p.add_argument("--min-samples", type=positive_int("--min-samples"), default=DEFAULT_MIN_SAMPLES,
+                   metavar="N", help="fewest periods a sensitivity bin needs to enter the regression "
+                   "(default %(default)s; docs/sensitivity.md); lower it for short runs")
     add_seed_option(p)
     add_parallel_options(p, workdir=False)  # chunks are cached in OUTDIR/.simulation-chunks
     add_overwrite_option(p)
@@ -76,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
         pulse_file=args.pulse_file, conditions=args.conditions, heights=tuple(args.heights),
         periods=None if args.periods == 0 else args.periods, base_seed=args.seed,
         workers=args.workers, scheduler=args.scheduler, fft_size=args.fft_size, chunk=args.chunk,
+        min_samples=args.min_samples,
+        terms={} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms},
     )
     result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args),
                        signing_key=args.sign)

@@ -59,6 +59,13 @@ def register(sub: argparse._SubParsersAction) -> None:
         help=f"minimum periods per bin used in the regression (default {DEFAULT_MIN_SAMPLES})",
     )
     p.add_argument(
+        "--regression",
+        choices=("weighted", "unweighted"),
+        default="weighted",
+        help="weighted: least squares of bin means with weights n/s2 (default); unweighted: ordinary "
+        "least squares on bin centres, as the paper describes the IEC 61400-50-2 procedure",
+    )
+    p.add_argument(
         "--absolute", action="store_true", help="difference in m s-1 instead of %% of the reference"
     )
     p.add_argument(
@@ -117,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
             v,
             bin_width=widths.get(v),
             min_samples=args.min_samples,
+            regression=args.regression,
             relative=not args.absolute,
             heights=args.height,
             reference_range=None if args.all_wind_speeds else tuple(args.reference_range),
@@ -127,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
         write_artefact(ds, outputs[v], overwrite=args.overwrite)
         print(f"{outputs[v]}: sensitivity to {v} [slope in {ds.slope.attrs['units']}]")
         print(
-            f"  {'height':>8} {'slope':>10} {'R':>7} {'std':>9} {'m*std':>8} {'m*std*R':>8} "
+            f"  {'height':>8} {'slope':>10} {'SE':>8} {'R':>7} {'std':>9} {'m*std':>8} {'m*std*R':>8} "
             f"{'Eq12':>5} {'Eq13':>5}"
         )
         for i, h in enumerate(ds.height.values):
@@ -135,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
                 ds[n].values[i]
                 for n in (
                     "slope",
+                    "slope_standard_error",
                     "correlation",
                     "variable_std",
                     "slope_times_std",
@@ -144,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
             f12, f13 = (int(ds[n].values[i]) for n in ("significant_eq12", "significant_eq13"))
             txt = " ".join(
                 f"{x:>{w}.4g}" if np.isfinite(x) else f"{'nan':>{w}}"
-                for x, w in zip(row, (10, 7, 9, 8, 8), strict=True)
+                for x, w in zip(row, (10, 8, 7, 9, 8, 8), strict=True)
             )
             print(f"  {h:>8g} {txt} {'yes' if f12 else 'no':>5} {'yes' if f13 else 'no':>5}")
     return 0

@@ -7,6 +7,7 @@ Prints the table on stdout.  Examples::
     lidarcal terms -o terms.nc                                  # Eq. 9 as a formula (0.00286 U)
     lidarcal terms --beam-angle-coefficient 0.00248 -o t4.nc    # Table 4 as printed
     lidarcal terms --repeatability rep.nc --height 120 --shear 0.14 -o terms.nc
+    lidarcal terms --noise-terms derived -o terms_derived.nc    # Eqs. 6-7 propagated
 """
 
 from __future__ import annotations
@@ -17,7 +18,15 @@ import numpy as np
 
 from lidarcal.analysis.terms import PAPER_INPUTS, format_table, repeatability_inputs, uncertainty_terms
 from lidarcal.cli import command_line
-from lidarcal.cli.options import add_output_options, finite, nonnegative, number, positive, positive_int
+from lidarcal.cli.options import (
+    add_output_options,
+    finite,
+    nonnegative,
+    number,
+    positive,
+    positive_int,
+    probability,
+)
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.lidar import LidarModel
 from lidarcal.units import Q_
@@ -50,6 +59,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--eq7-n", choices=("los_samples", "runs"), default="los_samples",
                    help="N of Eq. 7: los_samples reproduces Table 4's 0.0026, runs follows the text "
                         "(default los_samples)")
+    p.add_argument("--noise-terms", choices=("printed", "derived"), default="printed",
+                   help="Eqs. 6-7 as printed (reproduces Table 4, default) or as propagated through the "
+                        "10-minute average: sqrt(N) on Eq. 6, none on Eq. 7 (docs/noise_terms.md)")
+    p.add_argument("--los-noise-std", type=nonnegative("--los-noise-std"), metavar="M_S",
+                   help="LOS noise std in the derived Eq. 6's noise-bias part, m/s (0.1)")
+    p.add_argument("--hybrid-weight", type=probability("--hybrid-weight"), metavar="P",
+                   help="hybrid weight p in the derived Eq. 6's noise-bias part (2/3)")
     p.add_argument("--bench-uncertainty", type=nonnegative("--bench-uncertainty"), default=0.0145,
                    metavar="M_S",
                    help="dv_SAFO as stated, m/s (0.0145)")
@@ -95,6 +111,9 @@ def run(args: argparse.Namespace) -> int:
         beam_angle_coefficient=args.beam_angle_coefficient,
         bias_repeatability_n=args.eq7_n,
         bench_coverage_factor=args.bench_coverage_factor,
+        noise_terms=args.noise_terms,
+        los_noise_std=None if args.los_noise_std is None else Q_(args.los_noise_std, "m/s"),
+        hybrid_weight=args.hybrid_weight,
         repeatability=rep,
         call=command_line(args),
     )

@@ -7,7 +7,7 @@
   heights (paper §3.3), the CNR model used where no lidar CNR was measured.
 """
 
-from lidarcal.conditions.kernels import cnr_model, shear_exponent, vertical_gradient
+from lidarcal.conditions.kernels import cnr_gradient_along_beam, cnr_model, shear_exponent, vertical_gradient
 from lidarcal.conditions.load import (
     CONDITION_VARIABLES,
     FIELD_VARIABLES,
@@ -30,6 +30,7 @@ __all__ = [
     "shear_exponent",
     "synthetic_conditions",
     "vertical_gradient",
+    "cnr_gradient_along_beam",
 ]
 
 

@@ -4,22 +4,40 @@ Vertical derivatives follow the paper's §3.3: at every height the quantity is c
 the **two nearest neighbouring heights** (the one below and the one above), and from the
 single neighbour at the lowest and highest heights.  For the shear exponent this applies the
 power law of Eq. 10, ``U = U0 (z / z0) ** alpha``, between the two heights used:
-``alpha = ln(U_b / U_a) / ln(z_b / z_a)``; the CNR gradient is the finite difference
-``(CNR_b - CNR_a) / (z_b - z_a)`` between the same two heights.
+``alpha = ln(U_b / U_a) / ln(z_b / z_a)``.
+
+The CNR gradient of the ``conditions`` contract is a rate **along the beam** (dB per metre of
+range, the variable of the paper's Eq. 2 and Figure 3, and what the virtual lidar applies
+to its range-weighting nodes).  Heights are vertical: an oblique beam at cone angle φ from
+the vertical climbs ``cos φ`` metres per metre of range, so
+
+    dCNR/ds = dCNR/dz · cos φ,   dCNR/dz = (CNR_b - CNR_a) / (z_b - z_a)
+
+between the same two heights (:func:`cnr_gradient_along_beam`).  With φ = 28° a height-based
+gradient is 1/cos 28° = 1.13 times the along-beam one.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from lidarcal.lidar.model import LidarModel
+
 __all__ = [
+    "DEFAULT_CONE_ANGLE",
     "neighbour_pairs",
     "shear_exponent",
     "vertical_gradient",
+    "cnr_gradient_along_beam",
     "power_law",
     "cnr_model",
     "ar1",
 ]
+
+
+#: Cone angle (degree from vertical) used to turn height differences into along-beam ones when
+#: none is given: the :class:`~lidarcal.lidar.LidarModel` default (28°, WindCube).
+DEFAULT_CONE_ANGLE: float = LidarModel.cone_angle
 
 
 def neighbour_pairs(heights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -69,11 +87,36 @@ def shear_exponent(speed: np.ndarray, heights: np.ndarray) -> np.ndarray:
 
 
 def vertical_gradient(values: np.ndarray, heights: np.ndarray) -> np.ndarray:
-    """Finite-difference vertical gradient at each height from neighbouring heights (§3.3)."""
+    """Finite-difference **vertical** gradient d/dz at each height from neighbouring heights (§3.3).
+
+    Per metre of height.  For the ``cnr_gradient`` of a ``conditions`` file use
+    :func:`cnr_gradient_along_beam`, which is per metre of range along the beam.
+    """
     values = np.asarray(values, dtype=float)
     z = np.asarray(heights, dtype=float)
     lo, hi = neighbour_pairs(z)
     return (values[..., hi] - values[..., lo]) / (z[hi] - z[lo])
+
+
+def cnr_gradient_along_beam(cnr: np.ndarray, heights: np.ndarray,
+                            cone_angle: float = DEFAULT_CONE_ANGLE) -> np.ndarray:
+    """CNR gradient along the beam (dB per metre of range) from CNR at neighbouring heights.
+
+    ``dCNR/ds = dCNR/dz · cos φ`` with ``dCNR/dz`` from :func:`vertical_gradient` and φ the
+    cone angle in degrees from the vertical (default :data:`DEFAULT_CONE_ANGLE`).
+
+    Examples
+    --------
+    A CNR falling 0.1 dB per metre of height falls 0.1 cos 28° = 0.0883 dB per metre of range:
+
+    >>> z = np.array([40.0, 80.0, 120.0])
+    >>> np.round(cnr_gradient_along_beam(-10.0 - 0.1 * (z - 40.0), z, 28.0), 6)
+    array([-0.088295, -0.088295, -0.088295])
+    """
+    phi = float(cone_angle)
+    if not 0.0 <= phi < 90.0:
+        raise ValueError(f"cone_angle must be in [0, 90) degree from vertical; got {phi}")
+    return vertical_gradient(cnr, heights) * np.cos(np.radians(phi))
 
 
 def power_law(speed_ref: np.ndarray, z_ref: np.ndarray, alpha: np.ndarray, heights: np.ndarray) -> np.ndarray:
@@ -99,14 +142,18 @@ def ar1(rng: np.random.Generator, n: int, phi: float, sigma: float) -> np.ndarra
     return out
 
 
-#: Parameters of :func:`cnr_model` (dB, dB/m, m, hours); documented in the sample README.
+#: Parameters of :func:`cnr_model` (dB, dB/m of height, m, hours); documented in the sample README.
+#: The focus bump outweighs the aerosol lapse below the focus, so the mean CNR gradient is
+#: positive below ~106 m and negative above (+0.05 dB/m at 60-80 m, -0.07 dB/m at 140-160 m
+#: along the beam), the shape of the paper's Figure 3 (right: zero crossing at 110 m, the focal
+#: distance; extremes within ±0.1 dB/m).
 CNR_MODEL = {
     "cnr_at_40m": -13.0,  # dB, daily mean CNR at 40 m
     "diurnal_amplitude": 3.0,  # dB, convective mixing lifts aerosol in the afternoon
     "diurnal_peak_hour": 14.0,  # local solar hour of the CNR maximum
-    "lapse": -0.05,  # dB/m, mean decrease of CNR with height (aerosol decay)
-    "lapse_std": 0.015,  # dB/m, period-to-period variability of the lapse
-    "focus_gain": 3.0,  # dB, telescope focus bump (gradient crosses zero near focus)
+    "lapse": -0.01,  # dB/m of height, mean decrease of CNR with height (aerosol decay)
+    "lapse_std": 0.015,  # dB/m of height, period-to-period variability of the lapse
+    "focus_gain": 5.0,  # dB, telescope focus bump: the mean gradient crosses zero at 106 m
     "focus_height": 110.0,  # m, focal distance (Figure 3 right: zero crossing at 110 m)
     "focus_width": 60.0,  # m, e-folding half-width of the focus bump
     "noise_std": 2.0,  # dB, slow synoptic variability (AR(1), 10-min lag corr 0.98)
@@ -128,7 +175,10 @@ def cnr_model(
     with ``n`` an AR(1) process (std ``noise_std``) and ``s`` the lapse rate, ``lapse +
     lapse_std * AR(1)``; clipped to ``[floor, ceiling]``.  It stands in for the lidar CNR a
     met mast does not record; the CNR gradient then follows from neighbouring heights
-    (:func:`vertical_gradient`), as for measured CNR.
+    (:func:`cnr_gradient_along_beam`), as for measured CNR.
+
+    The profile's parameters are **per metre of height** (``lapse`` in dB m-1 vertically);
+    the along-beam gradient is ``cos φ`` times its vertical derivative.
     """
     p = {**CNR_MODEL, **(params or {})}
     hours = np.asarray(hours, dtype=float)

@@ -51,8 +51,9 @@ REALISTIC_STRENGTHS: dict[str, dict[str, float]] = {
 }
 
 #: CNR model (lidarcal.conditions.kernels.cnr_model parameters) for hidden-effect campaigns:
-#: no mean lapse, a 3 dB focus bump at 110 m (gradient +0.03 dB/m below, -0.03 dB/m above the
-#: focus) and a period-to-period lapse of 0.03 dB/m, so gradients span about ±0.05 dB/m.
+#: no mean lapse, a 3 dB focus bump at 110 m (vertical gradient +0.03 dB/m below, -0.03 dB/m above
+#: the focus) and a period-to-period lapse of 0.03 dB/m, so gradients span about ±0.05 dB/m per
+#: metre of height, ±0.045 dB/m along the 28° beam (the ``cnr_gradient`` written, cos φ times).
 DIAGNOSIS_CNR_MODEL = {"lapse": 0.0, "lapse_std": 0.03, "noise_phi": 0.9, "focus_gain": 3.0,
                        "focus_height": 110.0, "focus_width": 60.0}
 

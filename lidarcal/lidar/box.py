@@ -1,8 +1,8 @@
 """The turbulence a virtual lidar samples at one height, as a ``turbulence_box`` artefact.
 
-:func:`lidar_turbulence_box` simulates turbulence at exactly the points and with exactly the
-random stream that :func:`lidarcal.lidar.simulate_period` uses for one height, so the file
-shows what the virtual lidar saw.
+:func:`lidar_turbulence_box` simulates turbulence at the RWF quadrature nodes and the reference
+point of one height, with the height's turbulence stream: the statistics the virtual lidar
+samples (its LOS signals are drawn directly, see :mod:`lidarcal.lidar.spectral`).
 """
 
 from __future__ import annotations
@@ -28,8 +28,10 @@ def lidar_turbulence_box(model: LidarModel, *, height: Any, wind_speed: Any, tur
                          call: str = "lidarcal.lidar.box.lidar_turbulence_box") -> xr.Dataset:
     """Simulate the turbulence at the points ``simulate_period(model, ..., seed=seed)`` samples at one height.
 
-    With the fast generator the series are identical to the ones the virtual lidar used
-    (same points, same ``SeedSequence([*seed, round(height * 1000)])`` turbulence stream).
+    The points are the virtual lidar's RWF quadrature nodes and the reference, with the height's
+    ``SeedSequence([*seed, round(height * 1000)])`` turbulence stream; the simulator itself draws
+    the continuous-RWF LOS signals from their cross-spectra (:mod:`lidarcal.lidar.spectral`), so
+    these point series show the turbulence statistics it sampled, not its exact LOS values.
     """
     h = float(to_magnitude(height, "m", name="height"))
     direction = float(to_magnitude(wind_from_direction, "degree", name="wind_from_direction"))

@@ -14,7 +14,9 @@ Conventions
 * Radial velocities are positive *away from* the lidar (as the bench cube's ``velocity`` and
   the RWF's ``range_offset``).
 * ``hybrid_weight`` p multiplies the *scalar* average: V = p V_scalar + (1 - p) V_vector
-  (WindCube v2.1: p = 2/3; WindCube XP: p = 1/2; see :mod:`lidarcal.lidar.wfr`).
+  (WindCube v2.1: p = 2/3; WindCube XP: p = 1/2; see :mod:`lidarcal.lidar.wfr`).  Eq. 5 does
+  not say which average p belongs to; ``hybrid_convention = "vector"`` records the other
+  reading, V = p V_vector + (1 - p) V_scalar (about 0.3 % lower at TI 0.2 for p = 2/3).
 """
 
 from __future__ import annotations
@@ -104,6 +106,9 @@ class NoiseTable:
         return np.interp(velocity, vel_axis, rows_b), np.interp(velocity, vel_axis, rows_s)
 
 
+#: Readings of Eq. 5's p: the average it multiplies (see :func:`lidarcal.lidar.wfr.hybrid_speed`).
+HYBRID_CONVENTIONS = ("scalar", "vector")
+
 #: Full width at half maximum (m) of the ideal lidar's Gaussian RWF.
 DEFAULT_RWF_FWHM = 30.0
 #: Gauss quadrature nodes per beam.
@@ -122,6 +127,7 @@ class LidarModel:
     azimuths: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)  #: beam azimuths (degree)
     beam_period: float = 1.0  #: seconds per LOS (vertical beam ignored)
     hybrid_weight: float = 2.0 / 3.0  #: p: V = p V_scalar + (1 - p) V_vector
+    hybrid_convention: str = "scalar"  #: which Eq. 5 average p multiplies: "scalar" or "vector"
     rwf_offsets: tuple[float, ...] = tuple(gauss_hermite_rwf(DEFAULT_RWF_FWHM, DEFAULT_RWF_NODES)[0].tolist())
     rwf_weights: tuple[float, ...] = tuple(gauss_hermite_rwf(DEFAULT_RWF_FWHM, DEFAULT_RWF_NODES)[1].tolist())
     los_noise_std: float = 0.1  #: ideal Gaussian LOS noise (m s-1), used when no table
@@ -136,12 +142,20 @@ class LidarModel:
     reference_flow_distortion_centre: float = 0.0  #: centre of the mast-shadow sector (degree, from)
     reference_flow_distortion_width: float = 0.0  #: full width of that sector (degree; 0 = no shadow)
     reference_flow_distortion_deficit: float = 0.0  #: the reference under-reads by this fraction inside it
+    #: turbulence Fourier amplitudes: ``"deterministic"`` (PyConTurb: fixed magnitudes, random phases;
+    #: the reference's realised 10-min TI equals the period's) or ``"rayleigh"`` (Gaussian process)
+    turbulence_amplitudes: str = "deterministic"
+    #: the continuous RWF ``(offsets (m), values)`` that filters turbulence; ``None``: the Gaussian with
+    #: the quadrature nodes' mean and variance (exact for the ideal lidar)
+    rwf_profile: tuple[tuple[float, ...], tuple[float, ...]] | None = None
     description: str = "ideal"  #: free text: where the configuration came from
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "azimuths", _tuplify(self.azimuths))
         object.__setattr__(self, "rwf_offsets", _tuplify(self.rwf_offsets))
         object.__setattr__(self, "rwf_weights", _tuplify(self.rwf_weights))
+        if self.rwf_profile is not None:
+            object.__setattr__(self, "rwf_profile", _tuplify(self.rwf_profile))
         if isinstance(self.noise_table, Mapping):
             object.__setattr__(self, "noise_table", NoiseTable(**self.noise_table))
         problems = []
@@ -156,6 +170,9 @@ class LidarModel:
         if not 0.0 < self.cone_angle + self.beam_angle_offset < 90.0:
             problems.append(f"cone_angle + beam_angle_offset must be in (0, 90) degree; got "
                             f"{self.cone_angle + self.beam_angle_offset}")
+        if self.hybrid_convention not in HYBRID_CONVENTIONS:
+            problems.append(f"hybrid_convention must be one of {list(HYBRID_CONVENTIONS)}; "
+                            f"got {self.hybrid_convention!r}")
         if not self.beam_period > 0:
             problems.append(f"beam_period must be > 0 s; got {self.beam_period}")
         if len(self.rwf_offsets) != len(self.rwf_weights) or not self.rwf_offsets:
@@ -170,6 +187,15 @@ class LidarModel:
             problems.append(f"cnr_threshold must be a finite CNR in dB or None; got {self.cnr_threshold}")
         if self.noise_table is not None and len(self.noise_table.bias) != 4:
             problems.append(f"noise_table must have 4 beams; has {len(self.noise_table.bias)}")
+        if self.turbulence_amplitudes not in ("deterministic", "rayleigh"):
+            problems.append(f"turbulence_amplitudes must be 'deterministic' or 'rayleigh'; got "
+                            f"{self.turbulence_amplitudes!r}")
+        if self.rwf_profile is not None:
+            prof = np.asarray(self.rwf_profile, dtype=float)
+            if (prof.ndim != 2 or prof.shape[0] != 2 or prof.shape[1] < 8 or np.any(np.diff(prof[0]) <= 0)
+                    or not np.all(np.isfinite(prof)) or prof[1].max() <= 0):
+                problems.append("rwf_profile must be (offsets, values): >= 8 increasing offsets (m) and "
+                                "finite values with a positive maximum")
         if problems:
             raise InputError("LidarModel: " + "; ".join(problems))
 
@@ -236,8 +262,8 @@ class LidarModel:
         kw: dict[str, Any] = {"rwf_offsets": offsets, "rwf_weights": weights}
         described = []
         if rwf is not None:
-            offsets, weights = _rwf_nodes(rwf, n_nodes)
-            kw.update(rwf_offsets=offsets, rwf_weights=weights, cnr_weighting_scale=1.0)
+            offsets, weights, profile = _rwf_nodes(rwf, n_nodes)
+            kw.update(rwf_offsets=offsets, rwf_weights=weights, cnr_weighting_scale=1.0, rwf_profile=profile)
             described.append(f"RWF {source_name(rwf)} ({n_nodes} nodes)")
         else:
             described.append(f"ideal Gaussian RWF FWHM {rwf_fwhm:g} m ({n_nodes} nodes)")
@@ -367,7 +393,7 @@ def lidar_attributes(ds: xr.Dataset, *, source: str | None = None) -> dict[str, 
     return out
 
 
-def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
+def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray, tuple]:
     src = source_name(rwf)
     if "rwf" not in rwf.variables:
         raise MissingVariableError(f"{src}: rwf artefact has no variable 'rwf'; "
@@ -392,7 +418,12 @@ def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray]:
         nodes, weights = gauss_rwf_nodes(s, g, n_nodes)
     except ValueError as exc:
         raise InputError(f"{src}: variable 'rwf' cannot be reduced to {n_nodes} nodes: {exc}") from None
-    return nodes - zd, weights
+    # the continuous RWF for the turbulence filter, on a 0.5-m grid where it exceeds 1e-6 of its peak
+    keep = np.flatnonzero(g > 1e-6 * g.max())
+    grid = np.arange(np.ceil(s[keep[0]] / 0.5), np.floor(s[keep[-1]] / 0.5) + 1) * 0.5
+    profile = (tuple(np.round(grid - zd, 6).tolist()),
+               tuple(float(v) for v in np.interp(grid, s, g / g.max()).round(9)))
+    return nodes - zd, weights, profile
 
 
 def _fill_nearest(values: np.ndarray) -> np.ndarray:

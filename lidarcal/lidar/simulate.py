@@ -14,16 +14,20 @@ from north):
   RWF quadrature nodes are at ``r + zero_distance_offset + s_k``.
 * **Wind.** The mean wind blows *toward* ``θ_w + 180°`` (``θ_w`` = meteorological
   ``wind_from_direction``) with speed ``U_h (z / h)^α`` at height ``z``; the vertical mean is
-  zero.  Turbulence (u along-wind, v cross-wind to the left, w up) comes from
-  :func:`lidarcal.turbulence.generate_points` at exactly the 4 K nodes plus the reference point,
-  in one small box per height (cross-height coherence is not modelled; every per-height
-  statistic is exact).  Taylor's frozen turbulence links points that differ along the wind.
+  zero.  Turbulence (u along-wind, v cross-wind to the left, w up; Kaimal spectra and ``iec3d``
+  coherence as PyConTurb, Taylor's frozen turbulence along the wind) enters only through the
+  six signals the period needs: the four LOS values filtered by the *continuous* RWF and the
+  reference's u and v, drawn from their exact 6 x 6 cross-spectral matrix per frequency
+  (:mod:`lidarcal.lidar.spectral`), with PyConTurb's deterministic amplitudes and random phases by
+  default (``LidarModel.turbulence_amplitudes``).  One independent draw per height
+  (cross-height coherence is not modelled; every per-height statistic is exact).
 * **Sampling.** LOS ``k`` (time ``k · beam_period``) belongs to beam ``k mod 4``: 150 samples
   per beam per 10 minutes at 1 s per LOS; the vertical beam is ignored.
-* **Radial velocity** ``v_r = V · n_b``, positive away from the lidar.  The LOS value is
-  ``Σ_k w_k v_r(node_k)`` with the CNR-weighted node weights of Eq. 2
+* **Radial velocity** ``v_r = V · n_b``, positive away from the lidar.  The LOS value is the
+  mean part ``Σ_k w_k U(z_k) a_b`` over the K CNR-weighted quadrature nodes of Eq. 2
   (``w_k ∝ w_k^0 10^(scale · g · s_k / 20)``, ``scale = cnr_weighting_scale``, ``g`` the period's
-  CNR gradient), plus a Gaussian error ``N(μ, σ)``: ``μ, σ`` from the bench table for this beam,
+  CNR gradient) plus the turbulent LOS signal (the same Eq. 2 weighting of the continuous RWF),
+  plus a Gaussian error ``N(μ, σ)``: ``μ, σ`` from the bench table for this beam,
   the period's CNR and this sample's noise-free radial velocity (bilinear, clamped), or
   ``μ = 0, σ = los_noise_std`` for the ideal lidar.  Samples are kept with probability
   ``availability``.
@@ -47,8 +51,9 @@ from lidarcal.errors import InputError
 from lidarcal.lidar.geometry import beam_geometry, period_points, wind_axes
 from lidarcal.lidar.model import LidarModel
 from lidarcal.lidar.quadrature import cnr_weights
+from lidarcal.lidar.spectral import cross_spectral_matrix, draw_coefficients, synthesise
 from lidarcal.lidar.wfr import reconstruct
-from lidarcal.turbulence.kernels import generate_points, sigma_components
+from lidarcal.turbulence.kernels import sigma_components
 
 __all__ = ["simulate_period", "height_seed"]
 
@@ -67,26 +72,21 @@ def _simulate_height(model: LidarModel, height: float, U: float, direction: floa
                      n_times: int) -> dict[str, np.ndarray | float]:
     turb_ss, noise_ss, avail_ss = height_seed(seed, height).spawn(3)
     units, phi_true, phi_nom = beam_geometry(model)
-    points = period_points(model, height, direction)
-    pts = points["lidar"][:-1].reshape(4, -1, 3)
-    n_nodes = pts.shape[1]
+    pts = period_points(model, height, direction)["lidar"][:-1].reshape(4, -1, 3)  # RWF nodes (refuses < 0 m)
     down, cross = wind_axes(direction)
-    x_w, y_w, z_w = points["wind"].T
-    turb = generate_points(x_w, y_w, z_w, wind_speed=U, sigma=sigma_components(ti, U),
-                           rng=np.random.default_rng(turb_ss), duration=duration, dt=model.beam_period)
     beam_of_time = np.arange(n_times) % 4
-    # radial velocity of every node at its own beam's sampling times
-    node_turb = turb[:, :-1].reshape(3, 4, n_nodes, n_times)
     mean_speed = U * (pts[..., 2] / height) ** alpha  # (4, K)
     along = units[:, :2] @ down  # (4,) horizontal projections of the beams on the wind axes
-    across = units[:, :2] @ cross
     weights = cnr_weights(model.rwf_offsets, model.rwf_weights, gradient, model.cnr_weighting_scale)
-    los_true = np.empty(n_times)
-    for b in range(4):
-        sel = beam_of_time == b
-        u, v, w = node_turb[:, b][:, :, sel]
-        vr = (mean_speed[b][:, None] + u) * along[b] + v * across[b] + w * units[b, 2]
-        los_true[sel] = weights @ vr
+    los_mean = (mean_speed @ weights) * along  # (4,) RWF-weighted mean radial velocity
+    sigma = sigma_components(ti, U)
+    if np.any(sigma > 0):  # turbulence: (ref_u, ref_v, LOS_0..3) from their cross-spectral matrix
+        C = cross_spectral_matrix(model, height, U, direction, sigma, gradient, duration)
+        coef = draw_coefficients(C, np.random.default_rng(turb_ss), model.turbulence_amplitudes, n_times)
+        turb = synthesise(coef, n_times)  # (6, n_times)
+    else:
+        turb = np.zeros((6, n_times))
+    los_true = los_mean[beam_of_time] + turb[2 + beam_of_time, np.arange(n_times)]
     noise = np.random.default_rng(noise_ss).standard_normal(n_times)
     if model.noise_table is None:
         los = los_true + model.los_noise_std * noise
@@ -98,8 +98,8 @@ def _simulate_height(model: LidarModel, height: float, U: float, direction: floa
             los[sel] = los_true[sel] + bias + std * noise[sel]
     keep = np.random.default_rng(avail_ss).random(n_times) < model.availability
     los = np.where(keep, los, np.nan)
-    wfr = reconstruct(los, beam_of_time, model.cone_angle, model.hybrid_weight)
-    ref_u, ref_v = turb[0, -1], turb[1, -1]
+    wfr = reconstruct(los, beam_of_time, model.cone_angle, model.hybrid_weight, model.hybrid_convention)
+    ref_u, ref_v = turb[0], turb[1]
     # reference effects (over-speeding, gain, mast shadow): LidarModel.reference_scale
     reference = np.mean(np.hypot(U + ref_u, ref_v)) * model.reference_scale(direction, ti)
     return {"lidar_wind_speed": wfr["hybrid"], "lidar_wind_speed_scalar": wfr["scalar"],

@@ -24,6 +24,10 @@ Averages
       *scalar* average (the order of Eq. 5's "p and (1 - p)"), so p = 1 is pure scalar and
       p = 0 pure vector; WindCube v2.1 uses p = 2/3, WindCube XP p = 1/2.  The ``hybrid_weight``
       of :class:`~lidarcal.lidar.LidarModel` and the ``p`` of ``diagnose`` mean the same.
+      The paper's "p and (1 - p)" does not say which average p belongs to; the other reading,
+      ``convention="vector"``, is ``V_hybrid = p V_vector + (1 - p) V_scalar``.  The two differ
+      by ``(2p - 1)(V_scalar - V_vector)``: for p = 2/3 a third of the scalar-vector gap,
+      about 0.3 % of the speed at TI 0.2 (``docs/wfr.md``).
 """
 
 from __future__ import annotations
@@ -75,16 +79,28 @@ def vector_speed(u: np.ndarray, v: np.ndarray) -> np.ndarray:
         return np.hypot(np.nanmean(u, axis=-1), np.nanmean(v, axis=-1))
 
 
-def hybrid_speed(scalar: np.ndarray, vector: np.ndarray, p: float) -> np.ndarray:
-    """Eq. 5: ``p * scalar + (1 - p) * vector``."""
-    return p * np.asarray(scalar) + (1.0 - p) * np.asarray(vector)
+def hybrid_speed(scalar: np.ndarray, vector: np.ndarray, p: float, convention: str = "scalar") -> np.ndarray:
+    """Eq. 5: ``p * scalar + (1 - p) * vector`` (``convention="scalar"``, the default).
+
+    ``convention="vector"`` puts p on the vector average: ``p * vector + (1 - p) * scalar``.
+
+    >>> [round(float(hybrid_speed(10.3, 10.0, 2 / 3, c)), 9) for c in ("scalar", "vector")]
+    [10.2, 10.1]
+    """
+    if convention == "scalar":
+        return p * np.asarray(scalar) + (1.0 - p) * np.asarray(vector)
+    if convention == "vector":
+        return p * np.asarray(vector) + (1.0 - p) * np.asarray(scalar)
+    raise ValueError(f"hybrid convention must be 'scalar' or 'vector'; got {convention!r}")
 
 
-def reconstruct(los: np.ndarray, beam: np.ndarray, cone_angle: float, p: float) -> dict[str, np.ndarray]:
+def reconstruct(los: np.ndarray, beam: np.ndarray, cone_angle: float, p: float,
+                convention: str = "scalar") -> dict[str, np.ndarray]:
     """Scalar, vector and hybrid 10-min speeds from a LOS stream ``(..., n_times)``.
 
-    Returns ``{"scalar", "vector", "hybrid", "n_reconstructions"}``; the speeds are NaN where
-    no reconstruction was possible.
+    ``convention`` is the average ``p`` multiplies (:func:`hybrid_speed`).  Returns
+    ``{"scalar", "vector", "hybrid", "n_reconstructions"}``; the speeds are NaN where no
+    reconstruction was possible.
     """
     u, v = sliding_components(los, beam, cone_angle)
     ok = np.isfinite(u) & np.isfinite(v)
@@ -93,5 +109,5 @@ def reconstruct(los: np.ndarray, beam: np.ndarray, cone_angle: float, p: float) 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN slices -> NaN, intended
         scalar, vector = scalar_speed(u, v), vector_speed(u, v)
-    return {"scalar": scalar, "vector": vector, "hybrid": hybrid_speed(scalar, vector, p),
+    return {"scalar": scalar, "vector": vector, "hybrid": hybrid_speed(scalar, vector, p, convention),
             "n_reconstructions": count}

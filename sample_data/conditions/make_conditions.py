@@ -22,10 +22,11 @@ What the script does (rows 2016-06-01 00:00 … 2016-08-31 23:50, 13,248 periods
 * **shear exponent** from neighbouring heights with Eq. 10 (paper §3.3): at 60 m from 40 and
   80 m, at 40 m from 40/60 m, at 80 m from 60/80 m;
 * **CNR** is not measured by a mast: it is filled by lidarcal's documented CNR model
-  (``lidarcal.conditions.kernels.cnr_model``: −13 dB at 40 m, 3 dB diurnal cycle peaking at
-  14 h, −0.05 dB/m mean decay with height, a 3 dB telescope-focus bump at 110 m, AR(1)
+  (``lidarcal.conditions.kernels.cnr_model``: −13 dB base level, 3 dB diurnal cycle peaking at
+  14 h, −0.01 dB/m mean decay with height, a 5 dB telescope-focus bump at 110 m, AR(1)
   synoptic variability), seeded with ``SeedSequence([20160601, 0x5C0D])``; the **CNR gradient**
-  follows from neighbouring heights as in the paper;
+  follows from neighbouring heights as in the paper, converted to a rate along the 28° beam
+  (dCNR/ds = dCNR/dz · cos 28°);
 * **quality control, never invention** — a height is set missing (NaN, flagged in
   ``quality_flag``) where the chosen cup reads calm (< 1 m/s: cups stall, and TI and shear are
   meaningless), where its std is exactly 0 with a non-calm mean (stuck or iced cup), or where
@@ -48,7 +49,8 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from lidarcal.conditions import cnr_model, conditions_dataset, shear_exponent, vertical_gradient
+from lidarcal.conditions import cnr_model, conditions_dataset, shear_exponent
+from lidarcal.conditions.kernels import DEFAULT_CONE_ANGLE, cnr_gradient_along_beam
 from lidarcal.io import write_artefact
 from lidarcal.provenance import sha256, stamp
 
@@ -112,7 +114,8 @@ def build(csv: Path) -> xr.Dataset:
     hours = (df.index.hour + df.index.minute / 60.0).to_numpy(float)
     rng = np.random.default_rng(np.random.SeedSequence([SEED, 0x5C0D]))
     cnr = cnr_model(hours, HEIGHTS, rng)
-    cnr_grad = vertical_gradient(cnr, HEIGHTS)
+    # along the beam (the contract's meaning): dCNR/ds = dCNR/dz cos(phi), phi = 28 deg
+    cnr_grad = cnr_gradient_along_beam(cnr, HEIGHTS, DEFAULT_CONE_ANGLE)
     values = {
         "wind_speed": speed,
         "wind_from_direction": direction,
@@ -143,7 +146,8 @@ def build(csv: Path) -> xr.Dataset:
             "comment": (
                 "Speeds from the upwind boom (S for 90-270 deg, else N); vanes at 38/58/78 m assigned to "
                 "40/60/80 m; TI = std/mean; shear exponent (Eq. 10) and CNR gradient from neighbouring "
-                "heights; CNR modelled (lidarcal.conditions.kernels.cnr_model, seed "
+                "heights (CNR gradient along a 28 deg beam: dCNR/dz * cos 28 deg); "
+                "CNR modelled (lidarcal.conditions.kernels.cnr_model, seed "
                 f"SeedSequence([{SEED}, 0x5C0D])), not measured; calm (<{CALM} m/s), stuck cups and "
                 "stuck vanes, TI > 1 and |shear| > 2 set to NaN and flagged in quality_flag. Built by "
                 "sample_data/conditions/make_conditions.py."
