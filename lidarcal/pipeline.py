@@ -18,7 +18,7 @@ One line per finished stage is logged at INFO level on the ``lidarcal.pipeline``
 command line prints it on stderr).  :func:`calibrate` returns a :class:`CalibrationResult`
 holding the path and the (re-read) dataset of every artefact::
 
-    result = calibrate("run1", CalibrationConfig(periods=144))
+    result = calibrate("run1", CalibrationConfig(periods=144, min_samples=3))
     result.datasets["budget"].sel(height=120).relative_uncertainty
 """
 
@@ -298,8 +298,17 @@ def calibrate(
     sens = {}
     for var in SENSITIVITY_VARIABLES:
         key = f"sensitivity_{var}"
-        ds = sensitivity(records, var, min_samples=cfg.min_samples,
-                         call=f"lidarcal calibrate (sensitivity {var})")
+        try:
+            ds = sensitivity(records, var, min_samples=cfg.min_samples,
+                             call=f"lidarcal calibrate (sensitivity {var})")
+        except InputError as exc:
+            # a short run, or a site where the variable hardly varies, leaves too few full bins
+            # for a regression: the certificate then carries no sensitivity to this variable
+            log.warning("sensitivity to %s not computed, so the certificate has none: %s", var, exc)
+            path = paths.pop(key)
+            if overwrite and path.exists():
+                path.unlink()  # a previous run's file would contradict this certificate
+            continue
         write_artefact(ds, paths[key], overwrite=overwrite)
         sens[var] = open_artefact(paths[key], "sensitivity")
         done(key, f"sensitivity to {var}")
