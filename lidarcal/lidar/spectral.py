@@ -54,6 +54,7 @@ import functools
 
 import numpy as np
 
+from lidarcal.lidar.geometry import beam_geometry, wind_axes
 from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes
 from lidarcal.turbulence.kernels import L_C, LENGTH_SCALE_FACTORS, spectral_magnitudes
 
@@ -334,8 +335,6 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
     in PyConTurb's units: ``C_ii`` is ``|m|²`` of a single signal, so ``2 Σ_f C_ii`` is its variance
     (minus half the Nyquist term).  ``sigma`` is ``(σ_u, σ_v, σ_w)`` (m s-1).
     """
-    from lidarcal.lidar.geometry import beam_geometry, wind_axes
-
     U = float(wind_speed)
     nt = int(round(duration / model.beam_period))
     df = 1.0 / duration
