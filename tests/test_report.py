@@ -130,18 +130,26 @@ def test_budget_plot_shows_every_height_and_marks_thin_bins(inputs):
 
 
 def test_confidence_band_matches_numpy_polyfit_covariance(inputs):
-    """The band is t(n-2) times the standard error of the fitted mean, here from polyfit's covariance."""
+    """The band is t(k-2) times the standard error of the fitted mean, here from polyfit's covariance.
+
+    The slopes are weighted least squares of the bin means on the bins' mean variable with
+    weights w = n/s² whose error scale is inflated by the Birge ratio (never deflated):
+    polyfit with ``w = sqrt(w)`` and the unscaled covariance, times max(1, χ²_ν), is the same fit.
+    """
     from scipy import stats
 
     ds = inputs["sensitivities"][1]
     h = float(ds.height[1])
     one = ds.sel(height=h)
-    used = one.bin_flag.values == 0
-    xb, yb = one.bin.values[used], one.mean_difference.values[used]
-    coef, cov = np.polyfit(xb, yb, 1, cov=True)  # cov scaled by residuals / (n - 2)
+    w_all = one.regression_weight.values
+    used = (one.bin_flag.values == 0) & np.isfinite(w_all) & (w_all > 0)
+    xb, yb, wb = one.variable_mean.values[used], one.mean_difference.values[used], w_all[used]
+    coef, cov = np.polyfit(xb, yb, 1, w=np.sqrt(wb), cov="unscaled")
+    chi2 = np.sum(wb * (yb - np.polyval(coef, xb)) ** 2) / (used.sum() - 2)
     x = np.linspace(xb.min() - 0.05, xb.max() + 0.05, 7)
     design = np.stack([x, np.ones_like(x)], axis=1)
-    half = stats.t.ppf(0.975, used.sum() - 2) * np.sqrt(np.einsum("ij,jk,ik->i", design, cov, design))
+    half = stats.t.ppf(0.975, used.sum() - 2) * np.sqrt(
+        max(1.0, chi2) * np.einsum("ij,jk,ik->i", design, cov, design))
     fit, lo, hi = confidence_band(ds, h, x)
     np.testing.assert_allclose(fit, np.polyval(coef, x), rtol=1e-9, atol=1e-12)
     np.testing.assert_allclose(hi - fit, half, rtol=1e-9)  # both exact least squares: rounding only
