@@ -37,6 +37,7 @@ STAGES = (
     "conditions",
     "analysis",
     "campaign",
+    "seal",
     "certificate",
     "report",
     "diagnose",

@@ -1,0 +1,272 @@
+"""The certificate's seal: an integrity record, an optional Ed25519 signature, and their check.
+
+:func:`write_certificate` writes a certificate atomically and seals it; :func:`integrity_record`
+defines the canonical byte forms the seal digests (so the record can be re-checked with any
+netCDF library); :func:`verify_certificate` (``lidarcal verify``) recomputes them and checks a
+signature against a trusted public key.  Building the certificate itself is
+:mod:`lidarcal.certificate`, which re-exports these names.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import os
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
+from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
+
+from lidarcal.errors import InputError
+from lidarcal.io import atomic_path, check_writable, open_artefact, write_artefact
+from lidarcal.schema import validate_dataset
+from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign, verify_signature
+
+INTEGRITY_ATTR = "lidarcal_integrity"
+#: Signature attributes: the signature itself is not covered by the seal (it signs the seal);
+#: the key it claims and the algorithm are.
+SIGNATURE_ATTR = "lidarcal_signature"
+SIGNATURE_KEY_ATTR = "lidarcal_signature_key"
+SIGNATURE_PUBLIC_KEY_ATTR = "lidarcal_signature_public_key"
+SIGNATURE_ALGORITHM_ATTR = "lidarcal_signature_algorithm"
+CANONICAL_FORM = (
+    "data: sha256(json({dims, dtype, shape}) + newline + values), values read without masking or "
+    "scaling, numeric in little-endian C order, strings UTF-8 joined by NUL; attributes: "
+    "sha256(json(sorted {name: value}, strings as is, numbers as {dtype, values})); "
+    "global attributes: one digest each, excluding lidarcal_integrity and lidarcal_signature"
+)
+
+# ------------------------------------------------------------------ integrity
+
+
+def _sha(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def _canonical_attr(value: Any) -> Any:
+    if isinstance(value, str):
+        return value
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace")
+    arr = np.asarray(value)
+    values = arr.tolist()
+    return {
+        "dtype": arr.dtype.newbyteorder("<").str if arr.dtype.kind in "iuf" else arr.dtype.kind,
+        "values": values if not (arr.dtype.kind == "f") else [repr(float(v)) for v in np.ravel(arr)],
+    }
+
+
+def _attrs_digest(obj, names: Iterable[str]) -> str:
+    canon = {n: _canonical_attr(obj.getncattr(n)) for n in sorted(names)}
+    return _sha(json.dumps(canon, sort_keys=True, ensure_ascii=False).encode("utf-8"))
+
+
+def _data_digest(var) -> str:
+    var.set_auto_maskandscale(False)
+    if hasattr(var, "set_auto_chartostring"):
+        var.set_auto_chartostring(False)
+    data = np.asarray(var[...])
+    shape = list(var.shape)
+    if data.dtype.kind in "OU":
+        payload = b"\0".join(str(x).encode("utf-8") for x in data.ravel(order="C"))
+        dtype = "str"
+    else:
+        arr = np.ascontiguousarray(data)
+        if arr.dtype.kind in "iuf" and arr.dtype.byteorder == ">":
+            arr = arr.astype(arr.dtype.newbyteorder("<"))
+        dtype = arr.dtype.newbyteorder("<").str if arr.dtype.kind in "iuf" else arr.dtype.str
+        payload = arr.tobytes(order="C")
+    header = json.dumps({"dims": list(var.dimensions), "dtype": dtype, "shape": shape}, sort_keys=True)
+    return _sha(header.encode("utf-8") + b"\n" + payload)
+
+
+def integrity_record(path: str | os.PathLike) -> dict[str, Any]:
+    """Compute the integrity record of a netCDF file as stored (see :data:`CANONICAL_FORM`)."""
+    import netCDF4
+
+    with netCDF4.Dataset(path, "r") as nc:
+        if nc.groups:
+            raise InputError(f"{path}: has netCDF groups; a lidarcal certificate is flat")
+        variables = {
+            name: {"data": _data_digest(var), "attributes": _attrs_digest(var, var.ncattrs())}
+            for name, var in nc.variables.items()
+        }
+        unsealed = (INTEGRITY_ATTR, SIGNATURE_ATTR)
+        glob = {n: _attrs_digest(nc, [n]) for n in nc.ncattrs() if n not in unsealed}
+        dims = {name: len(d) for name, d in nc.dimensions.items()}
+    return {
+        "algorithm": "sha256",
+        "canonical_form": CANONICAL_FORM,
+        "dimensions": dims,
+        "variables": variables,
+        "global_attributes": glob,
+    }
+
+
+def write_certificate(cert: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False,
+                      signing_key: str | os.PathLike | Ed25519PrivateKey | None = None) -> Path:
+    """Validate, write atomically and seal a certificate; never replaces a file silently.
+
+    With ``signing_key`` (an Ed25519 private key or the path of one, see :mod:`lidarcal.signing`)
+    the seal is also signed: the key's fingerprint and public key are written first (so the
+    seal covers them), then the seal, then the signature of the seal's text.
+    """
+    import netCDF4
+
+    if signing_key is not None and not isinstance(signing_key, Ed25519PrivateKey):
+        signing_key = load_private_key(signing_key)
+
+    if cert.attrs.get("lidarcal_artefact") != "certificate":
+        raise InputError(
+            f"{path}: dataset is a {cert.attrs.get('lidarcal_artefact')!r} artefact, not a certificate"
+        )
+    path = check_writable(path, overwrite=overwrite)
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        write_artefact(cert, tmp, overwrite=True)
+        if signing_key is not None:
+            public = signing_key.public_key().public_bytes(Encoding.Raw, PublicFormat.Raw)
+            with netCDF4.Dataset(tmp, "a") as nc:
+                nc.setncattr(SIGNATURE_ALGORITHM_ATTR, ALGORITHM)
+                nc.setncattr(SIGNATURE_KEY_ATTR, fingerprint(signing_key))
+                nc.setncattr(SIGNATURE_PUBLIC_KEY_ATTR, base64.b64encode(public).decode("ascii"))
+        seal = json.dumps(integrity_record(tmp), sort_keys=True)
+        with netCDF4.Dataset(tmp, "a") as nc:
+            nc.setncattr(INTEGRITY_ATTR, seal)
+            if signing_key is not None:
+                nc.setncattr(SIGNATURE_ATTR, sign(signing_key, seal))
+    return path
+
+
+@dataclass
+class VerificationReport:
+    """Outcome of :func:`verify_certificate`."""
+
+    path: str
+    problems: list[str] = field(default_factory=list)
+    variables_checked: int = 0
+    attributes_checked: int = 0
+    #: fingerprint of the key whose valid signature the seal carries; None when unsigned
+    signed_by: str | None = None
+    #: True when that key is the public key the caller gave (not only the one in the file)
+    key_trusted: bool = False
+
+    @property
+    def ok(self) -> bool:
+        """True when nothing was altered and the schema is satisfied."""
+        return not self.problems
+
+
+def _check_signature(report: VerificationReport, attrs: Mapping[str, Any],
+                     trusted: Ed25519PublicKey | None) -> None:
+    """Check the signature of the seal ``attrs[INTEGRITY_ATTR]`` (see :func:`verify_certificate`)."""
+    signature, claimed = attrs.get(SIGNATURE_ATTR), attrs.get(SIGNATURE_KEY_ATTR)
+    if signature is None:
+        if claimed is not None:
+            report.problems.append(f"global attribute {SIGNATURE_ATTR!r} is missing, but the certificate "
+                                   f"names a signing key ({claimed}): the signature was removed")
+        elif trusted is not None:
+            report.problems.append(f"unsigned (integrity only), but a public key was given: expected a "
+                                   f"signature by {fingerprint(trusted)}")
+        return
+    key = trusted
+    if key is None:
+        try:
+            embedded = base64.b64decode(str(attrs.get(SIGNATURE_PUBLIC_KEY_ATTR, "")))
+            key = Ed25519PublicKey.from_public_bytes(embedded)
+        except ValueError:
+            report.problems.append(f"signed, but global attribute {SIGNATURE_PUBLIC_KEY_ATTR!r} is not an "
+                                   "Ed25519 public key; pass the signer's public key (--public-key)")
+            return
+    if claimed != fingerprint(key):
+        whose = "the given public key" if trusted is not None else "the public key stored in the file"
+        report.problems.append(f"signed by {claimed}, not by {whose} ({fingerprint(key)})")
+    elif not verify_signature(key, str(attrs.get(INTEGRITY_ATTR)), str(signature)):
+        report.problems.append(f"signature by {claimed} does not match the seal: the file was re-sealed "
+                               "or the signature altered")
+    else:
+        report.signed_by, report.key_trusted = claimed, trusted is not None
+
+
+def verify_certificate(path: str | os.PathLike, *,
+                       public_key: str | os.PathLike | Ed25519PublicKey | None = None) -> VerificationReport:
+    """Recompute a certificate's checksums, signature and schema; list everything that changed.
+
+    An unsigned certificate is checked for integrity only (a re-sealed file passes).  A signed
+    one is checked against ``public_key`` (a path or key) when given -- the only check a
+    forger cannot pass -- else against the public key stored in the file, which shows the
+    file is as that key's holder sealed it but not who that is (compare ``signed_by`` with a
+    fingerprint you trust).  With ``public_key`` an unsigned file is a problem.
+
+    Raises
+    ------
+    InputError
+        If ``path`` is missing, unreadable or not a lidarcal certificate.
+    """
+    import netCDF4
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"{path}: file not found")
+    try:
+        with netCDF4.Dataset(path, "r") as nc:
+            kind = nc.getncattr("lidarcal_artefact") if "lidarcal_artefact" in nc.ncattrs() else None
+            stored = nc.getncattr(INTEGRITY_ATTR) if INTEGRITY_ATTR in nc.ncattrs() else None
+            signature_attrs = {n: nc.getncattr(n) for n in nc.ncattrs() if n.startswith(SIGNATURE_ATTR)}
+    except OSError as exc:
+        raise InputError(f"{path}: not a readable netCDF file: {exc}") from None
+    if kind != "certificate":
+        what = (
+            f"a {kind!r} artefact" if kind else "not a lidarcal artefact (no 'lidarcal_artefact' attribute)"
+        )
+        raise InputError(f"{path}: not a lidarcal certificate: it is {what}")
+    trusted = public_key
+    if trusted is not None and not isinstance(trusted, Ed25519PublicKey):
+        trusted = load_public_key(trusted)
+    report = VerificationReport(str(path))
+    if stored is None:
+        report.problems.append(
+            f"global attribute {INTEGRITY_ATTR!r} is missing: the certificate was never "
+            "sealed or the seal was removed"
+        )
+        return report
+    try:
+        expected = json.loads(stored)
+        exp_vars, exp_glob = expected["variables"], expected["global_attributes"]
+    except (ValueError, KeyError, TypeError):
+        report.problems.append(f"global attribute {INTEGRITY_ATTR!r} is not a valid integrity record")
+        return report
+    found = integrity_record(path)
+    for name in sorted(set(exp_vars) | set(found["variables"])):
+        if name not in found["variables"]:
+            report.problems.append(f"variable {name!r} was removed")
+        elif name not in exp_vars:
+            report.problems.append(f"variable {name!r} was added")
+        else:
+            if exp_vars[name]["data"] != found["variables"][name]["data"]:
+                report.problems.append(f"variable {name!r}: values altered")
+            if exp_vars[name]["attributes"] != found["variables"][name]["attributes"]:
+                report.problems.append(f"variable {name!r}: attributes altered")
+    for name in sorted(set(exp_glob) | set(found["global_attributes"])):
+        if name not in found["global_attributes"]:
+            report.problems.append(f"global attribute {name!r} was removed")
+        elif name not in exp_glob:
+            report.problems.append(f"global attribute {name!r} was added")
+        elif exp_glob[name] != found["global_attributes"][name]:
+            report.problems.append(f"global attribute {name!r} altered")
+    if expected.get("dimensions") not in (None, found["dimensions"]):
+        report.problems.append(f"dimensions changed: {expected['dimensions']} -> {found['dimensions']}")
+    report.variables_checked = len(found["variables"])
+    report.attributes_checked = len(found["global_attributes"])
+    _check_signature(report, {**signature_attrs, INTEGRITY_ATTR: stored}, trusted)
+    ds = open_artefact(path, load=False, chunks={})
+    try:
+        report.problems.extend(f"schema: {p}" for p in validate_dataset(ds, "certificate", source=str(path)))
+    finally:
+        ds.close()
+    return report
