@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from lidarcal.report import offline_html, write_text
+from lidarcal.htmlpage import offline_html, write_text
 
 __all__ = ["write_report", "report_layout"]
 
@@ -98,7 +98,7 @@ def report_layout(ds: xr.Dataset):
 def write_report(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write the self-contained HTML report atomically.
 
-    The layout is rendered to bokeh and written by :func:`lidarcal.report.offline_html` (the
+    The layout is rendered to bokeh and written by :func:`lidarcal.htmlpage.offline_html` (the
     page writer shared with the calibration report: BokehJS inline).  ``hvplot.save`` would go
     through panel, whose page template links its CSS from a CDN, so the page would try the
     network when opened offline.
