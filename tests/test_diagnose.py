@@ -307,7 +307,7 @@ def test_report_renders_offline_in_chromium(zd_run, chromium):
 def test_nominal_model_from_rwf_artefact_and_field_attributes():
     # --rwf: the nominal model takes its RWF nodes from the artefact and applies Eq. 2 (scale 1),
     # while cone angle and hybrid weight still come from the field file's attributes
-    from lidarcal.diagnose.core import nominal_model
+    from lidarcal.diagnose.inputs import nominal_model
     from lidarcal.rwf import range_weighting_function
 
     field = make_field(lidar_cone_angle=30.0, lidar_hybrid_weight=0.5)

@@ -18,7 +18,7 @@ from lidarcal.cli import command_line
 from lidarcal.cli.field import add_conditions_from_sta
 from lidarcal.cli.options import add_output_options, nonnegative_int, number, positive, positive_int
 from lidarcal.conditions import load_conditions, sample_conditions_path, synthetic_conditions
-from lidarcal.diagnose.core import check_field
+from lidarcal.diagnose.inputs import check_field
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel, check_reachable
