@@ -140,12 +140,17 @@ class _Magnitudes:
         self.z = np.array([_Z_KAIMAL]) if self.uniform else np.linspace(
             z_lo, top, max(2, int(np.ceil((top - z_lo) / 2.0)) + 1))
         self.m = spectral_magnitudes(f_all, self.z, wind_speed, sigma, nt)[:, 1:, :]  # (3, nf, nz)
+        self._z_weight = z_weight
+
+    @functools.cached_property
+    def _svd(self):
         # joint low-rank factorisation m_c(f, z) = Σ_k U[c, f, k] V[k, z] (smooth in f and z), in the norm
-        # weighted by where the RWF puts its weight (z_weight(z), default uniform)
+        # weighted by where the RWF puts its weight (z_weight(z), default uniform); only needed below 60 m
         n_f = self.m.shape[1]
-        w = np.ones(self.z.size) if z_weight is None else np.sqrt(np.maximum(z_weight(self.z), 1e-6))
+        w = np.ones(self.z.size) if self._z_weight is None else np.sqrt(np.maximum(self._z_weight(self.z),
+                                                                                   1e-6))
         u, sv, vt = np.linalg.svd(self.m.reshape(3 * n_f, -1) * w, full_matrices=False)
-        self._svd = (u, sv, vt / w)
+        return u, sv, vt / w
 
     def factors(self, tol: float) -> tuple[np.ndarray, np.ndarray]:
         """``U (3, nf, r)`` and ``V (r, nz)`` keeping singular values above ``tol`` times the largest."""
@@ -173,40 +178,50 @@ class _Magnitudes:
         return self.m @ self.weights(z)
 
 
-def _phi(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``∫_0^1 (1 - t) e^(zt) dt`` and ``∫_0^1 t e^(zt) dt`` for complex ``z`` (series near 0)."""
+def _phi(z: np.ndarray, ez: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``∫_0^1 (1 - t) e^(zt) dt`` and ``∫_0^1 t e^(zt) dt`` for complex ``z``, given ``ez = e^z``.
+
+    The closed forms lose ``~1e-16 / |z|²`` to cancellation, so ``|z| < 1e-3`` takes the series.
+    """
+    z2 = z * z
+    with np.errstate(divide="ignore", invalid="ignore"):
+        phi0 = (ez - 1.0 - z) / z2
+        phi1 = (z * ez - ez + 1.0) / z2
     small = np.abs(z) < 1e-3
-    zs = np.where(small, 1.0, z)
-    ez = np.exp(zs)
-    z2 = zs * zs
-    phi0 = np.where(small, 0.5 + z / 6.0 + z * z / 24.0, (ez - 1.0 - zs) / z2)
-    phi1 = np.where(small, 0.5 + z / 3.0 + z * z / 8.0, (zs * ez - ez + 1.0) / z2)
+    if small.any():
+        zs = z[small]
+        phi0[small] = 0.5 + zs / 6.0 + zs * zs / 24.0
+        phi1[small] = 0.5 + zs / 3.0 + zs * zs / 8.0
     return phi0, phi1
 
 
 def _side_integral(P: np.ndarray, h: float, z: np.ndarray) -> np.ndarray:
-    """``∫_0^∞ P(t) e^(z t / h) dt``, ``P`` piecewise linear on ``t_j = j h`` (last axis); exact kernel.
+    """``∫_0^∞ P(t) e^(z t / h) dt``, ``P`` piecewise linear on ``t_j = j h`` (FIRST axis); exact kernel.
 
-    ``z`` (complex, ``Re z <= 0``) broadcasts against ``P[..., 0]``.  Interval ``j`` contributes
-    ``h e^(j z) (P_j φ0(z) + P_(j+1) φ1(z))``: a polynomial in ``e^z``, evaluated by Horner's rule.
+    ``z`` (complex, ``Re z <= 0``) broadcasts against ``P[0]``.  Interval ``j`` contributes
+    ``h e^(j z) (P_j φ0(z) + P_(j+1) φ1(z))``: a polynomial in ``e^z``, evaluated by Horner's rule
+    (the lag axis first, so that every step reads one contiguous slice).
     """
-    phi0, phi1 = _phi(z)
+    z = np.asarray(z, dtype=complex)
     rho = np.exp(z)
-    Pt = np.ascontiguousarray(np.moveaxis(np.asarray(P), -1, 0))
+    phi0, phi1 = _phi(z, rho)
+    Pt = np.asarray(P)
     n = Pt.shape[0]
     # Σ_j ρ^j (P_j φ0 + P_(j+1) φ1) = φ0 Σ_j ρ^j P_j + φ1 Σ_j ρ^j P_(j+1), j = 0 .. n-2
     tail = np.zeros(np.broadcast_shapes(rho.shape, Pt.shape[1:]), dtype=complex)
+    scalar = Pt.ndim == 1 or all(d == 1 for d in Pt.shape[1:])
+    coef = Pt.reshape(n).tolist() if scalar else Pt  # per-lag scalars: Python numbers add fastest
     for j in range(n - 1, 0, -1):  # tail = Σ_(j>=1) ρ^(j-1) P_j
         tail *= rho
-        tail += Pt[j]
+        tail += coef[j]
     head = Pt[0] + rho * (tail - Pt[n - 1] * rho ** (n - 2)) if n > 1 else Pt[0]  # Σ_(j<=n-2) ρ^j P_j
     return h * (phi0 * head + phi1 * tail)
 
 
 def _cusp_integral(P: np.ndarray, j0: int, h: float, mu: np.ndarray, kap: np.ndarray) -> np.ndarray:
-    """``∫ P(D) exp(-mu |D| + i kap D) dD`` with ``P`` piecewise linear on ``D_j = (j - j0) h``."""
-    pos = _side_integral(P[..., j0:], h, (-mu + 1j * kap) * h)
-    neg = _side_integral(P[..., j0::-1], h, (-mu - 1j * kap) * h)
+    """``∫ P(D) exp(-mu |D| + i kap D) dD``, ``P`` piecewise linear on ``D_j = (j - j0) h`` (first axis)."""
+    pos = _side_integral(P[j0:], h, (-mu + 1j * kap) * h)
+    neg = _side_integral(P[j0::-1], h, (-mu - 1j * kap) * h)
     return pos + neg
 
 
@@ -226,13 +241,14 @@ def _line_nodes(offsets, weights, profile, n_cut: int, n_nodes: int):
 def _autocorrelation(F: np.ndarray, h: float, mags: _Magnitudes, z_line: np.ndarray) -> np.ndarray:
     """Autocorrelation ``A_c(f, Δ_j) = ∫ G(s) G(s + Δ_j) ds`` of ``G = F m_c(f, z(s))``.
 
-    Shape ``(3, nf, N)``, or ``(1, 1, N)`` (times ``m_c(f)²``) when the spectrum does not depend on z.
+    Shape ``(N, 3, nf)`` (lag first), or ``(N, 1, 1)`` (times ``m_c(f)²``) when the spectrum does not
+    depend on z.
 
     Below 60 m the low-rank factorisation ``m_c(f, z) = Σ_k U_ck(f) V_k(z)`` leaves only
     ``rank²`` frequency-independent correlations.
     """
     if mags.uniform:
-        return (np.correlate(F, F, mode="full")[F.size - 1:] * h)[None, None, :]
+        return (np.correlate(F, F, mode="full")[F.size - 1:] * h)[:, None, None]
     Uf, Vz = mags.factors(1e-6)
     G = F * (Vz @ mags.weights(z_line))  # (r, N)
     r = G.shape[0]
@@ -241,7 +257,7 @@ def _autocorrelation(F: np.ndarray, h: float, mags: _Magnitudes, z_line: np.ndar
         for b in range(r):
             corr[a, b] = np.correlate(G[b], G[a], mode="full")[F.size - 1:]  # Σ_i G_a(i) G_b(i + j)
     UU = (Uf[:, :, :, None] * Uf[:, :, None, :]).reshape(3 * Uf.shape[1], r * r)
-    return (UU @ corr.reshape(r * r, -1)).reshape(3, Uf.shape[1], F.size) * h
+    return (corr.reshape(r * r, -1).T @ UU.T).reshape(F.size, 3, Uf.shape[1]) * h
 
 
 def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitudes, U, n_f, df, proj2):
@@ -269,6 +285,8 @@ def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitu
     Phi, D, rb = Phi[jlo:jhi + 1, cols[0]:cols[-1] + 1], D[jlo:jhi + 1], rb[cols[0]:cols[-1] + 1]
     j0 -= jlo
     E = _phases(rb * (pa - pb), U, n_f, df)  # (L, nf)
+    E32 = np.concatenate([E.real, E.imag], axis=1).astype(np.float32)  # (L, 2 nf)
+    beta32 = beta.astype(np.float32)
     if mags.uniform:
         Va = Vb = np.ones((1, D.size, rb.size))
     else:
@@ -292,22 +310,24 @@ def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitu
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         if b <= a:
             continue
-        Eab = np.concatenate([E[a:b].real, E[a:b].imag], axis=1)  # (L_slab, 2 nf)
+        Eab = E32[a:b]  # (L_slab, 2 nf): cos | sin
         VV = (Va[:, None, :, a:b] * Vb[None, :, :, a:b]).reshape(rank**2, D.size, b - a)
-        weights = Phi[None, :, a:b] * VV
-        Y = np.matmul(weights, Eab)  # (r², J, 2 nf)
+        weights = (Phi[None, :, a:b] * VV).astype(np.float32)
+        # single precision (1e-7 relative on sums of positive weights times unit phasors)
+        Y = np.matmul(weights, Eab).astype(np.float64)  # (r², J, 2 nf)
+        P = np.empty((D.size, 3 if not mags.uniform else 1, n_f), dtype=complex)  # lag first
         if mags.uniform:
-            P = (Y[0, :, :n_f] + 1j * Y[0, :, n_f:]).T[None]  # (1, nf, J)
+            P.real[:, 0] = Y[0, :, :n_f]
+            P.imag[:, 0] = Y[0, :, n_f:]
         else:
             UU = (Uf[:, :, :, None] * Uf[:, :, None, :]).reshape(3, n_f, rank**2).transpose(1, 0, 2)
             Yt = Y.transpose(2, 0, 1)  # (2 nf, r², J)
-            Pre = np.matmul(UU, Yt[:n_f])  # (nf, 3, J)
-            Pim = np.matmul(UU, Yt[n_f:])
-            P = (Pre + 1j * Pim).transpose(1, 0, 2)  # (3, nf, J)
+            P.real = np.matmul(UU, Yt[:n_f]).transpose(2, 1, 0)  # (nf, 3, J) -> (J, 3, nf)
+            P.imag = np.matmul(UU, Yt[n_f:]).transpose(2, 1, 0)
         if eps > 0:
             r0 = eps * float(np.sum(rb[a:b] * Phi[:, a:b].sum(0)) / max(Phi[:, a:b].sum(), 1e-300))
             excess = (np.sqrt(alpha * D**2 + r0**2) - np.sqrt(alpha) * np.abs(D)).astype(np.float32)
-            P = P * np.exp(-beta.astype(np.float32)[:, :, None] * excess)
+            P = P * np.exp(-beta32[None] * excess[:, None, None])
         total = total + _cusp_integral(P, j0, hr, beta * np.sqrt(alpha), -k * (pa + pb) / 2.0)
     if mags.uniform:
         total = total * mags.m[:, :, 0] ** 2
@@ -375,14 +395,19 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
 
     # -- same beam: 2 Re ∫_0^∞ A(Δ) exp(κΔ) dΔ, A the autocorrelation of G = F m
     A = _autocorrelation(F, h, mags, z_line)
-    peak = np.max(np.abs(A), axis=(0, 1))
-    A = A[..., :int(np.flatnonzero(peak > 1e-10 * peak.max())[-1]) + 2]
-    kap = (-beta[None] * q[:, None, None] + 1j * k[None, None, :] * along[:, None, None]) * h  # (4, 3, nf)
-    same = 2.0 * np.real(_side_integral(A, h, kap))  # (4, 3, nf)
+    peak = np.max(np.abs(A), axis=(1, 2))
+    A = A[:int(np.flatnonzero(peak > 1e-10 * peak.max())[-1]) + 2]
+    # A is real, so the real part depends on q and |along| only: opposite beams share one integral
+    qs, als = q.tolist(), np.abs(along).tolist()
+    first = [next(r for r in range(b + 1) if abs(qs[r] - qs[b]) <= 1e-12 * qs[b]
+                  and abs(als[r] - als[b]) <= 1e-12) for b in range(4)]
+    reps = sorted(set(first))
+    kap = (-beta[None] * q[reps, None, None] + 1j * k[None, None, :] * along[reps, None, None]) * h
+    same = 2.0 * np.real(_side_integral(A, h, kap))  # (len(reps), 3, nf)
     if mags.uniform:
         same = same * (m_ref**2)[None]
     for b in range(4):
-        C[:, 2 + b, 2 + b] = np.einsum("c,cf->f", proj[b] ** 2, same[b])
+        C[:, 2 + b, 2 + b] = np.einsum("c,cf->f", proj[b] ** 2, same[reps.index(first[b])])
 
     # Gauss nodes of the CNR-weighted RWF, weights x magnitudes x frozen-turbulence phases, per rule size
     node_cache: dict[int, tuple] = {}
@@ -411,10 +436,10 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
         sd = s0[near, None] + D  # (B, J)
         Fd = np.interp(sd, s, F, left=0.0, right=0.0)
         md = (mags.m[:2] @ mags.weights(((R + sd) * up).ravel())).reshape(2, n_f, near.size, D.size)
-        md = md.transpose(2, 0, 1, 3)
-        excess = np.hypot(q[near, None] * D, d[near, None]) - q[near, None] * np.abs(D)  # r - q|D| >= 0
-        P = Fd[:, None, None, :] * md * np.exp(-beta32[None, :2, :, None]
-                                               * excess[:, None, None, :].astype(np.float32))
+        md = md.transpose(3, 2, 0, 1)  # (J, B, 2, nf): lag first
+        excess = (np.hypot(q[near, None] * D, d[near, None]) - q[near, None] * np.abs(D)).T  # r - q|D| >= 0
+        P = Fd.T[:, :, None, None] * md * np.exp(-beta32[None, None, :2]
+                                                  * excess[:, :, None, None].astype(np.float32))
         val = _cusp_integral(P, j0, h, beta[None, :2] * q[near, None, None],
                              (k[None, :] * along[near, None])[:, None])  # (B, 2, nf)
         val *= np.exp(1j * k[None, :] * (along[near] * (R + s0[near]))[:, None])[:, None]
@@ -422,8 +447,11 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
             C[:, :2, 2 + b] = (val[i] * m_ref[:2] * proj[b, :2, None]).T
     for b in np.flatnonzero(d >= R_COLLINEAR):  # smooth kernel: Gauss quadrature
         yw, zw, Ub = gauss(rule(d[b]))
-        E = np.exp(-beta32[:2, :, None] * np.hypot(yw[b], zw - height).astype(np.float32))  # (2, nf, n)
-        C[:, :2, 2 + b] = (np.sum(np.conj(Ub[b, :2]) * E, axis=-1) * m_ref[:2] * proj[b, :2, None]).T
+        r = np.hypot(yw[b], zw - height)
+        m = _coherent_frequencies(beta, float(r.min()))
+        E = np.exp(-beta32[:2, :m, None] * r.astype(np.float32))  # (2, m, n)
+        C[:m, :2, 2 + b] = (np.sum(np.conj(Ub[b, :2, :m]) * E, axis=-1) * m_ref[:2, :m]
+                            * proj[b, :2, None]).T
     C[:, 2:, :2] = np.conj(np.swapaxes(C[:, :2, 2:], 1, 2))
 
     # -- beam - beam
@@ -443,17 +471,33 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
                 groups.setdefault(rule(r0), []).append((b, b2))
     for n, pairs in groups.items():
         yw, zw, Ub = gauss(n)
-        ia, ib = (np.array(x) for x in zip(*pairs, strict=True))
-        r = np.hypot(yw[ia][:, :, None] - yw[ib][:, None, :], zw[:, None] - zw[None, :])  # (P, n, n)
-        # coherence in single precision (1e-7 relative; the exponential is 10x faster in float32)
-        E = np.exp(-beta32[None, :, :, None, None] * r.astype(np.float32)[:, None, None])  # (P, 3, nf, n, n)
-        vb = np.conj(Ub[ib])
-        t = np.matmul(E, np.stack([vb.real, vb.imag], axis=-1).astype(np.float32)).astype(np.float64)
-        t = t[..., 0] + 1j * t[..., 1]
-        total = np.einsum("pc,pcf->pf", proj[ia] * proj[ib], np.sum(Ub[ia] * t, axis=-1))
-        C[:, 2 + ia, 2 + ib] = total.T
-        C[:, 2 + ib, 2 + ia] = np.conj(total.T)
+        for ia, ib in pairs:
+            r = np.hypot(yw[ia][:, None] - yw[ib][None, :], zw[:, None] - zw[None, :])  # (n, n)
+            m = _coherent_frequencies(beta, float(r.min()))
+            # coherence in single precision (1e-7 relative; the exponential is 10x faster in float32)
+            E = np.exp(-beta32[:, :m, None, None] * r.astype(np.float32))  # (3, m, n, n)
+            vb = np.conj(Ub[ib, :, :m])
+            t = np.matmul(E, np.stack([vb.real, vb.imag], axis=-1).astype(np.float32)).astype(np.float64)
+            t = t[..., 0] + 1j * t[..., 1]
+            total = proj[ia] * proj[ib] @ np.sum(Ub[ia, :, :m] * t, axis=-1)  # (m,)
+            C[:m, 2 + ia, 2 + ib] = total
+            C[:m, 2 + ib, 2 + ia] = np.conj(total)
     return C
+
+
+#: Coherence below which a cross-spectral entry is set to zero (far below the 2 % accuracy of the
+#: matrix and the float32 resolution of the coherence itself, 1e-7).
+COHERENCE_FLOOR = 1e-7
+
+
+def _coherent_frequencies(beta: np.ndarray, r_min: float) -> int:
+    """Count the leading frequencies at which ``exp(-β_c(f) r_min)`` exceeds :data:`COHERENCE_FLOOR`.
+
+    ``β_c(f)`` grows with ``f`` for every component, so beyond that count every node pair of two
+    signals at least ``r_min`` apart is incoherent and their cross-spectrum is zero to that floor.
+    """
+    live = np.exp(-beta.min(axis=0) * r_min) > COHERENCE_FLOOR  # (nf,), monotone: True then False
+    return int(np.count_nonzero(live))
 
 
 def draw_coefficients(C: np.ndarray, rng: np.random.Generator, amplitudes: str = "deterministic",
