@@ -106,6 +106,8 @@ class CalibrationConfig:
     scheduler: str | None = None
     fft_size: int = 64
     min_samples: int = DEFAULT_MIN_SAMPLES
+    #: LOS error model (``LidarModel.los_noise_model``); None: residuals when the cube has them
+    los_noise_model: str | None = None
     terms: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
@@ -272,7 +274,7 @@ def calibrate(
     done("conditions", f"conditions ({cond.sizes['time']} periods x {cond.sizes['height']} heights)")
 
     # 4. Monte Carlo simulation
-    model = LidarModel.from_artefacts(cube=cube, rwf=rwf)
+    model = LidarModel.from_artefacts(cube=cube, rwf=rwf, los_noise_model=cfg.los_noise_model)
     # finished chunks are kept here until the simulation completes, so a killed run re-started
     # with --overwrite resumes instead of starting again (chunk files are keyed by their inputs)
     workdir = outdir / CHUNK_DIR

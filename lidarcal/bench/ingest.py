@@ -19,7 +19,12 @@ Steps (paper §2.1, §3.1), all vectorised:
    Rejections are counted per bin (``outlier_count``) and in total;
 4. per (LOS, CNR, velocity) bin: δ = mean(r) (``los_bias``), s = std(r, ddof=1)
    (``los_std``; with one programmed value per bin, the std of the measured velocity) and N
-   (``sample_count``).
+   (``sample_count``);
+5. every candidate residual ``r`` of the bin, *before* step 3 (bad estimates included), in
+   time order along a ``sample`` dimension padded with NaN (``los_residual``): the virtual
+   lidar resamples them so that bad estimates enter the simulation with their measured
+   frequency (``docs/contracts.md``, bench cube).  Steps 3-4 do not see this variable, so
+   ``los_bias`` and ``los_std`` are what they were without it.
 
 Programmed values are assigned to the Table 1 grid node they are nearest (bins of ±1 dB,
 ±0.5 m/s); several control rows in the same bin are pooled.
@@ -274,6 +279,13 @@ def build_cube(
     ds["mean_measured_cnr"] = (dims, cnr_mean.reshape(_SHAPE), var_attrs(
         "mean carrier-to-noise ratio reported by the lidar", "dB",
         coverage_content_type="physicalMeasurement"))
+    ds["los_residual"] = ((*dims, "sample"), kernels.pad_groups(residual, cell, n_cells).reshape(
+        (*_SHAPE, -1)), var_attrs(
+        "LOS velocity error of each RTD sample (measured minus programmed radial velocity), "
+        "before bad-estimate rejection", "m s-1", coverage_content_type="physicalMeasurement",
+        comment=("the untrimmed residuals of the bin in time order, NaN-padded to the largest bin "
+                 "(CF incomplete multidimensional array); they include the bad estimates that "
+                 "outlier_count counts and los_bias / los_std exclude")))
     meta = control.metadata
     ds.attrs.update({
         "lidar_serial": meta["lidar_serial"], "bench_id": meta["bench_id"], "operator": meta["operator"],

@@ -15,6 +15,7 @@ import numpy as np
 __all__ = [
     "USED", "OUTSIDE", "TRANSITION", "LOS_MISMATCH", "REJECTED",
     "match_to_bins", "group_median", "robust_location", "reject_outliers", "between_run_stats",
+    "pad_groups",
 ]
 
 #: Sample status codes returned by :func:`match_to_bins` / set by :func:`reject_outliers`.
@@ -97,6 +98,23 @@ def reject_outliers(
     dev = np.abs(residual - center)
     scale = 1.4826 * group_median(dev, cell, n_cells)[cell]
     return dev <= k * np.maximum(scale, min_scale)
+
+
+def pad_groups(values: np.ndarray, groups: np.ndarray, n_groups: int) -> np.ndarray:
+    """Values per group label as rows of a NaN-padded ``(n_groups, max count)`` array.
+
+    Each row holds its group's values in their input order (a stable sort), then NaN; the
+    width is the largest group's count (at least 1, so an empty input gives one NaN column).
+    """
+    values = np.asarray(values, dtype=float)
+    groups = np.asarray(groups, dtype=np.intp)
+    count = np.bincount(groups, minlength=n_groups)
+    out = np.full((n_groups, max(int(count.max(initial=0)), 1)), np.nan)
+    order = np.argsort(groups, kind="stable")
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    rank = np.arange(len(order)) - first[groups[order]]
+    out[groups[order], rank] = values[order]
+    return out
 
 
 def between_run_stats(

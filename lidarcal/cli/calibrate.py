@@ -23,6 +23,7 @@ from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES
 from lidarcal.cli.options import (
     add_contact_options,
     add_heights_option,
+    add_los_noise_option,
     add_overwrite_option,
     add_parallel_options,
     add_progress_option,
@@ -63,6 +64,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise-terms", choices=("printed", "derived"), default="printed",
                    help="Eqs. 6-7 as printed (reproduces Table 4, default) or as propagated through the "
                    "10-minute average (docs/noise_terms.md)")
+    add_los_noise_option(p)
     p.add_argument("--min-samples", type=positive_int("--min-samples"), default=DEFAULT_MIN_SAMPLES,
                    metavar="N", help="fewest periods a sensitivity bin needs to enter the regression "
                    "(default %(default)s; docs/sensitivity.md); lower it for short runs")
@@ -84,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
         pulse_file=args.pulse_file, conditions=args.conditions, heights=tuple(args.heights),
         periods=None if args.periods == 0 else args.periods, base_seed=args.seed,
         workers=args.workers, scheduler=args.scheduler, fft_size=args.fft_size, chunk=args.chunk,
-        min_samples=args.min_samples,
+        min_samples=args.min_samples, los_noise_model=args.los_noise,
         terms={} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms},
     )
     result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args),

@@ -37,6 +37,7 @@ __all__ = [
     "positive_quantity",
     "add_parallel_options",
     "add_lidar_options",
+    "add_los_noise_option",
     "add_progress_option",
     "add_seed_option",
     "add_heights_option",
@@ -165,6 +166,18 @@ def add_lidar_options(parser: argparse.ArgumentParser, *,
     g.add_argument("--rwf", metavar="RWF.nc",
                    help=f"rwf artefact: range-weighting function (default: {default})")
     return g
+
+
+def add_los_noise_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """``--los-noise residuals|gaussian``: the bench-calibrated lidar's LOS error model.
+
+    Unset (``None``) means resample the cube's measured residuals when it has them, Gaussian
+    otherwise (``LidarModel.from_artefacts``).
+    """
+    parser.add_argument("--los-noise", choices=("residuals", "gaussian"), default=None,
+                        help="LOS error of the bench-calibrated lidar: resample each bench bin's measured "
+                        "residuals, bad estimates included, or draw N(los_bias, los_std) after the outlier "
+                        "rule (default: residuals when the cube has them; docs/contracts.md)")
 
 
 def add_progress_option(parser: argparse.ArgumentParser) -> None:

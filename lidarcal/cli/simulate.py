@@ -22,6 +22,7 @@ from lidarcal.cli import command_line
 from lidarcal.cli.options import (
     add_heights_option,
     add_lidar_options,
+    add_los_noise_option,
     add_output_options,
     add_parallel_options,
     add_progress_option,
@@ -49,7 +50,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         metavar="C.nc",
         help="conditions or field_campaign input (default: the embedded brightwind sample)",
     )
-    add_lidar_options(p, default="the ideal lidar, or the conditions' lidar_* attributes")
+    lidar = add_lidar_options(p, default="the ideal lidar, or the conditions' lidar_* attributes")
+    add_los_noise_option(lidar)
     p.add_argument("--model", metavar="FILE.nc", help="use the LidarModel in FILE's lidarcal_lidar_model "
                    "attribute, e.g. a diagnosis with its fitted effect added (instead of --cube/--rwf)")
     add_heights_option(p, help="heights to simulate, m (default: all heights of the conditions)")
@@ -96,14 +98,16 @@ def run(args: argparse.Namespace) -> int:
     inputs = {}
     if args.model:
         model = corrected_model(args.model)
+        if args.los_noise:
+            model = model.replace(los_noise_model=args.los_noise)
         inputs["model"] = args.model
     elif args.cube or args.rwf:
         cube = open_artefact(args.cube, "bench_cube") if args.cube else None
         rwf = open_artefact(args.rwf, "rwf") if args.rwf else None
-        model = LidarModel.from_artefacts(cube=cube, rwf=rwf)
+        model = LidarModel.from_artefacts(cube=cube, rwf=rwf, los_noise_model=args.los_noise)
         inputs.update({k: v for k, v in (("cube", args.cube), ("rwf", args.rwf)) if v})
     else:
-        model = LidarModel.from_attrs(cond)
+        model = LidarModel.from_attrs(cond, los_noise_model=args.los_noise)
     base_seed = args.seed
     ds = simulate_campaign(
         conditions,

@@ -16,6 +16,7 @@ from lidarcal.cli import command_line
 from lidarcal.cli.options import (
     add_heights_option,
     add_lidar_options,
+    add_los_noise_option,
     add_output_options,
     add_parallel_options,
     add_progress_option,
@@ -67,7 +68,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_heights_option(p, default=(100.0,), help="heights, m (default 100)")
     p.add_argument("--repeats", type=positive_int("--repeats"), default=1, metavar="N",
                    help="Monte Carlo replicates per grid point (default 1)")
-    add_lidar_options(p, default="the ideal Gaussian lidar")
+    add_los_noise_option(add_lidar_options(p, default="the ideal Gaussian lidar"))
     add_seed_option(p)
     add_parallel_options(p)
     add_progress_option(p)
@@ -90,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
             grid[name] = vals if unit in ("1", "dB", "dB m-1") else Q_(np.asarray(vals), unit)
     cube = open_artefact(args.cube, "bench_cube") if args.cube else None
     rwf = open_artefact(args.rwf, "rwf") if args.rwf else None
-    model = LidarModel.from_artefacts(cube=cube, rwf=rwf)
+    model = LidarModel.from_artefacts(cube=cube, rwf=rwf, los_noise_model=args.los_noise)
     inputs = {k: v for k, v in (("cube", args.cube), ("rwf", args.rwf)) if v}
     call = command_line(args)
     ds, records = sweep(

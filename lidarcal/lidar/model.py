@@ -2,7 +2,8 @@
 
 A :class:`LidarModel` is a frozen, JSON-serialisable dataclass holding everything the virtual
 lidar needs: the beam geometry, the beam period, the hybrid weight, the RWF as K quadrature
-nodes, the LOS noise (ideal Gaussian or a bench ``ℓcv`` table), the availability, and the
+nodes, the LOS noise (ideal Gaussian, or a bench ``ℓcv`` table: Gaussian from its bias and
+std, or resampled from its measured residuals, ``los_noise_model``), the availability, and the
 effects the ``diagnose`` stage can switch on (``zero_distance_offset``, ``beam_angle_offset``,
 ``cnr_weighting_scale``, ``hybrid_weight``, ``reference_overspeeding``, ``reference_gain``,
 ``reference_flow_distortion_*``).
@@ -36,8 +37,11 @@ from lidarcal.rwf.kernels import barycenter
 from lidarcal.turbulence.kernels import SIGMA_RATIOS
 from lidarcal.units import convert_variable
 
-__all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "flow_distortion_factor",
+__all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "LOS_NOISE_MODELS", "flow_distortion_factor",
            "direction_spread"]
+
+#: LOS noise models of a bench-calibrated lidar (:attr:`LidarModel.los_noise_model`).
+LOS_NOISE_MODELS = ("residuals", "gaussian")
 
 
 def _tuplify(value: Any) -> Any:
@@ -65,16 +69,26 @@ class NoiseTable:
 
     Lookup (:meth:`lookup`) is bilinear in (CNR, velocity) between bin centres and clamped to
     the edge bins outside the table.
+
+    Optionally the table carries each bin's measured residuals (measured − programmed, bad
+    estimates included) as a contiguous ragged array: ``residual_count`` (same shape as
+    ``bias``, every bin >= 1 after filling) and ``residuals``, the bins' values concatenated in
+    C order of ``(beam, cnr, velocity)``.  :meth:`draw_residuals` resamples them.
     """
 
     cnr: tuple[float, ...]
     velocity: tuple[float, ...]
     bias: tuple[tuple[tuple[float, ...], ...], ...]
     std: tuple[tuple[tuple[float, ...], ...], ...]
+    residual_count: tuple[tuple[tuple[int, ...], ...], ...] | None = None
+    residuals: tuple[float, ...] | None = None
 
     def __post_init__(self) -> None:
-        for name in ("cnr", "velocity", "bias", "std"):
+        for name in ("cnr", "velocity", "bias", "std", "residual_count"):
             object.__setattr__(self, name, _tuplify(getattr(self, name)))
+        if self.residuals is not None:  # tens of thousands of values: one conversion, not per element
+            values = np.atleast_1d(np.asarray(self.residuals, dtype=float))
+            object.__setattr__(self, "residuals", tuple(values.tolist()))
         bias, std = np.asarray(self.bias, float), np.asarray(self.std, float)
         shape = (bias.shape[0], len(self.cnr), len(self.velocity)) if bias.ndim == 3 else None
         if shape is None or bias.shape != shape or std.shape != shape:
@@ -87,7 +101,58 @@ class NoiseTable:
             if axis.size > 1 and np.any(np.diff(axis) <= 0):
                 raise InputError(f"noise table: {name} bin centres must be strictly increasing")
         object.__setattr__(self, "_arrays", (np.asarray(self.cnr), np.asarray(self.velocity), bias, std))
+        if (self.residual_count is None) != (self.residuals is None):
+            raise InputError("noise table: residual_count and residuals go together; one of them is missing")
+        if self.residuals is not None:
+            count = np.asarray(self.residual_count)
+            values = np.asarray(self.residuals, dtype=float)
+            if count.shape != shape or count.dtype.kind not in "iu" or np.any(count < 1):
+                raise InputError(f"noise table: residual_count must hold whole numbers >= 1 with shape "
+                                 f"{shape}; found shape {count.shape}")
+            if values.ndim != 1 or values.size != int(count.sum()) or not np.all(np.isfinite(values)):
+                raise InputError(f"noise table: residuals must be {int(count.sum())} finite values (the sum "
+                                 f"of residual_count); found {values.size}")
+            flat = count.ravel()
+            start = np.concatenate([[0], np.cumsum(flat)[:-1]])
+            object.__setattr__(self, "_ragged", (flat, start, values))
 
+    @property
+    def has_residuals(self) -> bool:
+        """True when the table carries measured residuals to resample."""
+        return self.residuals is not None
+
+    def draw_residuals(self, beam: np.ndarray, cnr: float, velocity: np.ndarray,
+                       uniforms: np.ndarray) -> np.ndarray:
+        """Draw one measured residual (m s-1) per sample from the neighbouring bins.
+
+        ``beam`` (index into the beams) and ``velocity`` (m s-1) give each sample, ``cnr`` (dB)
+        the period; ``uniforms`` is ``(3, n)`` uniform numbers in [0, 1).  The bin is chosen at
+        random among the neighbours :meth:`lookup` interpolates between, each with its bilinear
+        weight (row 0 picks the CNR neighbour, row 1 the velocity neighbour; clamped outside
+        the table), so the draw's distribution is the bilinear mixture of the bins'
+        distributions and its mean the bilinear interpolation of the bins' mean residuals; row 2
+        picks one of that bin's residuals with equal probability.
+        """
+        if self.residuals is None:
+            raise InputError("noise table: no measured residuals to resample (a cube without "
+                             "'los_residual'); use los_noise_model='gaussian'")
+        cnr_axis, vel_axis, _, _ = self._arrays
+        count, start, values = self._ragged
+        n_c, n_v = cnr_axis.size, vel_axis.size
+        velocity = np.asarray(velocity, dtype=float)
+        ci = np.zeros(velocity.shape, dtype=np.intp)
+        if n_c > 1:
+            pos = float(np.interp(cnr, cnr_axis, np.arange(n_c)))
+            i0 = int(np.floor(pos))
+            ci = np.where(uniforms[0] < pos - i0, min(i0 + 1, n_c - 1), i0)
+        vi = np.zeros(velocity.shape, dtype=np.intp)
+        if n_v > 1:
+            pos_v = np.interp(velocity, vel_axis, np.arange(n_v))
+            j0 = np.floor(pos_v).astype(np.intp)
+            vi = np.where(uniforms[1] < pos_v - j0, np.minimum(j0 + 1, n_v - 1), j0)
+        cell = (np.asarray(beam, dtype=np.intp) * n_c + ci) * n_v + vi
+        k = np.minimum((uniforms[2] * count[cell]).astype(np.intp), count[cell] - 1)
+        return values[start[cell] + k]
     def lookup(self, beam: int, cnr: float, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bias and std (m s-1) for one beam at one CNR (dB) and many radial velocities."""
         cnr_axis, vel_axis, bias, std = self._arrays
@@ -145,6 +210,11 @@ class LidarModel:
     #: turbulence Fourier amplitudes: ``"deterministic"`` (PyConTurb: fixed magnitudes, random phases;
     #: the reference's realised 10-min TI equals the period's) or ``"rayleigh"`` (Gaussian process)
     turbulence_amplitudes: str = "deterministic"
+    #: LOS error of a bench-calibrated lidar: ``"residuals"`` resamples the bench bin's measured
+    #: residuals (bad estimates included), ``"gaussian"`` draws N(los_bias, los_std) (MAD-trimmed);
+    #: :meth:`from_artefacts` picks ``"residuals"`` when the cube has them.  The ideal lidar is
+    #: Gaussian (``los_noise_std``) whatever this says.
+    los_noise_model: str = "gaussian"
     #: the continuous RWF ``(offsets (m), values)`` that filters turbulence; ``None``: the Gaussian with
     #: the quadrature nodes' mean and variance (exact for the ideal lidar)
     rwf_profile: tuple[tuple[float, ...], tuple[float, ...]] | None = None
@@ -187,6 +257,13 @@ class LidarModel:
             problems.append(f"cnr_threshold must be a finite CNR in dB or None; got {self.cnr_threshold}")
         if self.noise_table is not None and len(self.noise_table.bias) != 4:
             problems.append(f"noise_table must have 4 beams; has {len(self.noise_table.bias)}")
+        if self.los_noise_model not in LOS_NOISE_MODELS:
+            problems.append(f"los_noise_model must be one of {list(LOS_NOISE_MODELS)}; got "
+                            f"{self.los_noise_model!r}")
+        elif self.los_noise_model == "residuals" and not (
+                self.noise_table is not None and self.noise_table.has_residuals):
+            problems.append("los_noise_model 'residuals' needs a bench noise table with measured residuals "
+                            "(a bench cube with 'los_residual'); use 'gaussian'")
         if self.turbulence_amplitudes not in ("deterministic", "rayleigh"):
             problems.append(f"turbulence_amplitudes must be 'deterministic' or 'rayleigh'; got "
                             f"{self.turbulence_amplitudes!r}")
@@ -220,15 +297,20 @@ class LidarModel:
 
     @classmethod
     def from_attrs(cls, ds: xr.Dataset, *, cube: xr.Dataset | None = None, rwf: xr.Dataset | None = None,
-                   source: str | None = None) -> LidarModel:
+                   source: str | None = None, los_noise_model: str | None = None) -> LidarModel:
         """Build the nominal lidar a ``conditions`` / ``field_campaign`` dataset describes.
 
         Its optional ``lidar_*`` global attributes (:data:`LIDAR_ATTRIBUTES`) give the
         configuration; missing ones take the defaults.  With ``cube`` and/or ``rwf`` the lidar is
         configured from those artefacts (:meth:`from_artefacts`) and the attributes fill in the
         rest (cone, p, beam period; RWF width without ``rwf``; LOS noise without ``cube``).
+        ``los_noise_model`` is passed on to :meth:`from_artefacts` (without a cube only
+        ``None`` or ``"gaussian"`` make sense: the ideal lidar's noise is Gaussian).
         """
         p = lidar_attributes(ds, source=source)
+        if cube is None and los_noise_model == "residuals":
+            raise InputError(f"{source or source_name(ds)}: los_noise_model 'residuals' needs a bench cube "
+                             "(--cube) with measured residuals; without one the LOS noise is Gaussian")
         if cube is None and rwf is None:
             return cls.ideal(cone_angle=p["lidar_cone_angle"], hybrid_weight=p["lidar_hybrid_weight"],
                              rwf_fwhm=p["lidar_rwf_fwhm"], los_noise_std=p["lidar_los_noise_std"],
@@ -239,11 +321,12 @@ class LidarModel:
             overrides["rwf_fwhm"] = p["lidar_rwf_fwhm"]
         if cube is None:
             overrides["los_noise_std"] = p["lidar_los_noise_std"]
-        return cls.from_artefacts(cube=cube, rwf=rwf, **overrides)
+        return cls.from_artefacts(cube=cube, rwf=rwf, los_noise_model=los_noise_model, **overrides)
 
     @classmethod
     def from_artefacts(cls, cube: xr.Dataset | None = None, rwf: xr.Dataset | None = None, *,
-                       n_nodes: int = DEFAULT_RWF_NODES, **overrides: Any) -> LidarModel:
+                       n_nodes: int = DEFAULT_RWF_NODES, los_noise_model: str | None = None,
+                       **overrides: Any) -> LidarModel:
         """Configure the lidar from a ``bench_cube`` and/or ``rwf`` artefact (CONTRIBUTING.md).
 
         Without an RWF the ideal Gaussian RWF (``rwf_fwhm`` override, default 30 m) is used.
@@ -255,8 +338,17 @@ class LidarModel:
         ``cnr_threshold`` defaults to :data:`DEFAULT_CNR_THRESHOLD`: below it a real profiler
         discards its estimates (bench bins there are dominated by bad estimates), so those
         periods are unavailable rather than simulated with metres-per-second noise; pass
-        ``cnr_threshold=None`` to simulate every period.  Remaining ``overrides`` set fields.
+        ``cnr_threshold=None`` to simulate every period.
+
+        ``los_noise_model`` (:data:`LOS_NOISE_MODELS`): ``None`` resamples the cube's measured
+        residuals when it has ``los_residual`` and draws Gaussian N(``los_bias``, ``los_std``)
+        otherwise; ``"residuals"`` with a cube without them is an
+        :class:`~lidarcal.errors.MissingVariableError` naming the file.  Without a cube the noise
+        is the ideal Gaussian.  Remaining ``overrides`` set fields.
         """
+        if los_noise_model is not None and los_noise_model not in LOS_NOISE_MODELS:
+            raise InputError(f"los_noise_model must be one of {list(LOS_NOISE_MODELS)}; "
+                             f"got {los_noise_model!r}")
         rwf_fwhm = float(overrides.pop("rwf_fwhm", DEFAULT_RWF_FWHM))
         offsets, weights = gauss_hermite_rwf(rwf_fwhm, n_nodes)
         kw: dict[str, Any] = {"rwf_offsets": offsets, "rwf_weights": weights}
@@ -268,9 +360,20 @@ class LidarModel:
         else:
             described.append(f"ideal Gaussian RWF FWHM {rwf_fwhm:g} m ({n_nodes} nodes)")
         if cube is not None:
-            kw["noise_table"] = _noise_table(cube, tuple(overrides.get("azimuths", cls.azimuths)))
+            has = "los_residual" in cube.variables
+            if los_noise_model == "residuals" and not has:
+                raise MissingVariableError(
+                    f"{source_name(cube)}: los_noise_model 'residuals' needs the bench cube variable "
+                    "'los_residual' (each bin's measured residuals, written by lidarcal bench ingest since "
+                    "it keeps them); this cube has none - re-ingest the bench run or use 'gaussian'")
+            model = los_noise_model or ("residuals" if has else "gaussian")
+            kw["noise_table"] = _noise_table(cube, tuple(overrides.get("azimuths", cls.azimuths)),
+                                             residuals=model == "residuals")
+            kw["los_noise_model"] = model
             kw["cnr_threshold"] = DEFAULT_CNR_THRESHOLD
-            described.append(f"bench cube {source_name(cube)}, CNR filter {DEFAULT_CNR_THRESHOLD:g} dB")
+            noise = "measured residuals resampled" if model == "residuals" else "Gaussian LOS noise"
+            described.append(f"bench cube {source_name(cube)} ({noise}), CNR filter "
+                             f"{DEFAULT_CNR_THRESHOLD:g} dB")
         else:
             described.append("ideal Gaussian LOS noise")
         kw["description"] = "; ".join(described)
@@ -437,7 +540,43 @@ def _fill_nearest(values: np.ndarray) -> np.ndarray:
     return values[ii, jj]
 
 
-def _noise_table(cube: xr.Dataset, azimuths: tuple[float, ...]) -> NoiseTable:
+def _fill_index(valid: np.ndarray) -> np.ndarray:
+    """Flat index of the nearest valid bin of a 2-D table for every bin (index space)."""
+    from scipy.ndimage import distance_transform_edt
+
+    _, (ii, jj) = distance_transform_edt(~valid, return_indices=True)
+    return np.ravel_multi_index((ii, jj), valid.shape)
+
+
+def _ragged_residuals(cube: xr.Dataset, rows: list[int], ci: np.ndarray,
+                      vi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the cube's residuals as counts (beam, cnr, velocity) and concatenated values.
+
+    Each beam's empty bins take the residuals of the nearest bin that has some (as the bias and
+    std of :func:`_fill_nearest`).
+    """
+    src = source_name(cube)
+    var = convert_variable(cube, "los_residual", "m s-1", source=src)
+    extra = [d for d in var.dims if d not in ("los", "cnr", "velocity")]
+    if len(extra) != 1:
+        raise InputError(f"{src}: variable 'los_residual' must have dims (los, cnr, velocity, sample); "
+                         f"found {tuple(var.dims)}")
+    res = var.transpose("los", "cnr", "velocity", extra[0]).values
+    counts, values = [], []
+    for row in rows:
+        r = res[row][np.ix_(ci, vi)]                        # (cnr, velocity, sample)
+        n = np.isfinite(r).sum(axis=-1)
+        if not (n > 0).any():
+            raise InputError(f"{src}: variable 'los_residual' is empty (all NaN) for the beam of "
+                             f"los_azimuth {float(cube.los_azimuth.values[row]):g}")
+        src_bin = _fill_index(n > 0)
+        flat = r.reshape(-1, r.shape[-1])[src_bin]         # (cnr * velocity, sample)
+        counts.append(n.ravel()[src_bin].reshape(n.shape))
+        values.append(flat[np.isfinite(flat)])               # C order: bin by bin, time order within
+    return np.array(counts, dtype=np.int64), np.concatenate(values)
+
+
+def _noise_table(cube: xr.Dataset, azimuths: tuple[float, ...], *, residuals: bool = False) -> NoiseTable:
     src = source_name(cube)
     bias = convert_variable(cube, "los_bias", "m s-1", source=src)
     std = convert_variable(cube, "los_std", "m s-1", source=src)
@@ -448,13 +587,14 @@ def _noise_table(cube: xr.Dataset, azimuths: tuple[float, ...]) -> NoiseTable:
     bias = bias.transpose("los", "cnr", "velocity").values
     std = std.transpose("los", "cnr", "velocity").values
     ci, vi = np.argsort(cnr), np.argsort(vel)
-    out_b, out_s = [], []
+    out_b, out_s, rows = [], [], []
     for a in azimuths:
         diff = np.abs((az - a + 180.0) % 360.0 - 180.0)
         cand = np.flatnonzero((diff < 0.5) & (el < 89.0))
         if cand.size != 1:
             raise InputError(f"{src}: coordinate 'los_azimuth' should hold exactly one oblique beam at "
                              f"{a}°; found azimuths {az.tolist()} with elevations {el.tolist()}")
+        rows.append(int(cand[0]))
         b, s = bias[cand[0]][np.ix_(ci, vi)], std[cand[0]][np.ix_(ci, vi)]
         ok = np.isfinite(b) & np.isfinite(s)
         if not ok.any():
@@ -463,4 +603,8 @@ def _noise_table(cube: xr.Dataset, azimuths: tuple[float, ...]) -> NoiseTable:
         b, s = np.where(ok, b, np.nan), np.where(ok, s, np.nan)
         out_b.append(_fill_nearest(b))
         out_s.append(_fill_nearest(s))
-    return NoiseTable(cnr=cnr[ci], velocity=vel[vi], bias=np.array(out_b), std=np.array(out_s))
+    extra = {}
+    if residuals:
+        count, values = _ragged_residuals(cube, rows, ci, vi)
+        extra = {"residual_count": count, "residuals": values}
+    return NoiseTable(cnr=cnr[ci], velocity=vel[vi], bias=np.array(out_b), std=np.array(out_s), **extra)

@@ -27,10 +27,13 @@ from north):
   mean part ``Σ_k w_k U(z_k) a_b`` over the K CNR-weighted quadrature nodes of Eq. 2
   (``w_k ∝ w_k^0 10^(scale · g · s_k / 20)``, ``scale = cnr_weighting_scale``, ``g`` the period's
   CNR gradient) plus the turbulent LOS signal (the same Eq. 2 weighting of the continuous RWF),
-  plus a Gaussian error ``N(μ, σ)``: ``μ, σ`` from the bench table for this beam,
-  the period's CNR and this sample's noise-free radial velocity (bilinear, clamped), or
-  ``μ = 0, σ = los_noise_std`` for the ideal lidar.  Samples are kept with probability
-  ``availability``.
+  plus an error drawn for this beam, the period's CNR and this sample's noise-free radial
+  velocity: by default (``los_noise_model = "residuals"``, a cube with measured residuals) one
+  of the bench bin's measured residuals, bad estimates included, the bin picked among the
+  neighbours with its bilinear weight (:meth:`~lidarcal.lidar.model.NoiseTable.draw_residuals`);
+  with ``"gaussian"`` ``N(μ, σ)``, ``μ, σ`` the table's MAD-trimmed bias and std (bilinear,
+  clamped); ``μ = 0, σ = los_noise_std`` for the ideal lidar.  Samples are kept with
+  probability ``availability``.
 * **Reconstruction** (:mod:`lidarcal.lidar.wfr`): sliding, nominal cone angle, scalar / vector /
   hybrid with ``p = hybrid_weight`` multiplying the scalar average.
 * **Virtual reference**: the point (0, 0, h) at every simulation time step (1 Hz for a 1-s beam
@@ -87,10 +90,15 @@ def _simulate_height(model: LidarModel, height: float, U: float, direction: floa
     else:
         turb = np.zeros((6, n_times))
     los_true = los_mean[beam_of_time] + turb[2 + beam_of_time, np.arange(n_times)]
-    noise = np.random.default_rng(noise_ss).standard_normal(n_times)
-    if model.noise_table is None:
-        los = los_true + model.los_noise_std * noise
+    noise_rng = np.random.default_rng(noise_ss)
+    if model.noise_table is not None and model.los_noise_model == "residuals":
+        # three uniforms per LOS: CNR neighbour, velocity neighbour, residual within the bin
+        u = noise_rng.random((3, n_times))
+        los = los_true + model.noise_table.draw_residuals(beam_of_time, cnr, los_true, u)
+    elif model.noise_table is None:
+        los = los_true + model.los_noise_std * noise_rng.standard_normal(n_times)
     else:
+        noise = noise_rng.standard_normal(n_times)
         los = np.empty(n_times)
         for b in range(4):
             sel = beam_of_time == b
