@@ -281,3 +281,16 @@ def test_ingest_keeps_every_candidate_residual(tmp_path):
     back = open_artefact(path, "bench_cube")
     np.testing.assert_array_equal(back.los_residual.values, cube.los_residual.values)
     assert LidarModel.from_artefacts(cube=back).los_noise_model == "residuals"
+
+
+@pytest.mark.parametrize("command", ["calibrate", "simulate", "sweep"])
+def test_los_noise_option(command, capsys):
+    from lidarcal.cli import build_parser
+
+    extra = [] if command == "calibrate" else ["-o", "x.nc"]
+    parser = build_parser()
+    assert parser.parse_args([command, *extra]).los_noise is None  # the cube decides
+    assert parser.parse_args([command, *extra, "--los-noise", "gaussian"]).los_noise == "gaussian"
+    with pytest.raises(SystemExit) as exc:
+        parser.parse_args([command, *extra, "--los-noise", "poisson"])
+    assert exc.value.code == 2 and "--los-noise" in capsys.readouterr().err
