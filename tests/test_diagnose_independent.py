@@ -88,10 +88,6 @@ TWO = {"reference_overspeeding": {"coefficient": 0.08},
        "reference_flow_distortion": {"centre": 120.0, "width": 40.0, "deficit": 0.04}}
 
 
-@pytest.mark.xfail(run=False, strict=True,
-                   reason="since the continuous-RWF engine the residual against the independent simulator "
-                          "has a wind-direction driver (270-360 degree) and the answer is 'unexplained' "
-                          "(open work)")
 def test_two_effects_at_once_are_both_named():
     # an over-speeding cup (0.08 x TI: ~1 %) and a mast shadow (4 % in a 40-degree sector)
     js = run(TWO, 150, heights=(40.0, 80.0, 160.0))

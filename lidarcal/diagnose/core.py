@@ -406,8 +406,11 @@ def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, t
             c.estimate, c.stderr, c.clipped = saved
         trials.sort(key=lambda t: t[0])
         # a fit clipped at a catalogue bound is not an estimate of that effect: never named
-        ok = [t for t in trials if t[0] <= -bic_threshold and t[3] >= tolerance and t[4] >= min_share
-              and not t[2].clipped]
+        # the share gates only when asked (min_share > 0): by default it is reported, never a reason to
+        # refuse, and a negative share (removing a mast shadow that offset a constant bias widens the
+        # gap in every other bin) must not keep the strongest effect out
+        ok = [t for t in trials if t[0] <= -bic_threshold and t[3] >= tolerance
+              and (min_share <= 0 or t[4] >= min_share) and not t[2].clipped]
         if trials and not ok:
             t = trials[0]
             why = []
