@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from lidarcal.lidar import LidarModel, simulate_period
-from lidarcal.lidar.spectral import cross_spectral_matrix, draw_coefficients, synthesise
+from lidarcal.lidar.spectral import cross_spectral_matrix, draw_coefficients, knot_indices, synthesise
 
 PHI = np.radians(28.0)
 SIGMA_RWF = 30.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))
@@ -85,6 +85,14 @@ def richardson(height, U, direction, ti, fidx, gradient=0.0):
 
 
 FIDX = [1, 3, 10, 30, 60, 120, 200, 300]  # 1/600 Hz ... Nyquist
+
+
+def test_brute_force_frequencies_include_interpolated_ones():
+    """The engine computes the matrix at knots and interpolates between them: the brute-force checks
+    below must cover both kinds, or they would not test the interpolation."""
+    knots = set((knot_indices(NT // 2) + 1).tolist())
+    assert {1, 300} <= knots
+    assert {30, 60, 120, 200} & knots == set()
 
 
 def check_against_brute(height, U, direction, ti, gradient=0.0):

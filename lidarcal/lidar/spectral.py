@@ -34,9 +34,18 @@ turbulence gives the phase).  Three kinds of entries:
   the gate, the cusp is integrated exactly in the difference coordinate (``r² = α D² + r0²``,
   product integration in ``D``, trapezoid in the mean coordinate, the spectra's z-dependence by
   a low-rank factorisation); within :data:`R_FINE`, product Gauss quadrature with
-  :data:`N_FINE` nodes per beam; otherwise :data:`N_CROSS` nodes.  Against a brute-force double
-  sum (``tests/test_lidar_spectral.py``) every element is within 1.2 % of ``sqrt(C_ii C_jj)``.
+  :data:`N_FINE` nodes per beam; otherwise :data:`N_CROSS` nodes (:data:`N_FAR` beyond
+  :data:`R_FAR`), and zero at frequencies where even the closest node pair's coherence is below
+  :data:`COHERENCE_FLOOR`.  Against a brute-force double sum (``tests/test_lidar_spectral.py``) every
+  element is within 1.2 % of ``sqrt(C_ii C_jj)``.
 * **Reference – reference.**  ``m_u(f, h)²``, ``m_v(f, h)²`` and 0 (``u ⊥ v``).
+
+**Frequencies.**  The matrix is computed at every frequency up to :data:`N_DENSE` and at every
+:data:`KNOT_STEP`-th beyond (60 of the 300 frequencies of a 10-minute period at 1 s), and
+interpolated in between: once the frozen-turbulence phase between the gate centres is taken out,
+every coherence is a smooth function of f (a cubic spline reproduces the full computation within
+1.2e-4 of ``sqrt(C_ii C_jj)``), and so is every spectrum in log f.  The reference's spectra are
+exact at every frequency.
 
 Synthesis (:func:`draw_coefficients`) follows PyConTurb: the matrix is normalised to a
 coherence matrix ``Γ = D⁻¹ C D⁻¹`` (``D = sqrt(diag C)``), factorised ``Γ = L L^H`` (batched
@@ -53,13 +62,14 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from lidarcal.lidar.geometry import beam_geometry, wind_axes
 from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes
 from lidarcal.turbulence.kernels import L_C, LENGTH_SCALE_FACTORS, spectral_magnitudes
 
 __all__ = ["N_CROSS", "AMPLITUDES", "continuous_rwf", "cross_spectral_matrix", "draw_coefficients",
-           "synthesise"]
+           "knot_indices", "synthesise"]
 
 #: Gauss nodes per beam for the beam-beam and beam-reference entries.
 N_CROSS = 8
@@ -119,12 +129,9 @@ def _beta(f: np.ndarray, wind_speed: float, l_c: float = L_C) -> np.ndarray:
     return 12.0 * np.sqrt((f[None, :] / wind_speed) ** 2 + (0.12 / lc[:, None]) ** 2)
 
 
-def _phases(x: np.ndarray, wind_speed: float, n_f: int, df: float) -> np.ndarray:
-    """``exp(-2πi f_n x / U)``, ``f_n = n df``, ``n = 1..n_f``: ``x.shape + (n_f,)`` (one sin/cos per x)."""
-    step = np.exp(-2j * np.pi * df * np.asarray(x, float) / wind_speed)
-    out = np.empty(np.shape(x) + (n_f,), dtype=complex)
-    out[...] = step[..., None]
-    return np.cumprod(out, axis=-1)
+def _phases(x: np.ndarray, wind_speed: float, f: np.ndarray) -> np.ndarray:
+    """``exp(-2πi f x / U)``: shape ``x.shape + f.shape``."""
+    return np.exp(np.multiply.outer(np.asarray(x, float) * (-2j * np.pi / wind_speed), f))
 
 
 class _Magnitudes:
@@ -134,29 +141,33 @@ class _Magnitudes:
     """
 
     def __init__(self, z_lo: float, z_hi: float, f_all: np.ndarray, wind_speed: float, sigma, nt: int,
-                 z_weight=None):
+                 z_weight=None, sel: np.ndarray | None = None):
         self.uniform = z_lo >= _Z_KAIMAL
         top = min(z_hi, _Z_KAIMAL)
         self.z = np.array([_Z_KAIMAL]) if self.uniform else np.linspace(
             z_lo, top, max(2, int(np.ceil((top - z_lo) / 2.0)) + 1))
-        self.m = spectral_magnitudes(f_all, self.z, wind_speed, sigma, nt)[:, 1:, :]  # (3, nf, nz)
+        self._m_all = spectral_magnitudes(f_all, self.z, wind_speed, sigma, nt)[:, 1:, :]  # (3, nf, nz)
+        # only the frequencies ``sel`` are used (the normalisation above and the low-rank factorisation
+        # below see all of them, so a subset gives the same values as the full computation)
+        self._sel = slice(None) if sel is None else np.asarray(sel)
+        self.m = np.ascontiguousarray(self._m_all[:, self._sel])
         self._z_weight = z_weight
 
     @functools.cached_property
     def _svd(self):
         # joint low-rank factorisation m_c(f, z) = Σ_k U[c, f, k] V[k, z] (smooth in f and z), in the norm
         # weighted by where the RWF puts its weight (z_weight(z), default uniform); only needed below 60 m
-        n_f = self.m.shape[1]
+        n_f = self._m_all.shape[1]
         w = np.ones(self.z.size) if self._z_weight is None else np.sqrt(np.maximum(self._z_weight(self.z),
                                                                                    1e-6))
-        u, sv, vt = np.linalg.svd(self.m.reshape(3 * n_f, -1) * w, full_matrices=False)
-        return u, sv, vt / w
+        u, sv, vt = np.linalg.svd(self._m_all.reshape(3 * n_f, -1) * w, full_matrices=False)
+        return u.reshape(3, n_f, -1)[:, self._sel], sv, vt / w
 
     def factors(self, tol: float) -> tuple[np.ndarray, np.ndarray]:
         """``U (3, nf, r)`` and ``V (r, nz)`` keeping singular values above ``tol`` times the largest."""
         u, sv, vt = self._svd
         r = int(np.count_nonzero(sv > tol * sv[0]))
-        return (u[:, :r] * sv[:r]).reshape(3, -1, r), vt[:r]
+        return u[..., :r] * sv[:r], vt[:r]
 
     def weights(self, z: np.ndarray) -> np.ndarray:
         """Interpolation matrix ``(nz, len(z))`` (clamped at both ends; above 60 m the last column)."""
@@ -260,7 +271,7 @@ def _autocorrelation(F: np.ndarray, h: float, mags: _Magnitudes, z_line: np.ndar
     return (corr.reshape(r * r, -1).T @ UU.T).reshape(F.size, 3, Uf.shape[1]) * h
 
 
-def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitudes, U, n_f, df, proj2):
+def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitudes, U, f, proj2):
     """Cross-spectrum of a beam pair whose y-z lines (nearly) coincide.
 
     ``r² = α D² + (ε ρ̄)²`` in ``D = ρ - ρ'``, ``ρ̄ = (ρ + ρ')/2`` (``ρ`` the distance along the y-z
@@ -284,7 +295,8 @@ def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitu
     jlo, jhi = min(rows[0], j0), max(rows[-1], j0)
     Phi, D, rb = Phi[jlo:jhi + 1, cols[0]:cols[-1] + 1], D[jlo:jhi + 1], rb[cols[0]:cols[-1] + 1]
     j0 -= jlo
-    E = _phases(rb * (pa - pb), U, n_f, df)  # (L, nf)
+    n_f = f.size
+    E = _phases(rb * (pa - pb), U, f)  # (L, nf)
     E32 = np.concatenate([E.real, E.imag], axis=1).astype(np.float32)  # (L, 2 nf)
     beta32 = beta.astype(np.float32)
     if mags.uniform:
@@ -306,7 +318,7 @@ def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitu
     beta_eff = min(float(beta.max()), 8.0 / max(eps * rho_c, 1e-12))
     n_slab = int(np.clip(np.ceil(beta_eff * eps * width / _SLAB_PRODUCT), 1, 16))
     edges = np.unique(np.concatenate([[0, rb.size], np.searchsorted(mass, np.arange(1, n_slab) / n_slab)]))
-    total = 0.0
+    P_sum = 0.0  # the cusp integral is linear in P and its kernel is the same for every slab
     for a, b in zip(edges[:-1], edges[1:], strict=True):
         if b <= a:
             continue
@@ -327,8 +339,13 @@ def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitu
         if eps > 0:
             r0 = eps * float(np.sum(rb[a:b] * Phi[:, a:b].sum(0)) / max(Phi[:, a:b].sum(), 1e-300))
             excess = (np.sqrt(alpha * D**2 + r0**2) - np.sqrt(alpha) * np.abs(D)).astype(np.float32)
-            P = P * np.exp(-beta32[None] * excess[:, None, None])
-        total = total + _cusp_integral(P, j0, hr, beta * np.sqrt(alpha), -k * (pa + pb) / 2.0)
+            damp = np.exp(-beta32[None] * excess[:, None, None]).astype(np.float64)  # (J, 3, nf)
+            if P.shape[1] == 1:
+                P = P * damp
+            else:
+                P *= damp
+        P_sum = P_sum + P
+    total = _cusp_integral(P_sum, j0, hr, beta * np.sqrt(alpha), -k * (pa + pb) / 2.0)
     if mags.uniform:
         total = total * mags.m[:, :, 0] ** 2
     return np.einsum("c,cf->f", proj2, total)
@@ -344,23 +361,86 @@ N_FINE = 16
 R_COLLINEAR = 4.0
 #: ... and closer than this twice the Gauss nodes.
 R_FINE = 10.0
+#: Pairs at least this far apart (m, at the gate) get :data:`N_FAR` nodes per beam: the coherence is smooth
+#: over the gate there (against 16 nodes, 6 are within 2e-3 of sqrt(C_ii C_jj) beyond 25 m).
+R_FAR = 25.0
+N_FAR = 6
+
+
+#: Every frequency index up to this one is computed; beyond it only every :data:`KNOT_STEP`-th (and the
+#: Nyquist frequency), the rest interpolated (:func:`cross_spectral_matrix`).
+N_DENSE = 24
+KNOT_STEP = 8
+
+
+def knot_indices(n_f: int) -> np.ndarray:
+    """Positions (0-based, into the ``n_f`` positive frequencies) at which the matrix is computed."""
+    if n_f <= N_DENSE + 2 * KNOT_STEP:
+        return np.arange(n_f)
+    return np.unique(np.r_[np.arange(N_DENSE), np.arange(N_DENSE, n_f, KNOT_STEP), n_f - 1])
+
+
+@functools.lru_cache(maxsize=16)
+def _interpolation_weights(n_f: int, knots: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Cubic-spline weights ``(n_f, n_knots)`` from the knots to every frequency: in f, and in log f."""
+    n = np.arange(1.0, n_f + 1.0)
+    nk = n[list(knots)]
+    eye = np.eye(len(knots))
+    return CubicSpline(nk, eye)(n), CubicSpline(np.log(nk), eye)(np.log(n))
 
 
 def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_direction: float,
                           sigma: np.ndarray, cnr_gradient: float, duration: float,
-                          n_cross: int = N_CROSS) -> np.ndarray:
+                          n_cross: int = N_CROSS, interpolate: bool = True) -> np.ndarray:
     """Return the 6 x 6 cross-spectral matrix ``C (n_f, 6, 6)`` of ``(ref_u, ref_v, LOS_0..LOS_3)``.
 
     ``n_f = nt // 2`` positive frequencies ``n / duration`` (``nt = duration / beam_period``),
     in PyConTurb's units: ``C_ii`` is ``|m|²`` of a single signal, so ``2 Σ_f C_ii`` is its variance
     (minus half the Nyquist term).  ``sigma`` is ``(σ_u, σ_v, σ_w)`` (m s-1).
+
+    With ``interpolate`` (the default) the matrix is computed at :func:`knot_indices` only (60 of
+    300 frequencies for a 10-minute period at 1 s) and interpolated between them: the coherences
+    ``C_ij / sqrt(C_ii C_jj)``, with the frozen-turbulence phase between the gate centres taken out,
+    by a cubic spline in f, and the spectra ``sqrt(C_ii)`` by a cubic spline in log f.  Both are
+    smooth there (measured over random conditions: within 1.2e-4 of ``sqrt(C_ii C_jj)`` of the
+    full computation; ``tests/test_lidar_spectral.py`` checks the result against the brute force at
+    interpolated frequencies).  The reference's own spectra are set exactly, so its realised
+    variance stays the period's.
     """
     U = float(wind_speed)
     nt = int(round(duration / model.beam_period))
-    df = 1.0 / duration
     n_f = nt // 2
-    f_all = np.arange(n_f + 1) * df
-    f = f_all[1:]
+    sel = knot_indices(n_f) if interpolate else np.arange(n_f)
+    Ck, x_centre, m_ref = _matrix_at(model, height, U, wind_from_direction, sigma, cnr_gradient, duration,
+                                     n_cross, sel)
+    if sel.size == n_f:
+        return Ck
+    f = np.arange(1, n_f + 1) / duration
+    w_lin, w_log = _interpolation_weights(n_f, tuple(sel.tolist()))
+    d = np.sqrt(np.clip(np.real(np.einsum("fii->fi", Ck)), 0.0, None))  # (nk, 6)
+    ph = _phases(x_centre, U, f[sel]).T  # (nk, 6): the gate centres' frozen-turbulence phases
+    inv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
+    G = Ck * (inv * np.conj(ph))[:, :, None] * (inv * ph)[:, None, :]
+    G = (w_lin @ G.reshape(sel.size, 36)).reshape(n_f, 6, 6)
+    d_full = np.exp(w_log @ np.log(np.where(d > 0, d, 1.0))) * (d > 0).all(axis=0)
+    d_full[:, :2] = m_ref[:2].T  # the reference's spectra exactly
+    a = d_full * _phases(x_centre, U, f).T
+    return G * a[:, :, None] * np.conj(a)[:, None, :]
+
+
+def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma: np.ndarray,
+               cnr_gradient: float, duration: float, n_cross: int, sel: np.ndarray):
+    """Compute the matrix at the positive frequencies ``sel`` (0-based).
+
+    Also returns the signals' gate-centre along-wind positions (m) and the reference's magnitudes
+    ``m_c(f, h)`` (3, n_f) at every frequency.
+    """
+    nt = int(round(duration / model.beam_period))
+    df = 1.0 / duration
+    n_f_all = nt // 2
+    f_all = np.arange(n_f_all + 1) * df
+    f = f_all[1:][sel]
+    n_f = f.size
     key = (model.rwf_offsets, model.rwf_weights, getattr(model, "rwf_profile", None))
     s, w0, _, _ = continuous_rwf(*key)
     h = s[1] - s[0]
@@ -385,7 +465,7 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
     # clamped beyond: the tails hold < 3e-4 of the weight)
     z_w = z_line[F > 1e-3 * F.max()]
     mags = _Magnitudes(float(min(z_w.min(), height)), float(max(z_w.max(), height)), f_all, U, sigma, nt,
-                       z_weight=lambda z: np.interp(z, z_line, F) / F.max())
+                       z_weight=lambda z: np.interp(z, z_line, F) / F.max(), sel=sel)
     C = np.zeros((n_f, 6, 6), dtype=complex)
 
     # -- reference - reference
@@ -418,13 +498,13 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
             wn = node_w * 10.0 ** (scale * nodes)
             wn /= wn.sum()
             rn = R + nodes
-            ph = _phases(rn[None, :] * along[:, None], U, n_f, df)  # (4, n, nf)
+            ph = _phases(rn[None, :] * along[:, None], U, f)  # (4, n, nf)
             Ub = wn * mags(rn * up)[None] * np.swapaxes(ph, 1, 2)[:, None]  # (4, 3, nf, n)
             node_cache[n] = (rn[None, :] * across[:, None], rn * up, Ub)
         return node_cache[n]
 
     def rule(r0):
-        return N_FINE if r0 < R_FINE else n_cross
+        return N_FINE if r0 < R_FINE else n_cross if r0 < R_FAR else min(n_cross, N_FAR)
 
     # -- beam - reference: r² = q² (s - s0)² + d², d the reference's distance from the beam's y-z line
     s0 = height * up / q**2 - R  # (4,)
@@ -464,7 +544,7 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
             r0 = eps * 0.5 * (rho_c[b] + rho_c[b2])
             if r0 < R_COLLINEAR:
                 total = _collinear_pair(F, s, h, R, up, q[b], q[b2], along[b] / q[b], along[b2] / q[b2], eps,
-                                        beta, k, mags, U, n_f, df, proj[b] * proj[b2])
+                                        beta, k, mags, U, f, proj[b] * proj[b2])
                 C[:, 2 + b, 2 + b2] = total
                 C[:, 2 + b2, 2 + b] = np.conj(total)
             else:
@@ -482,7 +562,8 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
             total = proj[ia] * proj[ib] @ np.sum(Ub[ia, :, :m] * t, axis=-1)  # (m,)
             C[:m, 2 + ia, 2 + ib] = total
             C[:m, 2 + ib, 2 + ia] = np.conj(total)
-    return C
+    m_ref_all = spectral_magnitudes(f_all, np.array([float(height)]), U, sigma, nt)[:, 1:, 0]  # (3, n_f)
+    return C, np.concatenate([[0.0, 0.0], R * along]), m_ref_all
 
 
 #: Coherence below which a cross-spectral entry is set to zero (far below the 2 % accuracy of the
