@@ -146,21 +146,21 @@ class _Magnitudes:
         top = min(z_hi, _Z_KAIMAL)
         self.z = np.array([_Z_KAIMAL]) if self.uniform else np.linspace(
             z_lo, top, max(2, int(np.ceil((top - z_lo) / 2.0)) + 1))
-        self._m_all = spectral_magnitudes(f_all, self.z, wind_speed, sigma, nt)[:, 1:, :]  # (3, nf, nz)
+        self.m_all = spectral_magnitudes(f_all, self.z, wind_speed, sigma, nt)[:, 1:, :]  # (3, nf, nz)
         # only the frequencies ``sel`` are used (the normalisation above and the low-rank factorisation
         # below see all of them, so a subset gives the same values as the full computation)
         self._sel = slice(None) if sel is None else np.asarray(sel)
-        self.m = np.ascontiguousarray(self._m_all[:, self._sel])
+        self.m = np.ascontiguousarray(self.m_all[:, self._sel])
         self._z_weight = z_weight
 
     @functools.cached_property
     def _svd(self):
         # joint low-rank factorisation m_c(f, z) = Σ_k U[c, f, k] V[k, z] (smooth in f and z), in the norm
         # weighted by where the RWF puts its weight (z_weight(z), default uniform); only needed below 60 m
-        n_f = self._m_all.shape[1]
+        n_f = self.m_all.shape[1]
         w = np.ones(self.z.size) if self._z_weight is None else np.sqrt(np.maximum(self._z_weight(self.z),
                                                                                    1e-6))
-        u, sv, vt = np.linalg.svd(self._m_all.reshape(3 * n_f, -1) * w, full_matrices=False)
+        u, sv, vt = np.linalg.svd(self.m_all.reshape(3 * n_f, -1) * w, full_matrices=False)
         return u.reshape(3, n_f, -1)[:, self._sel], sv, vt / w
 
     def factors(self, tol: float) -> tuple[np.ndarray, np.ndarray]:
@@ -562,7 +562,10 @@ def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma
             total = proj[ia] * proj[ib] @ np.sum(Ub[ia, :, :m] * t, axis=-1)  # (m,)
             C[:m, 2 + ia, 2 + ib] = total
             C[:m, 2 + ib, 2 + ia] = np.conj(total)
-    m_ref_all = spectral_magnitudes(f_all, np.array([float(height)]), U, sigma, nt)[:, 1:, 0]  # (3, n_f)
+    if mags.uniform:  # the tabulated column (60 m) is the spectrum at every height above 60 m
+        m_ref_all = mags.m_all[:, :, 0]
+    else:
+        m_ref_all = spectral_magnitudes(f_all, np.array([float(height)]), U, sigma, nt)[:, 1:, 0]  # (3, n_f)
     return C, np.concatenate([[0.0, 0.0], R * along]), m_ref_all
 
 
