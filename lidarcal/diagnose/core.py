@@ -429,7 +429,13 @@ def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, t
         dbic, best, res, contrib, share, g2, est = ok[0]
         for x in chosen + [best]:
             x.estimate, x.stderr = dict(est[x.effect.id][0]), dict(est[x.effect.id][1])
-        best.tied = [t[1].effect.id for t in ok[1:] if t[0] - dbic < tie_threshold]
+        # tied: within tie_threshold BIC units, or fitting worse by less than a model-form error of the
+        # explained part would cost (the catalogue's responses are models: a response wrong by
+        # model_uncertainty of itself adds about that share squared of the explained sum of squares; at
+        # 95 %, (1.96 u)² of it) — e.g. a hybrid weight and a TI-proportional cup over-speeding
+        slack = (1.96 * problem.model_uncertainty) ** 2 * max(rss_cur - res.rss, 0.0)
+        best.tied = [t[1].effect.id for t in ok[1:]
+                     if t[0] - dbic < tie_threshold or t[2].rss - res.rss <= slack]
         best.contribution, best.share = contrib, share
         chosen.append(best)
         steps.append(f"{best.effect.id}: ΔBIC {dbic:.1f}, changes (L-R)/R by {contrib:.3f} % rms, explains "
@@ -438,6 +444,36 @@ def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, t
         rss_cur, g_cur = res.rss, g2
     if chosen:
         _joint_fit(problem, chosen)  # the trials after the last step moved the estimates
+    return _prune(problem, chosen, steps, tolerance)
+
+
+def _prune(problem: _Problem, chosen: list[CandidateFit], steps: list[str],
+           tolerance: float) -> tuple[list[CandidateFit], list[str]]:
+    """Drop named effects that explain no material part of the systematic residual given the others.
+
+    With several effects named, each must remove at least the tolerance (in quadrature) from the
+    gap the others leave: ``sqrt(gap(others)² − gap(all)²) ≥ tolerance``.  An effect that is
+    strong by ΔBIC and changes (L − R)/R by more than the tolerance but leaves every bin mean as
+    it was only fits the model-form mismatch between the catalogue's responses and the data
+    (e.g. a hybrid weight added to a beam-angle offset).  The weakest such effect is dropped and
+    the test repeated.
+    """
+    while len(chosen) > 1:
+        g_all = problem.gap2(problem.r - np.where(problem.valid, _fitted(chosen), 0.0))
+        unique = []
+        for c in chosen:
+            others = [x for x in chosen if x is not c]
+            _joint_fit(problem, others)
+            g_wo = problem.gap2(problem.r - np.where(problem.valid, _fitted(others), 0.0))
+            unique.append(float(np.sqrt(max(g_wo - g_all, 0.0))))
+        _joint_fit(problem, chosen)
+        k = int(np.argmin(unique))
+        if unique[k] >= tolerance:
+            break
+        steps.append(f"{chosen[k].effect.id} dropped: given the others it removes only {unique[k]:.3f} % "
+                     f"of the gap (in quadrature) < tolerance {tolerance:g} %")
+        chosen = chosen[:k] + chosen[k + 1:]
+        _joint_fit(problem, chosen)
     return chosen, steps
 
 
