@@ -106,13 +106,10 @@ def _simulate_height(model: LidarModel, height: float, U: float, direction: floa
             los[sel] = los_true[sel] + bias + std * noise[sel]
     keep = np.random.default_rng(avail_ss).random(n_times) < model.availability
     los = np.where(keep, los, np.nan)
-    wfr = reconstruct(los, beam_of_time, model.cone_angle, model.hybrid_weight, model.hybrid_convention)
     ref_u, ref_v = turb[0], turb[1]
     # reference effects (over-speeding, gain, mast shadow): LidarModel.reference_scale
     reference = np.mean(np.hypot(U + ref_u, ref_v)) * model.reference_scale(direction, ti)
-    return {"lidar_wind_speed": wfr["hybrid"], "lidar_wind_speed_scalar": wfr["scalar"],
-            "lidar_wind_speed_vector": wfr["vector"], "reference_wind_speed": reference,
-            "availability": keep.mean(), "los": los}
+    return {"reference_wind_speed": reference, "availability": keep.mean(), "los": los}
 
 
 def simulate_period(
@@ -187,6 +184,7 @@ def simulate_period(
                          f"periods ({model.beam_period} s)")
     out = {name: np.full(heights.shape, np.nan) for name in OUTPUTS}
     los = np.full((heights.size, n_times), np.nan)
+    done = []
     for i, h in enumerate(heights):
         values = [float(conditions[n][i]) for n in conditions]
         if not np.all(np.isfinite(values)):
@@ -195,9 +193,16 @@ def simulate_period(
             out["availability"][i] = 0.0  # the lidar's CNR filter drops every LOS of the period
             continue
         res = _simulate_height(model, float(h), *values, seed=seed, duration=duration, n_times=n_times)
-        for name in OUTPUTS:
+        for name in ("reference_wind_speed", "availability"):
             out[name][i] = res[name]
         los[i] = res["los"]
+        done.append(i)
+    if done:  # the wind-field reconstruction of every simulated height at once (row by row identical)
+        wfr = reconstruct(los[done], np.arange(n_times) % 4, model.cone_angle, model.hybrid_weight,
+                          model.hybrid_convention)
+        for name, key in (("lidar_wind_speed", "hybrid"), ("lidar_wind_speed_scalar", "scalar"),
+                          ("lidar_wind_speed_vector", "vector")):
+            out[name][done] = wfr[key]
     if return_los:
         out["los"] = los
         out["los_beam"] = np.arange(n_times) % 4
