@@ -263,7 +263,9 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3,
     budget = _budget_of(cert).load()
     k = float(budget.attrs.get("coverage_factor", 2.0))
     flags = _flag_names(budget["bin_flag"])
-    headline = _headline_mask(budget, wind_speeds)
+    # rows run over (height, wind speed): index by those names, whatever the stored order
+    headline = _headline_mask(budget, wind_speeds).transpose("height", "wind_speed")
+    budget = budget.transpose("height", "wind_speed", ...)
     sens = _significant_sensitivities(cert) if "lidarcal_components" in cert.attrs else {}
     names = [str(c) for c in budget["contributor"].values]
     bounds = budget["wind_speed_bounds"].values if "wind_speed_bounds" in budget else None

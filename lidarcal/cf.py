@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-__all__ = ["var_attrs", "with_bounds", "height_coord", "time_coord", "Param", "declared_attrs"]
+__all__ = ["var_attrs", "with_bounds", "height_coord", "time_coord", "Param", "declared_attrs",
+           "canonical_dims", "canonical_order"]
 
 
 def var_attrs(
@@ -88,3 +89,50 @@ def time_coord(values: Any) -> xr.DataArray:
         np.asarray(values, dtype="datetime64[ns]"), dims="time",
         attrs={"standard_name": "time", "long_name": "start of 10-minute period (UTC)", "axis": "T"},
     )
+
+
+#: Rank of a spatio-temporal axis in the canonical order (CF §2.4: T, Z, Y, X, after every other dim).
+_AXIS_RANK = {"T": 1, "Z": 2, "Y": 3, "X": 4}
+_NAME_AXIS = {"time": "T", "height": "Z", "altitude": "Z", "depth": "Z", "latitude": "Y", "longitude": "X"}
+
+
+def _axis(ds: xr.Dataset, dim: str) -> str | None:
+    """Return the CF axis (T, Z, Y, X) of ``dim``: its coordinate's ``axis``, else its standard name."""
+    if dim in ds.variables:
+        attrs = ds.variables[dim].attrs
+        if attrs.get("axis") in _AXIS_RANK:
+            return str(attrs["axis"])
+        if attrs.get("standard_name") in _NAME_AXIS:
+            return _NAME_AXIS[str(attrs["standard_name"])]
+        return None
+    return _NAME_AXIS.get(str(dim))  # a dimension without a coordinate variable: by its name
+
+
+def canonical_dims(ds: xr.Dataset, dims: tuple) -> tuple:
+    """``dims`` in lidarcal's canonical order: other dims first (as given), then time, then height.
+
+    The order is CF §2.4's recommendation: dimensions that are not spatio-temporal to the left,
+    then T, Z, Y, X.  A dimension's axis comes from its coordinate (``axis``, else
+    ``standard_name``), so ``budget_height`` in a certificate is a Z dimension like ``height``.
+    """
+    return tuple(sorted(dims, key=lambda d: (_AXIS_RANK.get(_axis(ds, d) or "", 0), dims.index(d))))
+
+
+def canonical_order(ds: xr.Dataset) -> xr.Dataset:
+    """Return ``ds`` with every variable's dimensions in the canonical order (:func:`canonical_dims`).
+
+    Values are only transposed (selection by name is unaffected); a dataset already in order is
+    returned as a shallow copy.  :func:`lidarcal.provenance.stamp` applies it to every artefact,
+    so an artefact in memory has the dimension order of its file.
+    """
+    out = ds.copy(deep=False)
+    for name in list(out.variables):
+        var = out.variables[name]
+        order = canonical_dims(ds, tuple(var.dims))
+        if order == tuple(var.dims):
+            continue
+        if name in out.coords:
+            out = out.assign_coords({name: out[name].transpose(*order)})
+        else:
+            out[name] = out[name].transpose(*order)
+    return out

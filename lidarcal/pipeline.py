@@ -45,6 +45,7 @@ from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.bench.ingest import ingest
 from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.certificate import make_certificate, write_certificate
+from lidarcal.cf import canonical_order
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
 from lidarcal.conditions.grid import sweep_conditions
 from lidarcal.data import sample_file
@@ -130,8 +131,8 @@ def _terms_per_height(records: xr.Dataset, overrides: dict[str, Any]) -> xr.Data
         parts.append(part)
     if len(parts) == 1:
         return parts[0]
-    out = xr.concat(parts, dim="height", data_vars="all", coords="different", compat="equals",
-                    combine_attrs="override")
+    out = canonical_order(xr.concat(parts, dim="height", data_vars="all", coords="different", compat="equals",
+                                    combine_attrs="override"))  # height stacked last, like stamp's order
     # the attributes were the first height's: describe every height (values are per height)
     config = json.loads(out.attrs.get("lidarcal_config", "{}"))
     config.update(height=[float(z) for z in out.height.values],

@@ -162,12 +162,16 @@ def _unit_ok(found: str | None, spec: dict) -> str | None:
 
 
 def _dims_match(found, expected, stackable) -> bool:
-    """Exact match, or ``expected`` preceded only by the schema's ``stackable_dims``."""
+    """Exact match, or ``expected`` followed only by the schema's ``stackable_dims``.
+
+    Stacked dims (the heights of terms evaluated at several heights) are spatio-temporal, so in
+    the canonical order (:func:`lidarcal.cf.canonical_dims`) they come last.
+    """
     found, expected = list(found), list(expected)
     extra = len(found) - len(expected)
     if extra == 0:
         return found == expected
-    return extra > 0 and found[extra:] == expected and set(found[:extra]) <= set(stackable)
+    return extra > 0 and found[:len(expected)] == expected and set(found[len(expected):]) <= set(stackable)
 
 
 def _check_variable(ds: xr.Dataset, name: str, spec: dict, role: str, problems: list[str],

@@ -113,8 +113,8 @@ def test_write_seal_verify_and_tamper(artefact_files, tmp_path):
     assert stored["variables"] == integrity_record(path)["variables"]
     # alter one value of one variable with netCDF4 directly
     with netCDF4.Dataset(path, "a") as nc:
-        v = nc["budget_uncertainty"]
-        v[0, 3] = v[0, 3] + 1e-9
+        v = nc["budget_uncertainty"]  # (budget_wind_speed, budget_height)
+        v[3, 0] = v[3, 0] + 1e-9
     report = verify_certificate(path)
     assert report.problems == ["variable 'budget_uncertainty': values altered"]
     # ... and one attribute of another, and a global attribute

@@ -29,13 +29,13 @@ def cert_path(tmp_path_factory):
     for name in ("wind_speed", "lidar_wind_speed", "reference_wind_speed"):
         records[name] = records[name] * (12 / 11) - 3.0  # about 1.9 to 13.9 m/s, same relative error
     bud = budget(records)
-    rel = bud["relative_expanded_uncertainty"].values
+    rel = bud["relative_expanded_uncertainty"]
     j8 = int(np.argmin(abs(bud["wind_speed"].values - 8.0)))
-    bud["bin_flag"].values[1, j8] = 1
-    rel[1, j8] = 50.0
+    bud["bin_flag"][{"height": 1, "wind_speed": j8}] = 1
+    rel[{"height": 1, "wind_speed": j8}] = 50.0
     j2 = int(np.argmin(abs(bud["wind_speed"].values - 2.0)))
-    assert bud["bin_flag"].values[0, j2] == 0 and bud["wind_speed"].values[j2] == 2.0
-    rel[0, j2] = 40.0
+    assert bud["bin_flag"].isel(height=0, wind_speed=j2) == 0 and bud["wind_speed"].values[j2] == 2.0
+    rel[{"height": 0, "wind_speed": j2}] = 40.0
     sens = [sensitivity(records, v) for v in ("wind_shear_exponent", "turbulence_intensity")]
     terms = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS)
     cert = make_certificate(budget=bud, sensitivities=sens, terms=terms)
@@ -47,6 +47,7 @@ def cert_path(tmp_path_factory):
 def _brute_headline(bud):
     """Loop over every bin: flag ok, centre in [4, 16] m/s, finite value."""
     vals = []
+    bud = bud.transpose("height", "wind_speed", ...)  # the loops index (height, wind speed)
     for i in range(bud.sizes["height"]):
         for j, u in enumerate(bud["wind_speed"].values):
             v = float(bud["relative_expanded_uncertainty"].values[i, j])
@@ -58,6 +59,7 @@ def _brute_headline(bud):
 def test_table_numbers_are_the_certificate_values(cert_path):
     cert = xr.open_dataset(cert_path)
     table = result_table(cert)
+    cert = cert.transpose("budget_height", "budget_wind_speed", ...)  # the loops index (height, wind speed)
     nh, nu = cert.sizes["budget_height"], cert.sizes["budget_wind_speed"]
     assert len(table) == nh * nu
     got = table.set_index(["height_m", "wind_speed_m_s"])
@@ -142,7 +144,7 @@ def test_open_certificate_tree(cert_path):
     one = tree["budget"].sel(height=120, wind_speed=8, method="nearest")
     i = int(np.argmin(abs(flat["budget_height"].values - 120)))
     j = int(np.argmin(abs(flat["budget_wind_speed"].values - 8)))
-    expected = flat["budget_relative_expanded_uncertainty"].values[i, j]
+    expected = flat["budget_relative_expanded_uncertainty"].isel(budget_height=i, budget_wind_speed=j)
     assert float(one["relative_expanded_uncertainty"]) == expected
     assert tree["budget"].dataset["wind_speed"].attrs["bounds"] == "wind_speed_bounds"
     # the cf accessor finds one vertical axis per group (the flat file has one per component)

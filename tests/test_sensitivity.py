@@ -136,7 +136,7 @@ def test_known_slope_is_recovered_exactly():
     np.testing.assert_allclose(s.bin.values, centres, atol=1e-12)
     np.testing.assert_allclose(s.bin_bounds.values[:, 0], centres - 0.025, atol=1e-12)
     # bin means are exact by construction up to float rounding of 100*(ref*(1+d/100)-ref)/ref
-    np.testing.assert_allclose(s.mean_difference.values, means, atol=1e-10)
+    np.testing.assert_allclose(s.mean_difference.transpose("height", "bin").values, means, atol=1e-10)
     np.testing.assert_allclose(s.slope.values, slopes, atol=1e-9)
     np.testing.assert_allclose(s.intercept.values, [0.3, -0.1], atol=1e-9)
     np.testing.assert_allclose(s.correlation.values, [1.0, -1.0], atol=1e-12)
@@ -144,7 +144,7 @@ def test_known_slope_is_recovered_exactly():
     expected_std = np.sqrt(np.sum((alpha[:, 0] - alpha[:, 0].mean()) ** 2) / (len(alpha) - 1))
     np.testing.assert_allclose(s.variable_std.values, expected_std, rtol=1e-12)
     np.testing.assert_allclose(s.slope_times_std.values, slopes * expected_std, rtol=1e-9)
-    assert s.sample_count.values.tolist() == [[5] * 5, [5] * 5]
+    assert s.sample_count.transpose("height", "bin").values.tolist() == [[5] * 5, [5] * 5]
     assert s.slope.attrs["units"] == "%" and s.bin.attrs["units"] == "1"
     assert s.periods_used.values.tolist() == [25, 25]
 
@@ -197,9 +197,9 @@ def test_thin_bins_are_dropped_but_kept_in_table():
     extra["lidar_wind_speed"][:] = 8.0 * 1.5  # +50 %
     recs = xr.concat([recs, extra], dim="time")
     s = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None, min_samples=3)
-    assert s.sample_count.values[0].tolist() == [5, 5, 5, 5, 2]
-    assert s.bin_flag.values[0].tolist() == [0, 0, 0, 0, 1]
-    assert np.isnan(s.mean_difference.values[0, 4])
+    assert s.sample_count.isel(height=0).values.tolist() == [5, 5, 5, 5, 2]
+    assert s.bin_flag.isel(height=0).values.tolist() == [0, 0, 0, 0, 1]
+    assert np.isnan(s.mean_difference.isel(height=0, bin=4))
     np.testing.assert_allclose(s.slope.values[0], 2.0, atol=1e-9)
     assert int(s.periods_used[0]) == 20 and int(s.bins_used[0]) == 4
     s2 = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None, min_samples=2)

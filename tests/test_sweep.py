@@ -65,8 +65,8 @@ def _fake_records(repeats=1, noise=0.0):
 
 def test_analysis_recovers_known_deviation_slopes_and_maximum():
     ds = analyse_sweep(_fake_records(repeats=2, noise=0.1), GRID, repeats=2)
-    assert ds.deviation.dims == ("height", *SWEEP_VARIABLES)
-    assert ds.deviation.shape == (1, 3, 2, 2, 1, 1, 2)
+    assert ds.deviation.dims == (*SWEEP_VARIABLES, "height")  # canonical order: height last (CF 2.4)
+    assert ds.deviation.shape == (3, 2, 2, 1, 1, 2, 1)
     # replicates +-0.1 average out exactly; float rounding of L/R only
     expected = 10 * 0.15 - 2 * 0.0 + 0.01 * 14.0  # largest: high TI, no shear, 14 m/s -> 1.64 %
     np.testing.assert_allclose(float(ds.max_abs_deviation[0]), expected, atol=1e-10)
