@@ -25,9 +25,11 @@ import numpy as np
 import xarray as xr
 
 from lidarcal import __version__
+from lidarcal.cf import canonical_order
+from lidarcal.errors import InputError
 
 __all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "jsonable", "contact", "merge_history",
-           "CONVENTIONS", "CONTACT_ENV"]
+           "CONVENTIONS", "CONTACT_ENV", "SITE_ENV", "USER_ATTRIBUTES", "REFERENCES"]
 
 CONVENTIONS = "CF-1.11, ACDD-1.3"
 _PACKAGES = ("lidarcal", "numpy", "scipy", "pandas", "xarray", "dask", "distributed", "netCDF4", "pint",
@@ -48,6 +50,26 @@ CONTACT_ENV = {
 }
 _CONTACT_DEFAULTS = {"creator_name": "lidarcal", "institution": "unspecified"}
 _contact_override: dict[str, str] = {}
+
+#: The measurement site (decimal degrees, WGS 84) and the environment variable that sets each;
+#: ``--site-latitude``/``--site-longitude`` override them.  Given, every artefact records
+#: ``geospatial_lat/lon_*`` and a point ``geospatial_bounds``, with scalar ``latitude`` and
+#: ``longitude`` coordinates (CF 5.7) that those attributes describe.  Never invented: without
+#: them an artefact carries the site of an input that has one, or none.
+SITE_ENV = {"site_latitude": "LIDARCAL_SITE_LATITUDE", "site_longitude": "LIDARCAL_SITE_LONGITUDE"}
+_SITE_RANGE = {"site_latitude": (-90.0, 90.0), "site_longitude": (-180.0, 180.0)}
+
+#: Further ACDD-1.3 attributes only the user can know (``--attribute NAME=VALUE``): recorded as
+#: given in every file written.  Attributes lidarcal computes (dates, provenance, coverage) are
+#: not among them.
+USER_ATTRIBUTES = ("acknowledgment", "contributor_name", "contributor_role", "program", "metadata_link",
+                   "keywords_vocabulary", "platform", "platform_vocabulary", "instrument",
+                   "instrument_vocabulary", "geospatial_bounds_vertical_crs", "creator_institution",
+                   "publisher_institution", "references", "license")
+
+#: The method every artefact implements (ACDD ``references``).
+REFERENCES = ("Black, A., Franke, K., Trabucci, D., Allain, P. E., Lopez, L., Albers, A.: Anemometer-free "
+              "indoor calibration of Doppler lidar using fiber optics and Monte Carlo simulation")
 
 
 def sha256(path: str | os.PathLike) -> str:
@@ -117,9 +139,13 @@ def contact(**values: str | None) -> Iterator[None]:
     Keys are those of :data:`CONTACT_ENV` (``creator_name``, ``creator_email``, ``institution``,
     ``publisher_name`` ...); they win over the environment variables; ``None`` is ignored.
     """
-    unknown = set(values) - set(CONTACT_ENV)
+    known = {*CONTACT_ENV, *SITE_ENV, *USER_ATTRIBUTES}
+    unknown = set(values) - known
     if unknown:
-        raise TypeError(f"unknown contact attribute(s) {sorted(unknown)}; known: {sorted(CONTACT_ENV)}")
+        raise TypeError(f"unknown contact attribute(s) {sorted(unknown)}; known: {sorted(known)}")
+    for key in SITE_ENV:
+        if values.get(key) is not None:
+            _site_value(key, values[key], f"argument {key!r}")
     saved = dict(_contact_override)
     _contact_override.update({k: str(v) for k, v in values.items() if v is not None})
     try:
@@ -141,7 +167,63 @@ def _contact_attrs() -> dict[str, str]:
         out["creator_type"] = "institution"
     if "publisher_name" in out:
         out["publisher_type"] = "institution"
+        out["publisher_institution"] = out["publisher_name"]
+    if out.get("institution") and out["institution"] != _CONTACT_DEFAULTS["institution"]:
+        out["creator_institution"] = out["institution"]
     return out
+
+
+def _site_value(key: str, value: Any, where: str) -> float:
+    lo, hi = _SITE_RANGE[key]
+    try:
+        number = float(value)
+    except (TypeError, ValueError):
+        number = float("nan")
+    if not lo <= number <= hi:
+        raise InputError(f"{where}: expected a {key.split('_')[1]} in decimal degrees in [{lo:g}, {hi:g}]; "
+                         f"found {value!r}")
+    return number
+
+
+def _site() -> tuple[float, float] | None:
+    """Return the site the user gave (options or environment), or None."""
+    found = {}
+    for key, env in SITE_ENV.items():
+        if _contact_override.get(key) is not None:
+            found[key] = _site_value(key, _contact_override[key], f"--{key.replace('_', '-')}")
+        elif os.environ.get(env):
+            found[key] = _site_value(key, os.environ[env], f"environment variable {env}")
+    if not found:
+        return None
+    if len(found) == 1:
+        missing = next(k for k in SITE_ENV if k not in found)
+        raise InputError(f"--{missing.replace('_', '-')}: the site needs both latitude and longitude; only "
+                         f"{next(iter(found)).split('_')[1]} was given")
+    return found["site_latitude"], found["site_longitude"]
+
+
+def _site_attrs(lat: float, lon: float) -> dict[str, Any]:
+    return {"geospatial_lat_min": lat, "geospatial_lat_max": lat, "geospatial_lon_min": lon,
+            "geospatial_lon_max": lon, "geospatial_lat_units": "degrees_north",
+            "geospatial_lon_units": "degrees_east", "geospatial_lat_resolution": "point",
+            "geospatial_lon_resolution": "point", "geospatial_bounds": f"POINT ({lat:g} {lon:g})",
+            "geospatial_bounds_crs": "EPSG:4326"}
+
+
+def _site_coords(ds: xr.Dataset, attrs: Mapping[str, Any]) -> xr.Dataset:
+    """Scalar ``latitude``/``longitude`` coordinates of a one-point site (CF 5.7), from ``attrs``."""
+    try:
+        lat, lon = float(attrs["geospatial_lat_min"]), float(attrs["geospatial_lon_min"])
+    except (KeyError, TypeError, ValueError):
+        return ds
+    top = (float(attrs.get("geospatial_lat_max", lat)), float(attrs.get("geospatial_lon_max", lon)))
+    if (lat, lon) != top:
+        return ds  # an area, not a site: nothing to attach
+    return ds.assign_coords(
+        latitude=((), lat, {"standard_name": "latitude", "long_name": "latitude of the measurement site",
+                            "units": "degrees_north", "axis": "Y"}),
+        longitude=((), lon, {"standard_name": "longitude", "long_name": "longitude of the measurement site",
+                             "units": "degrees_east", "axis": "X"}))
 
 
 _STAMP = re.compile(r"^\[(\d{4}-\d\d-\d\dT[0-9:]+Z?)\]")
@@ -215,6 +297,11 @@ def _coverage_attrs(ds: xr.Dataset, attrs: dict[str, Any]) -> None:
         attrs["geospatial_vertical_max"] = float(max(np.nanmax(v.values) for v in heights))
         attrs["geospatial_vertical_units"] = "m"
         attrs["geospatial_vertical_positive"] = "up"
+        levels = np.unique(np.concatenate([np.ravel(v.values) for v in heights]))
+        steps = np.diff(levels[np.isfinite(levels)])
+        attrs["geospatial_vertical_resolution"] = (
+            "point" if steps.size == 0 else f"{steps[0]:g} m" if np.ptp(steps) == 0
+            else f"{steps.min():g} to {steps.max():g} m (irregular levels)")
 
 
 def _now() -> str:
@@ -224,7 +311,12 @@ def _now() -> str:
 #: Site attributes an artefact inherits from its first input that has them (a measured
 #: record's location and acknowledgment describe every product derived from it).
 _CARRIED = ("acknowledgment", "geospatial_lat_min", "geospatial_lat_max", "geospatial_lon_min",
-            "geospatial_lon_max", "geospatial_bounds", "geospatial_bounds_crs", "site", "location")
+            "geospatial_lon_max", "geospatial_lat_units", "geospatial_lon_units", "geospatial_lat_resolution",
+            "geospatial_lon_resolution", "geospatial_bounds", "geospatial_bounds_crs",
+            "geospatial_bounds_vertical_crs", "site", "location")
+
+
+_TIME_COVERAGE = ("time_coverage_start", "time_coverage_end")
 
 
 def stamp(
@@ -240,7 +332,11 @@ def stamp(
     seeds: Mapping[str, Any] | None = None,
     keywords: str = "Doppler lidar, wind speed, calibration, uncertainty",
 ) -> xr.Dataset:
-    """Return ``ds`` with lidarcal's provenance and ACDD-1.3 attributes set.
+    """Return ``ds`` with lidarcal's provenance and ACDD-1.3 attributes set, in the canonical dim order.
+
+    Every variable's dimensions are put in lidarcal's canonical order
+    (:func:`lidarcal.cf.canonical_order`: other dims, then time, then height), so every artefact
+    has the same order in memory and in its file.
 
     Parameters
     ----------
@@ -268,6 +364,7 @@ def stamp(
         records.append({"role": role, "file": Path(path).name, "sha256": sha256(path)})
     past = []
     carried: dict[str, Any] = {}
+    coverage: dict[str, Any] = {}
     for role, other in (input_datasets or {}).items():
         digest = other.attrs.get("lidarcal_source_sha256")
         given = next((r for r in records if r["role"] == role), None)
@@ -281,10 +378,17 @@ def stamp(
         for key in _CARRIED:
             if key in other.attrs and key not in carried:
                 carried[key] = other.attrs[key]
+        if "time_coverage_start" in other.attrs and "time_coverage_end" in other.attrs:
+            coverage = coverage or {k: other.attrs[k] for k in _TIME_COVERAGE if k in other.attrs}
     history = merge_history(*past, f"[{now}] {call} - lidarcal version: {__version__}")
 
-    out = ds.copy()
+    out = canonical_order(ds)
     attrs = {**carried, **{k: v for k, v in ds.attrs.items() if not k.startswith("lidarcal_source_")}}
+    if _has_time(ds) is None and "time_coverage_start" not in attrs:
+        # statistics over a period (a budget over a campaign) keep the period of their source
+        # data; lidarcal.io writes it as source_time_coverage_* (ACDD ties time_coverage_* to a
+        # time variable such an artefact does not have)
+        attrs.update(coverage)
     serial = attrs.get("lidar_serial")
     attrs.update(
         {
@@ -297,6 +401,8 @@ def stamp(
             "date_created": now,
             "date_modified": now,
             "date_issued": now,
+            "date_metadata_modified": now,
+            "references": attrs.get("references", REFERENCES),
             **_contact_attrs(),
             "project": "lidarcal anemometer-free lidar calibration",
             "source": f"lidarcal {__version__}",
@@ -319,6 +425,12 @@ def stamp(
             "lidarcal_seeds": json.dumps(jsonable(dict(seeds or {})), sort_keys=True),
         }
     )
+    attrs.update({k: v for k, v in _contact_override.items() if k in USER_ATTRIBUTES})  # --attribute
+    site = _site()
+    if site is not None:  # the user's site wins over one carried from an input
+        attrs.update(_site_attrs(*site))
     _coverage_attrs(ds, attrs)
+    old = [n for n in ("latitude", "longitude") if n in out.coords and out[n].ndim == 0]  # an input's site
+    out = _site_coords(out.drop_vars(old), attrs)
     out.attrs = attrs
     return out

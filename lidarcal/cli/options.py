@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from lidarcal.campaign import DEFAULT_BASE_SEED
+from lidarcal.provenance import USER_ATTRIBUTES
 from lidarcal.units import ureg
 
 __all__ = [
@@ -222,7 +223,35 @@ CONTACT_OPTIONS = {
     "--publisher": ("publisher_name", "LIDARCAL_PUBLISHER"),
     "--publisher-email": ("publisher_email", "LIDARCAL_PUBLISHER_EMAIL"),
     "--publisher-url": ("publisher_url", "LIDARCAL_PUBLISHER_URL"),
+    "--site-latitude": ("site_latitude", "LIDARCAL_SITE_LATITUDE"),
+    "--site-longitude": ("site_longitude", "LIDARCAL_SITE_LONGITUDE"),
 }
+
+
+def _degrees(lo: float, hi: float):
+    def parse(text: str) -> str:
+        try:
+            value = float(text)
+        except ValueError:
+            value = float("nan")
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"expected decimal degrees in [{lo}, {hi}]; found {text!r}")
+        return text
+    return parse
+
+
+class _AttributeAction(argparse.Action):
+    """``--attribute NAME=VALUE``: one of :data:`lidarcal.provenance.USER_ATTRIBUTES`, as ``contact_NAME``."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        name, sep, value = str(values).partition("=")
+        name = name.strip()
+        if not sep or not value.strip():
+            parser.error(f"{option_string}: expected NAME=VALUE; found {values!r}")
+        if name not in USER_ATTRIBUTES:
+            parser.error(f"{option_string}: {name!r} is not an attribute the user sets; "
+                         f"expected one of {', '.join(USER_ATTRIBUTES)}")
+        setattr(namespace, f"contact_{name}", value.strip())
 
 
 def add_contact_options(parser: argparse.ArgumentParser) -> None:
@@ -237,13 +266,19 @@ def add_contact_options(parser: argparse.ArgumentParser) -> None:
     g = parser.add_argument_group("who made the files (ACDD attributes of every file written; "
                                   "each defaults to its environment variable)")
     for option, (attr, env) in CONTACT_OPTIONS.items():
-        g.add_argument(option, dest=f"contact_{attr}", metavar="TEXT",
-                       help=f"{attr} attribute (default: ${env})")
+        site = attr.startswith("site_")
+        g.add_argument(option, dest=f"contact_{attr}", metavar="DEGREES" if site else "TEXT",
+                       type=_degrees(*((-90, 90) if "latitude" in attr else (-180, 180))) if site else str,
+                       help=(f"site {attr[5:]}, decimal degrees WGS 84: geospatial_* attributes "
+                             f"(default: ${env})") if site else f"{attr} attribute (default: ${env})")
+    g.add_argument("--attribute", action=_AttributeAction, metavar="NAME=VALUE",
+                   help="a further ACDD attribute only you know, recorded in every file written "
+                        f"(repeatable; NAME one of {', '.join(USER_ATTRIBUTES)})")
 
 
 def contact_from_args(args: argparse.Namespace) -> dict[str, str]:
     """Return the contact attributes given on the command line (for ``provenance.contact``)."""
-    return {attr: value for attr, _ in CONTACT_OPTIONS.values()
+    return {attr: value for attr in [a for a, _ in CONTACT_OPTIONS.values()] + list(USER_ATTRIBUTES)
             if (value := getattr(args, f"contact_{attr}", None))}
 
 
