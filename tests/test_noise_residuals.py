@@ -17,6 +17,9 @@ from scipy.stats import norm
 
 from lidarcal.bench.kernels import pad_groups
 from lidarcal.bench.simulator import simulate_run
+from lidarcal.campaign import simulate_campaign
+from lidarcal.conditions import synthetic_conditions
+from lidarcal.diagnose import corrected_model
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.lidar import LidarModel, NoiseTable, simulate_period
@@ -182,9 +185,11 @@ def test_model_with_residuals_round_trips_through_json():
     values = np.full((*SHAPE, 3), np.nan)
     values[..., 0] = ci * 0.01
     values[::2, ..., 1] = -vi[::2] * 0.001  # bins with 1 and with 2 residuals
-    model = LidarModel.from_artefacts(cube=hand_cube(values))
-    back = LidarModel.from_dict(json.loads(model.to_json()))
+    cube = hand_cube(values)
+    model = LidarModel.from_artefacts(cube=cube)
+    back = LidarModel.from_dict(json.loads(model.to_json()), cube=cube)
     assert back == model and back.los_noise_model == "residuals"
+    assert LidarModel.from_dict(json.loads(json.dumps(model.to_dict(residuals=True)))) == model
     # beams 0 and 180 (cube rows 0, 2) have two residuals a bin, 90 and 270 one: 444 bins x (2 + 1 + 2 + 1)
     assert np.asarray(back.noise_table.residual_count).sum() == len(back.noise_table.residuals) == 444 * 6
     a, _ = run_los(model, periods=1)
@@ -294,3 +299,119 @@ def test_los_noise_option(command, capsys):
     with pytest.raises(SystemExit) as exc:
         parser.parse_args([command, *extra, "--los-noise", "poisson"])
     assert exc.value.code == 2 and "--los-noise" in capsys.readouterr().err
+
+
+# -- the attribute form: residuals by digest, restored from the bench cube ----------------------------
+
+
+def full_mixture_cube():
+    """Every bin of every beam holds the 200-value mixture, shifted by 1e-3 m/s x the bin's flat index."""
+    shift = 1e-3 * np.arange(np.prod(SHAPE)).reshape(SHAPE)[..., None]
+    return hand_cube(mixture()[None, None, None, :] + shift)
+
+
+def brute_force_digest(cube):
+    """SHA-256 of (counts int64, values float64) written out by hand for a cube with full bins.
+
+    Cube rows 0-3 are the beams at 0, 90, 180, 270°, its axes are already increasing and no bin
+    is empty, so the table's bins are the cube's rows 0-3 in C order, 200 values each.
+    """
+    res = cube.los_residual.values[:4]
+    counts = np.full(res.shape[:3], res.shape[3], dtype="<i8")
+    return hashlib.sha256(counts.tobytes() + res.astype("<f8").tobytes()).hexdigest(), res.size
+
+
+def los_digest(model, periods=2):
+    los, _ = run_los(model, periods=periods)
+    return hashlib.sha256(np.asarray(los, dtype="<f8").tobytes()).hexdigest()
+
+
+def test_attributes_carry_a_digest_not_the_residuals():
+    cube = full_mixture_cube()
+    model = LidarModel.from_artefacts(cube=cube)
+    record = json.loads(model.to_json())
+    table = record["noise_table"]
+    assert "residuals" not in table and "residual_count" not in table
+    sha, total = brute_force_digest(cube)
+    assert (table["residuals_sha256"], table["residuals_total"]) == (sha, total) == (
+        model.noise_table.residuals_sha256, 4 * 12 * 37 * 200)
+    # size bound: the residuals cost only the digest, 64 hex digits + the count + two keys (< 120
+    # characters), whatever their number; the rest is the same as a Gaussian model's record
+    gaussian = LidarModel.from_artefacts(cube=hand_cube(), los_noise_model="gaussian")
+    assert len(model.to_json()) - len(gaussian.to_json()) < 120
+    assert len(model.to_json()) < 100_000  # bias + std, 2 x 1776 floats; the values alone are 355,200 floats
+    assert len(json.dumps(model.to_dict(residuals=True))) > 20 * len(model.to_json())
+
+
+def test_cube_restores_the_same_draws():
+    cube = full_mixture_cube()
+    model = LidarModel.from_artefacts(cube=cube)
+    bare = LidarModel.from_dict(model.to_json())
+    assert bare.noise_table.needs_residuals and not bare.noise_table.has_residuals
+    back = LidarModel.from_dict(model.to_json(), cube=cube)
+    assert back == model and back.noise_table.has_residuals
+    assert bare.with_residuals(cube) == model
+    assert los_digest(back) == los_digest(model)
+    # the digest-only table still serves the Gaussian option, bit for bit as built from the cube
+    gaussian = LidarModel.from_artefacts(cube=cube, los_noise_model="gaussian")
+    assert los_digest(bare.replace(los_noise_model="gaussian")) == los_digest(gaussian)
+
+
+def test_wrong_cube_is_refused_naming_both_digests():
+    cube = full_mixture_cube()
+    model = LidarModel.from_artefacts(cube=cube)
+    other = cube.copy(deep=True)
+    other["los_residual"].values[2, 3, 4, 5] = np.nextafter(other["los_residual"].values[2, 3, 4, 5], 1.0)
+    found, _ = brute_force_digest(other)
+    assert found != model.noise_table.residuals_sha256
+    with pytest.raises(InputError) as exc:
+        LidarModel.from_dict(model.to_json(), cube=other,
+                             source="sim.nc: global attribute 'lidarcal_lidar_model'")
+    message = str(exc.value)
+    assert message.startswith("sim.nc: global attribute 'lidarcal_lidar_model': the bench cube hand_cube.nc")
+    assert f"sha256 {found}" in message and f"expected sha256 {model.noise_table.residuals_sha256}" in message
+    # a cube without residuals cannot restore them either
+    with pytest.raises(MissingVariableError, match="los_residual"):
+        LidarModel.from_dict(model.to_json(), cube=hand_cube())
+
+
+def test_no_cube_refuses_to_draw_and_to_travel():
+    model = LidarModel.from_artefacts(cube=full_mixture_cube())
+    sha = model.noise_table.residuals_sha256
+    bare = LidarModel.from_dict(model.to_json(), source="diag.nc: global attribute 'lidarcal_lidar_model'")
+    expected = (r"diag\.nc: global attribute 'lidarcal_lidar_model' records the bench residuals only by "
+                r"digest: no bench cube given; pass the cube the model was built from \(--cube\), its "
+                rf"residuals have sha256 {sha} \(355200 values\)")
+    with pytest.raises(InputError, match=expected):
+        run_los(bare, periods=1)  # never a silent Gaussian
+    with pytest.raises(InputError, match=expected):
+        bare.to_dict(residuals=True)  # what simulate_campaign sends its workers
+    # inconsistent records are refused
+    fields = {k: getattr(model.noise_table, k) for k in ("cnr", "velocity", "bias", "std")}
+    with pytest.raises(InputError, match="do not match residuals_sha256: expected sha256 0{64}, found"):
+        NoiseTable(**fields, residual_count=model.noise_table.residual_count,
+                   residuals=model.noise_table.residuals, residuals_sha256="0" * 64)
+    with pytest.raises(InputError, match="residuals_sha256 must be 64 hexadecimal digits"):
+        NoiseTable(**fields, residuals_sha256="abc", residuals_total=3)
+
+
+def test_campaign_workers_resample_from_the_full_model():
+    cube = full_mixture_cube()
+    model = LidarModel.from_artefacts(cube=cube, cnr_threshold=None)
+    cond = synthetic_conditions(6, (80, 100), seed=5)
+    # processes: the task payloads are pickled to the workers
+    ds = simulate_campaign(cond, model, heights=[100], scheduler="processes", workers=2, chunk=3)
+    recorded = json.loads(ds.attrs["lidarcal_lidar_model"])["noise_table"]
+    assert "residuals" not in recorded and recorded["residuals_sha256"] == model.noise_table.residuals_sha256
+    assert len(ds.attrs["lidarcal_lidar_model"]) < 100_000 and len(ds.attrs["lidarcal_config"]) < 120_000
+    names = ("wind_speed", "wind_from_direction", "turbulence_intensity", "wind_shear_exponent", "cnr",
+             "cnr_gradient")
+    for i in range(6):
+        direct = simulate_period(model, heights=[100.0], **{k: cond[k].values[i, 1:] for k in names},
+                                 seed=(20240101, int(ds.period_key.values[i])))
+        # bit for bit
+        got = ds.lidar_wind_speed.sel(height=100.0).values[i]
+        np.testing.assert_array_equal(got, direct["lidar_wind_speed"][0])
+    assert corrected_model(ds, cube=cube) == model
+    with pytest.raises(InputError, match="no bench cube given"):
+        simulate_campaign(cond, corrected_model(ds), scheduler="synchronous")

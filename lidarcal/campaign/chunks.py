@@ -133,7 +133,8 @@ def _save_atomic(path: Path, key: str, result: dict[str, np.ndarray]) -> None:
 def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
     """Simulate the periods of one chunk (runs on a worker).
 
-    ``task`` holds ``model`` (dict), ``heights`` (h,), the six ``INPUTS`` arrays (n, h),
+    ``task`` holds ``model`` (the full dict, ``LidarModel.to_dict(residuals=True)``: a worker
+    needs every bench residual to resample bit for bit), ``heights`` (h,), the six ``INPUTS`` arrays (n, h),
     ``valid`` (n, h) bool, ``period_index`` (n,) (position in the file: names the stored LOS
     series), ``period_key`` (n,) (seed key, :func:`period_keys`), ``los`` (n,) bool,
     ``base_seed``, ``duration``, and optionally ``workdir``/``key`` to cache the result atomically.

@@ -426,7 +426,9 @@ def simulate_campaign(
     """
     camp = _prepare(conditions, model, heights, chunk, los_periods)
     chunk = int(chunk)
-    results, tasks, bounds = _schedule(camp, model.to_dict(), base_seed, chunk, duration, workdir)
+    # the chunk key takes the attribute form (residuals by digest), the workers the full model
+    results, tasks, bounds = _schedule(camp, model.to_dict(), base_seed, chunk, duration, workdir,
+                                       transport=model.to_dict(residuals=True))
     for name, result in _execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
         results[bounds[name][0]] = result
     out = {name: np.concatenate([results[s][name] for s in sorted(results)], axis=0) for name in OUTPUTS}
@@ -501,9 +503,14 @@ def _prepare(conditions, model, heights, chunk, los_periods) -> _Campaign:
 
 
 def _schedule(
-    camp: _Campaign, model_dict: dict, base_seed: int, chunk: int, duration: float, workdir
+    camp: _Campaign, model_dict: dict, base_seed: int, chunk: int, duration: float, workdir,
+    transport: dict | None = None,
 ) -> tuple[dict[int, dict], list[tuple[str, dict]], dict[str, tuple[int, int]]]:
-    """Split the periods into chunks; return (cached results by start, tasks to run, task bounds)."""
+    """Split the periods into chunks; return (cached results by start, tasks to run, task bounds).
+
+    ``model_dict`` (the attribute form) keys the chunks; ``transport`` (the full form, default
+    ``model_dict``) is what the tasks carry to the workers.
+    """
     if workdir is not None:
         os.makedirs(workdir, exist_ok=True)
     z = camp.z
@@ -522,7 +529,7 @@ def _schedule(
         name = f"lidarcal-chunk-{key[:16]}-{start}-{stop}"
         bounds[name] = (start, stop)
         payload = {
-            "model": model_dict,
+            "model": model_dict if transport is None else transport,
             "heights": z,
             **{k: v[start:stop] for k, v in camp.arrays.items()},
             "valid": camp.valid[start:stop],

@@ -265,11 +265,13 @@ def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagno
     )
 
 
-def corrected_model(diagnosis: xr.Dataset | str | os.PathLike):
+def corrected_model(diagnosis: xr.Dataset | str | os.PathLike, *, cube: xr.Dataset | None = None):
     """Return the corrected :class:`~lidarcal.lidar.LidarModel` of a diagnosis artefact (or path).
 
     Any artefact with a ``lidarcal_lidar_model`` attribute works (a ``simulated_rtd`` too);
-    ``lidarcal simulate --model DIAGNOSIS.nc`` uses this.
+    ``lidarcal simulate --model DIAGNOSIS.nc`` uses this.  The attribute records bench residuals
+    only by digest: ``cube`` (the bench cube the model was built from) restores them
+    (:meth:`~lidarcal.lidar.LidarModel.from_dict`).
     """
     ds = diagnosis if isinstance(diagnosis, xr.Dataset) else open_artefact(diagnosis, load=False, chunks={})
     text = ds.attrs.get("lidarcal_lidar_model")
@@ -279,4 +281,5 @@ def corrected_model(diagnosis: xr.Dataset | str | os.PathLike):
     if not text:
         raise InputError(f"{os.fspath(name)}: global attribute 'lidarcal_lidar_model' is missing; expected "
                          f"the JSON of a LidarModel (a diagnosis or simulated_rtd artefact)")
-    return LidarModel.from_dict(text)
+    return LidarModel.from_dict(text, cube=cube,
+                                source=f"{os.fspath(name)}: global attribute 'lidarcal_lidar_model'")

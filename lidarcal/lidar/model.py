@@ -23,6 +23,7 @@ Conventions
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 from collections.abc import Mapping
 from typing import Any
@@ -38,7 +39,7 @@ from lidarcal.turbulence.kernels import SIGMA_RATIOS
 from lidarcal.units import convert_variable
 
 __all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "LOS_NOISE_MODELS", "flow_distortion_factor",
-           "direction_spread"]
+           "direction_spread", "residuals_digest"]
 
 #: LOS noise models of a bench-calibrated lidar (:attr:`LidarModel.los_noise_model`).
 LOS_NOISE_MODELS = ("residuals", "gaussian")
@@ -74,6 +75,14 @@ class NoiseTable:
     estimates included) as a contiguous ragged array: ``residual_count`` (same shape as
     ``bias``, every bin >= 1 after filling) and ``residuals``, the bins' values concatenated in
     C order of ``(beam, cnr, velocity)``.  :meth:`draw_residuals` resamples them.
+
+    ``residuals_sha256`` and ``residuals_total`` identify them (:func:`residuals_digest`): the
+    SHA-256 of ``residual_count`` as little-endian int64 in C order followed by ``residuals``
+    as little-endian float64, and the number of values.  They are filled in from the values;
+    given with the values they must match.  A table recorded in an artefact's attributes holds
+    only the digest (``residual_count`` and ``residuals`` ``None``, :attr:`needs_residuals`):
+    :meth:`LidarModel.with_residuals` restores the values from the bench cube the model was
+    built from, and until then :meth:`draw_residuals` refuses to draw.
     """
 
     cnr: tuple[float, ...]
@@ -82,6 +91,8 @@ class NoiseTable:
     std: tuple[tuple[tuple[float, ...], ...], ...]
     residual_count: tuple[tuple[tuple[int, ...], ...], ...] | None = None
     residuals: tuple[float, ...] | None = None
+    residuals_sha256: str | None = None
+    residuals_total: int | None = None
 
     def __post_init__(self) -> None:
         for name in ("cnr", "velocity", "bias", "std", "residual_count"):
@@ -115,11 +126,47 @@ class NoiseTable:
             flat = count.ravel()
             start = np.concatenate([[0], np.cumsum(flat)[:-1]])
             object.__setattr__(self, "_ragged", (flat, start, values))
+            digest = residuals_digest(count, values)
+            if self.residuals_sha256 is not None and self.residuals_sha256 != digest:
+                raise InputError(f"noise table: the residuals do not match residuals_sha256: expected "
+                                 f"sha256 {self.residuals_sha256}, found sha256 {digest}")
+            if self.residuals_total is not None and int(self.residuals_total) != values.size:
+                raise InputError(f"noise table: residuals_total is {self.residuals_total}; found "
+                                 f"{values.size} residuals")
+            object.__setattr__(self, "residuals_sha256", digest)
+            object.__setattr__(self, "residuals_total", int(values.size))
+        elif self.residuals_sha256 is not None:
+            if (not isinstance(self.residuals_sha256, str) or len(self.residuals_sha256) != 64
+                    or self.residuals_total is None or int(self.residuals_total) < 1):
+                raise InputError(f"noise table: residuals_sha256 must be 64 hexadecimal digits with "
+                                 f"residuals_total >= 1; found {self.residuals_sha256!r} and "
+                                 f"{self.residuals_total!r}")
+            object.__setattr__(self, "residuals_total", int(self.residuals_total))
+        elif self.residuals_total is not None:
+            raise InputError("noise table: residuals_total without residuals_sha256")
+        object.__setattr__(self, "_origin", "noise table")
 
     @property
     def has_residuals(self) -> bool:
         """True when the table carries measured residuals to resample."""
         return self.residuals is not None
+
+    @property
+    def needs_residuals(self) -> bool:
+        """True when the table knows its residuals only by digest (an attribute-form record)."""
+        return self.residuals is None and self.residuals_sha256 is not None
+
+    def without_residuals(self) -> NoiseTable:
+        """Return the attribute form: the same table with the residuals replaced by their digest."""
+        if self.residuals is None:
+            return self
+        return dataclasses.replace(self, residual_count=None, residuals=None)
+
+    def missing_residuals_message(self) -> str:
+        """Why a digest-only table cannot draw, and how to restore it."""
+        return (f"{self._origin} records the bench residuals only by digest: no bench cube given; pass the "
+                f"cube the model was built from (--cube), its residuals have sha256 {self.residuals_sha256} "
+                f"({self.residuals_total} values); or use los_noise_model 'gaussian'")
 
     def draw_residuals(self, beam: np.ndarray, cnr: float, velocity: np.ndarray,
                        uniforms: np.ndarray) -> np.ndarray:
@@ -133,6 +180,8 @@ class NoiseTable:
         distributions and its mean the bilinear interpolation of the bins' mean residuals; row 2
         picks one of that bin's residuals with equal probability.
         """
+        if self.needs_residuals:
+            raise InputError(self.missing_residuals_message())
         if self.residuals is None:
             raise InputError("noise table: no measured residuals to resample (a cube without "
                              "'los_residual'); use los_noise_model='gaussian'")
@@ -153,6 +202,7 @@ class NoiseTable:
         cell = (np.asarray(beam, dtype=np.intp) * n_c + ci) * n_v + vi
         k = np.minimum((uniforms[2] * count[cell]).astype(np.intp), count[cell] - 1)
         return values[start[cell] + k]
+
     def lookup(self, beam: int, cnr: float, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bias and std (m s-1) for one beam at one CNR (dB) and many radial velocities."""
         cnr_axis, vel_axis, bias, std = self._arrays
@@ -260,8 +310,8 @@ class LidarModel:
         if self.los_noise_model not in LOS_NOISE_MODELS:
             problems.append(f"los_noise_model must be one of {list(LOS_NOISE_MODELS)}; got "
                             f"{self.los_noise_model!r}")
-        elif self.los_noise_model == "residuals" and not (
-                self.noise_table is not None and self.noise_table.has_residuals):
+        elif self.los_noise_model == "residuals" and not (self.noise_table is not None and (
+                self.noise_table.has_residuals or self.noise_table.needs_residuals)):
             problems.append("los_noise_model 'residuals' needs a bench noise table with measured residuals "
                             "(a bench cube with 'los_residual'); use 'gaussian'")
         if self.turbulence_amplitudes not in ("deterministic", "rayleigh"):
@@ -381,19 +431,43 @@ class LidarModel:
         return cls(**kw)
 
     # -- serialisation ------------------------------------------------------------------
-    def to_dict(self) -> dict[str, Any]:
-        """Return a JSON-safe dictionary (lists and floats only); inverse of :meth:`from_dict`."""
+    def to_dict(self, *, residuals: bool = False) -> dict[str, Any]:
+        """Return a JSON-safe dictionary (lists and floats only); inverse of :meth:`from_dict`.
+
+        By default this is the *attribute form* written into artefacts: a noise table's bench
+        residuals appear only as ``residuals_sha256`` and ``residuals_total`` (a few hundred
+        bytes instead of every measured value, tens of MB for a real bench), and
+        :meth:`from_dict` needs the bench cube to restore them.  ``residuals=True`` gives the
+        full form for in-process and worker transport (every value, so a worker resamples bit
+        for bit); it raises :class:`~lidarcal.errors.InputError` when the model must resample
+        residuals it knows only by digest.
+        """
+        table = self.noise_table
+        if residuals and table is not None and table.needs_residuals and self.los_noise_model == "residuals":
+            raise InputError(table.missing_residuals_message())
         out = {}
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if isinstance(value, NoiseTable):
+                value = value if residuals else value.without_residuals()
                 value = {g.name: _listify(getattr(value, g.name)) for g in dataclasses.fields(value)}
+                if not residuals:
+                    del value["residual_count"], value["residuals"]
             out[f.name] = _listify(value)
         return out
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any] | str) -> LidarModel:
-        """Rebuild a model from :meth:`to_dict` output (or its JSON text)."""
+    def from_dict(cls, data: Mapping[str, Any] | str, *, cube: xr.Dataset | None = None,
+                  source: str | None = None) -> LidarModel:
+        """Rebuild a model from :meth:`to_dict` output (or its JSON text).
+
+        An attribute-form record of a model with bench residuals knows them only by digest:
+        without ``cube`` the model is rebuilt (its bias/std tables, its settings) but cannot
+        resample residuals until :meth:`with_residuals` restores them; with ``cube`` (the bench
+        cube the model was built from) they are restored and checked against the digest.
+        ``source`` names the record in error messages (e.g. ``"x.nc: global attribute
+        'lidarcal_lidar_model'"``).
+        """
         if isinstance(data, str):
             data = json.loads(data)
         known = {f.name for f in dataclasses.fields(cls)}
@@ -401,10 +475,37 @@ class LidarModel:
         if unknown:
             raise InputError(f"LidarModel.from_dict: unknown field(s) {sorted(unknown)}; "
                              f"known {sorted(known)}")
-        return cls(**dict(data))
+        model = cls(**dict(data))
+        if model.noise_table is not None and source:
+            object.__setattr__(model.noise_table, "_origin", source)
+        if cube is not None:
+            model = model.with_residuals(cube, source=source)
+        return model
+
+    def with_residuals(self, cube: xr.Dataset, *, source: str | None = None) -> LidarModel:
+        """Restore a digest-only noise table's residuals from ``cube``'s ``los_residual``.
+
+        The residuals are gathered exactly as :meth:`from_artefacts` gathers them (the model's
+        beams, empty bins from the nearest populated one) and must have the recorded SHA-256;
+        otherwise :class:`~lidarcal.errors.InputError` names the record (``source``), the cube
+        and both digests.  A model without such a table is returned unchanged.
+        """
+        table = self.noise_table
+        if table is None or not table.needs_residuals:
+            return self
+        origin = source or table._origin
+        count, values = _cube_residuals(cube, self.azimuths)
+        found = residuals_digest(count, values)
+        if found != table.residuals_sha256:
+            raise InputError(
+                f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: its "
+                f"residuals ({values.size} values) have sha256 {found}; expected sha256 "
+                f"{table.residuals_sha256} ({table.residuals_total} values)")
+        restored = dataclasses.replace(table, residual_count=count, residuals=values)
+        return dataclasses.replace(self, noise_table=restored)
 
     def to_json(self) -> str:
-        """Compact JSON text of :meth:`to_dict` (for the ``lidarcal_lidar_model`` attribute)."""
+        """Compact JSON text of the attribute form of :meth:`to_dict` (``lidarcal_lidar_model``)."""
         return json.dumps(self.to_dict(), sort_keys=True)
 
     def reference_scale(self, direction: Any, turbulence_intensity: Any) -> Any:
@@ -576,18 +677,26 @@ def _ragged_residuals(cube: xr.Dataset, rows: list[int], ci: np.ndarray,
     return np.array(counts, dtype=np.int64), np.concatenate(values)
 
 
-def _noise_table(cube: xr.Dataset, azimuths: tuple[float, ...], *, residuals: bool = False) -> NoiseTable:
+def residuals_digest(count: Any, values: Any) -> str:
+    """SHA-256 identifying a noise table's residuals (:class:`NoiseTable`).
+
+    The hash of ``count`` as little-endian int64 in C order of ``(beam, cnr, velocity)``
+    followed by ``values`` as little-endian float64 (the concatenated bins, in that order).
+    """
+    h = hashlib.sha256(np.ascontiguousarray(count, dtype="<i8").tobytes())
+    h.update(np.ascontiguousarray(values, dtype="<f8").tobytes())
+    return h.hexdigest()
+
+
+def _cube_layout(cube: xr.Dataset, azimuths: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, list[int],
+                                                                          np.ndarray, np.ndarray]:
+    """Return the cube's bin centres, each beam azimuth's row and the sort orders of both axes."""
     src = source_name(cube)
-    bias = convert_variable(cube, "los_bias", "m s-1", source=src)
-    std = convert_variable(cube, "los_std", "m s-1", source=src)
     cnr = convert_variable(cube, "cnr", "dB", source=src).values
     vel = convert_variable(cube, "velocity", "m s-1", source=src).values
     az = convert_variable(cube, "los_azimuth", "degree", source=src).values
     el = convert_variable(cube, "los_elevation", "degree", source=src).values
-    bias = bias.transpose("los", "cnr", "velocity").values
-    std = std.transpose("los", "cnr", "velocity").values
-    ci, vi = np.argsort(cnr), np.argsort(vel)
-    out_b, out_s, rows = [], [], []
+    rows = []
     for a in azimuths:
         diff = np.abs((az - a + 180.0) % 360.0 - 180.0)
         cand = np.flatnonzero((diff < 0.5) & (el < 89.0))
@@ -595,7 +704,25 @@ def _noise_table(cube: xr.Dataset, azimuths: tuple[float, ...], *, residuals: bo
             raise InputError(f"{src}: coordinate 'los_azimuth' should hold exactly one oblique beam at "
                              f"{a}°; found azimuths {az.tolist()} with elevations {el.tolist()}")
         rows.append(int(cand[0]))
-        b, s = bias[cand[0]][np.ix_(ci, vi)], std[cand[0]][np.ix_(ci, vi)]
+    return cnr, vel, rows, np.argsort(cnr), np.argsort(vel)
+
+
+def _cube_residuals(cube: xr.Dataset, azimuths: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
+    """Return the residuals a table built from ``cube`` for these beams carries: (counts, values)."""
+    _, _, rows, ci, vi = _cube_layout(cube, azimuths)
+    return _ragged_residuals(cube, rows, ci, vi)
+
+
+def _noise_table(cube: xr.Dataset, azimuths: tuple[float, ...], *, residuals: bool = False) -> NoiseTable:
+    src = source_name(cube)
+    bias = convert_variable(cube, "los_bias", "m s-1", source=src)
+    std = convert_variable(cube, "los_std", "m s-1", source=src)
+    cnr, vel, rows, ci, vi = _cube_layout(cube, azimuths)
+    bias = bias.transpose("los", "cnr", "velocity").values
+    std = std.transpose("los", "cnr", "velocity").values
+    out_b, out_s = [], []
+    for a, row in zip(azimuths, rows, strict=True):
+        b, s = bias[row][np.ix_(ci, vi)], std[row][np.ix_(ci, vi)]
         ok = np.isfinite(b) & np.isfinite(s)
         if not ok.any():
             raise InputError(f"{src}: variables 'los_bias'/'los_std' are empty (all NaN) "
