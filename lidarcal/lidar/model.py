@@ -453,6 +453,8 @@ class LidarModel:
                 value = {g.name: _listify(getattr(value, g.name)) for g in dataclasses.fields(value)}
                 if not residuals:
                     del value["residual_count"], value["residuals"]
+                if value["residuals_sha256"] is None:  # a Gaussian table: recorded as before digests existed
+                    del value["residuals_sha256"], value["residuals_total"]
             out[f.name] = _listify(value)
         return out
 
