@@ -122,13 +122,21 @@ def canonical_order(ds: xr.Dataset) -> xr.Dataset:
     """Return ``ds`` with every variable's dimensions in the canonical order (:func:`canonical_dims`).
 
     Values are only transposed (selection by name is unaffected); a dataset already in order is
-    returned as a shallow copy.  :func:`lidarcal.provenance.stamp` applies it to every artefact,
+    returned as a shallow copy.  A bounds variable keeps its vertex dimension last (CF §7.1).
+    :func:`lidarcal.provenance.stamp` applies it to every artefact,
     so an artefact in memory has the dimension order of its file.
     """
     out = ds.copy(deep=False)
+    # CF 7.1: a bounds variable has its parent's dims, then the vertex dim (last)
+    parents = {str(v.attrs[key]): v.dims for v in ds.variables.values() for key in ("bounds", "climatology")
+               if str(v.attrs.get(key, "")) in ds.variables}
     for name in list(out.variables):
         var = out.variables[name]
-        order = canonical_dims(ds, tuple(var.dims))
+        if name in parents:
+            own = tuple(d for d in var.dims if d in parents[name])
+            order = canonical_dims(ds, own) + tuple(d for d in var.dims if d not in own)
+        else:
+            order = canonical_dims(ds, tuple(var.dims))
         if order == tuple(var.dims):
             continue
         if name in out.coords:

@@ -185,7 +185,7 @@ def test_output_is_a_valid_artefact_with_provenance_and_los(cond, model, tmp_pat
     assert LidarModel.from_dict(back.attrs["lidarcal_lidar_model"]) == model
     assert back.attrs["lidarcal_base_seed"] == 20240101
     assert '"role": "conditions"' in back.attrs["lidarcal_inputs"]
-    assert back.los_radial_velocity.shape == (2, 3, 600)  # 600 LOS at 1 s in 10 minutes
+    assert back.los_radial_velocity.sizes == {"los_period": 2, "los_time": 600, "height": 3}  # 1 s for 10 min
     assert back.los_period.values.tolist() == [2, 5]
     # each beam contributes 150 samples per period (paper §2.3)
     assert np.bincount(back.los_beam.values).tolist() == [150] * 4

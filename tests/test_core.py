@@ -185,15 +185,16 @@ def test_written_files_get_ordinary_permissions(tmp_path):
     assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
 
 
-def test_schema_stackable_dims_accept_a_leading_height_only():
+def test_schema_stackable_dims_accept_a_trailing_height_only():
     from lidarcal.schema import _dims_match
 
+    # stacked heights come last, as in the canonical dimension order (CF 2.4)
     assert _dims_match(("wind_speed",), ["wind_speed"], ("height",))
-    assert _dims_match(("height", "wind_speed"), ["wind_speed"], ("height",))
+    assert _dims_match(("wind_speed", "height"), ["wind_speed"], ("height",))
     assert _dims_match(("height",), [], ("height",))
-    assert not _dims_match(("wind_speed", "height"), ["wind_speed"], ("height",))
-    assert not _dims_match(("time", "wind_speed"), ["wind_speed"], ("height",))
-    assert not _dims_match(("height", "wind_speed"), ["wind_speed"], ())
+    assert not _dims_match(("height", "wind_speed"), ["wind_speed"], ("height",))
+    assert not _dims_match(("wind_speed", "time"), ["wind_speed"], ("height",))
+    assert not _dims_match(("wind_speed", "height"), ["wind_speed"], ())
 
 
 def test_history_records_the_command_as_typed(tmp_path, capsys):

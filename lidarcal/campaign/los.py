@@ -11,7 +11,7 @@ __all__ = ["los_variables"]
 
 
 def los_variables(los_data: dict[int, dict[str, np.ndarray]], heights: np.ndarray) -> xr.Dataset:
-    """``los_radial_velocity`` (los_period, height, los_time) and its coordinates.
+    """``los_radial_velocity`` and its coordinates (dims (los_period, los_time, height) once stamped).
 
     ``los_data`` maps a period index to the engine's ``return_los`` output for the heights
     that were simulated in that period (``columns``); other heights are NaN.

@@ -1,6 +1,6 @@
 r"""``lidarcal turbulence``: turbulence at the points a virtual lidar samples at one height.
 
-Writes a ``turbulence_box`` artefact (dims ``time``, ``point``; u, v, w fluctuations in the wind
+Writes a ``turbulence_box`` artefact (dims ``point``, ``time``; u, v, w fluctuations in the wind
 frame; point coordinates x, y, z in m) for inspection.  With the default fast generator the
 series are exactly those ``simulate_period`` uses for that height and ``--seed``.  Examples::
 

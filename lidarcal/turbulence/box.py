@@ -101,7 +101,7 @@ def turbulence_box(
     names = ("u", "v", "w")
     long = ("along-wind", "cross-wind (positive to the left of the downwind direction)", "vertical (upward)")
     data = {
-        name: (("time", "point"), series[k].T,
+        name: (("point", "time"), series[k],  # canonical order: other dims, then time (CF 2.4)
                var_attrs(f"{long[k]} turbulent velocity fluctuation", "m s-1",
                          sigma_target=float(sigma[k])))
         for k, name in enumerate(names)
