@@ -26,6 +26,8 @@ def test_cli_writes_valid_box_and_refuses_overwrite(tmp_path, capsys):
     assert validate_dataset(ds) == []
     report = check_compliance(out)
     assert report.passed, report.failures
+    assert [w for w in report.warnings if w.startswith("cf")] == []  # (point, time): CF 2.4's order
+    assert ds.u.dims == ("point", "time")
     assert dict(ds.sizes) == {"time": 600, "point": 21}  # 4 beams x 5 RWF nodes + the reference
     assert ds.u.attrs["units"] == "m s-1" and ds.z.attrs["units"] == "m"
     assert json.loads(ds.attrs["lidarcal_seeds"])["seed"] == [1]
