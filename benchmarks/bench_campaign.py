@@ -37,7 +37,7 @@ for _v in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from lidarcal.campaign import BLAS_ENV, simulate_campaign  # noqa: E402
+from lidarcal.campaign import local_cluster, simulate_campaign  # noqa: E402
 from lidarcal.conditions import synthetic_conditions  # noqa: E402
 from lidarcal.lidar import LidarModel  # noqa: E402
 
@@ -49,11 +49,9 @@ def _peak_rss_mb() -> float:
 
 
 def _cluster(n_workers: int):
-    from distributed import Client, LocalCluster
+    from distributed import Client
 
-    cluster = LocalCluster(
-        n_workers=n_workers, threads_per_worker=1, processes=True, dashboard_address=None, env=dict(BLAS_ENV)
-    )
+    cluster = local_cluster(n_workers, dashboard_address=None)  # one BLAS thread, glibc's own malloc tuning
     return cluster, Client(cluster, set_as_default=False)
 
 

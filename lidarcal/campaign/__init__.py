@@ -5,6 +5,6 @@
 :mod:`lidarcal.campaign.run` for scheduling, seeding and resuming.
 """
 
-from lidarcal.campaign.run import BLAS_ENV, DEFAULT_BASE_SEED, simulate_campaign
+from lidarcal.campaign.run import BLAS_ENV, DEFAULT_BASE_SEED, WORKER_CONFIG, local_cluster, simulate_campaign
 
-__all__ = ["simulate_campaign", "DEFAULT_BASE_SEED", "BLAS_ENV"]
+__all__ = ["simulate_campaign", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV", "WORKER_CONFIG"]
