@@ -5,6 +5,9 @@ Public API (see ``docs/contracts.md``, "The virtual lidar"):
 * :class:`LidarModel` — frozen, JSON-serialisable configuration (``ideal``, ``from_artefacts``,
   ``from_attrs``, ``to_dict``, ``from_dict``); :data:`LIDAR_ATTRIBUTES` and
   :func:`lidar_attributes` read a conditions file's ``lidar_*`` attributes;
+* :class:`NoiseTable` (:mod:`lidarcal.lidar.noise`) — the bench cube's LOS bias, std and measured
+  residuals per (CNR, velocity) bin, as the simulation draws from them;
+* :mod:`lidarcal.lidar.spectral` — the continuous-RWF LOS signals' cross-spectral matrix;
 * :mod:`lidarcal.lidar.geometry` — beams, range gates, sample points, reachability;
 * :func:`simulate_period` — one 10-minute period at several heights, lidar (hybrid, scalar,
   vector) and reference speeds;
@@ -18,9 +21,9 @@ from lidarcal.lidar.model import (
     DEFAULT_RWF_FWHM,
     LIDAR_ATTRIBUTES,
     LidarModel,
-    NoiseTable,
     lidar_attributes,
 )
+from lidarcal.lidar.noise import NoiseTable
 from lidarcal.lidar.quadrature import cnr_weights, gauss_hermite_rwf, gauss_rwf_nodes
 from lidarcal.lidar.simulate import simulate_period
 

@@ -1,4 +1,4 @@
-"""The virtual DBS lidar's configuration: :class:`LidarModel` and its bench noise table.
+"""The virtual DBS lidar's configuration: :class:`LidarModel`.
 
 A :class:`LidarModel` is a frozen, JSON-serialisable dataclass holding everything the virtual
 lidar needs: the beam geometry, the beam period, the hybrid weight, the RWF as K quadrature
@@ -23,7 +23,6 @@ Conventions
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 from collections.abc import Mapping
 from typing import Any
@@ -33,6 +32,15 @@ import xarray as xr
 
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import source_name
+from lidarcal.lidar.noise import (
+    LOS_NOISE_MODELS,
+    NoiseTable,
+    cube_residuals,
+    listify,
+    noise_table_from_cube,
+    residuals_digest,
+    tuplify,
+)
 from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes, trapezoid_weights
 from lidarcal.rwf.kernels import barycenter
 from lidarcal.turbulence.kernels import SIGMA_RATIOS
@@ -40,186 +48,6 @@ from lidarcal.units import convert_variable
 
 __all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "LOS_NOISE_MODELS", "flow_distortion_factor",
            "direction_spread", "residuals_digest"]
-
-#: LOS noise models of a bench-calibrated lidar (:attr:`LidarModel.los_noise_model`).
-LOS_NOISE_MODELS = ("residuals", "gaussian")
-
-
-def _tuplify(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        value = value.tolist()
-    if isinstance(value, list | tuple):
-        return tuple(_tuplify(v) for v in value)
-    return float(value) if isinstance(value, np.floating | np.integer) else value
-
-
-def _listify(value: Any) -> Any:
-    if isinstance(value, tuple | list):
-        return [_listify(v) for v in value]
-    return value
-
-
-@dataclasses.dataclass(frozen=True)
-class NoiseTable:
-    """Per-beam LOS error table from the bench cube: bias and std on (beam, CNR, velocity).
-
-    ``cnr`` (dB) and ``velocity`` (m s-1, radial, positive away from the lidar) are the bin
-    centres; ``bias`` and ``std`` (m s-1) have shape ``(n_beams, n_cnr, n_velocity)`` with the
-    beams in the order of :attr:`LidarModel.azimuths`.  Empty bins have already been filled from
-    the nearest populated bin (see :meth:`LidarModel.from_artefacts`).
-
-    Lookup (:meth:`lookup`) is bilinear in (CNR, velocity) between bin centres and clamped to
-    the edge bins outside the table.
-
-    Optionally the table carries each bin's measured residuals (measured − programmed, bad
-    estimates included) as a contiguous ragged array: ``residual_count`` (same shape as
-    ``bias``, every bin >= 1 after filling) and ``residuals``, the bins' values concatenated in
-    C order of ``(beam, cnr, velocity)``.  :meth:`draw_residuals` resamples them.
-
-    ``residuals_sha256`` and ``residuals_total`` identify them (:func:`residuals_digest`): the
-    SHA-256 of ``residual_count`` as little-endian int64 in C order followed by ``residuals``
-    as little-endian float64, and the number of values.  They are filled in from the values;
-    given with the values they must match.  A table recorded in an artefact's attributes holds
-    only the digest (``residual_count`` and ``residuals`` ``None``, :attr:`needs_residuals`):
-    :meth:`LidarModel.with_residuals` restores the values from the bench cube the model was
-    built from, and until then :meth:`draw_residuals` refuses to draw.
-    """
-
-    cnr: tuple[float, ...]
-    velocity: tuple[float, ...]
-    bias: tuple[tuple[tuple[float, ...], ...], ...]
-    std: tuple[tuple[tuple[float, ...], ...], ...]
-    residual_count: tuple[tuple[tuple[int, ...], ...], ...] | None = None
-    residuals: tuple[float, ...] | None = None
-    residuals_sha256: str | None = None
-    residuals_total: int | None = None
-
-    def __post_init__(self) -> None:
-        for name in ("cnr", "velocity", "bias", "std", "residual_count"):
-            object.__setattr__(self, name, _tuplify(getattr(self, name)))
-        if self.residuals is not None:  # tens of thousands of values: one conversion, not per element
-            values = np.atleast_1d(np.asarray(self.residuals, dtype=float))
-            object.__setattr__(self, "residuals", tuple(values.tolist()))
-        bias, std = np.asarray(self.bias, float), np.asarray(self.std, float)
-        shape = (bias.shape[0], len(self.cnr), len(self.velocity)) if bias.ndim == 3 else None
-        if shape is None or bias.shape != shape or std.shape != shape:
-            raise InputError(f"noise table: bias and std must have shape (beam, {len(self.cnr)} CNR, "
-                             f"{len(self.velocity)} velocity); found {bias.shape} and {std.shape}")
-        if not (np.all(np.isfinite(bias)) and np.all(np.isfinite(std)) and np.all(std >= 0)):
-            raise InputError("noise table: bias and std must be finite and std >= 0 in every bin")
-        for name in ("cnr", "velocity"):
-            axis = np.asarray(getattr(self, name))
-            if axis.size > 1 and np.any(np.diff(axis) <= 0):
-                raise InputError(f"noise table: {name} bin centres must be strictly increasing")
-        object.__setattr__(self, "_arrays", (np.asarray(self.cnr), np.asarray(self.velocity), bias, std))
-        if (self.residual_count is None) != (self.residuals is None):
-            raise InputError("noise table: residual_count and residuals go together; one of them is missing")
-        if self.residuals is not None:
-            count = np.asarray(self.residual_count)
-            values = np.asarray(self.residuals, dtype=float)
-            if count.shape != shape or count.dtype.kind not in "iu" or np.any(count < 1):
-                raise InputError(f"noise table: residual_count must hold whole numbers >= 1 with shape "
-                                 f"{shape}; found shape {count.shape}")
-            if values.ndim != 1 or values.size != int(count.sum()) or not np.all(np.isfinite(values)):
-                raise InputError(f"noise table: residuals must be {int(count.sum())} finite values (the sum "
-                                 f"of residual_count); found {values.size}")
-            flat = count.ravel()
-            start = np.concatenate([[0], np.cumsum(flat)[:-1]])
-            object.__setattr__(self, "_ragged", (flat, start, values))
-            digest = residuals_digest(count, values)
-            if self.residuals_sha256 is not None and self.residuals_sha256 != digest:
-                raise InputError(f"noise table: the residuals do not match residuals_sha256: expected "
-                                 f"sha256 {self.residuals_sha256}, found sha256 {digest}")
-            if self.residuals_total is not None and int(self.residuals_total) != values.size:
-                raise InputError(f"noise table: residuals_total is {self.residuals_total}; found "
-                                 f"{values.size} residuals")
-            object.__setattr__(self, "residuals_sha256", digest)
-            object.__setattr__(self, "residuals_total", int(values.size))
-        elif self.residuals_sha256 is not None:
-            if (not isinstance(self.residuals_sha256, str) or len(self.residuals_sha256) != 64
-                    or self.residuals_total is None or int(self.residuals_total) < 1):
-                raise InputError(f"noise table: residuals_sha256 must be 64 hexadecimal digits with "
-                                 f"residuals_total >= 1; found {self.residuals_sha256!r} and "
-                                 f"{self.residuals_total!r}")
-            object.__setattr__(self, "residuals_total", int(self.residuals_total))
-        elif self.residuals_total is not None:
-            raise InputError("noise table: residuals_total without residuals_sha256")
-        object.__setattr__(self, "_origin", "noise table")
-
-    @property
-    def has_residuals(self) -> bool:
-        """True when the table carries measured residuals to resample."""
-        return self.residuals is not None
-
-    @property
-    def needs_residuals(self) -> bool:
-        """True when the table knows its residuals only by digest (an attribute-form record)."""
-        return self.residuals is None and self.residuals_sha256 is not None
-
-    def without_residuals(self) -> NoiseTable:
-        """Return the attribute form: the same table with the residuals replaced by their digest."""
-        if self.residuals is None:
-            return self
-        return dataclasses.replace(self, residual_count=None, residuals=None)
-
-    def missing_residuals_message(self) -> str:
-        """Why a digest-only table cannot draw, and how to restore it."""
-        return (f"{self._origin} records the bench residuals only by digest: no bench cube given; pass the "
-                f"cube the model was built from (--cube), its residuals have sha256 {self.residuals_sha256} "
-                f"({self.residuals_total} values); or use los_noise_model 'gaussian'")
-
-    def draw_residuals(self, beam: np.ndarray, cnr: float, velocity: np.ndarray,
-                       uniforms: np.ndarray) -> np.ndarray:
-        """Draw one measured residual (m s-1) per sample from the neighbouring bins.
-
-        ``beam`` (index into the beams) and ``velocity`` (m s-1) give each sample, ``cnr`` (dB)
-        the period; ``uniforms`` is ``(3, n)`` uniform numbers in [0, 1).  The bin is chosen at
-        random among the neighbours :meth:`lookup` interpolates between, each with its bilinear
-        weight (row 0 picks the CNR neighbour, row 1 the velocity neighbour; clamped outside
-        the table), so the draw's distribution is the bilinear mixture of the bins'
-        distributions and its mean the bilinear interpolation of the bins' mean residuals; row 2
-        picks one of that bin's residuals with equal probability.
-        """
-        if self.needs_residuals:
-            raise InputError(self.missing_residuals_message())
-        if self.residuals is None:
-            raise InputError("noise table: no measured residuals to resample (a cube without "
-                             "'los_residual'); use los_noise_model='gaussian'")
-        cnr_axis, vel_axis, _, _ = self._arrays
-        count, start, values = self._ragged
-        n_c, n_v = cnr_axis.size, vel_axis.size
-        velocity = np.asarray(velocity, dtype=float)
-        ci = np.zeros(velocity.shape, dtype=np.intp)
-        if n_c > 1:
-            pos = float(np.interp(cnr, cnr_axis, np.arange(n_c)))
-            i0 = int(np.floor(pos))
-            ci = np.where(uniforms[0] < pos - i0, min(i0 + 1, n_c - 1), i0)
-        vi = np.zeros(velocity.shape, dtype=np.intp)
-        if n_v > 1:
-            pos_v = np.interp(velocity, vel_axis, np.arange(n_v))
-            j0 = np.floor(pos_v).astype(np.intp)
-            vi = np.where(uniforms[1] < pos_v - j0, np.minimum(j0 + 1, n_v - 1), j0)
-        cell = (np.asarray(beam, dtype=np.intp) * n_c + ci) * n_v + vi
-        k = np.minimum((uniforms[2] * count[cell]).astype(np.intp), count[cell] - 1)
-        return values[start[cell] + k]
-
-    def lookup(self, beam: int, cnr: float, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Bias and std (m s-1) for one beam at one CNR (dB) and many radial velocities."""
-        cnr_axis, vel_axis, bias, std = self._arrays
-        if cnr_axis.size == 1:
-            i0 = i1 = 0
-            t = 0.0
-        else:
-            pos = np.interp(cnr, cnr_axis, np.arange(cnr_axis.size))  # clamped fractional index
-            i0 = int(np.floor(pos))
-            i1 = min(i0 + 1, cnr_axis.size - 1)
-            t = pos - i0
-        rows_b = (1.0 - t) * bias[beam, i0] + t * bias[beam, i1]
-        rows_s = (1.0 - t) * std[beam, i0] + t * std[beam, i1]
-        if vel_axis.size == 1:
-            return np.full_like(velocity, rows_b[0]), np.full_like(velocity, rows_s[0])
-        return np.interp(velocity, vel_axis, rows_b), np.interp(velocity, vel_axis, rows_s)
-
 
 #: Readings of Eq. 5's p: the average it multiplies (see :func:`lidarcal.lidar.wfr.hybrid_speed`).
 HYBRID_CONVENTIONS = ("scalar", "vector")
@@ -271,11 +99,11 @@ class LidarModel:
     description: str = "ideal"  #: free text: where the configuration came from
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "azimuths", _tuplify(self.azimuths))
-        object.__setattr__(self, "rwf_offsets", _tuplify(self.rwf_offsets))
-        object.__setattr__(self, "rwf_weights", _tuplify(self.rwf_weights))
+        object.__setattr__(self, "azimuths", tuplify(self.azimuths))
+        object.__setattr__(self, "rwf_offsets", tuplify(self.rwf_offsets))
+        object.__setattr__(self, "rwf_weights", tuplify(self.rwf_weights))
         if self.rwf_profile is not None:
-            object.__setattr__(self, "rwf_profile", _tuplify(self.rwf_profile))
+            object.__setattr__(self, "rwf_profile", tuplify(self.rwf_profile))
         if isinstance(self.noise_table, Mapping):
             object.__setattr__(self, "noise_table", NoiseTable(**self.noise_table))
         problems = []
@@ -417,7 +245,7 @@ class LidarModel:
                     "'los_residual' (each bin's measured residuals, written by lidarcal bench ingest since "
                     "it keeps them); this cube has none - re-ingest the bench run or use 'gaussian'")
             model = los_noise_model or ("residuals" if has else "gaussian")
-            kw["noise_table"] = _noise_table(cube, tuple(overrides.get("azimuths", cls.azimuths)),
+            kw["noise_table"] = noise_table_from_cube(cube, tuple(overrides.get("azimuths", cls.azimuths)),
                                              residuals=model == "residuals")
             kw["los_noise_model"] = model
             kw["cnr_threshold"] = DEFAULT_CNR_THRESHOLD
@@ -450,12 +278,12 @@ class LidarModel:
             value = getattr(self, f.name)
             if isinstance(value, NoiseTable):
                 value = value if residuals else value.without_residuals()
-                value = {g.name: _listify(getattr(value, g.name)) for g in dataclasses.fields(value)}
+                value = {g.name: listify(getattr(value, g.name)) for g in dataclasses.fields(value)}
                 if not residuals:
                     del value["residual_count"], value["residuals"]
                 if value["residuals_sha256"] is None:  # a Gaussian table: recorded as before digests existed
                     del value["residuals_sha256"], value["residuals_total"]
-            out[f.name] = _listify(value)
+            out[f.name] = listify(value)
         return out
 
     @classmethod
@@ -496,7 +324,7 @@ class LidarModel:
         if table is None or not table.needs_residuals:
             return self
         origin = source or table._origin
-        count, values = _cube_residuals(cube, self.azimuths)
+        count, values = cube_residuals(cube, self.azimuths)
         found = residuals_digest(count, values)
         if found != table.residuals_sha256:
             raise InputError(
@@ -630,110 +458,3 @@ def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray, t
     profile = (tuple(np.round(grid - zd, 6).tolist()),
                tuple(float(v) for v in np.interp(grid, s, g / g.max()).round(9)))
     return nodes - zd, weights, profile
-
-
-def _fill_nearest(values: np.ndarray) -> np.ndarray:
-    """Fill NaN bins of a 2-D (cnr, velocity) table from the nearest populated bin (index space)."""
-    from scipy.ndimage import distance_transform_edt
-
-    missing = ~np.isfinite(values)
-    if not missing.any():
-        return values
-    _, (ii, jj) = distance_transform_edt(missing, return_indices=True)
-    return values[ii, jj]
-
-
-def _fill_index(valid: np.ndarray) -> np.ndarray:
-    """Flat index of the nearest valid bin of a 2-D table for every bin (index space)."""
-    from scipy.ndimage import distance_transform_edt
-
-    _, (ii, jj) = distance_transform_edt(~valid, return_indices=True)
-    return np.ravel_multi_index((ii, jj), valid.shape)
-
-
-def _ragged_residuals(cube: xr.Dataset, rows: list[int], ci: np.ndarray,
-                      vi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Return the cube's residuals as counts (beam, cnr, velocity) and concatenated values.
-
-    Each beam's empty bins take the residuals of the nearest bin that has some (as the bias and
-    std of :func:`_fill_nearest`).
-    """
-    src = source_name(cube)
-    var = convert_variable(cube, "los_residual", "m s-1", source=src)
-    extra = [d for d in var.dims if d not in ("los", "cnr", "velocity")]
-    if len(extra) != 1:
-        raise InputError(f"{src}: variable 'los_residual' must have dims (los, cnr, velocity, sample); "
-                         f"found {tuple(var.dims)}")
-    res = var.transpose("los", "cnr", "velocity", extra[0]).values
-    counts, values = [], []
-    for row in rows:
-        r = res[row][np.ix_(ci, vi)]                        # (cnr, velocity, sample)
-        n = np.isfinite(r).sum(axis=-1)
-        if not (n > 0).any():
-            raise InputError(f"{src}: variable 'los_residual' is empty (all NaN) for the beam of "
-                             f"los_azimuth {float(cube.los_azimuth.values[row]):g}")
-        src_bin = _fill_index(n > 0)
-        flat = r.reshape(-1, r.shape[-1])[src_bin]         # (cnr * velocity, sample)
-        counts.append(n.ravel()[src_bin].reshape(n.shape))
-        values.append(flat[np.isfinite(flat)])               # C order: bin by bin, time order within
-    return np.array(counts, dtype=np.int64), np.concatenate(values)
-
-
-def residuals_digest(count: Any, values: Any) -> str:
-    """SHA-256 identifying a noise table's residuals (:class:`NoiseTable`).
-
-    The hash of ``count`` as little-endian int64 in C order of ``(beam, cnr, velocity)``
-    followed by ``values`` as little-endian float64 (the concatenated bins, in that order).
-    """
-    h = hashlib.sha256(np.ascontiguousarray(count, dtype="<i8").tobytes())
-    h.update(np.ascontiguousarray(values, dtype="<f8").tobytes())
-    return h.hexdigest()
-
-
-def _cube_layout(cube: xr.Dataset, azimuths: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, list[int],
-                                                                          np.ndarray, np.ndarray]:
-    """Return the cube's bin centres, each beam azimuth's row and the sort orders of both axes."""
-    src = source_name(cube)
-    cnr = convert_variable(cube, "cnr", "dB", source=src).values
-    vel = convert_variable(cube, "velocity", "m s-1", source=src).values
-    az = convert_variable(cube, "los_azimuth", "degree", source=src).values
-    el = convert_variable(cube, "los_elevation", "degree", source=src).values
-    rows = []
-    for a in azimuths:
-        diff = np.abs((az - a + 180.0) % 360.0 - 180.0)
-        cand = np.flatnonzero((diff < 0.5) & (el < 89.0))
-        if cand.size != 1:
-            raise InputError(f"{src}: coordinate 'los_azimuth' should hold exactly one oblique beam at "
-                             f"{a}°; found azimuths {az.tolist()} with elevations {el.tolist()}")
-        rows.append(int(cand[0]))
-    return cnr, vel, rows, np.argsort(cnr), np.argsort(vel)
-
-
-def _cube_residuals(cube: xr.Dataset, azimuths: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
-    """Return the residuals a table built from ``cube`` for these beams carries: (counts, values)."""
-    _, _, rows, ci, vi = _cube_layout(cube, azimuths)
-    return _ragged_residuals(cube, rows, ci, vi)
-
-
-def _noise_table(cube: xr.Dataset, azimuths: tuple[float, ...], *, residuals: bool = False) -> NoiseTable:
-    src = source_name(cube)
-    bias = convert_variable(cube, "los_bias", "m s-1", source=src)
-    std = convert_variable(cube, "los_std", "m s-1", source=src)
-    cnr, vel, rows, ci, vi = _cube_layout(cube, azimuths)
-    bias = bias.transpose("los", "cnr", "velocity").values
-    std = std.transpose("los", "cnr", "velocity").values
-    out_b, out_s = [], []
-    for a, row in zip(azimuths, rows, strict=True):
-        b, s = bias[row][np.ix_(ci, vi)], std[row][np.ix_(ci, vi)]
-        ok = np.isfinite(b) & np.isfinite(s)
-        if not ok.any():
-            raise InputError(f"{src}: variables 'los_bias'/'los_std' are empty (all NaN) "
-                             f"for the beam at {a}°")
-        b, s = np.where(ok, b, np.nan), np.where(ok, s, np.nan)
-        out_b.append(_fill_nearest(b))
-        out_s.append(_fill_nearest(s))
-    extra = {}
-    if residuals:
-        count, values = _ragged_residuals(cube, rows, ci, vi)
-        extra = {"residual_count": count, "residuals": values}
-    return NoiseTable(cnr=cnr[ci], velocity=vel[vi], bias=np.array(out_b), std=np.array(out_s), **extra)

@@ -30,7 +30,7 @@ from north):
   plus an error drawn for this beam, the period's CNR and this sample's noise-free radial
   velocity: by default (``los_noise_model = "residuals"``, a cube with measured residuals) one
   of the bench bin's measured residuals, bad estimates included, the bin picked among the
-  neighbours with its bilinear weight (:meth:`~lidarcal.lidar.model.NoiseTable.draw_residuals`);
+  neighbours with its bilinear weight (:meth:`~lidarcal.lidar.noise.NoiseTable.draw_residuals`);
   with ``"gaussian"`` ``N(μ, σ)``, ``μ, σ`` the table's MAD-trimmed bias and std (bilinear,
   clamped); ``μ = 0, σ = los_noise_std`` for the ideal lidar.  Samples are kept with
   probability ``availability``.
