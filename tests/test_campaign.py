@@ -354,6 +354,19 @@ def test_distributed_cluster_bit_identical(cluster, cond, model, reference):
     assert set(envs.values()) == {"1"} and len(envs) == 2
 
 
+def test_local_cluster_workers_keep_glibcs_malloc_tuning():
+    """distributed's nannies set MALLOC_TRIM_THRESHOLD_=65536, which made every period 1.5x dearer
+    (docs/performance.md): the workers lidarcal starts must not have it, and keep one BLAS thread."""
+    from distributed import Client
+
+    from lidarcal.campaign import local_cluster
+
+    with local_cluster(1, dashboard_address=None) as lc, Client(lc, set_as_default=False) as client:
+        envs = client.run(lambda: tuple(os.environ.get(k) for k in ("MALLOC_TRIM_THRESHOLD_",
+                                                                    "OPENBLAS_NUM_THREADS")))
+    assert list(envs.values()) == [(None, "1")]
+
+
 @pytest.mark.parametrize("cluster", [False], indirect=True)  # no nanny: a killed worker stays dead
 def test_lost_worker_costs_time_not_data(cluster, model, tmp_path):
     import threading
