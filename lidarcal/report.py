@@ -4,7 +4,7 @@ The page embeds BokehJS inline (``resources=INLINE``), so it opens without netwo
 and shows, as available, budget first:
 
 - the expanded (k = 2) uncertainty vs wind speed (paper Figure 9), a menu choosing all
-  heights or one, thin bins (fewer periods than ``min_samples``) marked with red crosses;
+  heights or one, bins not certified (too few periods, centre outside the certified range) marked with red crosses;
 - the uncertainty contributors as grouped bars per wind-speed bin, a menu choosing the height;
 - the sensitivities (Figure 7): per height (menu) the bin means with the standard error of
   the mean, the regression line and its 95 % confidence band, plus a table of the slopes,
@@ -33,7 +33,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component, headline_range
+from lidarcal.certificate import components, extract_component, headline_sentence
 from lidarcal.errors import InputError
 from lidarcal.htmlpage import offline_html, write_text
 from lidarcal.io import atomic_path, check_writable
@@ -42,7 +42,7 @@ __all__ = ["Figure", "confidence_band", "fmt", "report_figures", "write_report"]
 
 _WIDTH, _HEIGHT = 900, 380
 _PNG_DPI = 150  # static figures: at least 150 dpi, written into the PNG's pHYs chunk
-_THIN = "#d62728"  # marker colour of thin bins (fewer periods than min_samples)
+_THIN = "#d62728"  # marker colour of bins not certified
 _VARIABLES = {  # readable names of the environmental variables
     "wind_shear_exponent": "wind shear exponent",
     "turbulence_intensity": "turbulence intensity",
@@ -428,10 +428,10 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
         y = rel.sel(height=h).values
         f = flag.sel(height=h).values
         ok = np.where(f == 0, y, np.nan)
-        thin = (f == 1) & np.isfinite(y)
+        thin = (f != 0) & (f != 2) & np.isfinite(y)  # not certified (too few periods, outside the range)
         curve = hv.Curve((ws, ok), "wind_speed", "U", label=label)
         dots = hv.Scatter((ws[f == 0], y[f == 0]), "wind_speed", "U", label=label)
-        thin_pts = hv.Scatter((ws[thin], y[thin]), "wind_speed", "U", label="thin bin (too few periods)")
+        thin_pts = hv.Scatter((ws[thin], y[thin]), "wind_speed", "U", label="bin not certified")
         return [
             curve.opts(line_width=2, color=color, backend="bokeh").opts(color=color, backend="matplotlib"),
             dots.opts(size=5, color=color, backend="bokeh").opts(s=12, color=color, backend="matplotlib"),
@@ -445,7 +445,7 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
     all_layers = []
     for i, h in enumerate(heights):
         lay = layers(h, colors[i % len(colors)], f"{fmt(h)} m")
-        all_layers += lay[:2] + ([lay[2].relabel("thin bin (too few periods)")] if i == 0 else [lay[2]])
+        all_layers += lay[:2] + ([lay[2].relabel("bin not certified")] if i == 0 else [lay[2]])
     title = f"Expanded uncertainty (k = {fmt(k)}), {budget.attrs.get('approach', '')} approach".rstrip(", ")
     everything = _style(hv.Overlay(all_layers).opts(ylim=ylim), f"{title}, all heights", xl, yl)
     panels = {"all heights": everything}
@@ -454,8 +454,9 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
                                        .opts(ylim=ylim), f"{title}, {fmt(h)} m", xl, yl)
     out = {"budget": Figure(
         f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", panels, kind="select", png=everything,
-        note="<p>Red crosses: thin bins (fewer periods than the minimum); they are kept in the budget "
-             "but left out of the certificate's headline range. Empty bins are not drawn.</p>",
+        note="<p>Red crosses: bins not certified (fewer periods than the minimum, or centre outside the "
+             "certified range); they are kept in the budget but left out of the certificate's headline "
+             "range. Empty bins are not drawn.</p>",
     )}
     contrib = budget["relative_contribution"]
     names = [str(c).replace("_", " ") for c in contrib.contributor.values]
@@ -574,17 +575,32 @@ def _summary_rows(meta: xr.Dataset | None, budget: xr.Dataset | None) -> list[tu
                 rows.append(
                     (f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}")
                 )
-    # the headline: bins flagged ok, centres 4-16 m/s (certificate.headline_range, as `lidarcal table`)
-    rng = headline_range(budget) if budget is not None else None
-    if rng is not None:
-        lo, hi = HEADLINE_WIND_SPEEDS
-        rows.append(
-            (
-                f"Expanded uncertainty (k = {float(budget.attrs.get('coverage_factor', 2)):g}), "
-                f"bins with enough samples, {lo:g} to {hi:g} m/s",
-                f"{rng[0]:.2f} % to {rng[1]:.2f} %",
-            )
-        )
+    # the headline: certified bins only (certificate.headline_sentence, as `lidarcal table`)
+    headline = headline_sentence(budget) if budget is not None else None
+    if headline is not None:
+        k = float(budget.attrs.get("coverage_factor", 2))
+        rows.append((f"Expanded uncertainty (k = {k:g}), certified bins", headline))
+        rows += _certified_values(budget, k)
+    return rows
+
+
+def _certified_values(budget: xr.Dataset, k: float) -> list[tuple[str, str]]:
+    """One row per height: every certified value with the Monte Carlo's numerical tolerance beside it."""
+    if "numerical_tolerance" not in budget:
+        return []
+    rows = []
+    b = budget.transpose("height", "wind_speed")
+    for i, z in enumerate(b["height"].values):
+        cells = []
+        for j, u in enumerate(b["wind_speed"].values):
+            if int(b["bin_flag"].values[i, j]) != 0:
+                continue
+            value, tol = float(b["relative_expanded_uncertainty"].values[i, j]), float(
+                b["numerical_tolerance"].values[i, j])
+            mark = "" if int(b["numerical_flag"].values[i, j]) == 0 else " (not settled)"
+            cells.append(f"{u:g}: {value:.2f} ± {tol:g}{mark}" if np.isfinite(tol) else f"{u:g}: {value:.2f}{mark}")
+        if cells:
+            rows.append((f"U (k = {k:g}, %) ± numerical tolerance at {fmt(z)} m, by bin (m/s)", "; ".join(cells)))
     return rows
 
 
