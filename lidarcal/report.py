@@ -589,7 +589,7 @@ def _certified_values(budget: xr.Dataset, k: float) -> list[tuple[str, str]]:
     if "numerical_tolerance" not in budget:
         return []
     rows = []
-    b = budget.transpose("height", "wind_speed")
+    b = budget.transpose("height", "wind_speed", ...)
     for i, z in enumerate(b["height"].values):
         cells = []
         for j, u in enumerate(b["wind_speed"].values):

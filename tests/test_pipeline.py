@@ -36,7 +36,8 @@ def small_run(tmp_path_factory):
     level = logger.level
     logger.setLevel(logging.INFO)
     try:
-        cfg = CalibrationConfig(periods=48, heights=(60.0, 120.0), workers=1, chunk=16, min_samples=3)
+        cfg = CalibrationConfig(periods=48, heights=(60.0, 120.0), workers=1, chunk=16, min_periods=3,
+                                max_replicas=3)
         result = calibrate(out, cfg)
     finally:
         logger.removeHandler(handler)

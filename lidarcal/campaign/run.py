@@ -61,7 +61,7 @@ from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 from lidarcal.provenance import stamp
 
-__all__ = ["simulate_campaign", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV", "WORKER_CONFIG",
+__all__ = ["simulate_campaign", "simulate_replicas", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV", "WORKER_CONFIG",
            "WORKER_TIMEOUT"]
 
 log = logging.getLogger(__name__)
@@ -453,6 +453,86 @@ def simulate_campaign(
     ds = _assemble(camp.cond, camp.hidx, out, camp.valid, los_data, camp.keys, base_seed)
     return _describe(ds, camp, model, base_seed=base_seed, chunk=chunk, duration=duration,
                      scheduler=scheduler, workers=workers, call=call, inputs=inputs)
+
+
+def simulate_replicas(
+    conditions: str | os.PathLike | xr.Dataset,
+    model,
+    cells: np.ndarray,
+    replicas: Sequence[int],
+    *,
+    heights: Sequence[float] | None = None,
+    base_seed: int = DEFAULT_BASE_SEED,
+    chunk: int = 64,
+    scheduler: Any = None,
+    workers: int | None = None,
+    workdir: str | os.PathLike | None = None,
+    progress: bool = False,
+    duration: float = 600.0,
+    connect_timeout: float = 5.0,
+    worker_timeout: float = WORKER_TIMEOUT,
+) -> dict[int, dict[str, np.ndarray]]:
+    """Monte Carlo replicas (>= 1) of the (period, height) ``cells`` of a campaign (JCGM 101 7.9).
+
+    Replica ``r`` re-simulates the cells marked in ``cells`` ((time, height) bool over the
+    simulated heights) with the seed entropy ``(base_seed, r, period_key)`` (docs/seeds.md), as
+    Dask tasks of ``chunk`` selected periods, one set of tasks per replica, all submitted
+    together.  Like :func:`simulate_campaign` the result does not depend on the chunk size, the
+    workers or the scheduler, and with ``workdir`` finished chunks are kept (in
+    ``workdir/replica-<r>``) so an interrupted run resumes.
+
+    Returns
+    -------
+    dict
+        Per replica: ``period`` (index into the conditions), ``height`` (m), the
+        :data:`~lidarcal.campaign.chunks.OUTPUTS` of every simulated cell (1-D, in period then height
+        order).
+    """
+    camp = _prepare(conditions, model, heights, chunk, ())
+    cells = np.asarray(cells, dtype=bool)
+    if cells.shape != camp.valid.shape:
+        raise InputError(f"cells has shape {cells.shape}; expected {camp.valid.shape} (time, height)")
+    if any(int(r) < 1 for r in replicas):
+        raise InputError(f"replicas are numbered from 1 (replica 0 is simulate_campaign); got {list(replicas)}")
+    chunk = int(chunk)
+    todo = camp.valid & cells
+    sel = np.flatnonzero(todo.any(axis=1))
+    model_dict, transport = model.to_dict(), model.to_dict(residuals=True)
+    results: dict[tuple[int, int], dict] = {}
+    tasks: list[tuple[str, dict]] = []
+    bounds: dict[str, tuple[int, int]] = {}
+    for r in (int(r) for r in replicas):
+        where = None if workdir is None else os.path.join(os.fspath(workdir), f"replica-{r:04d}")
+        if where is not None:
+            os.makedirs(where, exist_ok=True)
+        for a in range(0, sel.size, chunk):
+            idx = sel[a:a + chunk]
+            extra = {"replica": r, "periods": idx.tolist(), "cells": todo[idx].astype(int).tolist()}
+            key = chunk_key(camp.checksum, model_dict, base_seed, a, a + idx.size, camp.z, duration, (),
+                            keys=camp.keys[idx], extra=extra)
+            if where is not None:
+                cached = load_chunk(chunk_path(where, a, a + idx.size, key), key, idx.size, camp.z.size)
+                if cached is not None:
+                    results[(r, a)] = cached
+                    continue
+            name = f"lidarcal-replica-{r}-{key[:16]}-{a}"
+            bounds[name] = (r, a)
+            tasks.append((name, {
+                "model": transport, "heights": camp.z, **{k: v[idx] for k, v in camp.arrays.items()},
+                "valid": todo[idx], "period_index": idx, "period_key": camp.keys[idx],
+                "los": np.zeros(idx.size, dtype=bool), "base_seed": int(base_seed), "replica": r,
+                "duration": float(duration), "workdir": where, "key": key, "start": a, "stop": a + idx.size,
+            }))
+    for name, result in _execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
+        results[bounds[name]] = result
+    out: dict[int, dict[str, np.ndarray]] = {}
+    rows, cols = np.nonzero(todo[sel])
+    for r in (int(r) for r in replicas):
+        parts = [results[(r, a)] for a in range(0, sel.size, chunk)]
+        full = {name: (np.concatenate([p[name] for p in parts], axis=0) if parts
+                       else np.empty((0, camp.z.size))) for name in OUTPUTS}
+        out[r] = {"period": sel[rows], "height": camp.z[cols], **{name: full[name][rows, cols] for name in OUTPUTS}}
+    return out
 
 
 @dataclass(frozen=True)
