@@ -49,8 +49,8 @@ import xarray as xr
 
 from lidarcal.analysis import kernels
 from lidarcal.analysis._records import checked, select_heights, source_name
-from lidarcal.binning import bin_index
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
+from lidarcal.binning import bin_index
 from lidarcal.cf import Param, declared_attrs, with_bounds
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.provenance import stamp

@@ -298,7 +298,10 @@ def simulation_options(args: argparse.Namespace) -> dict[str, Any]:
 
 def add_certification_options(parser: argparse.ArgumentParser) -> None:
     """``--certified-range LO HI`` and ``--min-periods N``: the one rule for certified bins."""
-    from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE, DEFAULT_MIN_PERIODS  # deferred: light CLI start
+    from lidarcal.analysis.budget import (  # deferred: light CLI start
+        DEFAULT_CERTIFIED_RANGE,
+        DEFAULT_MIN_PERIODS,
+    )
 
     g = parser.add_argument_group("what is certified (docs/certificate.md)")
     g.add_argument("--certified-range", type=nonnegative("--certified-range"), nargs=2, metavar=("LO", "HI"),
