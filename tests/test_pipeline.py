@@ -97,8 +97,8 @@ def test_calibrate_refuses_existing_outputs_before_any_work(small_run):
 
 def test_cli_calibrate_runs_from_any_directory(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the sample data is found from the package, not the cwd
-    code = main(["calibrate", "--periods", "48", "--min-samples", "3", "--heights", "80", "100",
-                 "--workers", "1",
+    code = main(["calibrate", "--periods", "48", "--min-periods", "3", "--heights", "80", "100",
+                 "--workers", "1", "--max-replicas", "1",
                  "--no-progress"])
     assert code == 0
     assert (tmp_path / "lidarcal-output" / "certificate.nc").exists()
@@ -108,7 +108,7 @@ def test_cli_calibrate_runs_from_any_directory(tmp_path, capsys, monkeypatch):
     assert captured.err.count("lidarcal calibrate: [") >= len(OUTPUT_NAMES)
     assert "lidarcal calibrate: [" not in captured.out
     # exists: refused
-    assert main(["calibrate", "--periods", "48", "--min-samples", "3", "--heights", "80", "100"]) == 2
+    assert main(["calibrate", "--periods", "48", "--min-periods", "3", "--heights", "80", "100"]) == 2
     assert "file exists" in capsys.readouterr().err
 
 
@@ -132,6 +132,11 @@ def test_sample_lidar_reproduces_the_papers_findings(tmp_path):
     assert np.all(np.abs(slope) < 5.0)
     budget = xr.open_dataset(tmp_path / "budget.nc")
     ok = budget.bin_flag == 0
+    # issue 16 section 3: no certified bin holds fewer than 10 distinct periods, and all lie in 4-16 m/s
+    assert int(budget.period_count.where(ok).min()) >= 10
+    assert float(budget.wind_speed.where(ok.any("height")).min()) >= 4.0
+    assert float(budget.wind_speed.where(ok.any("height")).max()) <= 16.0
+    assert budget.attrs["monte_carlo_significant_digits"] == 2 and budget.attrs["monte_carlo_replicas"] >= 4
     rel = budget.relative_uncertainty.where(ok & (budget.sample_count >= 20)).sel(wind_speed=slice(4, 16))
     # resampled bench residuals bring bad estimates into periods at -23...-18 dB (10 % of the 200-m
     # periods, 0.1-2 % at the other heights, there mostly above -20 dB where under 1 % of estimates
@@ -151,7 +156,8 @@ def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
     ref_dir, _, _ = small_run
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "lidarcal", "calibrate", "-o", str(out), "--periods", "48",
-           "--min-samples", "3", "--heights", "60", "120", "--workers", "1", "--chunk", "16", "--no-progress"]
+           "--min-periods", "3", "--heights", "60", "120", "--workers", "1", "--chunk", "16", "--no-progress",
+           "--max-replicas", "3"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     chunks = out / ".simulation-chunks"
     deadline = time.monotonic() + 120
@@ -163,12 +169,15 @@ def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
         proc.send_signal(signal.SIGKILL)
     proc.wait()
     assert not (out / "certificate.nc").exists()  # killed before the end
-    assert main(["calibrate", "-o", str(out), "--periods", "48", "--min-samples", "3", "--heights", "60",
-                 "120", "--workers", "1", "--chunk", "16", "--no-progress", "--overwrite"]) == 0
+    assert main(["calibrate", "-o", str(out), "--periods", "48", "--min-periods", "3", "--heights", "60",
+                 "120", "--workers", "1", "--chunk", "16", "--no-progress", "--overwrite", "--max-replicas",
+                 "3"]) == 0
     assert not chunks.exists()  # scratch removed once the simulation is written
     resumed = xr.open_dataset(out / "simulated.nc")
     reference = xr.open_dataset(ref_dir / "simulated.nc")
-    for name in ("lidar_wind_speed", "reference_wind_speed", "lidar_wind_speed_scalar"):
+    assert resumed.sizes["trial"] > 0  # the replicas of the unsettled bins, resumed too
+    for name in ("lidar_wind_speed", "reference_wind_speed", "lidar_wind_speed_scalar", "trial_replica",
+                 "trial_period_key", "trial_height", "trial_lidar_wind_speed", "trial_reference_wind_speed"):
         np.testing.assert_array_equal(resumed[name].values, reference[name].values)  # bit-identical
 
 
