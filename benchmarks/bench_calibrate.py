@@ -82,7 +82,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--periods", type=int, default=2016)
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--significant-digits", type=int, default=2)
-    p.add_argument("--keep", metavar="DIR", help="keep both runs' outputs here (default: a temporary directory)")
+    p.add_argument("--keep", metavar="DIR",
+                   help="keep both runs' outputs here (default: a temporary directory)")
     args = p.parse_args(argv)
     from distributed import Client
 

@@ -201,7 +201,7 @@ def _budget_of(obj: xr.Dataset) -> xr.Dataset:
 
 
 def _certified_value(budget: xr.Dataset) -> int:
-    """The ``bin_flag`` value meaning ``certified`` (the budget declares its own meanings)."""
+    """Return the ``bin_flag`` value meaning ``certified`` (the budget declares its own meanings)."""
     names = {m: v for v, m in _flag_names(budget["bin_flag"]).items()}
     if "certified" not in names:
         raise InputError(f"{source_name(budget)}: the budget's bin_flag has no meaning 'certified' (found "
@@ -211,11 +211,12 @@ def _certified_value(budget: xr.Dataset) -> int:
 
 
 def _headline_mask(budget: xr.Dataset) -> xr.DataArray:
-    return (budget["bin_flag"] == _certified_value(budget)) & np.isfinite(budget["relative_expanded_uncertainty"])
+    certified = budget["bin_flag"] == _certified_value(budget)
+    return certified & np.isfinite(budget["relative_expanded_uncertainty"])
 
 
 def certified_rule(obj: xr.Dataset) -> str:
-    """The budget's certification rule in words, e.g. ``centres 4 to 16 m/s, >= 10 periods``."""
+    """Return the budget's certification rule in words, e.g. ``centres 4 to 16 m/s, >= 10 periods``."""
     budget = _budget_of(obj)
     lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
     return f"centres {lo:g} to {hi:g} m/s, >= {int(budget.attrs.get('min_periods', 0))} periods"
@@ -246,7 +247,7 @@ def headline_range(obj: xr.Dataset) -> tuple[float, float] | None:
 
 
 def headline_sentence(obj: xr.Dataset) -> str | None:
-    """The certificate's headline: the certified range and, if any, the values that did not settle."""
+    """Return the certificate's headline: the certified range and any values that did not settle."""
     budget = _budget_of(obj)
     rng = headline_range(budget)
     if rng is None:
@@ -257,7 +258,8 @@ def headline_sentence(obj: xr.Dataset) -> str | None:
     if missed:
         text += (f"; {len(missed)} certified value(s) did not settle to "
                  f"{int(budget.attrs['monte_carlo_significant_digits'])} significant digits within "
-                 f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas (monte_carlo_not_settled)")
+                 f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas "
+                 "(monte_carlo_not_settled)")
     return text
 
 
@@ -333,7 +335,8 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3):
             main = "; ".join(f"{names[n]} {rel_c[n]:.2f} %" for n in order[:contributors])
             flag = int(budget["bin_flag"].values[i, j])
             periods = int(budget["period_count"].values[i, j]) if "period_count" in budget else -1
-            tol = float(budget["numerical_tolerance"].values[i, j]) if "numerical_tolerance" in budget else np.nan
+            tol = (float(budget["numerical_tolerance"].values[i, j]) if "numerical_tolerance" in budget
+                   else np.nan)
             nflag = int(budget["numerical_flag"].values[i, j]) if "numerical_flag" in budget else 2
             rows.append({
                 "height_m": float(z),
@@ -593,8 +596,8 @@ def make_certificate(
         if key in budget.attrs:
             cert.attrs[key] = int(budget.attrs[key])
     if "numerical_flag" in budget:
-        cert.attrs["monte_carlo_not_settled"] = "; ".join(f"{z:g} m {u:g} m/s" for z, u in not_settled(budget)) \
-            or "none"
+        missed = not_settled(budget)
+        cert.attrs["monte_carlo_not_settled"] = "; ".join(f"{z:g} m {u:g} m/s" for z, u in missed) or "none"
     if serial:
         cert.attrs["lidar_serial"] = serial
     if records is not None:

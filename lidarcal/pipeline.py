@@ -312,8 +312,9 @@ def calibrate(
     rule = dict(min_periods=cfg.min_periods, certified_range=tuple(cfg.certified_range),
                 significant_digits=cfg.significant_digits)
     records, _ = adaptive_replicas(
-        records, paths["conditions"], model, terms=terms, max_replicas=cfg.max_replicas, base_seed=cfg.base_seed,
-        chunk=cfg.chunk, scheduler=cfg.scheduler, workers=cfg.workers, workdir=workdir, progress=progress, **rule)
+        records, paths["conditions"], model, terms=terms, max_replicas=cfg.max_replicas,
+        base_seed=cfg.base_seed, chunk=cfg.chunk, scheduler=cfg.scheduler, workers=cfg.workers,
+        workdir=workdir, progress=progress, **rule)
     write_artefact(records, paths["simulated"], overwrite=overwrite)
     shutil.rmtree(workdir)
     records = open_artefact(paths["simulated"], "simulated_rtd")

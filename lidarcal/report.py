@@ -4,7 +4,8 @@ The page embeds BokehJS inline (``resources=INLINE``), so it opens without netwo
 and shows, as available, budget first:
 
 - the expanded (k = 2) uncertainty vs wind speed (paper Figure 9), a menu choosing all
-  heights or one, bins not certified (too few periods, centre outside the certified range) marked with red crosses;
+  heights or one, bins not certified (too few periods, centre outside the certified range)
+  marked with red crosses;
 - the uncertainty contributors as grouped bars per wind-speed bin, a menu choosing the height;
 - the sensitivities (Figure 7): per height (menu) the bin means with the standard error of
   the mean, the regression line and its 95 % confidence band, plus a table of the slopes,
@@ -598,9 +599,11 @@ def _certified_values(budget: xr.Dataset, k: float) -> list[tuple[str, str]]:
             value, tol = float(b["relative_expanded_uncertainty"].values[i, j]), float(
                 b["numerical_tolerance"].values[i, j])
             mark = "" if int(b["numerical_flag"].values[i, j]) == 0 else " (not settled)"
-            cells.append(f"{u:g}: {value:.2f} ± {tol:g}{mark}" if np.isfinite(tol) else f"{u:g}: {value:.2f}{mark}")
+            pm = f" ± {tol:g}" if np.isfinite(tol) else ""
+            cells.append(f"{u:g}: {value:.2f}{pm}{mark}")
         if cells:
-            rows.append((f"U (k = {k:g}, %) ± numerical tolerance at {fmt(z)} m, by bin (m/s)", "; ".join(cells)))
+            label = f"U (k = {k:g}, %) ± numerical tolerance at {fmt(z)} m, by bin (m/s)"
+            rows.append((label, "; ".join(cells)))
     return rows
 
 

@@ -77,7 +77,8 @@ def test_table_numbers_are_the_certificate_values(cert_path):
             assert row["sample_count"] == cert["budget_sample_count"].values[i, j]
             assert row["period_count"] == cert["budget_period_count"].values[i, j]
             flag = int(cert["budget_bin_flag"].values[i, j])
-            assert row["bin_flag"] == ["certified", "too_few_periods", "empty", "outside_certified_range"][flag]
+            meanings = ["certified", "too_few_periods", "empty", "outside_certified_range"]
+            assert row["bin_flag"] == meanings[flag]
             assert row["certified"] == (flag == 0) and (row["not_certified_reason"] == "") == (flag == 0)
     # the contributors: the largest relative contributions of one well-filled bin, by name
     i, j = 0, int(np.argmax(cert["budget_sample_count"].values[0]))

@@ -169,7 +169,7 @@ def _terms_total(
 def certified_bins(centres: np.ndarray, period_count: np.ndarray, *,
                    certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE,
                    min_periods: int = DEFAULT_MIN_PERIODS) -> np.ndarray:
-    """The one rule for what is certified: the ``bin_flag`` value of every bin (int8, ``(..., bin)``).
+    """Return the ``bin_flag`` of every bin (int8, ``(..., bin)``): the one rule for what is certified.
 
     0 ``certified`` (centre in ``certified_range`` m s-1, inclusive, and at least ``min_periods``
     distinct periods), 1 ``too_few_periods``, 2 ``empty`` (no period), 3
@@ -227,7 +227,8 @@ def numerical_state(value: np.ndarray, estimates: np.ndarray, certified: np.ndar
 
 
 #: Declared CF attributes of every output variable (applied by :func:`_assemble`).  Templates:
-#: ``{k}`` the coverage factor as text, ``{min_periods}``, ``{lo}``, ``{hi}``, ``{digits}``; ``Param("k")`` the factor as a number.
+#: ``{k}`` the coverage factor as text, ``{min_periods}``, ``{lo}``, ``{hi}``, ``{digits}``;
+#: ``Param("k")`` the factor as a number.
 OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
     "uncertainty": dict(
         long_name="combined standard uncertainty of the lidar wind speed (quadrature sum of contributors)",
@@ -270,9 +271,11 @@ OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
     "mean_difference": dict(long_name="mean lidar minus reference wind speed", units="m s-1"),
     "std_difference": dict(long_name="standard deviation of lidar minus reference wind speed (ddof=1)",
                            units="m s-1"),
-    "bin_flag": dict(long_name="bin certification flag", units="1", coverage_content_type="qualityInformation",
+    "bin_flag": dict(long_name="bin certification flag", units="1",
+                     coverage_content_type="qualityInformation",
                      flag_values=np.array([0, 1, 2, 3], dtype=np.int8), flag_meanings=" ".join(FLAG_MEANINGS),
-                     comment="certified: centre in {lo:g} to {hi:g} m s-1 and at least {min_periods} distinct "
+                     comment="certified: centre in {lo:g} to {hi:g} m s-1 and at least {min_periods} "
+                             "distinct "
                              "periods; too_few_periods: fewer than {min_periods} periods; empty: no period; "
                              "outside_certified_range: centre outside {lo:g} to {hi:g} m s-1"),
     "wind_speed": dict(long_name="centre of reference wind speed bin", units="m s-1",
@@ -347,7 +350,8 @@ def budget(
     if approach not in CONTRIBUTORS:
         raise InputError(f"approach must be one of {sorted(CONTRIBUTORS)}; got {approach!r}")
     if int(min_periods) < 2:
-        raise InputError(f"min_periods must be >= 2 (a standard deviation needs two periods); got {min_periods}")
+        raise InputError(f"min_periods must be >= 2 (a standard deviation needs two periods); "
+                         f"got {min_periods}")
     certified_range = _certified_range(certified_range)
     if int(significant_digits) < 1:
         raise InputError(f"significant_digits must be >= 1; got {significant_digits}")
@@ -388,7 +392,8 @@ def _certified_range(value: Any) -> tuple[float, float]:
     try:
         lo, hi = (speed(v) for v in value)
     except (TypeError, ValueError):
-        raise InputError(f"certified_range must be two wind speeds (m s-1), low and high; got {value!r}") from None
+        raise InputError(f"certified_range must be two wind speeds (m s-1), low and high; "
+                         f"got {value!r}") from None
     if not 0 <= lo <= hi:
         raise InputError(f"certified_range must satisfy 0 <= low <= high; got {lo:g} to {hi:g} m s-1")
     return lo, hi
@@ -438,7 +443,7 @@ def _binned(records: xr.Dataset, width: float, source: str) -> tuple[np.ndarray,
 
 
 def _trial_arrays(records: xr.Dataset, heights: np.ndarray, source: str) -> dict[str, np.ndarray]:
-    """The ``trial_*`` variables as arrays, with each trial's height as an index into ``heights``."""
+    """Return the ``trial_*`` variables as arrays, each trial's height as an index into ``heights``."""
     missing = [n for n in TRIAL_VARIABLES if n not in records.variables]
     if missing:
         raise MissingVariableError(f"{source}: replica trials need the variables {list(TRIAL_VARIABLES)}; "
@@ -449,7 +454,8 @@ def _trial_arrays(records: xr.Dataset, heights: np.ndarray, source: str) -> dict
         out[name] = convert_values(np.asarray(var.values, dtype=float), var.attrs.get("units"), "m s-1",
                                    where=f"{source}: variable {name!r}")
     th = convert_values(np.asarray(records["trial_height"].values, dtype=float),
-                        records["trial_height"].attrs.get("units"), "m", where=f"{source}: variable 'trial_height'")
+                        records["trial_height"].attrs.get("units"), "m",
+                        where=f"{source}: variable 'trial_height'")
     hidx = np.full(th.shape, -1)
     for i, z in enumerate(heights):
         hidx[np.abs(th - z) < 1e-3] = i
@@ -508,7 +514,8 @@ def _binned_replicas(records: xr.Dataset, lidar: xr.DataArray, ref: xr.DataArray
             mine = rep == r
             rn, rmd, rsd, rmref = kernels.bin_statistics(x[mine], (lid - x)[mine], edges)
             d = per[pos[r]]
-            d["n"][i], d["mean_difference"][i], d["std_difference"][i], d["mean_reference"][i] = rn, rmd, rsd, rmref
+            d["n"][i], d["mean_difference"][i] = rn, rmd
+            d["std_difference"][i], d["mean_reference"][i] = rsd, rmref
             if r == 0:
                 d["targeted"][i] = rn > 0
                 continue
@@ -529,8 +536,9 @@ def _replica_estimates(binned: Mapping[str, Any], vref: np.ndarray, k: float) ->
     for d in binned["replicas"]:
         with np.errstate(invalid="ignore", divide="ignore"):
             parts = _monte_carlo_parts({**d, "statistical": d["std_difference"] / np.sqrt(d["n"])}, vref)
-            value = k * kernels.quadrature(*(np.broadcast_to(parts[c], d["n"].shape)
-                                             for c in CONTRIBUTORS["monte_carlo"])) * 100.0 / d["mean_reference"]
+            combined = kernels.quadrature(*(np.broadcast_to(parts[c], d["n"].shape)
+                                            for c in CONTRIBUTORS["monte_carlo"]))
+            value = k * combined * 100.0 / d["mean_reference"]
         out.append(np.where(d["targeted"], value, np.nan))
     return np.stack(out, axis=-1)
 
@@ -586,7 +594,8 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edge
         "mean_difference": (hw, binned["mean_difference"]),
         "std_difference": (hw, binned["std_difference"]),
         "bin_flag": (hw, certified_bins(0.5 * (edges[:-1] + edges[1:]), binned["period_count"],
-                                        certified_range=rule["certified_range"], min_periods=rule["min_periods"])),
+                                        certified_range=rule["certified_range"],
+                                        min_periods=rule["min_periods"])),
     }
     mc: dict[str, Any] = {}
     if "estimates" in binned:  # the Monte Carlo approach: how far its own numbers have settled
@@ -596,7 +605,8 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edge
         values["numerical_flag"] = (hw, nflag)
         mc = {"monte_carlo_replicas": int(binned["estimates"].shape[-1]), "monte_carlo_trials": int(n.sum()),
               "monte_carlo_significant_digits": int(rule["significant_digits"]),
-              "monte_carlo_settled": int((nflag == 0).sum()), "monte_carlo_not_settled": int((nflag == 1).sum())}
+              "monte_carlo_settled": int((nflag == 0).sum()),
+              "monte_carlo_not_settled": int((nflag == 1).sum())}
     lo, hi = rule["certified_range"]
     context = {"k": f"{k:g}", "coverage_factor": k, "min_periods": rule["min_periods"], "lo": lo, "hi": hi,
                "digits": rule["significant_digits"]}

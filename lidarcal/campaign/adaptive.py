@@ -53,27 +53,32 @@ DEFAULT_MAX_REPLICAS = 30
 BATCH_SCHEDULE = (3, 4, 8)
 
 _TRIAL_ATTRS = {
-    "trial_replica": var_attrs("Monte Carlo replica of the trial (>= 1; replica 0 is the time, height records)",
-                               "1", coverage_content_type="auxiliaryInformation"),
+    "trial_replica": var_attrs(
+        "Monte Carlo replica of the trial (>= 1; replica 0 is the time, height records)", "1",
+        coverage_content_type="auxiliaryInformation"),
     "trial_period_key": var_attrs("seed key of the trial's period (as period_key; random streams: "
                                   "SeedSequence([base_seed, replica, period_key, round(height_m * 1000)]))",
                                   "s", coverage_content_type="auxiliaryInformation"),
-    "trial_height": var_attrs("height of the trial", "m", "height", coverage_content_type="auxiliaryInformation"),
+    "trial_height": var_attrs("height of the trial", "m", "height",
+                              coverage_content_type="auxiliaryInformation"),
     "trial_lidar_wind_speed": var_attrs(
-        "virtual lidar 10-minute horizontal wind speed (hybrid reconstruction) of the trial", "m s-1", "wind_speed"),
+        "virtual lidar 10-minute horizontal wind speed (hybrid reconstruction) of the trial", "m s-1",
+        "wind_speed"),
     "trial_reference_wind_speed": var_attrs(
-        "virtual point reference 10-minute scalar mean horizontal wind speed of the trial", "m s-1", "wind_speed"),
+        "virtual point reference 10-minute scalar mean horizontal wind speed of the trial", "m s-1",
+        "wind_speed"),
 }
 
 
 def with_trials(records: xr.Dataset, trials: Sequence[dict[str, np.ndarray]]) -> xr.Dataset:
-    """``records`` with the replica ``trials`` added as ``trial_*`` variables on a ``trial`` dim."""
+    """Return ``records`` with the replica ``trials`` as ``trial_*`` variables on a ``trial`` dim."""
     out = records.drop_vars([n for n in _TRIAL_ATTRS if n in records.variables])
     if not trials:
         return out
     keys = np.asarray(records["period_key"].values, dtype=np.int64)
     cols = {
-        "trial_replica": np.concatenate([np.full(t["period"].size, t["replica"], dtype=np.int32) for t in trials]),
+        "trial_replica": np.concatenate([np.full(t["period"].size, t["replica"], dtype=np.int32)
+                                         for t in trials]),
         "trial_period_key": np.concatenate([keys[t["period"]] for t in trials]),
         "trial_height": np.concatenate([t["height"] for t in trials]).astype(float),
         "trial_lidar_wind_speed": np.concatenate([t["lidar_wind_speed"] for t in trials]),
@@ -125,6 +130,7 @@ def adaptive_replicas(
     workers: int | None = None,
     workdir: str | os.PathLike | None = None,
     progress: bool = False,
+    duration: float = 600.0,
 ) -> tuple[xr.Dataset, xr.Dataset]:
     """Add Monte Carlo replicas to ``records`` until every certified value has settled.
 
@@ -133,8 +139,9 @@ def adaptive_replicas(
     records : xarray.Dataset
         Replica 0: the ``simulated_rtd`` records of ``conditions`` simulated with ``model`` and
         ``base_seed`` (at the records' heights).
-    conditions, model, base_seed, chunk, scheduler, workers, workdir, progress
-        As for :func:`~lidarcal.campaign.simulate_campaign` (the same conditions, model and seed).
+    conditions, model, base_seed, chunk, scheduler, workers, workdir, progress, duration
+        As for :func:`~lidarcal.campaign.simulate_campaign` (the same conditions, model, seed and
+        duration as replica 0).
     terms, min_periods, certified_range, bin_width, coverage_factor, significant_digits
         As for :func:`lidarcal.analysis.budget.budget`: what is certified and the values settled.
     max_replicas : int
@@ -166,7 +173,7 @@ def adaptive_replicas(
                  int((bud["numerical_flag"] == 1).sum()), int(significant_digits), int(cells.sum()))
         done = simulate_replicas(conditions, model, cells, batch, heights=heights, base_seed=base_seed,
                                  chunk=chunk, scheduler=scheduler, workers=workers, workdir=workdir,
-                                 progress=progress)
+                                 progress=progress, duration=duration)
         trials += [{"replica": r, **done[r]} for r in batch]
         current = with_trials(records, trials)
         bud = budget(current, **opts)

@@ -61,7 +61,8 @@ from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 from lidarcal.provenance import stamp
 
-__all__ = ["simulate_campaign", "simulate_replicas", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV", "WORKER_CONFIG",
+__all__ = ["simulate_campaign", "simulate_replicas", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV",
+           "WORKER_CONFIG",
            "WORKER_TIMEOUT"]
 
 log = logging.getLogger(__name__)
@@ -493,7 +494,8 @@ def simulate_replicas(
     if cells.shape != camp.valid.shape:
         raise InputError(f"cells has shape {cells.shape}; expected {camp.valid.shape} (time, height)")
     if any(int(r) < 1 for r in replicas):
-        raise InputError(f"replicas are numbered from 1 (replica 0 is simulate_campaign); got {list(replicas)}")
+        raise InputError(f"replicas are numbered from 1 (replica 0 is simulate_campaign); "
+                         f"got {list(replicas)}")
     chunk = int(chunk)
     todo = camp.valid & cells
     sel = np.flatnonzero(todo.any(axis=1))
@@ -531,7 +533,8 @@ def simulate_replicas(
         parts = [results[(r, a)] for a in range(0, sel.size, chunk)]
         full = {name: (np.concatenate([p[name] for p in parts], axis=0) if parts
                        else np.empty((0, camp.z.size))) for name in OUTPUTS}
-        out[r] = {"period": sel[rows], "height": camp.z[cols], **{name: full[name][rows, cols] for name in OUTPUTS}}
+        out[r] = {"period": sel[rows], "height": camp.z[cols],
+                  **{name: full[name][rows, cols] for name in OUTPUTS}}
     return out
 
 

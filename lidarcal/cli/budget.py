@@ -120,10 +120,12 @@ def run(args: argparse.Namespace) -> int:
                 f">= {ds.attrs['min_periods']} periods)"
             )
         else:
-            print(f"  {h:g} m: no certified bin (centres {lo:g}-{hi:g} m/s, >= {ds.attrs['min_periods']} periods)")
+            print(f"  {h:g} m: no certified bin (centres {lo:g}-{hi:g} m/s, "
+                  f">= {ds.attrs['min_periods']} periods)")
     if "numerical_flag" in ds:
         bad = int((ds.numerical_flag == 1).sum())
-        print(f"  Monte Carlo: {ds.attrs['monte_carlo_replicas']} replica(s), {ds.attrs['monte_carlo_trials']} "
+        print(f"  Monte Carlo: {ds.attrs['monte_carlo_replicas']} replica(s), "
+              f"{ds.attrs['monte_carlo_trials']} "
               f"trials; {bad} certified value(s) not settled to {ds.attrs['monte_carlo_significant_digits']} "
               "significant digits")
     return 0
