@@ -140,3 +140,27 @@ def test_two_seeds_agree_on_every_certified_value_within_their_tolerances(model)
     assert bool(np.isfinite(ta).sum() == both.sum()) and bool(np.isfinite(tb).sum() == both.sum())
     gap = abs(va - vb)
     assert bool((gap <= ta + tb).where(both, True).all()), (gap.values, ta.values, tb.values)
+
+
+def test_simulate_with_replicas_then_budget_on_the_command_line(tmp_path, capsys):
+    """``simulate --max-replicas`` stores the trials; ``budget`` pools them and states the tolerance."""
+    from lidarcal.cli import main
+    from lidarcal.io import open_artefact
+
+    cond_path = tmp_path / "c.nc"
+    synthetic_conditions(30, (80, 120), seed=4).to_netcdf(cond_path)
+    sim, bud = tmp_path / "sim.nc", tmp_path / "b.nc"
+    assert main(["simulate", "--conditions", str(cond_path), "--heights", "120", "--duration", "120",
+                 "--scheduler", "synchronous", "--max-replicas", "4", "--min-periods", "3",
+                 "-o", str(sim)]) == 0
+    assert "Monte Carlo: 4 replica(s)" in capsys.readouterr().out
+    assert main(["budget", str(sim), "--min-periods", "3", "-o", str(bud)]) == 0
+    b = open_artefact(bud, "uncertainty_budget")
+    records = open_artefact(sim, "simulated_rtd")
+    assert b.attrs["monte_carlo_replicas"] == 4 and set(np.unique(records.trial_replica.values)) == {1, 2, 3}
+    certified = b.bin_flag == 0
+    assert int(certified.sum()) >= 1 and bool(np.isfinite(b.numerical_tolerance.where(certified)).sum())
+    assert int(b.sample_count.sum()) == int(np.isfinite(records.lidar_wind_speed).sum()) + int(
+        (np.isfinite(records.trial_lidar_wind_speed) & np.isfinite(records.trial_reference_wind_speed)).sum())
+    assert bool((b.period_count <= b.sample_count).all())
+    assert bool((b.period_count.where(certified, 99) >= 3).all())

@@ -313,8 +313,12 @@ def add_certification_options(parser: argparse.ArgumentParser) -> None:
                    "(default %(default)s; replicas add trials, not periods)")
 
 
-def add_monte_carlo_options(parser: argparse.ArgumentParser, *, replicas: bool = True) -> None:
-    """``--significant-digits N`` and (if ``replicas``) ``--max-replicas M`` (JCGM 101 7.9, docs/seeds.md)."""
+def add_monte_carlo_options(parser: argparse.ArgumentParser, *, replicas: bool = True,
+                            max_replicas: int | None = None) -> None:
+    """``--significant-digits N`` and (if ``replicas``) ``--max-replicas M`` (JCGM 101 7.9, docs/seeds.md).
+
+    ``max_replicas`` is the default of ``--max-replicas`` (None: the calibration's default).
+    """
     from lidarcal.analysis.budget import DEFAULT_SIGNIFICANT_DIGITS  # deferred: light CLI start
 
     g = parser.add_argument_group("numerical accuracy of the Monte Carlo (JCGM 101 7.9)")
@@ -324,7 +328,8 @@ def add_monte_carlo_options(parser: argparse.ArgumentParser, *, replicas: bool =
     if replicas:
         from lidarcal.campaign.adaptive import DEFAULT_MAX_REPLICAS  # deferred: light CLI start
 
-        g.add_argument("--max-replicas", type=positive_int("--max-replicas"), default=DEFAULT_MAX_REPLICAS,
+        default = DEFAULT_MAX_REPLICAS if max_replicas is None else int(max_replicas)
+        g.add_argument("--max-replicas", type=positive_int("--max-replicas"), default=default,
                        metavar="M", help="most replicas (re-simulations of the unsettled bins' periods, "
                        "replica 0 included) before the run stops unsettled (default %(default)s; 1: no "
                        "replica)")
