@@ -70,10 +70,14 @@ def test_calibrate_records_its_configuration_and_chain(small_run):
     out, _, _ = small_run
     cert = xr.open_dataset(out / "certificate.nc")
     sim = xr.open_dataset(out / "simulated.nc")
-    assert sim.sizes == {"time": 48, "height": 2}
+    assert dict(sim.sizes, trial=0) == {"time": 48, "height": 2, "trial": 0}  # + the replicas' trials
+    assert set(np.unique(sim.trial_replica.values)) == {1, 2}  # max_replicas=3: replicas 1 and 2
     np.testing.assert_array_equal(sim.height.values, [60.0, 120.0])
     config = json.loads(cert.attrs["lidarcal_config"])
     assert config["periods"] == 48 and config["heights"] == [60.0, 120.0]
+    assert config["min_periods"] == 3 and config["max_replicas"] == 3 and config["significant_digits"] == 2
+    assert cert.attrs["monte_carlo_replicas"] == 3 and cert.attrs["monte_carlo_significant_digits"] == 2
+    assert "budget_numerical_tolerance" in cert and "budget_period_count" in cert
     assert config["base_seed"] == 20240101
     roles = {r["role"] for r in json.loads(sim.attrs["lidarcal_inputs"])}
     assert {"conditions", "cube", "rwf"} <= roles
@@ -194,4 +198,4 @@ def test_calibrate_returns_the_datasets_it_wrote(small_run):
     assert budget.attrs["lidarcal_artefact"] == "uncertainty_budget"
     np.testing.assert_array_equal(budget.relative_uncertainty.values,
                                   xr.open_dataset(out / "budget.nc").relative_uncertainty.values)
-    assert result.datasets["simulated"].sizes == {"time": 48, "height": 2}
+    assert (result.datasets["simulated"].sizes["time"], result.datasets["simulated"].sizes["height"]) == (48, 2)
