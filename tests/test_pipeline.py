@@ -198,4 +198,5 @@ def test_calibrate_returns_the_datasets_it_wrote(small_run):
     assert budget.attrs["lidarcal_artefact"] == "uncertainty_budget"
     np.testing.assert_array_equal(budget.relative_uncertainty.values,
                                   xr.open_dataset(out / "budget.nc").relative_uncertainty.values)
-    assert (result.datasets["simulated"].sizes["time"], result.datasets["simulated"].sizes["height"]) == (48, 2)
+    sim = result.datasets["simulated"]
+    assert (sim.sizes["time"], sim.sizes["height"]) == (48, 2)
