@@ -231,6 +231,7 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
     address = str(getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler")
     _log_dashboard(client)
     _check_workers(client, address, worker_timeout)
+    tasks = _share_model(client, tasks)
     futures = {client.submit(run_chunk, payload, key=name, pure=False): name for name, payload in tasks}
     bar = _bar(len(tasks), progress)
     finished = False
@@ -291,6 +292,23 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
             with contextlib.suppress(Exception):
                 client.cancel(list(futures), force=True)
         quiet.setLevel(level)
+
+
+def _share_model(client, tasks: list[tuple[str, dict]]) -> list[tuple[str, dict]]:
+    """Send the model the tasks share (bench residuals: megabytes) to the workers once, not per task.
+
+    Without this every submitted task carries its own serialised copy, so the client's memory
+    grows with the number of tasks in flight (chunks times Monte Carlo replicas).
+    """
+    shared = tasks[0][1].get("model") if tasks else None
+    if shared is None or any(payload.get("model") is not shared for _, payload in tasks):
+        return tasks
+    try:
+        [remote] = client.scatter([shared], broadcast=True, hash=False)
+    except Exception as exc:  # comm closed, timeout: the scheduler is unreachable
+        address = str(getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler")
+        raise _scheduler_gone(address, exc) from None
+    return [(name, {**payload, "model": remote}) for name, payload in tasks]
 
 
 def _bar(total: int, enabled: bool):
