@@ -60,7 +60,7 @@ _TRIAL_ATTRS = {
                                   "SeedSequence([base_seed, replica, period_key, round(height_m * 1000)]))",
                                   "s", coverage_content_type="auxiliaryInformation"),
     "trial_height": var_attrs("height of the trial", "m", "height",
-                              coverage_content_type="auxiliaryInformation"),
+                              coverage_content_type="auxiliaryInformation", positive="up"),
     "trial_lidar_wind_speed": var_attrs(
         "virtual lidar 10-minute horizontal wind speed (hybrid reconstruction) of the trial", "m s-1",
         "wind_speed"),
