@@ -34,6 +34,7 @@ import contextlib
 import logging
 import os
 import time
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -54,7 +55,7 @@ from lidarcal.campaign.chunks import (
 )
 from lidarcal.campaign.los import los_variables
 from lidarcal.cf import height_coord, time_coord, var_attrs
-from lidarcal.conditions import CONDITION_VARIABLES, load_conditions
+from lidarcal.conditions import CONDITION_VARIABLES, SkippedPeriodsWarning, load_conditions
 from lidarcal.errors import ComputeError, InputError
 from lidarcal.io import source_name
 from lidarcal.lidar import LidarModel
@@ -507,7 +508,9 @@ def simulate_replicas(
         :data:`~lidarcal.campaign.chunks.OUTPUTS` of every simulated cell (1-D, in period then height
         order).
     """
-    camp = _prepare(conditions, model, heights, chunk, ())
+    with warnings.catch_warnings():  # replica 0 has reported the periods it skips
+        warnings.simplefilter("ignore", SkippedPeriodsWarning)
+        camp = _prepare(conditions, model, heights, chunk, ())
     cells = np.asarray(cells, dtype=bool)
     if cells.shape != camp.valid.shape:
         raise InputError(f"cells has shape {cells.shape}; expected {camp.valid.shape} (time, height)")
