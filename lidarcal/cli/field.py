@@ -24,6 +24,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-availability", type=number("--min-availability", lo=0, hi=100), default=80.0,
                    metavar="PCT",
                    help="data availability (%%) a period needs at a height, else NaN there (default 80)")
+    p.add_argument("--allow-gaps", action="store_true",
+                   help="read rows cut short (truncated files) as missing periods, with a warning naming "
+                        "them, instead of refusing the file")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     add_contact_options(p)
 
@@ -65,7 +68,7 @@ def _config(args: argparse.Namespace) -> dict:
 def run_conditions(args: argparse.Namespace) -> int:
     """Read the ``.sta`` files and write a ``conditions`` artefact."""
     check_writable(args.output, overwrite=args.overwrite)
-    ds = sta_conditions(args.files, args.min_availability)
+    ds = sta_conditions(args.files, args.min_availability, allow_gaps=args.allow_gaps)
     ds = stamp(
         ds, "conditions",
         title=f"Measured 10-minute conditions from WindCube {ds.attrs['lidar_serial_number']}",
@@ -88,7 +91,8 @@ def run_field(args: argparse.Namespace) -> int:
     columns = parse_height_columns(args.reference_columns, "--reference-columns")
     std = parse_height_columns(args.reference_std, "--reference-std") if args.reference_std else None
     ds = sta_field_campaign(args.files, args.reference, columns, std, timestamp=args.reference_timestamp,
-                            time_column=args.reference_time_column, min_availability=args.min_availability)
+                            time_column=args.reference_time_column, min_availability=args.min_availability,
+                            allow_gaps=args.allow_gaps)
     ds = stamp(
         ds, "field_campaign",
         title=f"Field campaign: WindCube {ds.attrs['lidar_serial_number']} against a met mast",

@@ -143,6 +143,7 @@ def sta_field_campaign(
     timestamp: str = "start",
     time_column: str | None = None,
     min_availability: float = 80.0,
+    allow_gaps: bool = False,
 ) -> xr.Dataset:
     """Build a ``field_campaign`` Dataset (``docs/contracts.md``) from ``.sta`` files and a mast CSV.
 
@@ -173,7 +174,7 @@ def sta_field_campaign(
             f"--reference-std: height(s) {[f'{h:g}' for h in extra]} m have no mean column in "
             f"--reference-columns ({[f'{h:g}' for h in columns]} m)"
         )
-    cond = sta_conditions(sta_paths, min_availability, warn=False)
+    cond = sta_conditions(sta_paths, min_availability, warn=False, allow_gaps=allow_gaps)
     z = cond.height.values
     source = ", ".join(Path(p).name for p in sta_paths)
     heights = sorted(columns)
