@@ -55,6 +55,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="standard deviation column per height (TI from the mast; else from the lidar)")
     f.add_argument("--reference-timestamp", choices=("start", "end"), default="start",
                    help="the mast's stamps mark the interval start (default) or end")
+    f.add_argument("--reference-units", metavar="UNIT",
+                   help="unit of the mast's speed columns whose names declare none, e.g. km/h, knot "
+                        "(default m/s); a name like 'Spd80 (km/h)', 'Spd80 [km/h]' or 'Spd80_kmh' declares its own")
+    f.add_argument("--skip-ratio-check", action="store_true",
+                   help="accept a campaign whose median lidar / reference speed ratio is outside 0.8-1.25 "
+                        "(by default refused as a unit or column mix-up)")
     f.add_argument("--reference-time-column", metavar="NAME", help="time column (default: the first)")
     f.add_argument("-o", "--output", required=True, metavar="FIELD.nc")
     f.set_defaults(handler=run_field)
@@ -92,7 +98,8 @@ def run_field(args: argparse.Namespace) -> int:
     std = parse_height_columns(args.reference_std, "--reference-std") if args.reference_std else None
     ds = sta_field_campaign(args.files, args.reference, columns, std, timestamp=args.reference_timestamp,
                             time_column=args.reference_time_column, min_availability=args.min_availability,
-                            allow_gaps=args.allow_gaps)
+                            allow_gaps=args.allow_gaps, units=args.reference_units,
+                            check_ratio=not args.skip_ratio_check)
     ds = stamp(
         ds, "field_campaign",
         title=f"Field campaign: WindCube {ds.attrs['lidar_serial_number']} against a met mast",
