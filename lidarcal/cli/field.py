@@ -57,7 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the mast's stamps mark the interval start (default) or end")
     f.add_argument("--reference-units", metavar="UNIT",
                    help="unit of the mast's speed columns whose names declare none, e.g. km/h, knot "
-                        "(default m/s); a name like 'Spd80 (km/h)', 'Spd80 [km/h]' or 'Spd80_kmh' declares its own")
+                        "(default m/s); a name like 'Spd80 (km/h)', 'Spd80 [km/h]' or 'Spd80_kmh' "
+                        "declares its own")
     f.add_argument("--skip-ratio-check", action="store_true",
                    help="accept a campaign whose median lidar / reference speed ratio is outside 0.8-1.25 "
                         "(by default refused as a unit or column mix-up)")

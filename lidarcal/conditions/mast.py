@@ -51,12 +51,12 @@ _OFFSET = r"((?:[+-]\d{2}:?\d{2}|Z|UTC|GMT)\s*)$"
 
 
 def _parser_message(exc: BaseException) -> str:
-    """pandas' tokenizer message with its line numbers (1-based file lines, the header is line 1)."""
+    """Return pandas' tokenizer message with its line numbers (1-based file lines, the header is line 1)."""
     return str(exc).replace("C error: ", "").strip()
 
 
 def column_unit(name: str) -> str | None:
-    """The unit a mast column's name declares: ``Spd80 (km/h)``, ``Spd80 [m/s]``, ``Spd80_kmh``; else None."""
+    """Return the unit a column name declares (``Spd80 (km/h)``, ``Spd80 [m/s]``, ``Spd80_kmh``), or None."""
     m = re.search(r"[\(\[]\s*([^()\[\]]+?)\s*[\)\]]\s*$", name)
     if m:
         return m.group(1)
@@ -132,9 +132,9 @@ def read_reference_csv(
     if offsets.nunique() > 1:
         r = int(np.flatnonzero((offsets != offsets.iloc[0]).to_numpy())[0])
         raise InputError(
-            f"{path}: line {r + 2}, column {names.index(tcol) + 1} ({tcol!r}): timestamp {text.iloc[r]!r} has "
-            f"UTC offset {offsets.iloc[r]!r} but line 2 has {offsets.iloc[0]!r}; expected one offset throughout "
-            f"(a daylight-saving switch? convert the record to one clock, e.g. UTC, first)"
+            f"{path}: line {r + 2}, column {names.index(tcol) + 1} ({tcol!r}): timestamp {text.iloc[r]!r} "
+            f"has UTC offset {offsets.iloc[r]!r} but line 2 has {offsets.iloc[0]!r}; expected one offset "
+            f"throughout (a daylight-saving switch? convert the record to one clock, e.g. UTC, first)"
         )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # format inference notices; unparsable cells are reported below
@@ -308,9 +308,9 @@ def sta_field_campaign(
     if check_ratio and np.isfinite(ratio) and not lo <= ratio <= hi:
         read = ", ".join(f"{c!r} in {u}" for c, u in used.items() if c in columns.values())
         raise InputError(
-            f"{reference}: the median lidar / reference wind speed ratio is {ratio:.3f} over {int(both.sum())} "
-            f"matched period-heights (lidar {source}), outside the plausible [{lo:g}, {hi:g}]; mast columns "
-            f"read as {read}. Is the mast in another unit (give --reference-units, e.g. km/h) or are these "
+            f"{reference}: the median lidar / reference wind speed ratio is {ratio:.3f} over "
+            f"{int(both.sum())} matched period-heights (lidar {source}), outside the plausible "
+            f"[{lo:g}, {hi:g}]; mast columns read as {read}. Is the mast in another unit (give --reference-units, e.g. km/h) or are these "
             f"the wrong columns? --skip-ratio-check accepts the campaign as it is"
         )
     ti = sub["turbulence_intensity"].values.copy()

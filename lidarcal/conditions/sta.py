@@ -156,7 +156,8 @@ def _declared_period(path: Path, header: dict, where: dict) -> None:
         line, name = where[key]
         text = header[name]
         m = re.match(r"^\s*([0-9.]+)\s*([a-zA-Z]*)\s*$", text)
-        unit = (re.search(r"\(([^)]*)\)", name) or [None, ""])[1].strip().lower() or (m and m.group(2).lower())
+        in_name = re.search(r"\(([^)]*)\)", name)
+        unit = (in_name.group(1).strip().lower() if in_name else "") or (m.group(2).lower() if m else "")
         scale = {"s": 1, "sec": 1, "second": 1, "seconds": 1, "": 1, "min": 60, "mn": 60, "minute": 60,
                  "minutes": 60, "m": 60, "h": 3600}.get(unit or "")
         if not m or scale is None:
