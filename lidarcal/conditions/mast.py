@@ -310,8 +310,9 @@ def sta_field_campaign(
         raise InputError(
             f"{reference}: the median lidar / reference wind speed ratio is {ratio:.3f} over "
             f"{int(both.sum())} matched period-heights (lidar {source}), outside the plausible "
-            f"[{lo:g}, {hi:g}]; mast columns read as {read}. Is the mast in another unit (give --reference-units, e.g. km/h) or are these "
-            f"the wrong columns? --skip-ratio-check accepts the campaign as it is"
+            f"[{lo:g}, {hi:g}]; mast columns read as {read}. Is the mast in another unit (give "
+            f"--reference-units, e.g. km/h) or are these the wrong columns? --skip-ratio-check accepts "
+            f"the campaign as it is"
         )
     ti = sub["turbulence_intensity"].values.copy()
     ti_source = {}
