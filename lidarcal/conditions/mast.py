@@ -33,6 +33,7 @@ from lidarcal.conditions.sta import (
     value_problem,
 )
 from lidarcal.errors import InputError, LidarcalError, MissingVariableError
+from lidarcal.io import check_input_file
 from lidarcal.units import convert_values
 
 __all__ = ["parse_height_columns", "read_reference_csv", "sta_field_campaign", "column_unit", "RATIO_LIMITS"]
@@ -110,8 +111,7 @@ def read_reference_csv(
     path = Path(path)
     if timestamp not in ("start", "end"):
         raise InputError(f"--reference-timestamp: expected 'start' or 'end'; found {timestamp!r}")
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
+    check_input_file(path, "mast CSV file")
     raw = path.read_bytes()
     try:
         content = raw.decode("utf-8-sig")

@@ -47,6 +47,7 @@ import xarray as xr
 from lidarcal.conditions.kernels import shear_exponent, vertical_gradient
 from lidarcal.conditions.synthetic import conditions_dataset
 from lidarcal.errors import InputError
+from lidarcal.io import check_input_file
 from lidarcal.schema import declared_variables
 
 __all__ = ["StaFile", "read_sta", "read_sta_files", "sta_conditions", "DIALECTS", "PERIOD"]
@@ -401,9 +402,7 @@ def read_sta(path: str | os.PathLike, *, allow_gaps: bool = False) -> StaFile:
         the physical range (e.g. swapped columns); the message names the file, the line and
         the column.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
+    path = check_input_file(path, ".sta file")
     raw = path.read_bytes()
     text = raw.decode("latin-1")  # every byte is a Latin-1 character: decoding cannot fail
     lines = text.split("\n")
