@@ -65,6 +65,7 @@ def one_blas_thread() -> Iterator[None]:
         if _active == 0:
             from threadpoolctl import threadpool_limits
 
+            _take_control()
             # looked up afresh each time: a library loaded since (scipy's own OpenBLAS) is covered
             _limiter = threadpool_limits(limits=1)
         _active += 1
@@ -74,8 +75,25 @@ def one_blas_thread() -> Iterator[None]:
         with _lock:
             _active -= 1
             if _active == 0 and _limiter is not None:
+                _take_control()  # the last one out may be another thread than the first one in
                 _limiter.restore_original_limits()
                 _limiter = None
+                _take_control()  # and leave no thread in control, as before
+
+
+def _take_control() -> None:
+    """Let this thread set OpenBLAS's (process-wide) thread count.
+
+    threadpoolctl >= 3.8 lets only one "controlling" Python thread change a pthreads OpenBLAS
+    and silently ignores the others: the first thread that ever set a limit (the caller's main
+    thread, say) would keep the ``threads`` scheduler's workers from setting one.  Inside the
+    engine lidarcal needs the limit whatever thread it runs in.
+    """
+    from threadpoolctl import OpenBLASController
+
+    clear = getattr(OpenBLASController, "clear_controlling_thread", None)  # threadpoolctl >= 3.8
+    if clear is not None:
+        clear(force=True)
 
 
 def _exit_now() -> None:
