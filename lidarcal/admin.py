@@ -56,6 +56,7 @@ ADMIN_FILE_KEYS: dict[str, str] = {
     "item.firmware": "item_firmware",
     "laboratory.name": "laboratory_name",
     "laboratory.address": "laboratory_address",
+    "laboratory.country_code": "laboratory_country_code",
     "responsible_persons": "responsible_persons",
     "customer.name": "customer_name",
     "customer.address": "customer_address",
@@ -114,6 +115,11 @@ def _persons(value: Any, where: str) -> str:
 
 
 def _value(attr: str, value: Any, where: str) -> str:
+    if attr == "laboratory_country_code":
+        if not (isinstance(value, str) and len(value) == 2 and value.isascii() and value.isupper()):
+            raise InputError(f"{where}: expected an ISO 3166-1 alpha-2 country code (two capital letters, "
+                             f"e.g. FR); found {value!r}")
+        return value
     if attr in DATE_ATTRIBUTES:
         return _date(value, where)
     if attr == "responsible_persons":

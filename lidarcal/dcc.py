@@ -25,6 +25,7 @@ checks a document against the XSDs (not shipped with lidarcal: they are PTB's, L
 from __future__ import annotations
 
 import datetime as _dt
+import json
 import os
 import re
 from collections.abc import Iterable, Mapping
@@ -44,12 +45,12 @@ from lidarcal.admin import (
     status_line,
 )
 from lidarcal.certificate import components, extract_component
-from lidarcal.errors import InputError
+from lidarcal.errors import InputError, ValidationError
 from lidarcal.io import atomic_path, check_writable, open_artefact
 from lidarcal.provenance import sha256
 
 __all__ = ["DCC_NS", "SI_NS", "DCC_SCHEMA_VERSION", "SI_SCHEMA_VERSION", "SI_SCHEMA_URL", "dcc_tree",
-           "write_dcc", "validate_dcc", "si_unit", "COVERAGE_PROBABILITY"]
+           "write_dcc", "validate_dcc", "dcc_attributes", "si_unit", "COVERAGE_PROBABILITY"]
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
@@ -137,9 +138,14 @@ def _contact(parent: etree._Element, tag: str, name: str | None, *, email: str |
     """Add a ``dcc:contactType`` (name, eMail and location are required by the schema)."""
     el = _sub(parent, _d(tag))
     _text(el, "name", name or _NOT_STATED)
-    _sub(el, _d("eMail"), email or "")
+    _sub(el, _d("eMail"), email or _NOT_STATED)
     _location(el, address, country)
     return el
+
+
+def _release(version: str) -> str:
+    """Software release as PTB's rules spell it: a letter, then the version (``v0.1.0``)."""
+    return f"v{version}"
 
 
 def _date(text: str | None) -> _dt.date | None:
@@ -172,7 +178,7 @@ def _administrative(root: etree._Element, attrs: Mapping[str, Any], digest: str,
     admin = _sub(root, _d("administrativeData"))
     software = _sub(_sub(admin, _d("dccSoftware")), _d("software"))
     _text(software, "name", "lidarcal")
-    _sub(software, _d("release"), __version__)
+    _sub(software, _d("release"), _release(__version__))
     _sub(software, _d("type"), "application")
     _text(software, "description", "Anemometer-free calibration of pulsed Doppler wind lidars: fiber-optic "
           "bench and Monte Carlo virtual lidar; wrote this DCC from the netCDF certificate")
@@ -267,7 +273,7 @@ def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:
     _sub(method, _d("reference"), attrs.get("method_reference") or str(attrs.get("references", _NOT_STATED)))
     software = _sub(_sub(parent, _d("usedSoftware")), _d("software"))
     _text(software, "name", "lidarcal")
-    _sub(software, _d("release"), str(attrs.get("product_version", __version__)))
+    _sub(software, _d("release"), _release(str(attrs.get("product_version", __version__))))
     _sub(software, _d("type"), "application")
 
     equipment = _sub(_sub(parent, _d("measuringEquipments")), _d("measuringEquipment"),
@@ -286,6 +292,27 @@ def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:
         _sub(ident, _d("issuer"), "calibrationLaboratory")
         _sub(ident, _d("value"), value or _NOT_STATED)
         _text(ident, "name", name)
+
+    conditions = _sub(_sub(parent, _d("influenceConditions")), _d("influenceCondition"),
+                      refType="lidarcal_simulatedConditions")
+    _text(conditions, "name", "Atmospheric conditions of the Monte Carlo simulation")
+    _text(conditions, "description", "The virtual lidar and the virtual reference were simulated in "
+          "synthetic turbulence driven by a record of measured 10-minute conditions (wind speed, turbulence "
+          "intensity, shear, CNR); the certificate holds their provenance.")
+    summary = _records_text(attrs)
+    _text(_sub(conditions, _d("data")), "text", summary)
+
+
+def _records_text(attrs: Mapping[str, Any]) -> str:
+    try:
+        records = json.loads(attrs["lidarcal_records_summary"])
+    except (KeyError, TypeError, ValueError):
+        return "Simulated periods: not stated in the certificate."
+    heights = ", ".join(f"{float(z):g}" for z in records.get("heights_m", []))
+    return (f"{records.get('periods', _NOT_STATED)} simulated 10-minute periods"
+            + (f" at heights {heights} m" if heights else "")
+            + (f", conditions from {records['time_coverage_start']} to {records['time_coverage_end']}"
+               if records.get("time_coverage_start") else "") + ".")
 
 
 def _flags(budget: xr.Dataset) -> dict[int, str]:
@@ -412,26 +439,19 @@ def _sensitivity_results(root: etree._Element, cert: xr.Dataset) -> None:
               "significant by Eq. 12 or Eq. 13 at any height.")
 
 
-def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str = "certificate.nc",
-             admin: Mapping[str, str] | None = None) -> etree._ElementTree:
-    """Build the DCC XML of certificate ``cert`` (an opened netCDF certificate).
+def dcc_attributes(cert: xr.Dataset, *, admin: Mapping[str, str] | None = None,
+                   certificate_file: str = "certificate.nc") -> dict[str, Any]:
+    """Return the certificate's global attributes with ``admin`` added, as the DCC states them.
 
-    Parameters
-    ----------
-    cert : xarray.Dataset
-        The certificate as read from its file.
-    certificate_sha256 : str
-        SHA-256 of that file: the XML names it, so XML and netCDF stay one record.
-    certificate_file : str
-        The netCDF file's name, as the XML refers to it.
-    admin : mapping, optional
-        Administrative data (:func:`lidarcal.admin.load_admin`) the certificate does not state
-        itself; a value that contradicts the certificate's own is refused.
+    A certificate written before ``calibration_status`` existed is judged now by the same rule
+    (:func:`lidarcal.admin.certificate_attributes`); one that could not be issued (no issuer)
+    says "not stated".  An issued DCC needs ``laboratory_country_code``; a demonstration without
+    one states ``ZZ`` (ISO 3166 user-assigned: unknown).
 
     Raises
     ------
     InputError
-        If ``cert`` is not a certificate or ``admin`` contradicts it.
+        Not a certificate, ``admin`` contradicting it, or an issued one without a country.
     """
     if cert.attrs.get("lidarcal_artefact") != "certificate":
         raise InputError(f"{certificate_file}: not a lidarcal certificate (lidarcal_artefact "
@@ -453,6 +473,35 @@ def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str
         attrs.setdefault(STATUS_ATTR, judged.get(STATUS_ATTR, "not stated"))
         if judged.get(STATUS_REASON_ATTR):
             attrs.setdefault(STATUS_REASON_ATTR, judged[STATUS_REASON_ATTR])
+    if attrs.get(STATUS_ATTR) == "issued" and not attrs.get("laboratory_country_code"):
+        raise InputError(f"{certificate_file}: an issued DCC needs the laboratory's country (coreData "
+                         "countryCodeISO3166_1): give laboratory.country_code in --admin ADMIN.yaml "
+                         "(docs/certificate.md)")
+    return attrs
+
+
+def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str = "certificate.nc",
+             admin: Mapping[str, str] | None = None) -> etree._ElementTree:
+    """Build the DCC XML of certificate ``cert`` (an opened netCDF certificate).
+
+    Parameters
+    ----------
+    cert : xarray.Dataset
+        The certificate as read from its file.
+    certificate_sha256 : str
+        SHA-256 of that file: the XML names it, so XML and netCDF stay one record.
+    certificate_file : str
+        The netCDF file's name, as the XML refers to it.
+    admin : mapping, optional
+        Administrative data (:func:`lidarcal.admin.load_admin`) the certificate does not state
+        itself; a value that contradicts the certificate's own is refused.
+
+    Raises
+    ------
+    InputError
+        If ``cert`` is not a certificate or ``admin`` contradicts it.
+    """
+    attrs = dcc_attributes(cert, admin=admin, certificate_file=certificate_file)
     etree.register_namespace("dcc", DCC_NS)
     etree.register_namespace("si", SI_NS)
     root = etree.Element(_d("digitalCalibrationCertificate"), nsmap={"dcc": DCC_NS, "si": SI_NS, "xsi": _XSI})
@@ -467,12 +516,26 @@ def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str
 
 
 def write_dcc(certificate: str | os.PathLike, output: str | os.PathLike, *,
-              admin: Mapping[str, str] | None = None, overwrite: bool = False) -> Path:
-    """Write the DCC XML of the netCDF certificate file ``certificate`` to ``output`` (atomically)."""
+              admin: Mapping[str, str] | None = None, overwrite: bool = False,
+              xsd: str | os.PathLike | None = None) -> Path:
+    """Write the DCC XML of the netCDF certificate file ``certificate`` to ``output`` (atomically).
+
+    With ``xsd`` (PTB's ``dcc.xsd``, ``SI_Format.xsd`` beside it) the document is validated
+    first and nothing is written when it is invalid.
+
+    Raises
+    ------
+    InputError
+        Bad certificate or administrative data, or the document does not validate.
+    """
     check_writable(output, overwrite=overwrite)
     cert = open_artefact(certificate, "certificate")
     tree = dcc_tree(cert, certificate_sha256=sha256(certificate), certificate_file=Path(certificate).name,
                     admin=admin)
+    if xsd is not None:
+        problems = validate_dcc(tree, xsd)
+        if problems:
+            raise ValidationError(problems, source=f"{output} (against {xsd})")
     with atomic_path(output, overwrite=overwrite) as tmp:
         tree.write(str(tmp), xml_declaration=True, encoding="UTF-8", pretty_print=True)
     return Path(output)

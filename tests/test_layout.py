@@ -39,6 +39,7 @@ STAGES = (
     "campaign",
     "seal",
     "certificate",
+    "dcc",
     "report",
     "diagnose",
     "pipeline",
