@@ -94,7 +94,7 @@ def _date(value: Any, where: str) -> str:
 
 def _persons(value: Any, where: str) -> str:
     """``"Name (role); Name (role)"`` from a list of ``{name, role}`` mappings or strings."""
-    items = value if isinstance(value, list) else [value]
+    items = value if isinstance(value, list) else str(value).split(";") if isinstance(value, str) else [value]
     out = []
     for i, item in enumerate(items):
         if isinstance(item, Mapping):
