@@ -145,7 +145,7 @@ def _contact(parent: etree._Element, tag: str, name: str | None, *, email: str |
 
 def _release(version: str) -> str:
     """Software release as PTB's rules spell it: a letter, then the version (``v0.1.0``)."""
-    return f"v{version}"
+    return f"v{version}" if version[:1].isdigit() else version
 
 
 def _date(text: str | None) -> _dt.date | None:
@@ -211,7 +211,7 @@ def _administrative(root: etree._Element, attrs: Mapping[str, Any], digest: str,
     if attrs.get("item_firmware"):
         fw = _sub(_sub(item, _d("installedSoftwares")), _d("software"))
         _text(fw, "name", "lidar firmware")
-        _sub(fw, _d("release"), attrs["item_firmware"])
+        _sub(fw, _d("release"), _release(str(attrs["item_firmware"])))
         _sub(fw, _d("type"), "firmware")
     manufacturer = _sub(item, _d("manufacturer"))
     _text(manufacturer, "name", attrs.get("item_manufacturer") or _NOT_STATED)
