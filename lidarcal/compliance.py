@@ -161,7 +161,7 @@ _SITE_ATTRIBUTES = ("geospatial_lat_min", "geospatial_lat_max", "geospatial_lon_
 
 
 def supplied_by(attribute: str) -> str:
-    """The option of lidarcal's writing commands that supplies a missing ACDD ``attribute``.
+    """Name the option of lidarcal's writing commands that supplies a missing ACDD ``attribute``.
 
     >>> supplied_by("creator_email")
     '--creator-email TEXT (or $LIDARCAL_CREATOR_EMAIL)'
@@ -201,7 +201,7 @@ _PURE_QUERIES = (
 
 
 def _fresh(value):
-    """A copy of ``value``'s containers (lists, tuples, sets, dicts); the netCDF objects in them are shared."""
+    """Copy ``value``'s containers (lists, tuples, sets, dicts), sharing the netCDF objects in them."""
     if isinstance(value, dict):
         out = copy.copy(value)  # keeps a defaultdict's factory
         out.update((k, _fresh(v)) for k, v in value.items())
