@@ -216,7 +216,7 @@ def _answers_once() -> Iterator[None]:
     """Within the block, each read-only query of the checker's ``cf.util`` is computed once per argument.
 
     The file is opened read-only and never changes during a run, so the findings are the same
-    as without the cache (``tests/test_compliance_speed.py`` checks that on a certificate);
+    as without the cache (``tests/test_artefact_metadata.py`` checks that on a file with failures);
     callers get a copy of each answer, so none can alter another's.
     """
     from compliance_checker.cf import util
