@@ -393,6 +393,13 @@ def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, 
         _real_list(lst, "10-minute periods in the bin", budget["sample_count"].values[i][keep].astype(float),
                    r"\one", labels=labels, ref_type="lidarcal_sampleCount")
     meta = _sub(result_el, _d("measurementMetaData"))
+    known = {**attrs, **budget.attrs}  # the budget's, or the certificate's own
+    names = ("monte_carlo_replicas", "monte_carlo_trials", "monte_carlo_significant_digits")
+    monte_carlo = [f"{name.replace('monte_carlo_', '').replace('_', ' ')} {known[name]}"
+                   for name in names if name in known]
+    if monte_carlo:
+        mc = _sub(meta, _d("metaData"), refType="lidarcal_monteCarlo")
+        _text(mc, "declaration", "Monte Carlo: " + ", ".join(monte_carlo))
     record = _sub(meta, _d("metaData"), refType="lidarcal_netcdfCertificate")
     _sub(record, _d("reference"), f"{file_name} sha256:{digest}")
     _text(record, "declaration", f"Values copied unrounded from the sealed netCDF certificate {file_name} "
@@ -507,7 +514,8 @@ def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str
     root = etree.Element(_d("digitalCalibrationCertificate"), nsmap={"dcc": DCC_NS, "si": SI_NS, "xsi": _XSI})
     root.set("schemaVersion", DCC_SCHEMA_VERSION)
     root.set(f"{{{_XSI}}}schemaLocation", f"{DCC_NS} https://ptb.de/dcc/v{DCC_SCHEMA_VERSION}/dcc.xsd")
-    root.append(etree.Comment(f" {status_line(attrs)} "))
+    # XML comments may not hold "--": the option names are written with non-breaking hyphens
+    root.append(etree.Comment(f" {status_line(attrs)} ".replace("--", "\u2011\u2011")))
     _administrative(root, attrs, certificate_sha256, certificate_file)
     results = _sub(root, _d("measurementResults"))
     _budget_results(results, cert, attrs, certificate_sha256, certificate_file)

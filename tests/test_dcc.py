@@ -21,8 +21,9 @@ from lxml import etree
 from lidarcal import __version__
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.bench import build_cube, simulate_run
+from lidarcal.certificate import make_certificate
 from lidarcal.cli import main
-from lidarcal.dcc import si_unit, validate_dcc
+from lidarcal.dcc import dcc_tree, si_unit, validate_dcc
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.provenance import stamp
@@ -239,3 +240,24 @@ def test_dcc_validates_against_ptb_xsd(xml, tmp_path):
     # the command validates before writing when given the XSD
     out = tmp_path / "checked.xml"
     assert main(["dcc", str(Path(xml["issued"]).with_suffix(".nc")), "-o", str(out), "--xsd", xsd]) == 0
+
+
+def test_numerical_tolerance_and_monte_carlo_figures_when_the_budget_has_them():
+    records = make_records(n=400, lidar_serial=SERIAL)
+    bud = budget(records)
+    tol = (bud["relative_expanded_uncertainty"] * 0.01).assign_attrs(units="%",
+                                                                     long_name="numerical tolerance")
+    bud = bud.assign(numerical_tolerance=tol)
+    bud.attrs.update(monte_carlo_replicas=4, monte_carlo_trials=8000)
+    cert = make_certificate(budget=bud, sensitivities=[], demonstration=True)
+    tree = dcc_tree(cert, certificate_sha256="0" * 64)
+    z = float(bud["height"][0])
+    rel = bud["relative_expanded_uncertainty"].sel(height=z).values
+    keep = np.isfinite(rel) & np.isfinite(bud["expanded_uncertainty"].sel(height=z).values)
+    q = tree.xpath("//dcc:result[1]//dcc:quantity[@refType='lidarcal_numericalTolerance']", namespaces=NS)[0]
+    values = np.array(q.findtext(".//si:valueXMLList", namespaces=NS).split(), float)
+    np.testing.assert_array_equal(values, tol.sel(height=z).values[keep])
+    mc = _texts(tree, "//dcc:metaData[@refType='lidarcal_monteCarlo']//dcc:content")
+    assert mc == ["Monte Carlo: replicas 4, trials 8000"]
+    if os.environ.get("LIDARCAL_DCC_XSD"):
+        assert validate_dcc(tree, os.environ["LIDARCAL_DCC_XSD"]) == []
