@@ -596,6 +596,11 @@ def _with_admin(cert: xr.Dataset, admin: Mapping[str, str] | None, demonstration
     cert.attrs.update(extra)
     if cert.attrs.get("institution") in (None, "unspecified") and extra.get("laboratory_name"):
         cert.attrs["institution"] = extra["laboratory_name"]  # ACDD institution carries the laboratory
+    if cert.attrs.get("creator_name") in (None, "lidarcal") and extra.get("responsible_persons"):
+        # ACDD creator: the first responsible person, without the role
+        first = extra["responsible_persons"].split(";")[0].strip()
+        cert.attrs["creator_name"] = first.rsplit(" (", 1)[0] if first.endswith(")") else first
+        cert.attrs["creator_type"] = "person"
     if extra[STATUS_ATTR] == DEMONSTRATION:
         cert.attrs["title"] = f"{cert.attrs['title']} - DEMONSTRATION, not a calibration of a real instrument"
         cert.attrs["summary"] = (f"DEMONSTRATION certificate ({extra[STATUS_REASON_ATTR]}). "

@@ -142,9 +142,11 @@ def test_admin_file_is_stored_validated_and_sealed(files, tmp_path, capsys):
         "bench_run_end": "2026-03-16", "bench_operator": "C. Operator", "simulation_date": "2026-03-20",
         "method_reference": "Black et al., anemometer-free calibration; lidarcal defaults",
         "institution": "Example Wind Lab",  # ACDD institution carries the laboratory
+        "creator_name": "A. Engineer", "creator_type": "person",  # and creator the first person
     }
     assert {k: attrs.get(k) for k in expected} == expected
-    assert set(expected) - {"calibration_status", "institution"} <= set(ADMIN_FILE_KEYS.values())
+    acdd = {"calibration_status", "institution", "creator_name", "creator_type"}
+    assert set(expected) - acdd <= set(ADMIN_FILE_KEYS.values())
     # sealed with the rest
     with netCDF4.Dataset(out, "a") as nc:
         nc.setncattr("customer_name", "Someone Else")
