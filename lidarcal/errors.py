@@ -45,3 +45,7 @@ class ComputeError(LidarcalError, RuntimeError):
 
 class OutputExistsError(LidarcalError, FileExistsError):
     """Refusing to overwrite an existing output without an explicit request."""
+
+
+class DiskFullError(LidarcalError):
+    """An output could not be written for want of space; nothing was published."""

@@ -24,7 +24,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey,
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
 
 from lidarcal.errors import InputError
-from lidarcal.io import atomic_path, check_writable, open_artefact, write_artefact
+from lidarcal.io import atomic_path, check_writable, open_artefact, write_into
 from lidarcal.schema import validate_dataset
 from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign, verify_signature
 
@@ -128,7 +128,7 @@ def write_certificate(cert: xr.Dataset, path: str | os.PathLike, *, overwrite: b
         )
     path = check_writable(path, overwrite=overwrite)
     with atomic_path(path, overwrite=overwrite) as tmp:
-        write_artefact(cert, tmp, overwrite=True)
+        write_into(cert, tmp, target=path)  # into this temporary: never a temporary of it
         if signing_key is not None:
             public = signing_key.public_key().public_bytes(Encoding.Raw, PublicFormat.Raw)
             with netCDF4.Dataset(tmp, "a") as nc:
