@@ -366,19 +366,39 @@ def _check_consistent(inputs: Mapping[str, xr.Dataset]) -> str | None:
         parts = [f"{_label(r, inputs[r])} was computed from records {f!r} (sha256 {sha[:12]}...)"
                  for r, (f, sha) in chains.items()]
         raise InputError("inputs disagree on the records: " + "; ".join(parts))
-    known = {role: ds.attrs.get("lidarcal_source_sha256") for role, ds in inputs.items()}
-    for role, ds in inputs.items():
-        recorded = read_json_attr(ds, "lidarcal_inputs")
-        for rec in recorded if isinstance(recorded, list) else []:
-            other = rec.get("role")
-            if other in known and known[other] and other != role and rec.get("sha256") != known[other]:
-                raise InputError(
-                    f"inputs disagree: {_label(role, ds)} was computed from {other} "
-                    f"{rec.get('file')!r} (sha256 {str(rec.get('sha256'))[:12]}...), "
-                    f"but the {other} given is "
-                    f"{inputs[other].attrs.get('lidarcal_source_file')!r} (sha256 {known[other][:12]}...)"
-                )
+    _check_chains(inputs)
     return distinct[0] if distinct else None
+
+
+def _chain(recorded: Any, via: tuple[Mapping[str, Any], ...] = ()
+           ) -> Iterable[tuple[tuple[Mapping[str, Any], ...], Mapping[str, Any]]]:
+    """Every record of a provenance chain (``lidarcal_inputs``), with the records leading to it."""
+    for rec in recorded if isinstance(recorded, list) else []:
+        if isinstance(rec, Mapping):
+            yield via, rec
+            yield from _chain(rec.get("inputs"), (*via, rec))
+
+
+def _check_chains(inputs: Mapping[str, xr.Dataset]) -> None:
+    """Refuse an input whose provenance chain names another file in a role that was given.
+
+    The chain is followed to any depth, so a budget computed from records simulated with
+    another bench cube or RWF is refused without the records themselves (``--records``).
+    """
+    known = {role: str(sha) for role, ds in inputs.items() if (sha := ds.attrs.get("lidarcal_source_sha256"))}
+    for role, ds in inputs.items():
+        for via, rec in _chain(read_json_attr(ds, "lidarcal_inputs")):
+            other, sha = rec.get("role"), rec.get("sha256")
+            if other not in known or other == role or not sha or str(sha) == known[other]:
+                continue
+            steps = "".join(f"{hop.get('role')} {hop.get('file')!r} (sha256 {hop.get('sha256')}), which was "
+                            "computed from " for hop in via)
+            raise InputError(
+                f"inputs disagree: {_label(role, ds)} was computed from {steps}{other} {rec.get('file')!r} "
+                f"(sha256 {sha}), but the {other} given is "
+                f"{inputs[other].attrs.get('lidarcal_source_file')!r} (sha256 {known[other]}); give the "
+                f"{other} it was computed from, or recompute it from this one"
+            )
 
 
 def _check_kind(role: str, ds: xr.Dataset, kinds: Iterable[str]) -> None:
