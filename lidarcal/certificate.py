@@ -47,6 +47,8 @@ from lidarcal.seal import (
     SIGNATURE_PUBLIC_KEY_ATTR,
     VerificationReport,
     integrity_record,
+    invalid_seal_banner,
+    require_valid_seal,
     verify_certificate,
     write_certificate,
 )
@@ -57,6 +59,8 @@ __all__ = [
     "write_certificate",
     "verify_certificate",
     "integrity_record",
+    "require_valid_seal",
+    "invalid_seal_banner",
     "extract_component",
     "components",
     "open_certificate",
@@ -244,7 +248,7 @@ def _significant_sensitivities(cert: xr.Dataset) -> dict[float, str]:
 
 
 def result_table(cert: xr.Dataset, *, contributors: int = 3,
-                 wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS):
+                 wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS, allow_invalid: bool = False):
     """IEC-style result table of a certificate: one row per height and wind-speed bin.
 
     Columns: ``height_m``, ``wind_speed_m_s`` (bin centre) and its bounds, ``sample_count``,
@@ -254,11 +258,18 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3,
     standard-uncertainty contributions, in %) and ``significant_sensitivities`` (per height,
     Eqs. 12-13).  Numbers are the certificate's own values, not rounded.
 
+    A certificate read from a file has its seal checked first (:func:`require_valid_seal`):
+    an altered one raises :class:`~lidarcal.errors.SealError` unless ``allow_invalid`` (the
+    caller then shows :func:`invalid_seal_banner` with the table).
+
     Returns
     -------
     pandas.DataFrame
     """
     import pandas as pd
+
+    if not allow_invalid and "lidarcal_components" in cert.attrs:
+        require_valid_seal(cert)
 
     budget = _budget_of(cert).load()
     k = float(budget.attrs.get("coverage_factor", 2.0))

@@ -36,6 +36,10 @@ class ValidationError(InputError):
         super().__init__(f"{source}: {len(self.problems)} problem(s) found:\n{lines}")
 
 
+class SealError(InputError):
+    """A certificate's seal or signature does not match its contents: its numbers are not shown."""
+
+
 class ComputeError(LidarcalError, RuntimeError):
     """A parallel computation could not run or finish.
 

@@ -104,8 +104,30 @@ def _read(path: str | os.PathLike, what: str) -> bytes:
         raise InputError(f"{path}: cannot read the {what}: {exc.strerror}") from None
 
 
+def _check_private(path: str | os.PathLike) -> None:
+    """Refuse a private key file other users can read or write, as ssh does."""
+    if os.name != "posix":
+        return  # Windows: access is by ACL, which st_mode does not show
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return  # _read reports it
+    if mode & 0o077:
+        raise InputError(
+            f"{path}: private key is readable or writable by others (mode {mode & 0o777:04o}): refusing to "
+            "sign with it (as ssh refuses such a key): anyone who could read it can sign certificates as "
+            f"you. Restrict it with 'chmod 600 {path}', and if others may have copied it, make a new key "
+            "(lidarcal keygen) and withdraw the old public key"
+        )
+
+
 def load_private_key(path: str | os.PathLike) -> Ed25519PrivateKey:
-    """Read an Ed25519 private key (PEM, unencrypted) with a clear error for anything else."""
+    """Read an Ed25519 private key (PEM, unencrypted) with a clear error for anything else.
+
+    On POSIX systems a key file other users can read or write (any group or other permission
+    bit, e.g. mode 0644) is refused, as ssh refuses one: a signature vouches for a file only
+    while the key is its holder's alone.
+    """
     data = _read(path, "private key")
     try:
         key = serialization.load_pem_private_key(data, password=None)
@@ -115,6 +137,7 @@ def load_private_key(path: str | os.PathLike) -> Ed25519PrivateKey:
         raise InputError(f"{path}: not an unencrypted PEM private key{hint}: {exc}") from None
     if not isinstance(key, Ed25519PrivateKey):
         raise InputError(f"{path}: expected an Ed25519 private key; found {type(key).__name__}")
+    _check_private(path)
     return key
 
 
