@@ -152,7 +152,8 @@ def components(cert: xr.Dataset) -> list[dict[str, Any]]:
     return comps
 
 
-def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> xr.DataTree:
+def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
+                     allow_invalid: bool = False) -> xr.DataTree:
     """Open a certificate as an :class:`xarray.DataTree`, one group per component.
 
     Every group (``budget``, ``cube``, ``rwf``, ``terms``, ``sensitivity_<variable>``) holds
@@ -163,10 +164,16 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> 
     unless given); opening also registers cf-xarray's unit registry with pint, so
     ``tree["budget"].dataset.pint.quantify()`` understands the stored units.
 
+    The seal is checked first (:func:`require_valid_seal`); with ``allow_invalid`` an altered
+    certificate is opened anyway, its problems listed in the root attribute
+    ``lidarcal_seal_problems``.
+
     Raises
     ------
     InputError
         If ``path`` is missing, unreadable or not a lidarcal certificate.
+    SealError
+        If its seal does not match its contents (unless ``allow_invalid``).
     """
     register_units()
     ds = open_artefact(path, load=False, chunks={} if chunks is None else chunks)
@@ -174,7 +181,10 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> 
         found = ds.attrs.get("lidarcal_artefact")
         raise InputError(f"{path}: not a lidarcal certificate: it is "
                          f"{repr(found) + ' artefact' if found else 'not a lidarcal artefact'}")
+    seal = require_valid_seal(path, allow_invalid=allow_invalid)
     nodes: dict[str, xr.Dataset] = {"/": xr.Dataset(attrs=dict(ds.attrs))}
+    if seal is not None and not seal.ok:
+        nodes["/"].attrs["lidarcal_seal_problems"] = invalid_seal_banner(seal)
     for comp in components(ds):
         nodes[f"/{comp['name']}"] = extract_component(ds, comp["name"])
     return xr.DataTree.from_dict(nodes)

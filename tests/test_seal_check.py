@@ -2,7 +2,7 @@
 
 Issue 20, item 3: ``lidarcal table`` printed a tampered certificate (uncertainties halved in
 place, seal left as it was) as if it were valid.  Every command or function that shows a
-certificate's numbers (``table``, the HTML report, :func:`lidarcal.certificate.result_table`)
+certificate's numbers (``table``, the HTML report, ``result_table``, ``open_certificate``)
 now refuses it (exit 2, a message naming the file and what changed), or with an explicit
 ``--allow-invalid`` / ``allow_invalid=True`` shows them under a warning banner.  Signing keys
 readable by others (item 10) are refused too.
@@ -18,6 +18,7 @@ import pytest
 import xarray as xr
 from analysis_factories import make_records
 
+import lidarcal
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.certificate import INTEGRITY_ATTR, make_certificate, result_table, write_certificate
 from lidarcal.cli import main
@@ -107,6 +108,11 @@ def test_result_table_and_report_check_the_seal(sealed, tampered, tmp_path):
     assert not (tmp_path / "r.html").exists()
     write_report(tmp_path / "r.html", certificate=open_artefact(tampered), png=False, allow_invalid=True)
     assert "WARNING: INVALID CERTIFICATE" in (tmp_path / "r.html").read_text()
+    with pytest.raises(SealError, match="values altered"):
+        lidarcal.open_certificate(tampered)
+    tree = lidarcal.open_certificate(tampered, allow_invalid=True)
+    assert "INVALID CERTIFICATE" in tree.attrs["lidarcal_seal_problems"]
+    assert "lidarcal_seal_problems" not in lidarcal.open_certificate(sealed["cert"]).attrs
     # a certificate being built (in memory, not yet sealed) has nothing to check
     fresh = make_certificate(budget=open_artefact(sealed["budget"]),
                              sensitivities=[open_artefact(sealed["sens"])])
