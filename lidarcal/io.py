@@ -64,6 +64,8 @@ def check_writable(path: str | os.PathLike, *, overwrite: bool = False) -> Path:
         with tempfile.TemporaryFile(dir=parent):
             pass
     except OSError as exc:
+        if (full := disk_full(exc, path)) is not None and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise full from None
         raise InputError(f"{path}: output directory {parent} is not writable ({exc.strerror})") from None
     return path
 
