@@ -105,6 +105,7 @@ def _part_files(d):
     return sorted(p.name for p in d.iterdir() if ".part" in p.name)
 
 
+@pytest.mark.slow  # a few Python start-ups (~12 s on the loaded 2-core machine)
 def test_sigkilled_certificate_writers_leave_no_temporaries(inputs, tmp_path):
     """Real SIGKILLs of ``lidarcal certificate`` while it writes; the next writer cleans up."""
     out = tmp_path / "cert.nc"
