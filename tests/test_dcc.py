@@ -199,7 +199,12 @@ def test_dcc_cli_refusals(certs, xml, tmp_path, capsys):
 
 
 def test_dcc_passes_ptb_schematron_rules(xml, certs, tmp_path):
-    validation = pytest.importorskip("dcclib.validation", reason="dcclib (test extra) not installed")
+    try:
+        from dcclib import validation
+    except ImportError:  # part of the test extra: CI must not pass by skipping the only offline rule check
+        if os.environ.get("CI") == "true":
+            pytest.fail("CI=true and dcclib (lidarcal's test extra) is not installed")
+        pytest.skip("dcclib (lidarcal's test extra) not installed: pip install -e '.[test]'")
     validator = validation.SchematronValidator.for_dcc()
     demo_with_country = tmp_path / "demo.xml"
     extra = tmp_path / "extra.yaml"
