@@ -33,6 +33,13 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.admin import (
+    DEMONSTRATION,
+    STATUS_ATTR,
+    STATUS_REASON_ATTR,
+    certificate_attributes,
+    default_method_reference,
+)
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import jsonable, read_json_attr, stamp
@@ -488,6 +495,8 @@ def make_certificate(
     records: xr.Dataset | None = None,
     config: Mapping[str, Any] | None = None,
     call: str = "lidarcal.certificate.make_certificate",
+    admin: Mapping[str, str] | None = None,
+    demonstration: bool = False,
 ) -> xr.Dataset:
     """Bundle a calibration into one flat ``certificate`` Dataset (not yet sealed).
 
@@ -504,12 +513,22 @@ def make_certificate(
         (not copied) and checked against the other inputs.
     config : mapping, optional
         The full configuration of the calibration run, recorded as JSON.
+    admin : mapping, optional
+        Administrative data (:func:`lidarcal.admin.load_admin`: item, laboratory, responsible
+        persons, customer, place, dates, certificate id ...), stored as global attributes
+        (docs/certificate.md); what the data state (lidar serial, bench id, run, operator,
+        the RF driver's calibration reference, dates) is filled in.
+    demonstration : bool
+        Force ``calibration_status = "demonstration"``.  Without it the status is
+        ``demonstration`` when an input is lidarcal's embedded sample data or a simulated bench
+        run, else ``issued``, which needs an issuer (laboratory and responsible person).
 
     Raises
     ------
     InputError
         If inputs describe different lidars (``lidar_serial``), if an input was computed from
-        a different file than the one given, or an input is of the wrong kind.
+        a different file than the one given, or an input is of the wrong kind; if ``admin``
+        contradicts the data; if the certificate would be issued without an issuer.
     """
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     inputs: dict[str, xr.Dataset] = {"budget": budget}
@@ -579,7 +598,7 @@ def make_certificate(
     for key in ("bench_id", "operator", "run_id", "time_coverage_start", "time_coverage_end"):
         if cube is not None and key in cube.attrs:
             cert.attrs[f"bench_{key}" if not key.startswith("bench") else key] = str(cube.attrs[key])
-    return stamp(
+    cert = stamp(
         cert,
         "certificate",
         title=f"Lidar calibration certificate{' for ' + serial if serial else ''}",
@@ -594,3 +613,37 @@ def make_certificate(
         config=dict(config or {}),
         keywords="Doppler lidar, wind speed, calibration certificate, uncertainty, traceability",
     )
+    return _with_admin(cert, admin, demonstration, cube=cube, records=records, config=config)
+
+
+def _with_admin(cert: xr.Dataset, admin: Mapping[str, str] | None, demonstration: bool, *,
+                cube: xr.Dataset | None, records: xr.Dataset | None,
+                config: Mapping[str, Any] | None) -> xr.Dataset:
+    """Add ``calibration_status`` and the administrative attributes (lidarcal.admin)."""
+    cube_attrs = cube.attrs if cube is not None else {}
+    derived = {
+        "item_serial_number": cert.attrs.get("lidar_serial"),
+        "bench_id": cube_attrs.get("bench_id"),
+        "bench_run_id": cube_attrs.get("run_id"),
+        "bench_operator": cube_attrs.get("operator"),
+        "rf_driver_calibration_reference": cube_attrs.get("rf_driver_calibration_reference"),
+        "bench_run_start": cube_attrs.get("time_coverage_start"),
+        "bench_run_end": cube_attrs.get("time_coverage_end"),
+        "simulation_date": records.attrs.get("date_created") if records is not None else None,
+        "method_reference": default_method_reference(cert.attrs.get("budget_approach", "unknown"), config),
+    }
+    extra = certificate_attributes(cert.attrs, admin, derived={k: str(v) for k, v in derived.items() if v},
+                                   demonstration=demonstration)
+    cert.attrs.update(extra)
+    if cert.attrs.get("institution") in (None, "unspecified") and extra.get("laboratory_name"):
+        cert.attrs["institution"] = extra["laboratory_name"]  # ACDD institution carries the laboratory
+    if cert.attrs.get("creator_name") in (None, "lidarcal") and extra.get("responsible_persons"):
+        # ACDD creator: the first responsible person, without the role
+        first = extra["responsible_persons"].split(";")[0].strip()
+        cert.attrs["creator_name"] = first.rsplit(" (", 1)[0] if first.endswith(")") else first
+        cert.attrs["creator_type"] = "person"
+    if extra[STATUS_ATTR] == DEMONSTRATION:
+        cert.attrs["title"] = f"{cert.attrs['title']} - DEMONSTRATION, not a calibration of a real instrument"
+        cert.attrs["summary"] = (f"DEMONSTRATION certificate ({extra[STATUS_REASON_ATTR]}). "
+                                 + str(cert.attrs.get("summary", "")))
+    return cert
