@@ -55,7 +55,7 @@ def check_input_file(path: str | os.PathLike, what: str = "file") -> Path:
     try:
         mode = path.stat().st_mode
     except FileNotFoundError:
-        raise InputError(f"{path}: {what} not found") from None
+        raise InputError(f"{path}: file not found") from None
     except OSError as exc:
         raise InputError(f"{path}: {what} cannot be read ({exc.strerror})") from None
     if stat.S_ISDIR(mode):
