@@ -247,3 +247,23 @@ def test_one_blas_thread_holds_while_threads_overlap():
             t.join(30)
         assert _blas_threads() == 2
     assert seen == [1]
+
+
+@pytest.mark.slow
+def test_local_cluster_workers_run_the_parent_watchdog():
+    """``local_cluster`` preloads campaign.workers into each worker, told the lidarcal process's pid."""
+    from distributed import Client
+
+    from lidarcal.campaign import local_cluster
+
+    def probe():
+        import os
+        import threading
+
+        return ([t.name for t in threading.enumerate() if t.name == "lidarcal-parent-watchdog"],
+                os.environ.get("LIDARCAL_PARENT_PID"))
+
+    with local_cluster(2, dashboard_address=None) as lc, Client(lc, set_as_default=False) as client:
+        seen = client.run(probe)
+    assert len(seen) == 2
+    assert all(v == (["lidarcal-parent-watchdog"], str(os.getpid())) for v in seen.values()), seen
