@@ -41,6 +41,7 @@ STAGES = (
     "certificate",
     "report",
     "diagnose",
+    "compare",
     "pipeline",
     "cli",
 )
