@@ -42,6 +42,7 @@ COMMANDS = (
     "keygen",
     "table",
     "diagnose",
+    "compare",
     "validate",
 )
 
