@@ -31,6 +31,7 @@ SIM = {"scheduler": "synchronous"}
 
 # -- the test of one cell ------------------------------------------------------------------------
 
+
 def test_welch_test_matches_an_independent_computation():
     # two slopes 1.0 +- 0.3 (5 bins: 3 dof) and 0.2 +- 0.4 (10 bins: 8 dof), written out by hand
     out = welch_test(1.0, 0.3, 3, 0.2, 0.4, 8)
@@ -70,6 +71,7 @@ def test_welch_test_false_alarm_rate_is_at_most_alpha():
 
 # -- the command on a small hand-made campaign ----------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def field_file(tmp_path_factory):
     """A field campaign whose 'lidar' is the cup with 1.5 % noise: no volume averaging, no turbulence bias."""
@@ -98,7 +100,7 @@ def _run(argv: list[str]) -> tuple[int, str]:
 
 @pytest.fixture(scope="module")
 def run(field_file):
-    """``lidarcal compare field.nc -o c.nc --report c.html --json``: (exit status, stdout, artefact, report)."""
+    """``lidarcal compare field.nc -o c.nc --report c.html --json``: (status, stdout, artefact, report)."""
     out, report = field_file.parent / "c.nc", field_file.parent / "c.html"
     status, stdout = _run(["compare", str(field_file), "-o", str(out), "--report", str(report), *ARGS])
     return status, stdout, out, report
@@ -110,7 +112,16 @@ def test_compare_command_writes_one_json_object_and_the_artefact(run, field_file
     js = json.loads(stdout)  # exactly one object: json.loads refuses trailing text
     assert list(js)[:6] == ["verdict", "alpha", "correction", "cells", "budgets", "next"]
     assert js["alpha"] == 0.05 and js["correction"] == "holm" and js["verdict"] in ("agree", "disagree")
-    keys = {"height", "variable", "measured_slope", "measured_se", "simulated_slope", "simulated_se", "z", "agree"}
+    keys = {
+        "height",
+        "variable",
+        "measured_slope",
+        "measured_se",
+        "simulated_slope",
+        "simulated_se",
+        "z",
+        "agree",
+    }
     assert js["cells"] and all(keys <= set(c) for c in js["cells"])
     assert (js["next"] is None) == (js["verdict"] == "agree")
     if js["next"]:
@@ -136,7 +147,9 @@ def test_compare_command_writes_one_json_object_and_the_artefact(run, field_file
 def test_compare_with_model_simulates_the_stored_lidar_again(run, field_file):
     # --model: the lidar stored in the comparison, simulated again with the same seed: the same numbers
     _, stdout, out, _ = run
-    status, stdout2 = _run(["compare", str(field_file), "-o", str(out.parent / "c2.nc"), "--model", str(out), *ARGS])
+    status, stdout2 = _run(
+        ["compare", str(field_file), "-o", str(out.parent / "c2.nc"), "--model", str(out), *ARGS]
+    )
     js, js2 = json.loads(stdout), json.loads(stdout2)
     assert status == 0 and js2["cells"] == js["cells"]
     assert js2["model"] == "corrected model of the diagnosis c.nc"
@@ -156,16 +169,25 @@ def test_compare_report_renders_offline_in_chromium(run, chromium):
     from selenium.webdriver.chrome.service import Service
 
     opts = Options()
-    for flag in ("--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-                 "--disable-component-update", "--disable-sync", "--no-first-run"):
+    for flag in (
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        "--no-first-run",
+    ):
         opts.add_argument(flag)
     opts.binary_location = chromium[0]
     opts.set_capability("goog:loggingPrefs", {"browser": "ALL"})
     driver = webdriver.Chrome(options=opts, service=Service(chromium[1]))
     try:
         driver.execute_cdp_cmd("Network.enable", {})
-        driver.execute_cdp_cmd("Network.emulateNetworkConditions",
-                               {"offline": True, "latency": 0, "downloadThroughput": 0, "uploadThroughput": 0})
+        driver.execute_cdp_cmd(
+            "Network.emulateNetworkConditions",
+            {"offline": True, "latency": 0, "downloadThroughput": 0, "uploadThroughput": 0},
+        )
         driver.get(run[3].as_uri())
         deadline, n_plots = time.time() + 30, 0
         while time.time() < deadline and n_plots < 5:
@@ -174,7 +196,8 @@ def test_compare_report_renders_offline_in_chromium(run, chromium):
                 "if (!(window.Bokeh && Bokeh.documents.length)) return 0;"
                 "let n = 0; for (const d of Bokeh.documents) for (const m of d.all_models) {"
                 "  if (m.type === 'Figure') n++; }"
-                "return n;")
+                "return n;"
+            )
         assert n_plots == 5  # three slope panels (one per variable) + two budget panels (one per height)
         assert [e for e in driver.get_log("browser") if e["level"] == "SEVERE"] == []
     finally:
@@ -187,7 +210,10 @@ def test_compare_refuses_bad_input_before_simulating(tmp_path, field_file, capsy
     assert main(["compare", str(no_pair), "-o", str(tmp_path / "x.nc")]) == 2
     err = capsys.readouterr().err
     assert "conditions.nc" in err and "lidar_wind_speed" in err and "missing" in err
-    assert main(["compare", str(field_file), "--model", "d.nc", "--rwf", "r.nc", "-o", str(tmp_path / "y.nc")]) == 2
+    assert (
+        main(["compare", str(field_file), "--model", "d.nc", "--rwf", "r.nc", "-o", str(tmp_path / "y.nc")])
+        == 2
+    )
     assert "--model" in capsys.readouterr().err
     assert not (tmp_path / "x.nc").exists() and not (tmp_path / "y.nc").exists()
     with pytest.raises(SystemExit):
@@ -205,8 +231,10 @@ HEIGHTS = (40.0, 80.0, 160.0)
 def _compare(effects, seed):
     field = make_field_campaign(effects, n_periods=N, heights=HEIGHTS, seed=seed)
     js = summary(to_dataset(compare(field, simulate_options=SIM)))
-    print(f"\n[compare] {effects} seed {seed}: {js['verdict']}; "
-          + ", ".join(f"{c['variable'][:5]}@{c['height']:g} z {c['z']:+.1f}" for c in js["cells"]))
+    print(
+        f"\n[compare] {effects} seed {seed}: {js['verdict']}; "
+        + ", ".join(f"{c['variable'][:5]}@{c['height']:g} z {c['z']:+.1f}" for c in js["cells"])
+    )
     return js
 
 

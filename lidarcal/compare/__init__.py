@@ -24,5 +24,14 @@ from lidarcal.compare.core import (
 )
 from lidarcal.compare.dataset import summary, to_dataset
 
-__all__ = ["compare", "Comparison", "to_dataset", "summary", "DEFAULT_VARIABLES", "VARIABLES", "DEFAULT_ALPHA",
-           "DEFAULT_REFERENCE_UNCERTAINTY", "CORRECTION"]
+__all__ = [
+    "compare",
+    "Comparison",
+    "to_dataset",
+    "summary",
+    "DEFAULT_VARIABLES",
+    "VARIABLES",
+    "DEFAULT_ALPHA",
+    "DEFAULT_REFERENCE_UNCERTAINTY",
+    "CORRECTION",
+]

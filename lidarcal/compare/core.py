@@ -36,7 +36,12 @@ import xarray as xr
 from scipy import stats as st
 
 from lidarcal.analysis.budget import budget
-from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES, DEFAULT_REFERENCE_RANGE, REGRESSIONS, sensitivity
+from lidarcal.analysis.sensitivity import (
+    DEFAULT_MIN_SAMPLES,
+    DEFAULT_REFERENCE_RANGE,
+    REGRESSIONS,
+    sensitivity,
+)
 from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.conditions import load_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES
@@ -48,8 +53,16 @@ from lidarcal.io import open_artefact, source_name
 from lidarcal.lidar.geometry import check_reachable
 from lidarcal.units import to_magnitude
 
-__all__ = ["compare", "Comparison", "DEFAULT_VARIABLES", "VARIABLES", "DEFAULT_ALPHA",
-           "DEFAULT_REFERENCE_UNCERTAINTY", "CORRECTION", "welch_test"]
+__all__ = [
+    "compare",
+    "Comparison",
+    "DEFAULT_VARIABLES",
+    "VARIABLES",
+    "DEFAULT_ALPHA",
+    "DEFAULT_REFERENCE_UNCERTAINTY",
+    "CORRECTION",
+    "welch_test",
+]
 
 log = logging.getLogger("lidarcal.compare")
 
@@ -107,7 +120,8 @@ def _load(field: str | os.PathLike | xr.Dataset, min_samples: int) -> tuple[xr.D
         raise MissingVariableError(
             f"{source}: the measured pair is incomplete: variable(s) {missing} missing; a field_campaign "
             f"needs 'lidar_wind_speed' and 'reference_wind_speed' (m s-1) on (time, height); found "
-            f"{sorted(map(str, raw.data_vars))}")
+            f"{sorted(map(str, raw.data_vars))}"
+        )
     ds = load_conditions(raw, kind="field_campaign", warn=False)
     usable = np.asarray(ds["input_complete"].transpose("time", "height").values, dtype=bool)
     for name in MEASURED:
@@ -117,29 +131,37 @@ def _load(field: str | os.PathLike | xr.Dataset, min_samples: int) -> tuple[xr.D
         raise InputError(
             f"{source}: too few usable periods: at most {int(usable.sum(axis=0).max(initial=0))} per height "
             f"have the measured pair and all six conditions; a slope needs three bins of at least "
-            f"{min_samples} periods ({need} periods at one height at least)")
+            f"{min_samples} periods ({need} periods at one height at least)"
+        )
     return ds, usable, source
 
 
 def _model(ds: xr.Dataset, source: str, *, cube, rwf, model, diagnosis) -> tuple[Any, str]:
-    """The lidar to simulate and a description of where it came from."""
+    """Return the lidar to simulate and a description of where it came from."""
     if diagnosis is not None:
         if rwf is not None or model is not None:
-            raise InputError("give either a diagnosis (its corrected model) or the lidar's rwf/model, not both")
+            raise InputError(
+                "give either a diagnosis (its corrected model) or the lidar's rwf/model, not both"
+            )
         name = source_name(diagnosis, "<diagnosis>")
-        return corrected_model(diagnosis, cube=cube), f"corrected model of the diagnosis {os.path.basename(name)}"
+        return corrected_model(
+            diagnosis, cube=cube
+        ), f"corrected model of the diagnosis {os.path.basename(name)}"
     if model is not None:
         return model, "the model given"
     if cube is not None or rwf is not None:
         parts = [w for w, x in (("bench cube", cube), ("rwf", rwf)) if x is not None]
         return nominal_model(ds, cube=cube, rwf=rwf), (
-            f"bench-calibrated lidar ({' and '.join(parts)}; the field file's lidar_* attributes for the rest)")
+            f"bench-calibrated lidar ({' and '.join(parts)}; the field file's lidar_* attributes "
+            "for the rest)"
+        )
     return nominal_model(ds), "nominal lidar of the field file's lidar_* attributes"
 
 
-def _records(ds: xr.Dataset, lidar: np.ndarray, reference: np.ndarray, keep: np.ndarray, kind: str,
-             source: str) -> xr.Dataset:
-    """Records for the analysis stage: the campaign's conditions and one pair, NaN outside ``keep``."""
+def _records(
+    ds: xr.Dataset, lidar: np.ndarray, reference: np.ndarray, keep: np.ndarray, kind: str, source: str
+) -> xr.Dataset:
+    """Return records for the analysis stage: the conditions and one pair, NaN outside ``keep``."""
     out = ds[list(CONDITION_NAMES)].copy()
     for name, values in (("lidar_wind_speed", lidar), ("reference_wind_speed", reference)):
         out[name] = (("time", "height"), np.where(keep, values, np.nan), dict(ds[name].attrs))
@@ -220,15 +242,22 @@ def compare(
     if bad or not variables:
         raise InputError(f"argument 'variables': expected some of {list(VARIABLES)}; found {list(variables)}")
     if regression not in REGRESSIONS:
-        raise InputError(f"argument 'regression': expected one of {sorted(REGRESSIONS)}; found {regression!r}")
+        raise InputError(
+            f"argument 'regression': expected one of {sorted(REGRESSIONS)}; found {regression!r}"
+        )
     if not 0.0 < float(alpha) < 1.0:
         raise InputError(f"argument 'alpha': expected a probability in (0, 1); found {alpha!r}")
     if int(min_samples) < 2:
         raise InputError(f"argument 'min_samples': expected at least 2 (a bin's spread); found {min_samples}")
-    u_ref = float(to_magnitude(reference_uncertainty, "m s-1", name="reference_uncertainty")
-                  if not isinstance(reference_uncertainty, int | float) else reference_uncertainty)
+    u_ref = float(
+        to_magnitude(reference_uncertainty, "m s-1", name="reference_uncertainty")
+        if not isinstance(reference_uncertainty, int | float)
+        else reference_uncertainty
+    )
     if not (np.isfinite(u_ref) and u_ref >= 0):
-        raise InputError(f"argument 'reference_uncertainty': expected >= 0 m s-1; found {reference_uncertainty!r}")
+        raise InputError(
+            f"argument 'reference_uncertainty': expected >= 0 m s-1; found {reference_uncertainty!r}"
+        )
     lo, hi = (float(x) for x in reference_range)
     variables = list(dict.fromkeys(variables))
 
@@ -237,13 +266,16 @@ def compare(
     sim_model, origin = _model(ds, source, cube=cube, rwf=rwf, model=model, diagnosis=diagnosis)
     problems = check_reachable(sim_model, ds.height.values)
     if problems:
-        raise InputError(f"{source}: variable 'height': heights the lidar cannot measure with this RWF and "
-                         f"geometry: " + "; ".join(problems))
+        raise InputError(
+            f"{source}: variable 'height': heights the lidar cannot measure with this RWF and "
+            f"geometry: " + "; ".join(problems)
+        )
     cond = ds[list(CONDITION_NAMES)].copy()
     cond.attrs = {"lidarcal_source_file": os.path.basename(source)}
     log.info(f"simulating {ds.sizes['time']} periods x {ds.sizes['height']} heights with the {origin}")
-    sim = simulate_campaign(cond, sim_model, base_seed=int(base_seed), progress=progress,
-                            **dict(simulate_options or {}))
+    sim = simulate_campaign(
+        cond, sim_model, base_seed=int(base_seed), progress=progress, **dict(simulate_options or {})
+    )
     sim = sim.transpose("time", "height")
 
     # 2. the same periods on both sides
@@ -256,7 +288,12 @@ def compare(
 
     # 3. sensitivities on the same bins, and the cell tests
     sens: dict[str, dict[str, xr.Dataset | None]] = {"measured": {}, "simulated": {}}
-    opts = {"min_samples": int(min_samples), "regression": regression, "reference_range": None, "source": source}
+    opts = {
+        "min_samples": int(min_samples),
+        "regression": regression,
+        "reference_range": None,
+        "source": source,
+    }
     for v in variables:
         width = (bin_widths or {}).get(v)
         try:
@@ -275,31 +312,66 @@ def compare(
 
     # 4. the budgets (Figure 9)
     common = {"bin_width": budget_bin_width, "source": source}
-    budgets = {"measured": budget(measured, approach="iec", reference_uncertainty=f"{u_ref!r} m s-1", **common),
-               "simulated": budget(simulated, approach="monte_carlo", terms=terms, **common)}
+    budgets = {
+        "measured": budget(measured, approach="iec", reference_uncertainty=f"{u_ref!r} m s-1", **common),
+        "simulated": budget(simulated, approach="monte_carlo", terms=terms, **common),
+    }
 
     tested = np.isfinite(cells["p_adjusted"])
     disagree = int((cells["agree"] == 0).sum())
     verdict = "disagree" if disagree else "agree"
-    log.info(f"verdict: {verdict} ({disagree} of {int(tested.sum())} cells disagree at alpha {alpha:g}, Holm)")
-    settings = {"base_seed": int(base_seed), "alpha": float(alpha), "correction": CORRECTION,
-                "variables": variables, "min_samples": int(min_samples), "regression": regression,
-                "bin_widths": {v: (None if (bin_widths or {}).get(v) is None else str(bin_widths[v]))
-                               for v in variables},
-                "reference_range_m_s-1": [lo, hi], "reference_uncertainty_m_s-1": u_ref,
-                "budget_bin_width": str(budget_bin_width),
-                "simulate_options": {k: v for k, v in (simulate_options or {}).items() if k != "scheduler"}}
-    return Comparison(field=ds, measured=measured, simulated=simulated, sensitivity=sens, budget=budgets,
-                      cells=cells, model=sim_model, model_origin=origin, settings=settings, source=source,
-                      verdict=verdict, keep=keep,
-                      next=None if verdict == "agree" else diagnose_command(source, inputs, int(base_seed)))
+    log.info(
+        f"verdict: {verdict} ({disagree} of {int(tested.sum())} cells disagree at alpha {alpha:g}, Holm)"
+    )
+    settings = {
+        "base_seed": int(base_seed),
+        "alpha": float(alpha),
+        "correction": CORRECTION,
+        "variables": variables,
+        "min_samples": int(min_samples),
+        "regression": regression,
+        "bin_widths": {
+            v: (None if (bin_widths or {}).get(v) is None else str(bin_widths[v])) for v in variables
+        },
+        "reference_range_m_s-1": [lo, hi],
+        "reference_uncertainty_m_s-1": u_ref,
+        "budget_bin_width": str(budget_bin_width),
+        "simulate_options": {k: v for k, v in (simulate_options or {}).items() if k != "scheduler"},
+    }
+    return Comparison(
+        field=ds,
+        measured=measured,
+        simulated=simulated,
+        sensitivity=sens,
+        budget=budgets,
+        cells=cells,
+        model=sim_model,
+        model_origin=origin,
+        settings=settings,
+        source=source,
+        verdict=verdict,
+        keep=keep,
+        next=None if verdict == "agree" else diagnose_command(source, inputs, int(base_seed)),
+    )
 
 
-def _cells(sens: Mapping[str, Mapping[str, xr.Dataset | None]], variables: Sequence[str], n_heights: int,
-           alpha: float) -> dict[str, np.ndarray]:
+def _cells(
+    sens: Mapping[str, Mapping[str, xr.Dataset | None]],
+    variables: Sequence[str],
+    n_heights: int,
+    alpha: float,
+) -> dict[str, np.ndarray]:
     """Per (variable, height): both sides' slopes and Eq. 12-13 statistics, the test and the flag."""
-    names = ("slope", "slope_standard_error", "bins_used", "slope_times_std", "slope_times_std_times_r",
-             "correlation", "significant_eq12", "significant_eq13")
+    names = (
+        "slope",
+        "slope_standard_error",
+        "bins_used",
+        "slope_times_std",
+        "slope_times_std_times_r",
+        "correlation",
+        "significant_eq12",
+        "significant_eq13",
+    )
     out: dict[str, np.ndarray] = {}
     for side in ("measured", "simulated"):
         for name in names:
@@ -309,18 +381,24 @@ def _cells(sens: Mapping[str, Mapping[str, xr.Dataset | None]], variables: Seque
                 if s is not None:
                     arr[i] = np.asarray(s[name].transpose("height").values, dtype=float)
             out[f"{side}_{name}"] = arr
-    test = welch_test(out["measured_slope"], out["measured_slope_standard_error"],
-                      np.maximum(out["measured_bins_used"] - 2, 1), out["simulated_slope"],
-                      out["simulated_slope_standard_error"], np.maximum(out["simulated_bins_used"] - 2, 1))
+    test = welch_test(
+        out["measured_slope"],
+        out["measured_slope_standard_error"],
+        np.maximum(out["measured_bins_used"] - 2, 1),
+        out["simulated_slope"],
+        out["simulated_slope_standard_error"],
+        np.maximum(out["simulated_bins_used"] - 2, 1),
+    )
     out.update(test)
     out["p_adjusted"] = holm(test["p_value"])
-    out["agree"] = np.where(np.isfinite(out["p_adjusted"]), (out["p_adjusted"] >= alpha).astype(np.int8),
-                            2).astype(np.int8)
+    out["agree"] = np.where(
+        np.isfinite(out["p_adjusted"]), (out["p_adjusted"] >= alpha).astype(np.int8), 2
+    ).astype(np.int8)
     return out
 
 
 def diagnose_command(source: str, inputs: Mapping[str, str | os.PathLike] | None, base_seed: int) -> str:
-    """The ``lidarcal diagnose`` command to run next on this campaign (``next`` of the JSON)."""
+    """Return the ``lidarcal diagnose`` command to run next on this campaign (``next`` of the JSON)."""
     inputs = dict(inputs or {})
     field = os.fspath(inputs.get("field", source))
     stem = os.path.splitext(os.path.basename(field))[0] or "field"

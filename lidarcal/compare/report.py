@@ -37,12 +37,15 @@ def _header(ds: xr.Dataset) -> str:
         f"<tr><td>{html.escape(c['variable'])}</td><td>{c['height']:g}</td>"
         f"<td>{c['measured_slope']:.3g} ± {c['measured_se']:.2g}</td>"
         f"<td>{c['simulated_slope']:.3g} ± {c['simulated_se']:.2g}</td><td>{html.escape(c['units'])}</td>"
-        f"<td>{c['z']:+.2f}</td><td>{c['p_adjusted']:.3g}</td><td>{'agree' if c['agree'] else '<b>disagree</b>'}"
-        f"</td></tr>" for c in js["cells"])
+        f"<td>{c['z']:+.2f}</td><td>{c['p_adjusted']:.3g}</td>"
+        f"<td>{'agree' if c['agree'] else '<b>disagree</b>'}</td></tr>"
+        for c in js["cells"]
+    )
     nxt = f"<br><b>Next:</b> <code>{html.escape(js['next'])}</code>" if js["next"] else ""
     return (
         f"<h2>Verdict: {html.escape(js['verdict'])}</h2>"
-        f"<p>Simulated lidar: {html.escape(js['model'])}. Field: {html.escape(ds.attrs.get('field_source', ''))}."
+        f"<p>Simulated lidar: {html.escape(js['model'])}. "
+        f"Field: {html.escape(ds.attrs.get('field_source', ''))}."
         f"<br>Cells agree when the Holm-adjusted p-value of equal slopes is at least alpha = {js['alpha']:g}."
         f"{nxt}</p>"
         f"<table class='numbers'><tr><th>variable</th><th>height (m)</th><th>measured slope</th>"
@@ -71,9 +74,17 @@ def slope_figure(ds: xr.Dataset):
             layers.append(hv.Scatter(df, "height", "slope").opts(color=COLOURS[side], size=7))
         bad = [f"{x:g} m" for x, a in zip(h, ds["agree"].sel(variable=v).values, strict=True) if int(a) == 0]
         title = f"Slope vs height: {v}" + (f" (disagree at {', '.join(bad)})" if bad else "")
-        panels.append(hv.Overlay(layers).opts(
-            title=title, xlabel="height (m)", ylabel=f"slope ({units})", width=460, height=320,
-            legend_position="top_left", show_grid=True))
+        panels.append(
+            hv.Overlay(layers).opts(
+                title=title,
+                xlabel="height (m)",
+                ylabel=f"slope ({units})",
+                width=460,
+                height=320,
+                legend_position="top_left",
+                show_grid=True,
+            )
+        )
     return panels
 
 
@@ -92,10 +103,17 @@ def budget_figure(ds: xr.Dataset):
             df = pd.DataFrame({"wind_speed": ws[ok], "u": u[ok]})
             layers.append(hv.Curve(df, "wind_speed", "u", label=label[side]).opts(color=COLOURS[side]))
             layers.append(hv.Scatter(df, "wind_speed", "u").opts(color=COLOURS[side], size=6))
-        panels.append(hv.Overlay(layers).opts(
-            title=f"Budget vs wind speed at {float(h):g} m", xlabel="reference wind speed (m s-1)",
-            ylabel="combined standard uncertainty (%)", width=460, height=320, legend_position="top_right",
-            show_grid=True))
+        panels.append(
+            hv.Overlay(layers).opts(
+                title=f"Budget vs wind speed at {float(h):g} m",
+                xlabel="reference wind speed (m s-1)",
+                ylabel="combined standard uncertainty (%)",
+                width=460,
+                height=320,
+                legend_position="top_right",
+                show_grid=True,
+            )
+        )
     return panels
 
 
@@ -106,9 +124,14 @@ def write_report(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = F
     hv.extension("bokeh", logo=False)
     slopes = hv.render(hv.Layout(slope_figure(ds)).cols(2).opts(shared_axes=False), backend="bokeh")
     budgets = hv.render(hv.Layout(budget_figure(ds)).cols(2).opts(shared_axes=False), backend="bokeh")
-    titles = {"slopes": "Figure 1. Sensitivity slopes against height: measured and simulated (95 % intervals)",
-              "budgets": "Figure 2. Uncertainty budgets against wind speed: IEC field approach and Monte Carlo"}
-    page = offline_html({"slopes": slopes, "budgets": budgets},
-                        title=f"lidarcal compare: {ds.attrs.get('comparison_verdict', '')}",
-                        header=_header(ds), titles=titles)
+    titles = {
+        "slopes": "Figure 1. Sensitivity slopes against height: measured and simulated (95 % intervals)",
+        "budgets": "Figure 2. Uncertainty budgets against wind speed: IEC field approach and Monte Carlo",
+    }
+    page = offline_html(
+        {"slopes": slopes, "budgets": budgets},
+        title=f"lidarcal compare: {ds.attrs.get('comparison_verdict', '')}",
+        header=_header(ds),
+        titles=titles,
+    )
     return write_text(path, page, overwrite=overwrite)
