@@ -138,21 +138,11 @@ def to_dataset(
             coverage_content_type="qualityInformation",
         ),
     )
-    ds["slope_dof"] = (
-        vh,
-        cells["dof"],
-        var_attrs(
-            "Welch-Satterthwaite degrees of freedom of the slope difference",
-            "1",
-            coverage_content_type="qualityInformation",
-            comment="each slope: bins used - 2",
-        ),
-    )
     ds["slope_p_value"] = (
         vh,
         cells["p_value"],
         var_attrs(
-            "two-sided p-value of equal measured and simulated slopes (Student t)",
+            "two-sided p-value of equal measured and simulated slopes (normal z-test)",
             "1",
             coverage_content_type="qualityInformation",
         ),
