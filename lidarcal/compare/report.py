@@ -72,16 +72,16 @@ def slope_figure(ds: xr.Dataset):
             layers.append(hv.ErrorBars(df, "height", ["slope", "err"]).opts(color=COLOURS[side]))
             layers.append(hv.Curve(df, "height", "slope", label=side).opts(color=COLOURS[side]))
             layers.append(hv.Scatter(df, "height", "slope").opts(color=COLOURS[side], size=7))
-        bad = [f"{x:g} m" for x, a in zip(h, ds["agree"].sel(variable=v).values, strict=True) if int(a) == 0]
-        title = f"Slope vs height: {v}" + (f" (disagree at {', '.join(bad)})" if bad else "")
+        bad = [f"{x:g}" for x, a in zip(h, ds["agree"].sel(variable=v).values, strict=True) if int(a) == 0]
+        title = v + (f": disagree at {', '.join(bad)} m" if bad else ": agree")
         panels.append(
             hv.Overlay(layers).opts(
                 title=title,
                 xlabel="height (m)",
                 ylabel=f"slope ({units})",
-                width=460,
+                width=540,
                 height=320,
-                legend_position="top_left",
+                legend_position="right",
                 show_grid=True,
             )
         )
