@@ -215,6 +215,9 @@ def test_compare_refuses_bad_input_before_simulating(tmp_path, field_file, capsy
     assert not (tmp_path / "x.nc").exists() and not (tmp_path / "y.nc").exists()
     with pytest.raises(SystemExit):
         main(["compare", str(field_file), "--alpha", "1.5", "-o", str(tmp_path / "z.nc")])
+    # the bench-calibrated lidar's LOS error model: residuals need a bench cube
+    assert main(["compare", str(field_file), "--los-noise", "residuals", "-o", str(tmp_path / "w.nc")]) == 2
+    assert "needs a bench cube" in capsys.readouterr().err
     with pytest.raises(ValueError, match="variables"):
         compare(field_file, variables=["wind_from_direction"])
 

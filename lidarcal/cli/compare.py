@@ -15,6 +15,7 @@ import json
 from lidarcal.cli import command_line
 from lidarcal.cli.options import (
     add_lidar_options,
+    add_los_noise_option,
     add_output_options,
     add_parallel_options,
     add_progress_option,
@@ -54,6 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="simulate the corrected model of a diagnosis (its lidarcal_lidar_model attribute) "
         "instead of --rwf; --cube restores its bench residuals",
     )
+    add_los_noise_option(g)
     add_output_options(p, "COMPARE.nc", help="comparison artefact to write")
     p.add_argument("--json", action="store_true", help="print only the JSON object on stdout")
     p.add_argument("--report", metavar="REPORT.html", help="also write an offline HTML report")
@@ -122,6 +124,7 @@ def run(args: argparse.Namespace) -> int:
         reference_uncertainty=args.reference_uncertainty,
         base_seed=args.seed,
         min_samples=args.min_samples,
+        los_noise_model=args.los_noise,
         progress=progress_enabled(args),
         simulate_options={k: v for k, v in opts.items() if v is not None},
         inputs=inputs,

@@ -46,10 +46,11 @@ from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.conditions import load_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.diagnose.dataset import corrected_model
-from lidarcal.diagnose.inputs import MEASURED, nominal_model
+from lidarcal.diagnose.inputs import MEASURED
 from lidarcal.diagnose.stats import holm
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import open_artefact, source_name
+from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 from lidarcal.units import to_magnitude
 
@@ -137,7 +138,7 @@ def _load(field: str | os.PathLike | xr.Dataset, min_samples: int) -> tuple[xr.D
     return ds, usable, source
 
 
-def _model(ds: xr.Dataset, source: str, *, cube, rwf, model, diagnosis) -> tuple[Any, str]:
+def _model(ds: xr.Dataset, source: str, *, cube, rwf, model, diagnosis, los_noise_model) -> tuple[Any, str]:
     """Return the lidar to simulate and a description of where it came from."""
     if diagnosis is not None:
         if rwf is not None or model is not None:
@@ -152,11 +153,15 @@ def _model(ds: xr.Dataset, source: str, *, cube, rwf, model, diagnosis) -> tuple
         return model, "the model given"
     if cube is not None or rwf is not None:
         parts = [w for w, x in (("bench cube", cube), ("rwf", rwf)) if x is not None]
-        return nominal_model(ds, cube=cube, rwf=rwf), (
+        return LidarModel.from_attrs(
+            ds, cube=cube, rwf=rwf, source=source, los_noise_model=los_noise_model
+        ), (
             f"bench-calibrated lidar ({' and '.join(parts)}; the field file's lidar_* attributes "
             "for the rest)"
         )
-    return nominal_model(ds), "nominal lidar of the field file's lidar_* attributes"
+    return LidarModel.from_attrs(ds, source=source, los_noise_model=los_noise_model), (
+        "nominal lidar of the field file's lidar_* attributes"
+    )
 
 
 def _records(
@@ -196,6 +201,7 @@ def compare(
     reference_range: tuple[float, float] = DEFAULT_REFERENCE_RANGE,
     budget_bin_width: Any = "0.5 m s-1",
     terms: xr.Dataset | None = None,
+    los_noise_model: str | None = None,
     simulate_options: Mapping[str, Any] | None = None,
     progress: bool = False,
     inputs: Mapping[str, str | os.PathLike] | None = None,
@@ -231,6 +237,8 @@ def compare(
         Wind-speed bin of the budgets (0.5 m s-1).
     terms : xarray.Dataset, optional
         ``uncertainty_terms`` artefact for the Monte Carlo budget (default: the paper's inputs).
+    los_noise_model : {None, "residuals", "gaussian"}
+        LOS error model of the bench-calibrated lidar (:meth:`lidarcal.lidar.LidarModel.from_attrs`).
     simulate_options : mapping, optional
         Extra keyword arguments of :func:`lidarcal.campaign.simulate_campaign`.
     progress : bool
@@ -264,7 +272,9 @@ def compare(
 
     # 1. the campaign and the lidar to simulate
     ds, usable, source = _load(field, int(min_samples))
-    sim_model, origin = _model(ds, source, cube=cube, rwf=rwf, model=model, diagnosis=diagnosis)
+    sim_model, origin = _model(
+        ds, source, cube=cube, rwf=rwf, model=model, diagnosis=diagnosis, los_noise_model=los_noise_model
+    )
     problems = check_reachable(sim_model, ds.height.values)
     if problems:
         raise InputError(
@@ -382,8 +392,12 @@ def _cells(
                 if s is not None:
                     arr[i] = np.asarray(s[name].transpose("height").values, dtype=float)
             out[f"{side}_{name}"] = arr
-    test = slope_test(out["measured_slope"], out["measured_slope_standard_error"],
-                      out["simulated_slope"], out["simulated_slope_standard_error"])
+    test = slope_test(
+        out["measured_slope"],
+        out["measured_slope_standard_error"],
+        out["simulated_slope"],
+        out["simulated_slope_standard_error"],
+    )
     out.update(test)
     out["p_adjusted"] = holm(test["p_value"])
     out["agree"] = np.where(
