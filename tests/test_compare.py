@@ -215,6 +215,11 @@ def test_compare_refuses_bad_input_before_simulating(tmp_path, field_file, capsy
     assert not (tmp_path / "x.nc").exists() and not (tmp_path / "y.nc").exists()
     with pytest.raises(SystemExit):
         main(["compare", str(field_file), "--alpha", "1.5", "-o", str(tmp_path / "z.nc")])
+    # a campaign too short for any slope: an error, not a vacuous "agree"
+    short = tmp_path / "short.nc"
+    xr.open_dataset(field_file).isel(time=slice(0, 40)).to_netcdf(short)
+    assert main(["compare", str(short), "--scheduler", "synchronous", "-o", str(tmp_path / "s.nc")]) == 2
+    assert "no slope can be compared" in capsys.readouterr().err and not (tmp_path / "s.nc").exists()
     # the bench-calibrated lidar's LOS error model: residuals need a bench cube
     assert main(["compare", str(field_file), "--los-noise", "residuals", "-o", str(tmp_path / "w.nc")]) == 2
     assert "needs a bench cube" in capsys.readouterr().err

@@ -329,6 +329,20 @@ def compare(
     }
 
     tested = np.isfinite(cells["p_adjusted"])
+    if not tested.any():
+        raise InputError(
+            f"{source}: no (height, variable) has three bins with at least {min_samples} periods on both "
+            f"sides, so no slope can be compared (variables {variables}, measured reference in "
+            f"({lo:g}, {hi:g}] m s-1); supply more periods or lower min_samples (--min-samples)"
+        )
+    if not tested.all():
+        skipped = [
+            f"{v} at {h:g} m"
+            for i, v in enumerate(variables)
+            for j, h in enumerate(ds.height.values)
+            if not tested[i, j]
+        ]
+        log.warning(f"not tested (fewer than three bins of {min_samples} periods): {', '.join(skipped)}")
     disagree = int((cells["agree"] == 0).sum())
     verdict = "disagree" if disagree else "agree"
     log.info(
