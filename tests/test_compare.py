@@ -152,6 +152,30 @@ def test_compare_with_model_simulates_the_stored_lidar_again(run, field_file):
     assert js2["model"] == "corrected model of the diagnosis c.nc"
 
 
+def test_the_lidar_simulated_is_nominal_bench_calibrated_or_a_diagnosis(field_file, run):
+    from lidarcal.compare.core import _model
+    from lidarcal.rwf import range_weighting_function
+
+    field = xr.open_dataset(field_file)
+    field.attrs["lidar_cone_angle"] = 30.0
+
+    def model(rwf=None, diagnosis=None):
+        kw = {"cube": None, "model": None, "los_noise_model": None}
+        return _model(field, "f.nc", rwf=rwf, diagnosis=diagnosis, **kw)
+
+    plain, origin = model()
+    assert plain.cone_angle == 30.0 and plain.cnr_weighting_scale == 0.0 and origin.startswith("nominal")
+    # --rwf: the RWF from the artefact (Eq. 2 applied), the cone still from the file's attributes
+    rwf = range_weighting_function()
+    bench, origin = model(rwf=rwf)
+    assert bench.cone_angle == 30.0 and bench.cnr_weighting_scale == 1.0 and "bench-calibrated" in origin
+    # --model: the stored model; with --rwf as well it is refused
+    stored, origin = model(diagnosis=run[2])
+    assert stored.cone_angle == 28.0 and origin == "corrected model of the diagnosis c.nc"
+    with pytest.raises(ValueError, match="not both"):
+        model(rwf=rwf, diagnosis=run[2])
+
+
 def test_compare_report_draws_both_figures_offline(run):
     page = run[3].read_text()
     assert "Figure 1. Sensitivity slopes" in page and "Figure 2. Uncertainty budgets" in page
