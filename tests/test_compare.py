@@ -141,6 +141,15 @@ def test_compare_command_writes_one_json_object_and_the_artefact(run, field_file
     assert np.allclose(ref[np.isfinite(ref)], 0.1)
 
 
+def test_the_comparison_passes_the_cf_and_acdd_checks(run):
+    from lidarcal.compliance import check_compliance, exception_kind
+
+    report = check_compliance(run[2])
+    assert report.passed, report.failures
+    # CF's one documented exception is the decibel (the CNR-gradient slopes are in % m dB-1)
+    assert {exception_kind(line) for line in report.exceptions if line.startswith("cf")} <= {"dB"}
+
+
 def test_compare_with_model_simulates_the_stored_lidar_again(run, field_file):
     # --model: the lidar stored in the comparison, simulated again with the same seed: the same numbers
     _, stdout, out, _ = run
