@@ -42,6 +42,7 @@ STAGES = (
     "dcc",
     "report",
     "diagnose",
+    "compare",
     "pipeline",
     "cli",
 )
