@@ -448,6 +448,19 @@ def _restore(cands: Sequence[CandidateFit], snap: Mapping[str, tuple[dict, dict,
         x.estimate, x.stderr, x.free, x.free_se = (dict(v) for v in snap[x.effect.id])
 
 
+def _range_notes(problem: _Problem, chosen: Sequence[CandidateFit]) -> list[str]:
+    """Note lines for named parameters at a bound of their physical range (or, after refining, beyond it).
+
+    Judged with the final (bootstrap + model-form) uncertainties; a parameter the data push beyond
+    its range by more than that is held at the bound, and the note says so.
+    """
+    if not chosen:
+        return []
+    beyond, at_bound = _range_verdict(problem, chosen, {c.effect.id: c.stderr for c in chosen})
+    held = "held at the bound, so the named value is not what the data ask for"
+    return at_bound + [f"{line}; {held}" for line in beyond]
+
+
 def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, tie_threshold: float,
             tolerance: float, min_share: float) -> tuple[list[CandidateFit], list[str]]:
     """Forward selection: add the effect that lowers the BIC most while it is strong and material.
@@ -503,7 +516,7 @@ def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, t
             if dbic > -bic_threshold:
                 t.reasons.append(f"ΔBIC {dbic:.1f} > -{bic_threshold:g}")
             crosses = g_cur > tol2 >= g2
-            if t.contribution < tolerance and not crosses:
+            if t.contribution < tolerance and not crosses and not beyond:
                 small = f"changes (L-R)/R by only {t.contribution:.3f} % < tolerance {tolerance:g} %"
                 t.reasons.append(small + (f" and leaves a gap of {np.sqrt(g2):.3f} % (above the tolerance)"
                                           if g2 > tol2 else ""))
@@ -531,14 +544,16 @@ def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, t
             slack = (1.96 * problem.model_uncertainty) ** 2 * max(rss_cur - a.res.rss_free, 0.0)
             return b.dbic - a.dbic < tie_threshold or b.res.rss_free - a.res.rss_free <= slack
 
-        # the better-scoring candidates that may not be added: say why, and tie them with the pick
-        # unless the pick explains the gap comparably
+        # the better-scoring candidates that may not be added: say why; the best-scoring one is tied
+        # with the pick unless the pick explains the gap comparably
         forced = []
         for t in trials[:trials.index(pick)]:
             extra = float(np.sqrt(max(pick.g2 - t.g2_free, 0.0)))
             line = (f"{t.id} scores better (ΔBIC {t.dbic:.1f} against {pick.dbic:.1f} for {pick.id}) but is "
                     f"not added ({'; '.join(t.reasons)})")
-            if indistinct(t, pick) or extra < tolerance:
+            if t is not trials[0]:
+                steps.append(line)
+            elif indistinct(t, pick) or extra < tolerance:
                 steps.append(f"{line}; {pick.id} explains the gap comparably (it leaves {extra:.3f} % more, "
                              f"in quadrature, < tolerance {tolerance:g} %)")
             else:
@@ -749,10 +764,7 @@ def diagnose(
         if significant else ([], [])
     chosen, steps = _adequate(problem, chosen, steps, gap0[0], tolerance)
     corrected, after = (model, problem.base) if not chosen else _refine(problem, chosen)
-    if chosen:  # a named parameter at a bound, or (after refining) beyond it: the note says so
-        beyond, at_bound = _range_verdict(problem, chosen, {c.effect.id: c.stderr for c in chosen})
-        held = "held at the bound, so the named value is not what the data ask for"
-        steps = steps + at_bound + [f"{line}; {held}" for line in beyond]
+    steps = steps + _range_notes(problem, chosen)
     fits.sort(key=lambda c: c.delta_bic)  # the refined score may reorder the table
     chosen.sort(key=lambda c: -c.contribution)  # importance: the size of the change each makes
     answer, note = _answer(chosen, steps, significant, gap0[0], tolerance)

@@ -323,9 +323,10 @@ EFFECTS: dict[str, Effect] = {
         parameters=(
             Parameter("centre", "degree", (0.0, 360.0), "reference_flow_distortion_centre", 10.0,
                       "direction (from) at the centre of the shadowed sector",
-                      grid=tuple(float(c) for c in range(0, 360, 10))),
+                      grid=tuple(float(c) for c in range(0, 360, 10)), basis="a direction: the whole compass"),
             Parameter("width", "degree", (0.0, 180.0), "reference_flow_distortion_width", 10.0,
-                      "full width of the shadowed sector", grid=(20.0, 40.0, 60.0, 90.0, 120.0)),
+                      "full width of the shadowed sector", grid=(20.0, 40.0, 60.0, 90.0, 120.0),
+                      basis="a mast shadows at most half the compass"),
             Parameter("deficit", "1", (-0.5, 0.5), "reference_flow_distortion_deficit", 0.02,
                       "relative under-reading of the reference inside the sector",
                       basis="either sign: a mast's wake slows the flow (> 0), the flow around "
