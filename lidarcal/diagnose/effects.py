@@ -323,7 +323,8 @@ EFFECTS: dict[str, Effect] = {
         parameters=(
             Parameter("centre", "degree", (0.0, 360.0), "reference_flow_distortion_centre", 10.0,
                       "direction (from) at the centre of the shadowed sector",
-                      grid=tuple(float(c) for c in range(0, 360, 10)), basis="a direction: the whole compass"),
+                      grid=tuple(float(c) for c in range(0, 360, 10)),
+                      basis="a direction: the whole compass"),
             Parameter("width", "degree", (0.0, 180.0), "reference_flow_distortion_width", 10.0,
                       "full width of the shadowed sector", grid=(20.0, 40.0, 60.0, 90.0, 120.0),
                       basis="a mast shadows at most half the compass"),
