@@ -199,7 +199,8 @@ class Effect:
             lo, hi = p.bounds
             if not lo <= value <= hi:
                 raise InputError(f"effect {self.id!r}: parameter {p.name!r} = {value:g} {p.units} "
-                                 f"is outside its bounds [{lo:g}, {hi:g}]")
+                                 f"is outside its bounds [{lo:g}, {hi:g}]"
+                                 + (f", its physical range ({p.basis})" if p.basis else ""))
             changes[p.model_field] = value
         return dataclasses.replace(model, **changes) if changes else model
 
