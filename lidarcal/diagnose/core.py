@@ -215,6 +215,10 @@ class _Problem:
         """E[dy | the effect's drivers] per height, in the fit's weighting (:func:`fit.smooth_response`)."""
         return fit.smooth_response(dy, self.conditions, effect.drivers, self.valid, weights=self.weights)
 
+    def form_share(self, *effects: Effect) -> float:
+        """Model-form share of the fitted change: the diagnosis' own, or an effect's larger one."""
+        return max([self.model_uncertainty] + [e.model_form for e in effects if e.model_form is not None])
+
     def gap2(self, r: np.ndarray) -> float:
         """Square of the gap metric (%²) of a residual."""
         g = stats.joint_gap(r, self.groups)[0]
@@ -340,7 +344,7 @@ def _range_verdict(problem: _Problem, cands: Sequence[CandidateFit],
                 u = float(stderr.get(c.effect.id, {}).get(p.name, np.nan))
             else:
                 u = float(np.hypot(c.free_se.get(p.name, np.nan),
-                                   problem.model_uncertainty * abs(v - c.nominal[p.name])))
+                                   problem.form_share(c.effect) * abs(v - c.nominal[p.name])))
             U = 1.96 * u if np.isfinite(u) else 0.0
             side, bound = ("upper", hi) if v > hi else ("lower", lo)
             if abs(v - bound) <= U:
@@ -368,7 +372,8 @@ def _bootstrap(problem: _Problem, cands: Sequence[CandidateFit], r: np.ndarray |
     The block bootstrap (days as blocks) gives the statistical part; a model-form part,
     ``problem.model_uncertainty`` × |θ̂ − θ₀| (the catalogue's responses are models of the physics:
     on an independent simulator the fitted parameters of strong effects move by 5–15 % of their
-    size), is added in quadrature to the standard error and to each side of the interval.
+    size; an effect may declare a larger share, ``Effect.model_form``), is added in quadrature to
+    the standard error and to each side of the interval.
     """
     Js, _ = _columns(cands)
     full, samples = fit.bootstrap_fit(problem.r if r is None else r, Js, problem.weights, problem.clusters,
@@ -385,7 +390,7 @@ def _bootstrap(problem: _Problem, cands: Sequence[CandidateFit], r: np.ndarray |
             if col.size >= 10:
                 lo, hi = np.quantile(col, [0.025, 0.975])
                 # model-form (Type B) standard uncertainty, a fixed share of the fitted change
-                u_m = problem.model_uncertainty * abs(centre - c.nominal[p.name])
+                u_m = problem.form_share(c.effect) * abs(centre - c.nominal[p.name])
                 c.stderr[p.name] = float(np.sqrt(np.var(col, ddof=1) + u_m**2))
                 lower = centre - float(np.hypot(lo, 1.96 * u_m))
                 upper = centre + float(np.hypot(hi, 1.96 * u_m))
@@ -541,7 +546,8 @@ def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, t
             # explained part would cost (the catalogue's responses are models: a response wrong by
             # model_uncertainty of itself adds about that share squared of the explained sum of squares;
             # at 95 %, (1.96 u)² of it) — e.g. a hybrid weight and a TI-proportional cup over-speeding
-            slack = (1.96 * problem.model_uncertainty) ** 2 * max(rss_cur - a.res.rss_free, 0.0)
+            u = problem.form_share(a.cand.effect, b.cand.effect)
+            slack = (1.96 * u) ** 2 * max(rss_cur - a.res.rss_free, 0.0)
             return b.dbic - a.dbic < tie_threshold or b.res.rss_free - a.res.rss_free <= slack
 
         # the better-scoring candidates that may not be added: say why; the best-scoring one is tied
