@@ -22,6 +22,7 @@ from lidarcal.cli import main
 from lidarcal.errors import InputError, OutputExistsError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.provenance import sha256, stamp
+from lidarcal.seal import seal_root
 
 SERIAL = "WLS7-TEST"
 
@@ -109,8 +110,14 @@ def test_write_seal_verify_and_tamper(artefact_files, tmp_path):
         stored = json.loads(nc.getncattr("lidarcal_integrity"))
     with pytest.raises(OutputExistsError):
         write_certificate(cert, path)
-    # the record is defined on the stored bytes: recomputing gives the stored one
-    assert stored["variables"] == integrity_record(path)["variables"]
+    # the record is defined on the stored bytes: recomputing gives the stored root, and each
+    # variable carries its own digests (the seal reads as text in ncdump -h)
+    record = integrity_record(path)
+    assert stored["format"] == 2 and stored["root"] == seal_root(record)
+    assert stored["variables"] == len(record["variables"]) == report.variables_checked
+    with netCDF4.Dataset(path) as nc:
+        digests = nc["budget_uncertainty"].getncattr("lidarcal_sha256").split()
+    assert digests[1::2] == [record["variables"]["budget_uncertainty"][k] for k in ("data", "attributes")]
     # alter one value of one variable with netCDF4 directly
     with netCDF4.Dataset(path, "a") as nc:
         v = nc["budget_uncertainty"]  # (budget_wind_speed, budget_height)
