@@ -127,7 +127,7 @@ def integrity_record(path: str | os.PathLike) -> dict[str, Any]:
 
 
 def seal_root(record: Mapping[str, Any]) -> str:
-    """Return the root digest of an integrity record (what a second-form seal stores and a signature covers)."""
+    """Return the root digest of an integrity record (what a second-form seal stores, a signature covers)."""
     body = {key: record[key] for key in ("dimensions", "variables", "global_attributes")}
     return _sha(json.dumps(body, sort_keys=True, ensure_ascii=False).encode("utf-8"))
 
