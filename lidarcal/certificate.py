@@ -47,6 +47,8 @@ from lidarcal.seal import (
     SIGNATURE_PUBLIC_KEY_ATTR,
     VerificationReport,
     integrity_record,
+    invalid_seal_banner,
+    require_valid_seal,
     verify_certificate,
     write_certificate,
 )
@@ -57,6 +59,8 @@ __all__ = [
     "write_certificate",
     "verify_certificate",
     "integrity_record",
+    "require_valid_seal",
+    "invalid_seal_banner",
     "extract_component",
     "components",
     "open_certificate",
@@ -148,7 +152,8 @@ def components(cert: xr.Dataset) -> list[dict[str, Any]]:
     return comps
 
 
-def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> xr.DataTree:
+def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
+                     allow_invalid: bool = False) -> xr.DataTree:
     """Open a certificate as an :class:`xarray.DataTree`, one group per component.
 
     Every group (``budget``, ``cube``, ``rwf``, ``terms``, ``sensitivity_<variable>``) holds
@@ -159,10 +164,16 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> 
     unless given); opening also registers cf-xarray's unit registry with pint, so
     ``tree["budget"].dataset.pint.quantify()`` understands the stored units.
 
+    The seal is checked first (:func:`require_valid_seal`); with ``allow_invalid`` an altered
+    certificate is opened anyway, its problems listed in the root attribute
+    ``lidarcal_seal_problems``.
+
     Raises
     ------
     InputError
         If ``path`` is missing, unreadable or not a lidarcal certificate.
+    SealError
+        If its seal does not match its contents (unless ``allow_invalid``).
     """
     register_units()
     ds = open_artefact(path, load=False, chunks={} if chunks is None else chunks)
@@ -170,7 +181,10 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> 
         found = ds.attrs.get("lidarcal_artefact")
         raise InputError(f"{path}: not a lidarcal certificate: it is "
                          f"{repr(found) + ' artefact' if found else 'not a lidarcal artefact'}")
+    seal = require_valid_seal(path, allow_invalid=allow_invalid)
     nodes: dict[str, xr.Dataset] = {"/": xr.Dataset(attrs=dict(ds.attrs))}
+    if seal is not None and not seal.ok:
+        nodes["/"].attrs["lidarcal_seal_problems"] = invalid_seal_banner(seal)
     for comp in components(ds):
         nodes[f"/{comp['name']}"] = extract_component(ds, comp["name"])
     return xr.DataTree.from_dict(nodes)
@@ -244,7 +258,7 @@ def _significant_sensitivities(cert: xr.Dataset) -> dict[float, str]:
 
 
 def result_table(cert: xr.Dataset, *, contributors: int = 3,
-                 wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS):
+                 wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS, allow_invalid: bool = False):
     """IEC-style result table of a certificate: one row per height and wind-speed bin.
 
     Columns: ``height_m``, ``wind_speed_m_s`` (bin centre) and its bounds, ``sample_count``,
@@ -254,11 +268,18 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3,
     standard-uncertainty contributions, in %) and ``significant_sensitivities`` (per height,
     Eqs. 12-13).  Numbers are the certificate's own values, not rounded.
 
+    A certificate read from a file has its seal checked first (:func:`require_valid_seal`):
+    an altered one raises :class:`~lidarcal.errors.SealError` unless ``allow_invalid`` (the
+    caller then shows :func:`invalid_seal_banner` with the table).
+
     Returns
     -------
     pandas.DataFrame
     """
     import pandas as pd
+
+    if not allow_invalid and "lidarcal_components" in cert.attrs:
+        require_valid_seal(cert)
 
     budget = _budget_of(cert).load()
     k = float(budget.attrs.get("coverage_factor", 2.0))
@@ -366,19 +387,39 @@ def _check_consistent(inputs: Mapping[str, xr.Dataset]) -> str | None:
         parts = [f"{_label(r, inputs[r])} was computed from records {f!r} (sha256 {sha[:12]}...)"
                  for r, (f, sha) in chains.items()]
         raise InputError("inputs disagree on the records: " + "; ".join(parts))
-    known = {role: ds.attrs.get("lidarcal_source_sha256") for role, ds in inputs.items()}
-    for role, ds in inputs.items():
-        recorded = read_json_attr(ds, "lidarcal_inputs")
-        for rec in recorded if isinstance(recorded, list) else []:
-            other = rec.get("role")
-            if other in known and known[other] and other != role and rec.get("sha256") != known[other]:
-                raise InputError(
-                    f"inputs disagree: {_label(role, ds)} was computed from {other} "
-                    f"{rec.get('file')!r} (sha256 {str(rec.get('sha256'))[:12]}...), "
-                    f"but the {other} given is "
-                    f"{inputs[other].attrs.get('lidarcal_source_file')!r} (sha256 {known[other][:12]}...)"
-                )
+    _check_chains(inputs)
     return distinct[0] if distinct else None
+
+
+def _chain(recorded: Any, via: tuple[Mapping[str, Any], ...] = ()
+           ) -> Iterable[tuple[tuple[Mapping[str, Any], ...], Mapping[str, Any]]]:
+    """Every record of a provenance chain (``lidarcal_inputs``), with the records leading to it."""
+    for rec in recorded if isinstance(recorded, list) else []:
+        if isinstance(rec, Mapping):
+            yield via, rec
+            yield from _chain(rec.get("inputs"), (*via, rec))
+
+
+def _check_chains(inputs: Mapping[str, xr.Dataset]) -> None:
+    """Refuse an input whose provenance chain names another file in a role that was given.
+
+    The chain is followed to any depth, so a budget computed from records simulated with
+    another bench cube or RWF is refused without the records themselves (``--records``).
+    """
+    known = {role: str(sha) for role, ds in inputs.items() if (sha := ds.attrs.get("lidarcal_source_sha256"))}
+    for role, ds in inputs.items():
+        for via, rec in _chain(read_json_attr(ds, "lidarcal_inputs")):
+            other, sha = rec.get("role"), rec.get("sha256")
+            if other not in known or other == role or not sha or str(sha) == known[other]:
+                continue
+            steps = "".join(f"{hop.get('role')} {hop.get('file')!r} (sha256 {hop.get('sha256')}), which was "
+                            "computed from " for hop in via)
+            raise InputError(
+                f"inputs disagree: {_label(role, ds)} was computed from {steps}{other} {rec.get('file')!r} "
+                f"(sha256 {sha}), but the {other} given is "
+                f"{inputs[other].attrs.get('lidarcal_source_file')!r} (sha256 {known[other]}); give the "
+                f"{other} it was computed from, or recompute it from this one"
+            )
 
 
 def _check_kind(role: str, ds: xr.Dataset, kinds: Iterable[str]) -> None:

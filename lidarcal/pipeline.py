@@ -52,7 +52,7 @@ from lidarcal.data import sample_file
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel
-from lidarcal.provenance import stamp
+from lidarcal.provenance import sha256, stamp
 from lidarcal.report import write_report
 from lidarcal.rwf import range_weighting_function
 from lidarcal.signing import load_private_key
@@ -186,6 +186,23 @@ def _conditions(cfg: CalibrationConfig) -> tuple[xr.Dataset, dict]:
     return ds, {"conditions_source": path}
 
 
+def _retire_previous(paths: Mapping[str, Path], *, overwrite: bool) -> None:
+    """Remove an earlier run's certificate and report before this run replaces their artefacts.
+
+    Each removal is logged (WARNING) with the file's SHA-256, so the user knows what went.
+    """
+    if not overwrite:
+        return  # existing outputs were refused before any work
+    for key in ("certificate", "report"):
+        path = paths[key]
+        if not path.is_file():
+            continue
+        digest = sha256(path)
+        path.unlink()
+        log.warning("removed the previous run's %s %s (sha256 %s) before writing this run's artefacts: it "
+                    "was not built from them (this run's certificate is written last)", key, path, digest)
+
+
 def calibrate(
     outdir: str | os.PathLike = "lidarcal-output",
     config: CalibrationConfig | None = None,
@@ -234,6 +251,11 @@ def calibrate(
 
     def done(key: str, what: str) -> None:
         log.info("[%6.1f s] %s: %s", time.perf_counter() - t0, what, paths[key])
+
+    # A certificate (and the report showing it) from an earlier run in this directory would sit
+    # beside artefacts it was not built from, still verifying, if this run stopped half-way:
+    # remove it before the first new artefact is published; this run's is written last.
+    _retire_previous(paths, overwrite=overwrite)
 
     # Each artefact is written, then read back with open_artefact: downstream stages then
     # record the checksum of the file on disk as their input (the certificate's chain).
@@ -320,16 +342,17 @@ def calibrate(
     bud = open_artefact(paths["budget"], "uncertainty_budget")
     done("budget", "uncertainty budget (Monte Carlo approach)")
 
-    # 6. certificate and report
+    # 6. report, then the certificate: the last file written, so that one present always
+    # belongs to the artefacts beside it
     cert = make_certificate(budget=bud, sensitivities=sens, cube=cube, rwf=rwf, terms=terms,
                             records=records, config=cfg.to_dict(), call="lidarcal calibrate")
-    write_certificate(cert, paths["certificate"], overwrite=overwrite, signing_key=signer)
-    done("certificate", "calibration certificate (check with: lidarcal verify"
-         + (f" --public-key {signing_key}.pub)" if signer else ")"))
     written = write_report(paths["report"], certificate=cert, overwrite=overwrite)
     for png in written.get("png", []):
         paths[f"png:{Path(png).name}"] = Path(png)
     done("report", f"HTML report ({len(written.get('png', []))} PNG figures beside it)")
+    write_certificate(cert, paths["certificate"], overwrite=overwrite, signing_key=signer)
+    done("certificate", "calibration certificate (check with: lidarcal verify"
+         + (f" --public-key {signing_key}.pub)" if signer else ")"))
     datasets = {"cube": cube, "rwf": rwf, "conditions": open_artefact(paths["conditions"], "conditions"),
                 "simulated": records, "terms": terms, **{f"sensitivity_{v}": d for v, d in sens.items()},
                 "budget": bud, "certificate": open_artefact(paths["certificate"], "certificate")}
