@@ -272,7 +272,8 @@ def _changes_against_root(path: Path, expected: Mapping[str, Any], found: Mappin
         listed = str(nc.getncattr(ATTRIBUTE_DIGESTS_ATTR)) if ATTRIBUTE_DIGESTS_ATTR in nc.ncattrs() else ""
     exp_glob = dict(item.rsplit(" ", 1) for item in listed.split("; ") if " " in item)
     found_glob = {name: digest[:_PREFIX] for name, digest in found["global_attributes"].items()}
-    problems = _changes(exp_vars, exp_glob, {"variables": found["variables"], "global_attributes": found_glob})
+    problems = _changes(exp_vars, exp_glob,
+                        {"variables": found["variables"], "global_attributes": found_glob})
     missing = int(expected["variables"]) - len(exp_vars)
     if missing > 0:
         problems.append(f"{missing} variable(s) removed ({expected['variables']} sealed, "
