@@ -170,7 +170,7 @@ def components(cert: xr.Dataset) -> list[dict[str, Any]]:
 
 
 def container_attributes(var: xr.DataArray) -> dict[str, Any]:
-    """The global attributes of an input recorded on its ``provenance_<role>`` variable.
+    """Return the global attributes of an input recorded on its ``provenance_<role>`` variable.
 
     Names CF reserves for variables were stored as ``global_<name>`` and are restored; the
     variable's own ``long_name``/``coverage_content_type`` and its seal digest are left out.
@@ -184,7 +184,7 @@ def container_attributes(var: xr.DataArray) -> dict[str, Any]:
 
 
 def provenance_chain(cert: xr.Dataset) -> list[dict[str, Any]]:
-    """The provenance chain of a certificate's inputs, one record per role, in either layout.
+    """Return the provenance chain of a certificate's inputs, one record per role, in either layout.
 
     Each record holds ``role``, ``kind``, ``file``, ``sha256``, ``id``, ``lidarcal_version``,
     ``inputs`` (the input's own chain, to any depth), ``config``, ``seeds`` and ``history``: read
@@ -205,7 +205,7 @@ def provenance_chain(cert: xr.Dataset) -> list[dict[str, Any]]:
 
 
 def records_summary(cert: xr.Dataset) -> dict[str, Any] | None:
-    """The summary of the records a certificate's budget came from (``lidarcal_records_summary``)."""
+    """Return the summary of the records a certificate's budget came from (``lidarcal_records_summary``)."""
     out = read_json_attr(cert, "lidarcal_records_summary")
     return out if isinstance(out, dict) else None
 
@@ -533,12 +533,13 @@ _VARIABLE_RESERVED = frozenset({
     "axis", "climatology", "coverage_content_type", "lidarcal_sha256", "_Unsigned", "_Encoding",
 })
 #: The attributes of a non-component input (the records) kept on its container: its chain entry.
-_CHAIN_ATTRS = ("lidarcal_artefact", "lidarcal_source_file", "lidarcal_source_sha256", "id", "lidarcal_version",
+_CHAIN_ATTRS = ("lidarcal_artefact", "lidarcal_source_file", "lidarcal_source_sha256", "id",
+                "lidarcal_version",
                 "lidarcal_inputs", "lidarcal_config", "lidarcal_seeds", "history")
 
 
 def _netcdf_attr(value: Any) -> Any:
-    """An attribute value netCDF can store as it is (text, numbers, 1-D numbers); else its JSON."""
+    """Return ``value`` if netCDF stores it as it is (text, numbers, 1-D numbers), else its JSON."""
     if isinstance(value, str | np.str_):
         return str(value)
     if isinstance(value, bool | np.bool_):
@@ -552,7 +553,7 @@ def _netcdf_attr(value: Any) -> Any:
 
 
 def _container(role: str, ds: xr.Dataset, *, component: bool) -> xr.DataArray:
-    """A scalar text variable (the input's file name) whose attributes are its global attributes.
+    """Return a scalar text variable (the input's file name) whose attributes are its global attributes.
 
     Each attribute stays a line of its own in ``ncdump -h`` (no JSON of JSON); a component keeps
     every global attribute (restored by :func:`extract_component`), the records only their
@@ -561,10 +562,12 @@ def _container(role: str, ds: xr.Dataset, *, component: bool) -> xr.DataArray:
     keep = ds.attrs if component else {k: ds.attrs[k] for k in _CHAIN_ATTRS if k in ds.attrs}
     attrs = {(f"global_{k}" if k in _VARIABLE_RESERVED or k.startswith("global_") else k): _netcdf_attr(v)
              for k, v in keep.items() if v is not None}
-    what = "global attributes" if component else "provenance (file, SHA-256, inputs, configuration, seeds, history)"
+    what = ("global attributes" if component
+            else "provenance (file, SHA-256, inputs, configuration, seeds, history)")
     attrs["long_name"] = f"{what} of the certificate's {role} input"
     attrs["coverage_content_type"] = "auxiliaryInformation"
-    return xr.DataArray(np.array(str(ds.attrs.get("lidarcal_source_file") or role), dtype=object), attrs=attrs)
+    name = str(ds.attrs.get("lidarcal_source_file") or role)
+    return xr.DataArray(np.array(name, dtype=object), attrs=attrs)
 
 
 def _records_summary(records: xr.Dataset) -> dict[str, Any]:

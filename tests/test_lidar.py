@@ -269,7 +269,7 @@ def test_model_roundtrip_json():
 
 
 def test_model_record_holds_bench_data_by_digest():
-    """The attribute form names the cube's table and the RWF profile by SHA-256, computed here independently."""
+    """The attribute form names the cube's table and the RWF profile by SHA-256, computed here."""
     import hashlib
 
     cube, rwf = make_cube(np.array([0.01, 0.02, 0.03, 0.04, 0.0]), 0.1), make_rwf(10, 14)
@@ -291,7 +291,7 @@ def test_model_record_holds_bench_data_by_digest():
     with pytest.raises(InputError, match=r"sim\.nc: .* records the RWF profile only by digest: no RWF given; "
                                          r"pass the RWF artefact the model was built from \(--rwf\)"):
         run(bare)
-    with pytest.raises(InputError, match=r"records the bench noise table \(los_bias, los_std\) only by digest"):
+    with pytest.raises(InputError, match=r"records the bench noise table \(los_bias, los_std\) only by dig"):
         run(bare.with_rwf(rwf))
     with pytest.raises(InputError, match="only by digest"):
         bare.with_rwf(rwf).to_dict(residuals=True)

@@ -39,7 +39,6 @@ from lidarcal.lidar.noise import (
     listify,
     noise_table_from_cube,
     residuals_digest,
-    table_digest,
     tuplify,
 )
 from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes, trapezoid_weights
@@ -79,7 +78,8 @@ def rwf_profile_digest(profile: Any) -> str:
     """SHA-256 of an RWF profile: its offsets then its values, little-endian float64."""
     import hashlib
 
-    return hashlib.sha256(np.ascontiguousarray(np.asarray(profile, dtype=float), dtype="<f8").tobytes()).hexdigest()
+    values = np.ascontiguousarray(np.asarray(profile, dtype=float), dtype="<f8")
+    return hashlib.sha256(values.tobytes()).hexdigest()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -155,7 +155,8 @@ class LidarModel:
             problems.append(f"availability must be in (0, 1]; got {self.availability}")
         if self.cnr_threshold is not None and not np.isfinite(self.cnr_threshold):
             problems.append(f"cnr_threshold must be a finite CNR in dB or None; got {self.cnr_threshold}")
-        if self.noise_table is not None and self.noise_table.bias is not None and len(self.noise_table.bias) != 4:
+        table = self.noise_table
+        if table is not None and table.bias is not None and len(table.bias) != 4:
             problems.append(f"noise_table must have 4 beams; has {len(self.noise_table.bias)}")
         if self.los_noise_model not in LOS_NOISE_MODELS:
             problems.append(f"los_noise_model must be one of {list(LOS_NOISE_MODELS)}; got "
@@ -169,7 +170,8 @@ class LidarModel:
                             f"{self.turbulence_amplitudes!r}")
         if isinstance(self.rwf_profile, RwfProfileDigest):
             if not (isinstance(self.rwf_profile.sha256, str) and len(self.rwf_profile.sha256) == 64):
-                problems.append(f"rwf_profile's sha256 must be 64 hexadecimal digits; got {self.rwf_profile.sha256!r}")
+                problems.append(f"rwf_profile's sha256 must be 64 hexadecimal digits; got "
+                                f"{self.rwf_profile.sha256!r}")
         elif self.rwf_profile is not None:
             prof = np.asarray(self.rwf_profile, dtype=float)
             if (prof.ndim != 2 or prof.shape[0] != 2 or prof.shape[1] < 8 or np.any(np.diff(prof[0]) <= 0)
@@ -375,13 +377,13 @@ class LidarModel:
             built = noise_table_from_cube(cube, self.azimuths)
             if built.cnr != table.cnr or built.velocity != table.velocity:
                 raise InputError(
-                    f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: its "
-                    f"bins are cnr {list(built.cnr)} dB, velocity {list(built.velocity)} m s-1; expected cnr "
-                    f"{list(table.cnr)} dB, velocity {list(table.velocity)} m s-1")
+                    f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: "
+                    f"its bins are cnr {list(built.cnr)} dB, velocity {list(built.velocity)} m s-1; expected "
+                    f"cnr {list(table.cnr)} dB, velocity {list(table.velocity)} m s-1")
             if built.table_sha256 != table.table_sha256:
                 raise InputError(
-                    f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: its "
-                    f"noise table (los_bias, los_std) has sha256 {built.table_sha256}; expected sha256 "
+                    f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: "
+                    f"its noise table (los_bias, los_std) has sha256 {built.table_sha256}; expected sha256 "
                     f"{table.table_sha256}")
             restored = dataclasses.replace(restored, bias=built.bias, std=built.std)
         if table.needs_residuals:
@@ -389,8 +391,8 @@ class LidarModel:
             found = residuals_digest(count, values)
             if found != table.residuals_sha256:
                 raise InputError(
-                    f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: its "
-                    f"residuals ({values.size} values) have sha256 {found}; expected sha256 "
+                    f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: "
+                    f"its residuals ({values.size} values) have sha256 {found}; expected sha256 "
                     f"{table.residuals_sha256} ({table.residuals_total} values)")
             restored = dataclasses.replace(restored, residual_count=count, residuals=values)
         object.__setattr__(restored, "_origin", table._origin)
@@ -410,8 +412,8 @@ class LidarModel:
         found = rwf_profile_digest(profile)
         if found != pending.sha256:
             raise InputError(
-                f"{source or getattr(self, '_origin', 'lidar model')}: the RWF {source_name(rwf)} is not the one "
-                f"the model was built from: its profile ({len(profile[0])} points) has sha256 {found}; "
+                f"{source or getattr(self, '_origin', 'lidar model')}: the RWF {source_name(rwf)} is not the "
+                f"one the model was built from: its profile ({len(profile[0])} points) has sha256 {found}; "
                 f"expected sha256 {pending.sha256} ({pending.count} points)")
         return dataclasses.replace(self, rwf_profile=profile)
 

@@ -156,7 +156,7 @@ def simulate_period(
     """
     if not isinstance(model, LidarModel):
         raise InputError(f"simulate_period: model must be a LidarModel; got {type(model).__name__}")
-    if isinstance(model.rwf_profile, RwfProfileDigest):  # an attribute-form record: never a silent Gaussian RWF
+    if isinstance(model.rwf_profile, RwfProfileDigest):  # an attribute-form record: never a silent default
         raise InputError(model.missing_rwf_message())
     heights = np.atleast_1d(np.asarray(heights, dtype=float))
     if heights.ndim != 1 or np.any(~np.isfinite(heights)) or np.any(heights <= 0):
