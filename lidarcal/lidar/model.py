@@ -352,8 +352,8 @@ class LidarModel:
         model = cls(**dict(data))
         if model.noise_table is not None and source:
             object.__setattr__(model.noise_table, "_origin", source)
-        if source:
-            object.__setattr__(model, "_origin", source)
+        if isinstance(model.rwf_profile, RwfProfileDigest) and source:
+            object.__setattr__(model.rwf_profile, "_origin", source)
         if cube is not None:
             model = model.with_residuals(cube, source=source)
         if rwf is not None:
@@ -412,7 +412,7 @@ class LidarModel:
         found = rwf_profile_digest(profile)
         if found != pending.sha256:
             raise InputError(
-                f"{source or getattr(self, '_origin', 'lidar model')}: the RWF {source_name(rwf)} is not the "
+                f"{source or getattr(pending, '_origin', 'lidar model')}: the RWF {source_name(rwf)} is not the "
                 f"one the model was built from: its profile ({len(profile[0])} points) has sha256 {found}; "
                 f"expected sha256 {pending.sha256} ({pending.count} points)")
         return dataclasses.replace(self, rwf_profile=profile)
@@ -420,7 +420,7 @@ class LidarModel:
     def missing_rwf_message(self) -> str:
         """Why a model whose RWF profile is known only by digest cannot simulate, and how to restore it."""
         pending = self.rwf_profile
-        return (f"{getattr(self, '_origin', 'lidar model')} records the RWF profile only by digest: no RWF "
+        return (f"{getattr(pending, '_origin', 'lidar model')} records the RWF profile only by digest: no RWF "
                 f"given; pass the RWF artefact the model was built from (--rwf), its profile has sha256 "
                 f"{pending.sha256} ({pending.count} points)")
 
