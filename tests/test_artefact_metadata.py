@@ -112,6 +112,15 @@ def test_every_attribute_of_a_run_reads_as_one_short_line(run_dir):
                                  rwf=open_artefact(run_dir / "rwf.nc"))
     assert not model.noise_table.needs_values and len(model.rwf_profile[0]) == json.loads(record)[
         "rwf_profile"]["count"]
+    # `simulate --model` with the run's cube and RWF re-simulates its records bit for bit
+    cond, sim = run_dir.parent / "cond3.nc", run_dir.parent / "again.nc"
+    xr.load_dataset(run_dir / "conditions.nc").isel(time=slice(0, 3)).to_netcdf(cond)
+    assert main(["simulate", "--conditions", str(cond), "--model", str(run_dir / "simulated.nc"), "--cube",
+                 str(run_dir / "cube.nc"), "--rwf", str(run_dir / "rwf.nc"), "--workers", "1",
+                 "--no-progress", "-o", str(sim)]) == 0
+    again, first = xr.load_dataset(sim), xr.load_dataset(run_dir / "simulated.nc").isel(time=slice(0, 3))
+    np.testing.assert_array_equal(again.lidar_wind_speed.values,
+                                  first.lidar_wind_speed.sel(height=again.height).values)
     chain = {r["role"]: r for r in provenance_chain(xr.load_dataset(run_dir / "certificate.nc"))}
     assert chain["records"]["config"]["model"] == json.loads(record)
     assert chain["budget"]["inputs"][0]["role"] == "records"

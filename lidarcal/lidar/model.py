@@ -411,8 +411,9 @@ class LidarModel:
         _, _, profile = _rwf_nodes(rwf, len(self.rwf_offsets))
         found = rwf_profile_digest(profile)
         if found != pending.sha256:
+            origin = source or getattr(pending, "_origin", "lidar model")
             raise InputError(
-                f"{source or getattr(pending, '_origin', 'lidar model')}: the RWF {source_name(rwf)} is not the "
+                f"{origin}: the RWF {source_name(rwf)} is not the "
                 f"one the model was built from: its profile ({len(profile[0])} points) has sha256 {found}; "
                 f"expected sha256 {pending.sha256} ({pending.count} points)")
         return dataclasses.replace(self, rwf_profile=profile)
@@ -420,7 +421,8 @@ class LidarModel:
     def missing_rwf_message(self) -> str:
         """Why a model whose RWF profile is known only by digest cannot simulate, and how to restore it."""
         pending = self.rwf_profile
-        return (f"{getattr(pending, '_origin', 'lidar model')} records the RWF profile only by digest: no RWF "
+        origin = getattr(pending, "_origin", "lidar model")
+        return (f"{origin} records the RWF profile only by digest: no RWF "
                 f"given; pass the RWF artefact the model was built from (--rwf), its profile has sha256 "
                 f"{pending.sha256} ({pending.count} points)")
 
