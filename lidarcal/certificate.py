@@ -173,7 +173,7 @@ def container_attributes(var: xr.DataArray) -> dict[str, Any]:
     """Return the global attributes of an input recorded on its ``provenance_<role>`` variable.
 
     Names CF reserves for variables were stored as ``global_<name>`` and are restored; the
-    variable's own ``long_name``/``coverage_content_type`` and its seal digest are left out.
+    variable's own ``long_name``, ``coverage_content_type``, ``units`` and seal digest are left out.
     """
     out = {}
     for key, value in var.attrs.items():
@@ -522,7 +522,7 @@ def _provenance_record(attrs: Mapping[str, Any]) -> dict[str, Any]:
 #: Prefix of the variables holding each certificate input's global attributes.
 PROVENANCE_PREFIX = "provenance_"
 #: The container variable's own attributes (not the input's).
-_CONTAINER_OWN = ("long_name", "coverage_content_type", "lidarcal_sha256")
+_CONTAINER_OWN = ("long_name", "coverage_content_type", "units", "lidarcal_sha256")
 #: Attribute names CF or xarray give a meaning on a variable: an input's global attribute of
 #: that name is stored on its container as ``global_<name>``.
 _VARIABLE_RESERVED = frozenset({
@@ -553,7 +553,7 @@ def _netcdf_attr(value: Any) -> Any:
 
 
 def _container(role: str, ds: xr.Dataset, *, component: bool) -> xr.DataArray:
-    """Return a scalar text variable (the input's file name) whose attributes are its global attributes.
+    """Return a scalar container variable whose attributes are the input's global attributes.
 
     Each attribute stays a line of its own in ``ncdump -h`` (no JSON of JSON); a component keeps
     every global attribute (restored by :func:`extract_component`), the records only their
@@ -566,8 +566,10 @@ def _container(role: str, ds: xr.Dataset, *, component: bool) -> xr.DataArray:
             else "provenance (file, SHA-256, inputs, configuration, seeds, history)")
     attrs["long_name"] = f"{what} of the certificate's {role} input"
     attrs["coverage_content_type"] = "auxiliaryInformation"
-    name = str(ds.attrs.get("lidarcal_source_file") or role)
-    return xr.DataArray(np.array(name, dtype=object), attrs=attrs)
+    attrs["units"] = "1"  # every variable has units; this one's value (0) carries no meaning
+    # numeric, not a text scalar: netCDF-C/HDF5 can crash reopening a file after a scalar
+    # variable-length string was read from it while another handle was open
+    return xr.DataArray(np.int8(0), attrs=attrs)
 
 
 def _records_summary(records: xr.Dataset) -> dict[str, Any]:
