@@ -6,8 +6,12 @@ every component's variables, coordinates and dimensions are renamed with a prefi
 (``budget_uncertainty``, ``cube_los_bias``, ``rwf_zero_distance``,
 ``sensitivity_wind_shear_exponent_slope`` ...), so that plain netCDF tools (ncdump, netCDF4,
 any language) read it without groups.  :func:`extract_component` gives a component back as
-the Dataset it was.  The full configuration and the provenance chain of every input (file
-name, SHA-256, its own inputs, configuration, seeds and history) are global attributes.
+the Dataset it was.  The full configuration is a global attribute; each input's global
+attributes (file name, SHA-256, its own inputs, configuration, seeds and history) are the
+attributes of a scalar variable ``provenance_<role>``, one short attribute each, so that
+``ncdump -h`` reads as text; :func:`components` and :func:`provenance_chain` read them (and the
+earlier layout, where they were JSON inside the global attributes ``lidarcal_components`` and
+``lidarcal_provenance_chain``).
 
 :func:`write_certificate` writes atomically, refuses to replace an existing file unless asked,
 and **seals** it: a global attribute ``lidarcal_integrity`` records the SHA-256 of every
