@@ -37,6 +37,13 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.admin import (
+    DEMONSTRATION,
+    STATUS_ATTR,
+    STATUS_REASON_ATTR,
+    certificate_attributes,
+    default_method_reference,
+)
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import jsonable, read_json_attr, stamp
@@ -615,6 +622,8 @@ def make_certificate(
     records: xr.Dataset | None = None,
     config: Mapping[str, Any] | None = None,
     call: str = "lidarcal.certificate.make_certificate",
+    admin: Mapping[str, str] | None = None,
+    demonstration: bool = False,
 ) -> xr.Dataset:
     """Bundle a calibration into one flat ``certificate`` Dataset (not yet sealed).
 
@@ -631,12 +640,22 @@ def make_certificate(
         (not copied) and checked against the other inputs.
     config : mapping, optional
         The full configuration of the calibration run, recorded as JSON.
+    admin : mapping, optional
+        Administrative data (:func:`lidarcal.admin.load_admin`: item, laboratory, responsible
+        persons, customer, place, dates, certificate id ...), stored as global attributes
+        (docs/certificate.md); what the data state (lidar serial, bench id, run, operator,
+        the RF driver's calibration reference, dates) is filled in.
+    demonstration : bool
+        Force ``calibration_status = "demonstration"``.  Without it the status is
+        ``demonstration`` when an input is lidarcal's embedded sample data or a simulated bench
+        run, else ``issued``, which needs an issuer (laboratory and responsible person).
 
     Raises
     ------
     InputError
         If inputs describe different lidars (``lidar_serial``), if an input was computed from
-        a different file than the one given, or an input is of the wrong kind.
+        a different file than the one given, or an input is of the wrong kind; if ``admin``
+        contradicts the data; if the certificate would be issued without an issuer.
     """
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     inputs: dict[str, xr.Dataset] = {"budget": budget}
@@ -733,4 +752,39 @@ def make_certificate(
             if isinstance(rec, dict) and rec.pop("inputs", None) is not None:
                 rec["inputs_on"] = f"{PROVENANCE_PREFIX}{rec.get('role')}"
         cert.attrs["lidarcal_inputs"] = json.dumps(jsonable(direct, strict=True), sort_keys=True)
+    return _with_admin(cert, admin, demonstration, cube=cube, records=records, config=config)
+
+
+def _with_admin(cert: xr.Dataset, admin: Mapping[str, str] | None, demonstration: bool, *,
+                cube: xr.Dataset | None, records: xr.Dataset | None,
+                config: Mapping[str, Any] | None) -> xr.Dataset:
+    """Add ``calibration_status`` and the administrative attributes (lidarcal.admin)."""
+    cube_attrs = cube.attrs if cube is not None else {}
+    derived = {
+        "item_serial_number": cert.attrs.get("lidar_serial"),
+        "bench_id": cube_attrs.get("bench_id"),
+        "bench_run_id": cube_attrs.get("run_id"),
+        "bench_operator": cube_attrs.get("operator"),
+        "rf_driver_calibration_reference": cube_attrs.get("rf_driver_calibration_reference"),
+        "bench_run_start": cube_attrs.get("time_coverage_start"),
+        "bench_run_end": cube_attrs.get("time_coverage_end"),
+        "simulation_date": records.attrs.get("date_created") if records is not None else None,
+        "method_reference": default_method_reference(cert.attrs.get("budget_approach", "unknown"), config),
+    }
+    # the inputs' own provenance is on the provenance_<role> variables: searched there too
+    extra = certificate_attributes(cert.attrs, admin, derived={k: str(v) for k, v in derived.items() if v},
+                                   provenance=[*provenance_chain(cert), *components(cert)],
+                                   demonstration=demonstration)
+    cert.attrs.update(extra)
+    if cert.attrs.get("institution") in (None, "unspecified") and extra.get("laboratory_name"):
+        cert.attrs["institution"] = extra["laboratory_name"]  # ACDD institution carries the laboratory
+    if cert.attrs.get("creator_name") in (None, "lidarcal") and extra.get("responsible_persons"):
+        # ACDD creator: the first responsible person, without the role
+        first = extra["responsible_persons"].split(";")[0].strip()
+        cert.attrs["creator_name"] = first.rsplit(" (", 1)[0] if first.endswith(")") else first
+        cert.attrs["creator_type"] = "person"
+    if extra[STATUS_ATTR] == DEMONSTRATION:
+        cert.attrs["title"] = f"{cert.attrs['title']} - DEMONSTRATION, not a calibration of a real instrument"
+        cert.attrs["summary"] = (f"DEMONSTRATION certificate ({extra[STATUS_REASON_ATTR]}). "
+                                 + str(cert.attrs.get("summary", "")))
     return cert

@@ -49,7 +49,7 @@ def _certificate(files, tmp_path, capsys, *extra):
     out = tmp_path / "cert.nc"
     capsys.readouterr()
     code = main(["certificate", "--budget", str(files["budget"]), "--sensitivity", str(files["sens"]),
-                 *map(str, extra), "-o", str(out)])
+                 *map(str, extra), "-o", str(out), "--demonstration"])
     err = capsys.readouterr().err
     if code != 0:
         assert not out.exists() and "Traceback" not in err

@@ -77,7 +77,8 @@ def _refused(capsys, argv, target) -> str:
 
 
 def _cases(inputs, d: Path) -> dict[str, tuple[list[str], Path]]:
-    cert = ["certificate", "--budget", str(inputs["budget"]), "--sensitivity", str(inputs["sens"])]
+    cert = ["certificate", "--budget", str(inputs["budget"]), "--sensitivity", str(inputs["sens"]),
+            "--demonstration"]
     return {
         "rwf": (["rwf", "-o", str(d / "rwf.nc")], d / "rwf.nc"),
         "certificate": ([*cert, "-o", str(d / "cert.nc")], d / "cert.nc"),

@@ -37,7 +37,8 @@ def sealed(tmp_path_factory):
     records = open_artefact(d / "records.nc")
     out = {"budget": write_artefact(budget(records), d / "budget.nc"),
            "sens": write_artefact(sensitivity(records, "wind_shear_exponent"), d / "sens.nc")}
-    cert = make_certificate(budget=open_artefact(out["budget"]), sensitivities=[open_artefact(out["sens"])])
+    cert = make_certificate(budget=open_artefact(out["budget"]), sensitivities=[open_artefact(out["sens"])],
+                            demonstration=True)  # test data: no issuer
     out["cert"] = write_certificate(cert, d / "cert.nc")
     return out
 
@@ -115,7 +116,7 @@ def test_result_table_and_report_check_the_seal(sealed, tampered, tmp_path):
     assert "lidarcal_seal_problems" not in lidarcal.open_certificate(sealed["cert"]).attrs
     # a certificate being built (in memory, not yet sealed) has nothing to check
     fresh = make_certificate(budget=open_artefact(sealed["budget"]),
-                             sensitivities=[open_artefact(sealed["sens"])])
+                             sensitivities=[open_artefact(sealed["sens"])], demonstration=True)
     assert require_valid_seal(fresh) is None
     # a sealed dataset whose file is unknown cannot be checked: refused
     detached = xr.open_dataset(sealed["cert"]).load()
@@ -131,7 +132,7 @@ def test_signing_key_readable_by_others_is_refused(sealed, tmp_path, capsys):
     os.chmod(key, 0o644)
     out = tmp_path / "c.nc"
     code, _, err = _run(capsys, "certificate", "--budget", sealed["budget"], "--sensitivity", sealed["sens"],
-                        "-o", out, "--sign", key)
+                        "-o", out, "--sign", key, "--demonstration")
     assert code == 2 and not out.exists()
     assert f"{key}: private key is readable or writable by others (mode 0644)" in err and "chmod 600" in err
     os.chmod(key, 0o640)  # group-readable: refused as well
@@ -140,5 +141,5 @@ def test_signing_key_readable_by_others_is_refused(sealed, tmp_path, capsys):
         load_private_key(key)
     os.chmod(key, 0o600)
     code, _, err = _run(capsys, "certificate", "--budget", sealed["budget"], "--sensitivity", sealed["sens"],
-                        "-o", out, "--sign", key)
+                        "-o", out, "--sign", key, "--demonstration")
     assert code == 0, err

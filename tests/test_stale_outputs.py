@@ -47,7 +47,7 @@ def test_interrupted_calibrate_overwrite_leaves_no_previous_certificate(inputs, 
     out.mkdir()
     # a previous run's sealed certificate and its report
     old = make_certificate(budget=open_artefact(inputs["budget"]),
-                           sensitivities=[open_artefact(inputs["sens"])])
+                           sensitivities=[open_artefact(inputs["sens"])], demonstration=True)
     write_certificate(old, out / "certificate.nc")
     (out / "report.html").write_text("<html>previous run</html>")
     (out / "cube.nc").write_bytes(b"previous cube")
@@ -110,7 +110,7 @@ def test_sigkilled_certificate_writers_leave_no_temporaries(inputs, tmp_path):
     """Real SIGKILLs of ``lidarcal certificate`` while it writes; the next writer cleans up."""
     out = tmp_path / "cert.nc"
     cmd = [sys.executable, "-m", "lidarcal", "certificate", "--budget", str(inputs["budget"]),
-           "--sensitivity", str(inputs["sens"]), "-o", str(out), "--overwrite"]
+           "--sensitivity", str(inputs["sens"]), "-o", str(out), "--overwrite", "--demonstration"]
     killed = 0
     for _ in range(KILLS):  # bounded: each run is killed as soon as it has a temporary, or ends
         proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)

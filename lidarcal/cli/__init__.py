@@ -38,10 +38,12 @@ COMMANDS = (
     "budget",
     "sweep",
     "certificate",
+    "dcc",
     "verify",
     "keygen",
     "table",
     "diagnose",
+    "compare",
     "validate",
 )
 

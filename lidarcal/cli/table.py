@@ -23,6 +23,7 @@ import html
 import sys
 from pathlib import Path
 
+from lidarcal.admin import status_line
 from lidarcal.certificate import HEADLINE_WIND_SPEEDS, result_table
 from lidarcal.cli.options import add_overwrite_option
 from lidarcal.io import atomic_path, check_writable, open_artefact
@@ -89,6 +90,7 @@ def _cell(value) -> str:
 def _markdown(table) -> str:
     body = _rounded(table)
     lines = [f"# Result table: {table.attrs.get('title', 'calibration certificate')}", "",
+             *([f"**{table.attrs['status']}**", ""] if table.attrs.get("status") else []),
              _headline(table), "",
              "| " + " | ".join(body.columns) + " |", "|" + "---|" * len(body.columns)]
     lines += ["| " + " | ".join(_cell(v) for v in row) + " |" for row in body.itertuples(index=False)]
@@ -101,8 +103,10 @@ def _html(table) -> str:
     title = html.escape(f"Result table: {table.attrs.get('title', 'calibration certificate')}")
     sens = "".join(f"<li>{z:g} m: {html.escape(s or 'none')}</li>" for z, s in _sensitivities(table))
     grid = _rounded(table).to_html(index=False, na_rep="", border=0)
+    status = table.attrs.get("status")
+    status = f"<p><strong>{html.escape(status)}</strong></p>\n" if status else ""
     return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{title}</title></head><body>\n"
-            f"<h1>{title}</h1>\n<p>{html.escape(_headline(table))}</p>\n{grid}\n"
+            f"<h1>{title}</h1>\n{status}<p>{html.escape(_headline(table))}</p>\n{grid}\n"
             f"<h2>Significant sensitivities (Eqs. 12-13)</h2>\n<ul>{sens}</ul>\n</body></html>\n")
 
 
@@ -137,10 +141,14 @@ def run(args: argparse.Namespace) -> int:
     table = result_table(cert, contributors=args.contributors, wind_speeds=tuple(args.wind_speeds),
                          allow_invalid=True)  # checked just above
     table.attrs["title"] = cert.attrs.get("title", "calibration certificate")
+    table.attrs["status"] = status_line(cert.attrs)
     text = render(table, fmt, banner=banner)
     if not args.output:
+        if fmt == "csv":  # the CSV stays a plain table: the status goes first on stderr
+            print(f"{args.certificate}: {table.attrs['status']}", file=sys.stderr)
         sys.stdout.write(text)
         return 0
+    print(f"{args.output}: {table.attrs['status']}")
     with atomic_path(args.output, overwrite=args.overwrite) as tmp:
         Path(tmp).write_text(text, encoding="utf-8")
     print(f"{args.output}: {len(table)} bins; {_headline(table)}")
