@@ -155,9 +155,11 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> 
     the component under its original variable and dimension names, as
     :func:`extract_component` restores it, so ``tree["budget"].sel(height=120, wind_speed=8,
     method="nearest")`` and the ``cf`` accessor work.  The root holds the certificate's global
-    attributes (provenance, integrity record).  Values are read lazily (dask, ``chunks={}``
-    unless given); opening also registers cf-xarray's unit registry with pint, so
-    ``tree["budget"].dataset.pint.quantify()`` understands the stored units.
+    attributes (provenance, integrity record).  Values are loaded into memory (a certificate
+    is small), so ``....item()`` and ``float(...)`` work at once and the file is closed; give
+    ``chunks`` (e.g. ``{}``) to read lazily with dask instead.  Opening also registers
+    cf-xarray's unit registry with pint, so ``tree["budget"].dataset.pint.quantify()``
+    understands the stored units.
 
     Raises
     ------
@@ -165,7 +167,7 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> 
         If ``path`` is missing, unreadable or not a lidarcal certificate.
     """
     register_units()
-    ds = open_artefact(path, load=False, chunks={} if chunks is None else chunks)
+    ds = open_artefact(path, load=chunks is None, chunks=chunks)
     if ds.attrs.get("lidarcal_artefact") != "certificate":
         found = ds.attrs.get("lidarcal_artefact")
         raise InputError(f"{path}: not a lidarcal certificate: it is "
