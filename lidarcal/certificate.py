@@ -421,6 +421,10 @@ def _records_summary(records: xr.Dataset) -> dict[str, Any]:
         t = records["time"].values
         out["time_coverage_start"] = str(np.min(t))
         out["time_coverage_end"] = str(np.max(t))
+    if "cnr" in records and records["cnr"].attrs.get("units") == "dB":
+        cnr = np.asarray(records["cnr"].values, dtype=float)
+        if np.isfinite(cnr).any():  # the CNR range the virtual lidar drew the bench cube at
+            out["cnr_min_db"], out["cnr_max_db"] = float(np.nanmin(cnr)), float(np.nanmax(cnr))
     for name in ("lidarcal_base_seed", "lidarcal_lidar_model"):
         if name in records.attrs:
             out[name] = read_json_attr(records, name)

@@ -34,6 +34,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component, headline_range
+from lidarcal.document import confidence_band
 from lidarcal.errors import InputError
 from lidarcal.htmlpage import offline_html, write_text
 from lidarcal.io import atomic_path, check_writable
@@ -287,47 +288,6 @@ def _rwf_plots(rwf: xr.Dataset) -> dict[str, Figure]:
     )
     out["rwf_gradients"] = Figure("Range-weighting function for several CNR gradients", {"gradients": grad})
     return out
-
-
-def confidence_band(ds: xr.Dataset, height: Any, x: np.ndarray,
-                    level: float = 0.95) -> tuple[np.ndarray, ...]:
-    """Fitted line and its two-sided ``level`` confidence band at ``x`` for one height.
-
-    The regression is of the kept bin means (``bin_flag == 0``) on the bins' mean of the
-    variable (``variable_mean``) with weights ``regression_weight`` (weighted least squares,
-    ``docs/sensitivity.md``); an artefact without them was fitted on the bin centres with equal
-    weights.  With ``S = Σ w (x_i − x̄_w)²`` and the scale ``c²`` of the weights' errors, the band
-    of the mean line is ``t(k-2) · c · sqrt(1/Σw + (x − x̄_w)² / S)``; ``c² = s_m² S`` from the
-    slope's standard error ``s_m`` (``slope_standard_error``), else ``max(1, χ²_ν)`` of the
-    residuals (equal weights: their variance).
-
-    Returns
-    -------
-    fit, lower, upper : arrays like ``x`` (band NaN with fewer than three bins)
-    """
-    from scipy import stats
-
-    one = ds.sel(height=height)
-    weighted = "regression_weight" in one and "variable_mean" in one
-    xs = one["variable_mean"].values if weighted else one["bin"].values
-    ws = one["regression_weight"].values if weighted else np.ones(xs.shape)
-    yb_all = one["mean_difference"].values
-    used = (one["bin_flag"] == 0).values & np.isfinite(yb_all) & np.isfinite(xs) & np.isfinite(ws) & (ws > 0)
-    xb, yb, wb = xs[used], yb_all[used], ws[used]
-    slope, intercept = float(one["slope"]), float(one["intercept"])
-    fit = intercept + slope * x
-    n = int(used.sum())
-    if n < 3:
-        return fit, np.full_like(fit, np.nan), np.full_like(fit, np.nan)
-    xm = float((wb * xb).sum() / wb.sum())
-    sxx = float((wb * (xb - xm) ** 2).sum())
-    if "slope_standard_error" in one and np.isfinite(float(one["slope_standard_error"])):
-        scale2 = float(one["slope_standard_error"]) ** 2 * sxx
-    else:
-        chi2 = float((wb * (yb - (intercept + slope * xb)) ** 2).sum() / (n - 2))
-        scale2 = max(1.0, chi2) if weighted else chi2
-    half = stats.t.ppf(0.5 + level / 2, n - 2) * np.sqrt(scale2 * (1.0 / wb.sum() + (x - xm) ** 2 / sxx))
-    return fit, fit - half, fit + half
 
 
 def _sensitivity_figure(ds: xr.Dataset) -> Figure:

@@ -39,6 +39,7 @@ STAGES = (
     "campaign",
     "seal",
     "certificate",
+    "document",
     "report",
     "diagnose",
     "pipeline",
