@@ -10,7 +10,7 @@ every artefact into one output directory::
     Table 4 inputs ───────────────────> terms.nc        (Eqs. 6-11, per height)
     simulated ──────────────────────── > sensitivity_<variable>.nc (Eqs. 12-13)
     simulated + terms ────────────────> budget.nc       (§3.4, 0.5 m/s bins)
-    everything ───────────────────────> certificate.nc + report.html (+ PNGs)
+    everything ───────────────────────> certificate.nc + report.html + report.pdf
 
 Every input defaults to the embedded sample data and can be replaced by the user's own file.
 Outputs that already exist are refused before any work starts, unless ``overwrite``.
@@ -75,6 +75,7 @@ OUTPUT_NAMES = {
     "budget": "budget.nc",
     "certificate": "certificate.nc",
     "report": "report.html",
+    "report_pdf": "report.pdf",  # written by write_report beside report.html
 }
 
 #: Scratch directory (inside the output directory) for finished simulation chunks.
@@ -155,8 +156,8 @@ class CalibrationResult:
     """What :func:`calibrate` wrote: the path and the dataset of every artefact.
 
     ``paths`` maps each artefact key (``cube``, ``rwf``, ``conditions``, ``simulated``,
-    ``terms``, ``sensitivity_<variable>``, ``budget``, ``certificate``, ``report`` and one
-    ``png:<name>`` per figure) to its file.  ``datasets`` maps the netCDF artefacts' keys to
+    ``terms``, ``sensitivity_<variable>``, ``budget``, ``certificate``, ``report`` (HTML) and
+    ``report_pdf`` (the certificate document)) to its file.  ``datasets`` maps the netCDF artefacts' keys to
     the dataset as read back from that file with :func:`lidarcal.io.open_artefact`.
     """
 
@@ -326,13 +327,13 @@ def calibrate(
     write_certificate(cert, paths["certificate"], overwrite=overwrite, signing_key=signer)
     done("certificate", "calibration certificate (check with: lidarcal verify"
          + (f" --public-key {signing_key}.pub)" if signer else ")"))
-    written = write_report(paths["report"], certificate=cert, overwrite=overwrite)
-    for png in written.get("png", []):
-        paths[f"png:{Path(png).name}"] = Path(png)
-    done("report", f"HTML report ({len(written.get('png', []))} PNG figures beside it)")
+    sealed = open_artefact(paths["certificate"], "certificate")  # as written: seal and signature
+    written = write_report(paths["report"], certificate=sealed, overwrite=overwrite)
+    done("report", "HTML report (interactive plots)")
+    done("report_pdf", f"certificate document ({written['pages']} pages, A4)")
     datasets = {"cube": cube, "rwf": rwf, "conditions": open_artefact(paths["conditions"], "conditions"),
                 "simulated": records, "terms": terms, **{f"sensitivity_{v}": d for v, d in sens.items()},
-                "budget": bud, "certificate": open_artefact(paths["certificate"], "certificate")}
+                "budget": bud, "certificate": sealed}
     return CalibrationResult(paths=paths, datasets=datasets)
 
 

@@ -33,8 +33,21 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component, headline_range
-from lidarcal.document import confidence_band
+from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component
+from lidarcal.document import (
+    A4,
+    NOT_STATED,
+    certificate_id,
+    certificate_facts,
+    certified_grid,
+    confidence_band,
+    cube_colour_limits,
+    draw,
+    drawn_cnr_range,
+    figure_names,
+    headline_sentence,
+    write_document,
+)
 from lidarcal.errors import InputError
 from lidarcal.htmlpage import offline_html, write_text
 from lidarcal.io import atomic_path, check_writable
@@ -66,23 +79,9 @@ class Figure:
     heading: str
     panels: dict[str, Any]
     kind: str = "single"
-    png: Any = None
     note: str = ""
     columns: int = 3
     default: str | None = None
-
-    def png_object(self) -> Any:
-        """Return what the static PNG shows: a HoloViews object or a matplotlib figure."""
-        hv = _hv()
-        if callable(self.png):
-            return self.png()
-        if self.png is not None:
-            return self.png
-        if self.kind == "single":
-            return next(iter(self.panels.values()))
-        return hv.Layout(list(self.panels.values())).cols(self.columns if self.kind == "grid" else 2).opts(
-            hv.opts.Layout(sublabel_format="", fig_inches=7, hspace=0.4, vspace=0.5), backend="matplotlib"
-        )
 
     def bokeh(self) -> Any:
         """Render the page's bokeh model: one plot, a grid, or a drop-down menu and its plots."""
@@ -166,8 +165,11 @@ def _los_label(cube: xr.Dataset, los: Any) -> str:
     return f"LOS {name}"
 
 
-def _cube_plots(cube: xr.Dataset) -> dict[str, Figure]:
-    """CNR x programmed velocity heatmaps, one per line of sight, one colour scale for all."""
+def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) -> dict[str, Figure]:
+    """CNR x programmed velocity heatmaps, one per line of sight, one colour scale for all.
+
+    The colour scale spans the bins the simulation draws from (``drawn_cnr``, dB), else all bins.
+    """
     hv = _hv()
     out = {}
     for name, heading, cmap, symmetric in (
@@ -177,12 +179,7 @@ def _cube_plots(cube: xr.Dataset) -> dict[str, Figure]:
         if name not in cube:
             continue
         da = cube[name].transpose("los", "cnr", "velocity")
-        finite = da.values[np.isfinite(da.values)]
-        if finite.size:
-            top = float(np.percentile(np.abs(finite) if symmetric else finite, 99))
-            clim = (-top, top) if symmetric else (float(finite.min()), top)
-        else:
-            clim = (np.nan, np.nan)
+        clim = cube_colour_limits(da, drawn_cnr, symmetric)
         label = f"{name.replace('_', ' ')}{_units(da)}"
         panels = {}
         for los in da.los.values:
@@ -198,64 +195,13 @@ def _cube_plots(cube: xr.Dataset) -> dict[str, Figure]:
             )
         out[f"cube_{name}"] = Figure(
             f"{heading}, per line of sight", panels, kind="grid",
-            png=lambda da=da, cmap=cmap, clim=clim, label=label, heading=heading: _cube_png(
-                cube, da, cmap, clim, label, heading),
             note=f"<p>Colour: {html.escape(label)}; blank cells had no bench samples. "
                  "The colour scale is the same for every line of sight "
-                 f"({fmt(clim[0])} to {fmt(clim[1])}, 99th percentile).</p>",
+                 f"({fmt(clim[0])} to {fmt(clim[1])}, "
+                 + (f"set by the CNR bins the simulation draws from, {fmt(drawn_cnr[0])} to {fmt(drawn_cnr[1])} dB"
+                    if drawn_cnr else "all bins") + ").</p>",
         )
     return out
-
-
-def _grid(n: int, ncol: int, width: float, height: float) -> tuple[Any, Any]:
-    import matplotlib.pyplot as plt
-
-    nrow = int(np.ceil(n / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(width * ncol, height * nrow), squeeze=False,
-                             layout="constrained")
-    for ax in axes.flat[n:]:
-        ax.set_visible(False)
-    return fig, list(axes.flat[:n])
-
-
-def _cube_png(cube: xr.Dataset, da: xr.DataArray, cmap: str, clim: tuple, label: str, heading: str) -> Any:
-    """All lines of sight as heatmaps on one colour scale, drawn with matplotlib (fast)."""
-    fig, axes = _grid(da.sizes["los"], 3, 4.6, 3.6)
-    mesh = None
-    for ax, los in zip(axes, da.los.values, strict=False):
-        mesh = ax.pcolormesh(cube.velocity.values, cube.cnr.values, da.sel(los=los).values, cmap=cmap,
-                             vmin=clim[0], vmax=clim[1], shading="nearest")
-        ax.set_title(_los_label(cube, los), fontsize=10)
-        ax.set_xlabel(f"programmed radial velocity{_units(cube.velocity)}", fontsize=9)
-        ax.set_ylabel(f"CNR{_units(cube.cnr)}", fontsize=9)
-    fig.suptitle(heading)
-    if mesh is not None:
-        fig.colorbar(mesh, ax=axes, label=label, shrink=0.8)
-    return fig
-
-
-def _sensitivity_png(ds: xr.Dataset, readable: str, xl: str, yl: str, units: str) -> Any:
-    """Every height's bin means, fit and 95 % band, drawn with matplotlib (fast)."""
-    fig, axes = _grid(ds.sizes["height"], 2, 6.0, 3.4)
-    for ax, h in zip(axes, ds.height.values, strict=False):
-        one = ds.sel(height=h)
-        used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
-        xb, yb = one["bin"].values[used], one["mean_difference"].values[used]
-        sem = (one["std_difference"].values / np.sqrt(np.maximum(one["sample_count"].values, 1)))[used]
-        ax.errorbar(xb, yb, yerr=sem, fmt="o", color="black", ms=4, label="bin mean ± s.e.")
-        if used.sum() >= 2 and np.isfinite(float(one["slope"])):
-            x = np.linspace(xb.min(), xb.max(), 60)
-            fit, lo, hi = confidence_band(ds, h, x)
-            ax.fill_between(x, lo, hi, color="#1f77b4", alpha=0.25, lw=0, label="95 % confidence band")
-            ax.plot(x, fit, color="#1f77b4", lw=2, label="regression")
-        se = float(one["slope_standard_error"]) if "slope_standard_error" in one else np.nan
-        ax.set_title(f"{fmt(h)} m: m = {fmt(float(one['slope']))} ± {fmt(se)} {units}, "
-                     f"R = {fmt(float(one['correlation']), 2)}", fontsize=10)
-        ax.set_xlabel(xl, fontsize=9)
-        ax.set_ylabel(yl, fontsize=8)
-    axes[0].legend(fontsize=8)
-    fig.suptitle(f"Sensitivity to {readable}")
-    return fig
 
 
 def _rwf_plots(rwf: xr.Dataset) -> dict[str, Figure]:
@@ -340,8 +286,7 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
                  rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
                        "Eq. 13: |m·std·R| > 0.1 %)")
     )
-    return Figure(f"Sensitivity to {readable}", panels, kind="select", note=note,
-                  png=lambda: _sensitivity_png(ds, readable, xl, yl, units))
+    return Figure(f"Sensitivity to {readable}", panels, kind="select", note=note)
 
 
 def _sensitivity_plots(sens: Iterable[xr.Dataset]) -> dict[str, Figure]:
@@ -380,8 +325,12 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
     rel = budget["relative_expanded_uncertainty"]
     flag = budget["bin_flag"]
     ws = budget.wind_speed.values
-    finite = rel.values[np.isfinite(rel.values)]
-    ylim = (0.0, float(np.percentile(finite, 98)) * 1.15) if finite.size else (0.0, 1.0)
+    # the axes show the certified bins (flag ok, 4-16 m/s); the others stay reachable by panning
+    g = certified_grid(budget)
+    certified = g["value"][g["certified"]]
+    ylim = (0.0, float(certified.max()) * 1.15) if certified.size else (0.0, 1.0)
+    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
+    xlim = (HEADLINE_WIND_SPEEDS[0] - step / 2, HEADLINE_WIND_SPEEDS[1] + step / 2)
     yl = f"relative expanded uncertainty, k = {fmt(k)} (%)"
 
     def layers(h: Any, color: str, label: str) -> list[Any]:
@@ -407,13 +356,13 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
         lay = layers(h, colors[i % len(colors)], f"{fmt(h)} m")
         all_layers += lay[:2] + ([lay[2].relabel("thin bin (too few periods)")] if i == 0 else [lay[2]])
     title = f"Expanded uncertainty (k = {fmt(k)}), {budget.attrs.get('approach', '')} approach".rstrip(", ")
-    everything = _style(hv.Overlay(all_layers).opts(ylim=ylim), f"{title}, all heights", xl, yl)
+    everything = _style(hv.Overlay(all_layers).opts(ylim=ylim, xlim=xlim), f"{title}, all heights", xl, yl)
     panels = {"all heights": everything}
     for h in heights:
         panels[f"{fmt(h)} m"] = _style(hv.Overlay(layers(h, "#1f77b4", "bins with enough periods"))
-                                       .opts(ylim=ylim), f"{title}, {fmt(h)} m", xl, yl)
+                                       .opts(ylim=ylim, xlim=xlim), f"{title}, {fmt(h)} m", xl, yl)
     out = {"budget": Figure(
-        f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", panels, kind="select", png=everything,
+        f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", panels, kind="select",
         note="<p>Red crosses: thin bins (fewer periods than the minimum); they are kept in the budget "
              "but left out of the certificate's headline range. Empty bins are not drawn.</p>",
     )}
@@ -438,41 +387,10 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
     default = f"{fmt(float(budget.height.sel(height=120.0, method='nearest')))} m"
     out["budget_contributors"] = Figure(
         "Uncertainty contributors per height", cpanels, kind="select", default=default,
-        png=lambda: _contributors_png(budget),
         note="<p>Relative standard uncertainty (k = 1) of each contributor per wind-speed bin with enough "
              "periods; <em>combined</em> is their root sum of squares.</p>",
     )
     return out
-
-
-def _contributors_png(budget: xr.Dataset) -> Any:
-    """All heights' contributors as grouped bars, drawn with matplotlib (HoloViews' bars are slow)."""
-    import matplotlib.pyplot as plt
-
-    heights = budget.height.values
-    ncol = 2
-    nrow = int(np.ceil(len(heights) / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(13, 2.8 * nrow), squeeze=False, sharey=True)
-    names = [str(c).replace("_", " ") for c in budget.contributor.values] + ["combined"]
-    for ax, h in zip(axes.flat, heights, strict=False):
-        ok = budget["bin_flag"].sel(height=h).values == 0
-        ws = budget.wind_speed.values[ok]
-        values = np.concatenate(
-            [budget["relative_contribution"].sel(height=h).values[ok].T,
-             budget["relative_uncertainty"].sel(height=h).values[ok][None, :]])
-        step = float(np.median(np.diff(budget.wind_speed.values))) if budget.sizes["wind_speed"] > 1 else 1.0
-        width = 0.8 * step / len(names)
-        for i, (name, v) in enumerate(zip(names, values, strict=True)):
-            ax.bar(ws + (i - (len(names) - 1) / 2) * width, v, width, label=name)
-        ax.set_title(f"{fmt(h)} m", fontsize=10)
-        ax.set_xlabel(f"reference wind speed bin{_units(budget.wind_speed)}", fontsize=9)
-        ax.set_ylabel("relative std. uncertainty (%)", fontsize=9)
-    for ax in axes.flat[len(heights):]:
-        ax.set_visible(False)
-    axes.flat[0].legend(fontsize=8, ncol=len(names), loc="lower left", bbox_to_anchor=(0, 1.15))
-    fig.suptitle("Standard uncertainty contributors per height (bins with enough periods)")
-    fig.tight_layout()
-    return fig
 
 
 def report_figures(
@@ -481,6 +399,7 @@ def report_figures(
     sensitivities: Iterable[xr.Dataset] | Mapping[str, xr.Dataset] = (),
     cube: xr.Dataset | None = None,
     rwf: xr.Dataset | None = None,
+    drawn_cnr: tuple[float, float] | None = None,
 ) -> dict[str, Figure]:
     """Build the report's :class:`Figure` for every component given, by figure name, in page order.
 
@@ -495,7 +414,7 @@ def report_figures(
     if sens:
         figs.update(_sensitivity_plots(sens))
     if cube is not None:
-        figs.update(_cube_plots(cube))
+        figs.update(_cube_plots(cube, drawn_cnr))
     if rwf is not None:
         figs.update(_rwf_plots(rwf))
     if not figs:
@@ -514,38 +433,54 @@ def _from_certificate(cert: xr.Dataset) -> dict[str, Any]:
     return parts
 
 
-def _summary_rows(meta: xr.Dataset | None, budget: xr.Dataset | None) -> list[tuple[str, str]]:
+def _header(cert: xr.Dataset | None, budget: xr.Dataset | None) -> str:
+    """The top of the page: status, the headline and the certified result, then the certificate's facts."""
+    out = []
+    if cert is not None:
+        status = cert.attrs.get("calibration_status", NOT_STATED)
+        out.append(f'<p class="status status-{html.escape(str(status))}"><strong>Calibration status: '
+                   f"{html.escape(str(status))}</strong> · certificate {html.escape(certificate_id(cert.attrs))}</p>")
+    if budget is not None:
+        out.append(f'<p class="headline"><strong>{html.escape(headline_sentence(budget))}</strong></p>')
+        g = certified_grid(budget)
+        rows = []
+        for i in np.flatnonzero(g["inside"]):
+            cells = []
+            for j in range(g["height"].size):
+                v = g["value"][i, j]
+                text = f"{v:.2f}" if g["certified"][i, j] else "–"
+                if g["certified"][i, j] and g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]):
+                    text += f" ± {g['tolerance'][i, j]:.2g}"
+                cells.append(text)
+            rows.append([fmt(g["wind_speed"][i]), *cells])
+        k = float(budget.attrs.get("coverage_factor", 2.0))
+        out.append(_table(["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]], rows,
+                          f"Certified result: relative expanded uncertainty U (%), k = {k:g}, per height and "
+                          "wind-speed bin; – : not certified (too few periods or no data)"))
+    if cert is not None:
+        facts = "\n".join(
+            f"<tr><th>{html.escape(section if n == 0 else '')}</th><td>{html.escape(label)}</td>"
+            f"<td>{html.escape(value).replace(chr(10), '<br>')}</td></tr>"
+            for section, items in certificate_facts(cert.attrs) for n, (label, value) in enumerate(items))
+        out.append(f'<table class="facts">\n{facts}\n</table>')
+    return "\n".join(out)
+
+
+def _provenance(cert: xr.Dataset | None) -> str:
+    """The end of the page: the certificate's components and inputs with their SHA-256."""
+    if cert is None:
+        return ""
     rows = []
-    if meta is not None:
-        for key, label in (
-            ("lidar_serial", "Lidar serial"),
-            ("title", "Title"),
-            ("id", "Certificate id"),
-            ("date_created", "Created"),
-            ("lidarcal_version", "lidarcal version"),
-            ("certificate_components", "Components"),
-            ("zero_distance_m", "Zero distance Zd (m)"),
-        ):
-            if key in meta.attrs:
-                rows.append((label, fmt(meta.attrs[key]) if key.endswith("_m") else str(meta.attrs[key])))
-        chain = meta.attrs.get("lidarcal_provenance_chain")
-        if chain:
-            for item in json.loads(chain):
-                rows.append(
-                    (f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}")
-                )
-    # the headline: bins flagged ok, centres 4-16 m/s (certificate.headline_range, as `lidarcal table`)
-    rng = headline_range(budget) if budget is not None else None
-    if rng is not None:
-        lo, hi = HEADLINE_WIND_SPEEDS
-        rows.append(
-            (
-                f"Expanded uncertainty (k = {float(budget.attrs.get('coverage_factor', 2)):g}), "
-                f"bins with enough samples, {lo:g} to {hi:g} m/s",
-                f"{rng[0]:.2f} % to {rng[1]:.2f} %",
-            )
-        )
-    return rows
+    for key, label in (("title", "Title"), ("id", "Id"), ("date_created", "Created"),
+                       ("lidarcal_version", "lidarcal version"), ("certificate_components", "Components"),
+                       ("zero_distance_m", "Zero distance Zd (m)")):
+        if key in cert.attrs:
+            rows.append((label, fmt(cert.attrs[key]) if key.endswith("_m") else str(cert.attrs[key])))
+    chain = cert.attrs.get("lidarcal_provenance_chain")
+    for item in json.loads(chain) if chain else []:
+        rows.append((f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}"))
+    body = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
+    return f'<section id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></section>'
 
 
 def write_report(
@@ -557,19 +492,23 @@ def write_report(
     cube: xr.Dataset | None = None,
     rwf: xr.Dataset | None = None,
     title: str | None = None,
-    png: bool = True,
+    png: bool = False,
+    pdf: bool = True,
     overwrite: bool = False,
 ) -> dict[str, Any]:
-    """Write the offline HTML report (and PNGs next to it).
+    """Write the offline HTML report, and beside it the certificate document (PDF) and PNGs.
 
     With ``certificate`` the components are taken from it; explicit arguments override them.
+    The page opens with the status, the headline and the certified result; the inputs'
+    SHA-256 come last.  With ``certificate`` and ``pdf`` the certificate document
+    (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``.  With ``png``
+    every figure of the document is also written as ``<stem>_<figure>.png`` (150 dpi).
 
     Returns
     -------
     dict
-        ``{"html": Path, "figures": [names], "png": [Paths]}``.
+        ``{"html": Path, "figures": [names], "png": [Paths], "pdf": Path or None}``.
     """
-    hv = _hv()
     parts: dict[str, Any] = (
         _from_certificate(certificate) if certificate is not None else {"sensitivities": []}
     )
@@ -579,36 +518,34 @@ def write_report(
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     if sens:
         parts["sensitivities"] = sens
-    figs = report_figures(**parts)
+    if certificate is not None and parts.get("cube") is not None and certificate.attrs.get("lidarcal_records_summary"):
+        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], json.loads(certificate.attrs["lidarcal_records_summary"]))
+    figs = report_figures(**{k: v for k, v in parts.items() if k != "drawn_cnr"}, drawn_cnr=parts.get("drawn_cnr"))
     path = Path(path)
-    pngs = {name: path.with_name(f"{path.stem}_{name}.png") for name in figs} if png else {}
-    for p in [path, *pngs.values()]:
+    pdf_path = path.with_suffix(".pdf") if pdf and certificate is not None else None
+    pngs = {name: path.with_name(f"{path.stem}_{name}.png") for name in figure_names(parts)} if png else {}
+    for p in [path, *([pdf_path] if pdf_path else []), *pngs.values()]:
         check_writable(p, overwrite=overwrite)
 
     title = title or (
         certificate.attrs.get("title") if certificate is not None else "lidarcal calibration report"
     )
-    rows = _summary_rows(certificate, parts.get("budget"))
-    table = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
     models = {name: fig.bokeh() for name, fig in figs.items()}
-    links = {name: f'<p class="png"><a href="{p.name}">static PNG</a></p>' for name, p in pngs.items()}
-    after = {name: fig.note + links.get(name, "") for name, fig in figs.items()}
-    page = offline_html(models, title=title, header=f"<table>\n{table}\n</table>", after=after,
-                        titles={name: fig.heading for name, fig in figs.items()})
+    after = {name: fig.note for name, fig in figs.items()}
+    page = offline_html(models, title=title, header=_header(certificate, parts.get("budget")), after=after,
+                        titles={name: fig.heading for name, fig in figs.items()},
+                        footer=_provenance(certificate))
     written = []
-    if png:
-        renderer = hv.renderer("matplotlib").instance(dpi=_PNG_DPI)
-        for name, fig in figs.items():
-            with atomic_path(pngs[name], overwrite=overwrite) as tmp:
-                obj = fig.png_object()
-                if hasattr(obj, "savefig"):  # a matplotlib figure
-                    obj.savefig(tmp.with_suffix(".png"), dpi=_PNG_DPI, format="png")
-                    import matplotlib.pyplot as plt
+    if pngs:
+        from matplotlib.figure import Figure as MplFigure
 
-                    plt.close(obj)
-                else:
-                    renderer.save(obj, str(tmp.with_suffix("")), fmt="png")
-                tmp.with_suffix(".png").replace(tmp)
-            written.append(pngs[name])
+        for name, target in pngs.items():
+            fig = MplFigure(figsize=A4)
+            draw(fig, name, parts)
+            with atomic_path(target, overwrite=overwrite) as tmp:
+                fig.savefig(tmp, dpi=_PNG_DPI, format="png")
+            written.append(target)
+    document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts) if pdf_path else None
     write_text(path, page, overwrite=overwrite)
-    return {"html": path, "figures": list(figs), "png": written}
+    return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
+            "pages": document["pages"] if document else 0}

@@ -13,6 +13,7 @@ not sealed by the holder of KEY.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from lidarcal.certificate import make_certificate, write_certificate
 from lidarcal.cli import command_line
@@ -45,7 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--records", metavar="RECORDS.nc", help="simulated_rtd / field_campaign records (summarised)"
     )
     add_output_options(p, "CERT.nc")
-    p.add_argument("--report", metavar="CERT.html", help="also write the HTML report (and its PNGs)")
+    p.add_argument("--report", metavar="CERT.html", help="also write the HTML report and, beside it, the certificate document (CERT.pdf, A4)")
     p.add_argument("--sign", metavar="KEY",
                    help="sign the seal with this Ed25519 private key (lidarcal keygen); without it the "
                    "certificate is sealed for integrity only")
@@ -57,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.output, overwrite=args.overwrite)
     if args.report:
         check_writable(args.report, overwrite=args.overwrite)
+        check_writable(Path(args.report).with_suffix(".pdf"), overwrite=args.overwrite)
     key = load_private_key(args.sign) if args.sign else None  # a bad key fails before any work
     budget = open_artefact(args.budget, "uncertainty_budget")
     sens = [open_artefact(path, "sensitivity") for path in args.sensitivity]
@@ -76,10 +78,9 @@ def run(args: argparse.Namespace) -> int:
     how = (f"sealed and signed by {fingerprint(key)} (check with: lidarcal verify {path} --public-key "
            f"{args.sign}.pub)" if key else f"sealed, unsigned (check with: lidarcal verify {path})")
     print(f"{path}: certificate with components {cert.attrs['certificate_components']}; {how}")
-    if args.report:
-        written = write_report(args.report, certificate=cert, overwrite=args.overwrite)
-        print(
-            f"{args.report}: HTML report with {len(written['figures'])} interactive plots and "
-            f"{len(written['png'])} PNG files"
-        )
+    if args.report:  # from the file as written, so the document states its seal and signature
+        written = write_report(args.report, certificate=open_artefact(path, "certificate"),
+                               overwrite=args.overwrite)
+        print(f"{args.report}: HTML report with {len(written['figures'])} interactive plots; "
+              f"{written['pdf']}: certificate document ({written['pages']} pages, A4)")
     return 0
