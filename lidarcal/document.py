@@ -327,15 +327,18 @@ def drawn_cnr_range(cube: xr.Dataset, records_summary: Mapping[str, Any] | None)
 
 
 def cube_colour_limits(da: xr.DataArray, drawn: tuple[float, float] | None, symmetric: bool) -> tuple[float, float]:
-    """Colour limits of a cube heatmap: the bins the simulation draws from (all bins if unknown)."""
+    """Colour limits of a cube heatmap: the 99th percentile of the bins the simulation draws from.
+
+    All bins when ``drawn`` (dB) is unknown; cells beyond the limits show the end colours.
+    """
     used = da if drawn is None else da.where((da["cnr"] >= drawn[0]) & (da["cnr"] <= drawn[1]))
     finite = used.values[np.isfinite(used.values)]
     if not finite.size:
         return (-1.0, 1.0) if symmetric else (0.0, 1.0)
     if symmetric:
-        top = float(np.abs(finite).max())
+        top = float(np.percentile(np.abs(finite), 99))
         return -top, top
-    return float(finite.min()), float(finite.max())
+    return float(finite.min()), float(np.percentile(finite, 99))
 
 
 def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | None = None) -> None:
@@ -344,7 +347,7 @@ def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | Non
     da = cube[name].transpose("los", "cnr", "velocity")
     vmin, vmax = cube_colour_limits(da, drawn, symmetric)
     los = list(da.los.values)
-    axes = _axes(fig, int(np.ceil(len(los) / 2)), 2, top=0.9, bottom=0.06, right=0.86, hspace=0.6)
+    axes = _axes(fig, int(np.ceil(len(los) / 2)), 2, top=0.87, bottom=0.06, right=0.86, hspace=0.6)
     mesh = None
     for ax, one in zip(axes, los, strict=False):
         mesh = ax.pcolormesh(cube.velocity.values, cube.cnr.values, da.sel(los=one).values,
@@ -360,12 +363,12 @@ def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | Non
         ax.set_visible(False)
     if mesh is not None:
         cax = fig.add_axes([0.89, 0.3, 0.02, 0.4])
-        fig.colorbar(mesh, cax=cax).set_label(f"{name.replace('_', ' ')}{_units(da)}", fontsize=_FONT)
+        fig.colorbar(mesh, cax=cax, extend="both").set_label(f"{name.replace('_', ' ')}{_units(da)}", fontsize=_FONT)
     what = ("mean LOS velocity error (measured − programmed)" if symmetric
             else "standard deviation of the measured LOS velocity")
-    scale = (f"colour scale from the CNR bins the simulation draws from ({_fmt(drawn[0])} to "
-             f"{_fmt(drawn[1])} dB, dotted lines)" if drawn else "colour scale from all bins")
-    fig.suptitle(f"Bench: {what}\n{scale}; blank cells had no bench samples", fontsize=_FONT + 2)
+    scale = (f"colour scale: 99th percentile of the CNR bins the simulation draws from ({_fmt(drawn[0])} to "
+             f"{_fmt(drawn[1])} dB, dotted lines)" if drawn else "colour scale: 99th percentile of all bins")
+    fig.suptitle(f"Bench: {what}\n{scale}\nblank cells had no bench samples", fontsize=_FONT + 2)
 
 
 def draw_rwf(fig, rwf: xr.Dataset) -> None:

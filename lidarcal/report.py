@@ -198,8 +198,8 @@ def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) 
             note=f"<p>Colour: {html.escape(label)}; blank cells had no bench samples. "
                  "The colour scale is the same for every line of sight "
                  f"({fmt(clim[0])} to {fmt(clim[1])}, "
-                 + (f"set by the CNR bins the simulation draws from, {fmt(drawn_cnr[0])} to {fmt(drawn_cnr[1])} dB"
-                    if drawn_cnr else "all bins") + ").</p>",
+                 + (f"99th percentile of the CNR bins the simulation draws from, {fmt(drawn_cnr[0])} to "
+                    f"{fmt(drawn_cnr[1])} dB" if drawn_cnr else "99th percentile of all bins") + ").</p>",
         )
     return out
 
@@ -480,7 +480,7 @@ def _provenance(cert: xr.Dataset | None) -> str:
     for item in json.loads(chain) if chain else []:
         rows.append((f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}"))
     body = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
-    return f'<section id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></section>'
+    return f'<div id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></div>'
 
 
 def write_report(
