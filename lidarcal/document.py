@@ -486,24 +486,27 @@ def _grid_table(fig, y: float, g: dict[str, Any], rows: np.ndarray, *, only_cert
         fig.text(c, y, f"{_fmt(h)} m", fontsize=size, va="top", ha="right", weight="bold")
     y -= 2.3 * line
     fig.add_artist(_rule(y + 0.4 * line))
-    for i in rows:
-        fig.text(x0 + 0.02, y, _fmt(ws[i]), fontsize=size, va="top")
-        for j, c in enumerate(cols):
+    # one text per column and colour (not per cell): hundreds of text artists are what costs
+    rows = list(rows)
+    style = dict(fontsize=size, va="top", linespacing=1.4)
+    fig.text(x0 + 0.02, y, "\n".join(_fmt(ws[i]) for i in rows), **style)
+    for j, c in enumerate(cols):
+        black, grey = [], []
+        for i in rows:
             v, ok = g["value"][i, j], g["certified"][i, j]
             if only_certified and not ok:
-                text, color = "–", "0.5"
+                text = "–"
             else:
                 text = f"{v:.2f}" if np.isfinite(v) else "–"
                 if g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]) and np.isfinite(v):
                     text += f" ± {g['tolerance'][i, j]:.2g}"
-                flag = int(g["flag"][i, j])
                 if not ok and np.isfinite(v):
-                    text += " t" if flag == 1 else " o"
-                color = "black" if ok else "0.45"
-            fig.text(c, y, text, fontsize=size, va="top", ha="right", color=color)
-        y -= line
-    fig.add_artist(_rule(y + 0.1 * line))
-    return y - 0.5 * line
+                    text += " t" if int(g["flag"][i, j]) == 1 else " o"
+            (black if ok else grey).append(text)
+            (grey if ok else black).append(" ")
+        fig.text(c, y, "\n".join(black), ha="right", multialignment="right", color="black", **style)
+        fig.text(c, y, "\n".join(grey), ha="right", multialignment="right", color="0.45", **style)
+    return y - line * len(rows) - 0.5 * line
 
 
 def _rule(y: float):
@@ -559,7 +562,7 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None) -> None:
 
 def _all_bins_page(fig, budget: xr.Dataset) -> None:
     k = float(budget.attrs.get("coverage_factor", 2.0))
-    _title(fig, f"Every bin of the budget: relative expanded uncertainty U (%), k = {k:g}",
+    _title(fig, f"Every bin of the budget: U (%), k = {k:g}",
            "Grey: not certified (t: too few periods; o: outside the certified wind-speed range); "
            "– : no data. Only the black values are certified.")
     g = certified_grid(budget)

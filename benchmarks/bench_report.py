@@ -1,0 +1,64 @@
+"""Benchmark: CPU seconds of the report (HTML + the certificate document PDF) of a certificate.
+
+Usage::
+
+    python benchmarks/bench_report.py RUN/certificate.nc [--repeat 3] [--png]
+
+``RUN`` is the output directory of a default ``lidarcal calibrate -o RUN``.  Each repeat runs
+in a fresh Python process (so the plotting libraries' imports count, as they do in a
+``calibrate`` run) and times ``lidarcal.report.write_report`` with ``time.process_time``
+(CPU of this process, all threads), then the HTML and the PDF parts separately.  Prints every
+repeat and the medians.  The target is at most 5 s of CPU for the default certificate.
+"""
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+
+for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+_CHILD = """
+import json, sys, time
+from pathlib import Path
+from lidarcal.io import open_artefact
+cert = open_artefact(sys.argv[1], "certificate")
+out = Path(sys.argv[2])
+png = sys.argv[3] == "1"
+t0 = time.process_time()
+import lidarcal.report as report
+written = report.write_report(out / "report.html", certificate=cert, png=png)
+t1 = time.process_time()
+from lidarcal.document import write_document
+t2 = time.process_time()
+write_document(out / "again.pdf", cert)
+t3 = time.process_time()
+print(json.dumps({"report": t1 - t0, "pdf": t3 - t2, "pages": written["pages"], "png": len(written["png"])}))
+"""
+
+
+def main() -> None:
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("certificate")
+    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--png", action="store_true", help="also write the PNGs (not done by default)")
+    args = p.parse_args()
+    runs = []
+    for i in range(args.repeat):
+        with tempfile.TemporaryDirectory() as tmp:
+            done = subprocess.run([sys.executable, "-c", _CHILD, args.certificate, tmp, "1" if args.png else "0"],
+                                  check=True, capture_output=True, text=True)
+        run = json.loads(done.stdout.strip().splitlines()[-1])
+        runs.append(run)
+        print(f"run {i + 1}: report (HTML + PDF{' + PNGs' if args.png else ''}) {run['report']:.2f} s CPU; "
+              f"PDF alone (libraries loaded) {run['pdf']:.2f} s CPU; {run['pages']} pages, {run['png']} PNGs")
+    print(f"median: report {statistics.median(r['report'] for r in runs):.2f} s CPU, "
+          f"PDF {statistics.median(r['pdf'] for r in runs):.2f} s CPU (target: report <= 5 s)")
+
+
+if __name__ == "__main__":
+    main()
