@@ -37,18 +37,19 @@ def offline_html(models: Mapping[str, Any], *, title: str, header: str = "",
 
     models = dict(models)
     after = after or {}
-    foreign = sorted(
-        {
-            type(x).__module__
-            for m in models.values()
-            for x in m.references()
-            if not type(x).__module__.startswith("bokeh.")
-        }
-    )
+    # one document holding every root, its model index built once: bokeh's components()
+    # would otherwise add the roots one at a time, re-walking all models after each
+    from bokeh.document import Document
+
+    doc = Document()
+    with doc.models.freeze():
+        for model in models.values():
+            doc.add_root(model)
+    foreign = sorted({type(x).__module__ for x in doc.models if not type(x).__module__.startswith("bokeh.")})
     if foreign:
         raise InputError(f"report plots use non-bokeh models from {foreign}; cannot embed them offline")
     script, divs = bokeh_components(list(models.values()))
-    bundle = bundle_for_objs_and_resources(list(models.values()), INLINE)
+    bundle = bundle_for_objs_and_resources([doc], INLINE)
     resources = "".join(Bundle(js_raw=bundle.js_raw, css_raw=bundle.css_raw, hashes=bundle.hashes))
     sections = "\n".join(
         f'<section id="{html.escape(name)}">'

@@ -37,8 +37,8 @@ from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_compo
 from lidarcal.document import (
     A4,
     NOT_STATED,
-    certificate_id,
     certificate_facts,
+    certificate_id,
     certified_grid,
     confidence_band,
     cube_colour_limits,
@@ -57,66 +57,14 @@ __all__ = ["Figure", "confidence_band", "fmt", "report_figures", "write_report"]
 _WIDTH, _HEIGHT = 900, 380
 _PNG_DPI = 150  # static figures: at least 150 dpi, written into the PNG's pHYs chunk
 _THIN = "#d62728"  # marker colour of thin bins (fewer periods than min_samples)
+_COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
+           "#17becf", "#000000"]
 _VARIABLES = {  # readable names of the environmental variables
     "wind_shear_exponent": "wind shear exponent",
     "turbulence_intensity": "turbulence intensity",
     "cnr_gradient": "CNR gradient",
     "cnr": "CNR",
 }
-
-
-@dataclass
-class Figure:
-    """One report figure: its heading, panels and how the page and the PNG show them.
-
-    ``kind`` is ``"single"`` (one panel), ``"grid"`` (all panels side by side, e.g. one
-    heatmap per line of sight) or ``"select"`` (one panel at a time, chosen with a drop-down
-    menu above the plot, e.g. one panel per height).  ``png`` is what the static PNG shows
-    (default: the single panel, or all panels as a grid); ``note`` is HTML shown below the
-    plot (a table of the numbers, rounded).
-    """
-
-    heading: str
-    panels: dict[str, Any]
-    kind: str = "single"
-    note: str = ""
-    columns: int = 3
-    default: str | None = None
-
-    def bokeh(self) -> Any:
-        """Render the page's bokeh model: one plot, a grid, or a drop-down menu and its plots."""
-        hv = _hv()
-        from bokeh.layouts import column
-        from bokeh.models import CustomJS, Select
-
-        if self.kind == "single":
-            return hv.render(next(iter(self.panels.values())), backend="bokeh")
-        if self.kind == "grid":
-            return hv.render(hv.Layout(list(self.panels.values())).cols(self.columns), backend="bokeh")
-        labels = list(self.panels)
-        shown = self.default if self.default in self.panels else labels[0]
-        plots = [hv.render(p, backend="bokeh") for p in self.panels.values()]
-        for label, plot in zip(labels, plots, strict=True):
-            plot.visible = label == shown
-        select = Select(title="Show:", value=shown, options=labels, width=220)
-        select.js_on_change(
-            "value",
-            CustomJS(
-                args={"plots": plots, "labels": labels},
-                code="const i = labels.indexOf(cb_obj.value);"
-                "plots.forEach((p, k) => { p.visible = k === i; });",
-            ),
-        )
-        return column(select, *plots)
-
-
-def _hv():
-    import holoviews as hv
-    import holoviews.plotting.mpl  # noqa: F401  (matplotlib backend for the PNGs)
-    import hvplot.xarray  # noqa: F401  (registers .hvplot)
-
-    hv.Store.set_current_backend("bokeh")
-    return hv
 
 
 def fmt(value: Any, digits: int = 3) -> str:
@@ -139,21 +87,245 @@ def _units(da: xr.DataArray) -> str:
     return f" ({u})" if u and u != "1" else ""
 
 
-def _style(obj: Any, title: str, xlabel: str, ylabel: str, *, width: int = _WIDTH, height: int = _HEIGHT,
-           legend: bool = True) -> Any:
-    """Apply the same labels for both backends (bokeh page, matplotlib PNG); legends outside the plot area."""
-    bk = dict(title=title, xlabel=xlabel, ylabel=ylabel, width=width, height=height, fontscale=1.1)
-    mp = dict(title=title, xlabel=xlabel, ylabel=ylabel, aspect=width / height, fig_size=200)
-    if legend:
-        bk["legend_position"] = mp["legend_position"] = "right"
-    return obj.opts(**bk, backend="bokeh").opts(**mp, backend="matplotlib")
-
-
 def _table(header: list[str], rows: list[list[str]], caption: str) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "\n".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
     return (f'<table class="numbers"><caption>{html.escape(caption)}</caption>'
             f"<tr>{head}</tr>\n{body}</table>")
+
+
+@dataclass
+class Figure:
+    """One report figure: its heading, its bokeh model and a note (HTML) shown below it.
+
+    ``build`` makes the bokeh model when the page is written (:meth:`bokeh`).  A figure with
+    a menu (``select``) is a column of a :class:`bokeh.models.Select` and one plot whose
+    renderers are grouped by the menu's labels (``name`` = label): choosing a label shows
+    its renderers only.
+    """
+
+    heading: str
+    build: Any
+    note: str = ""
+
+    def bokeh(self) -> Any:
+        """Return the page's bokeh model."""
+        return self.build()
+
+
+def _plot(title: str, xlabel: str, ylabel: str, *, width: int = _WIDTH, height: int = _HEIGHT, **kw) -> Any:
+    from bokeh.plotting import figure
+
+    p = figure(title=title, width=width, height=height, x_axis_label=xlabel, y_axis_label=ylabel,
+               tools="pan,box_zoom,wheel_zoom,reset,save", toolbar_location="right", **kw)
+    p.title.text_font_size = "12pt"
+    return p
+
+
+def _legend_outside(p: Any) -> None:
+    from bokeh.models import Legend
+
+    if p.legend:
+        items = p.legend[0].items
+        p.legend[0].visible = False
+        p.add_layout(Legend(items=items, click_policy="hide", label_text_font_size="9pt"), "right")
+
+
+def _menu(p: Any, groups: Mapping[str, list], shown: str, titles: Mapping[str, str]) -> Any:
+    """A drop-down above ``p`` choosing which group of its renderers is shown (and the title)."""
+    from bokeh.layouts import column
+    from bokeh.models import CustomJS, Select
+
+    for r in p.renderers:
+        r.visible = r in groups[shown]
+    p.title.text = titles[shown]
+    select = Select(title="Show:", value=shown, options=list(groups), width=220)
+    select.js_on_change("value", CustomJS(
+        args={"groups": dict(groups), "all": list(p.renderers), "plot": p, "titles": dict(titles)},
+        code="const on = new Set(groups[cb_obj.value]);"
+             "all.forEach((r) => { r.visible = on.has(r); });"
+             "plot.title.text = titles[cb_obj.value];"))
+    return column(select, p)
+
+
+def _by_name(p: Any) -> dict[str, list]:
+    groups: dict[str, list] = {}
+    for r in p.renderers:
+        groups.setdefault(r.name, []).append(r)
+    return groups
+
+
+def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
+    """Plot U (k = 2) per height on the certified range (menu: all heights or one) and the contributors."""
+    k = float(budget.attrs.get("coverage_factor", 2.0))
+    xl = f"reference wind speed bin{_units(budget.wind_speed)}"
+    rel = budget["relative_expanded_uncertainty"]
+    flag = budget["bin_flag"]
+    ws = budget.wind_speed.values
+    heights = budget.height.values
+    # the axes show the certified bins (flag ok, 4-16 m/s); the others stay reachable by panning
+    g = certified_grid(budget)
+    certified = g["value"][g["certified"]]
+    ylim = (0.0, float(certified.max()) * 1.15) if certified.size else (0.0, 1.0)
+    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
+    xlim = (HEADLINE_WIND_SPEEDS[0] - step / 2, HEADLINE_WIND_SPEEDS[1] + step / 2)
+    yl = f"relative expanded uncertainty, k = {fmt(k)} (%)"
+    title = f"Expanded uncertainty (k = {fmt(k)}), {budget.attrs.get('approach', '')} approach".rstrip(", ")
+    labels = ["all heights", *[f"{fmt(h)} m" for h in heights]]
+
+    def build() -> Any:
+        from bokeh.models import ColumnDataSource
+
+        p = _plot(f"{title}, all heights", xl, yl, x_range=xlim, y_range=ylim)
+        for i, h in enumerate(heights):
+            y = rel.sel(height=h).values
+            f = flag.sel(height=h).values
+            color, name = _COLORS[i % len(_COLORS)], f"{fmt(h)} m"
+            src = ColumnDataSource({"wind_speed": ws, "U": np.where(f == 0, y, np.nan)})
+            p.line("wind_speed", "U", source=src, color=color, line_width=2, legend_label=name, name=name)
+            p.scatter("wind_speed", "U", source=src, color=color, size=5, legend_label=name, name=name)
+            thin = (f == 1) & np.isfinite(y)
+            p.scatter(ws[thin], y[thin], marker="x", size=11, line_width=2, color=_THIN,
+                      legend_label="thin bin (too few periods)", name=name)
+        _legend_outside(p)
+        groups = {"all heights": list(p.renderers), **_by_name(p)}
+        return _menu(p, groups, "all heights", {lab: f"{title}, {lab}" for lab in labels})
+
+    out = {"budget": Figure(
+        f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", build,
+        note="<p>The axes show the certified bins (enough periods, 4 to 16 m/s); pan or zoom out for the "
+             "others. Red crosses: thin bins (fewer periods than the minimum); they are kept in the budget "
+             "but left out of the certificate's headline range. Empty bins are not drawn.</p>",
+    )}
+    contrib = budget["relative_contribution"].transpose("wind_speed", "height", "contributor")
+    names = [str(c).replace("_", " ") for c in budget.contributor.values] + ["combined"]
+    combined = budget["relative_uncertainty"].transpose("wind_speed", "height").values
+    default = f"{fmt(float(budget.height.sel(height=120.0, method='nearest')))} m"
+    hlabels = [f"{fmt(h)} m" for h in heights]
+
+    def build_contributors() -> Any:
+        from bokeh.layouts import column
+        from bokeh.models import ColumnDataSource, CustomJS, Select
+
+        width = 0.85 * step / len(names)
+        p = _plot(f"Standard uncertainty contributors at {default}", xl, "relative standard uncertainty (%)",
+                  width=_WIDTH + 140, x_range=(xlim[0] - step / 2, xlim[1] + step / 2))
+        ok = flag.transpose("wind_speed", "height").values == 0
+        j0 = hlabels.index(default)
+        for i, name in enumerate(names):
+            values = combined if name == "combined" else contrib.values[:, :, i]
+            data = {"x": ws + (i - (len(names) - 1) / 2) * width}
+            for j, lab in enumerate(hlabels):
+                data[lab] = np.where(ok[:, j], values[:, j], np.nan)
+            data["top"] = data[hlabels[j0]]
+            p.vbar(x="x", top="top", width=width, source=ColumnDataSource(data), color=_COLORS[i % 10],
+                   legend_label=name)
+        _legend_outside(p)
+        select = Select(title="Show:", value=default, options=hlabels, width=220)
+        select.js_on_change("value", CustomJS(
+            args={"renderers": p.renderers, "plot": p},
+            code="for (const r of renderers) { const d = r.data_source.data;"
+                 "  d.top = d[cb_obj.value]; r.data_source.change.emit(); }"
+                 "plot.title.text = 'Standard uncertainty contributors at ' + cb_obj.value;"))
+        return column(select, p)
+
+    out["budget_contributors"] = Figure(
+        "Uncertainty contributors per height", build_contributors,
+        note="<p>Relative standard uncertainty (k = 1) of each contributor per wind-speed bin with enough "
+             "periods; <em>combined</em> is their root sum of squares.</p>",
+    )
+    return out
+
+
+def _sensitivity_figure(ds: xr.Dataset) -> Figure:
+    var = str(ds.attrs.get("environmental_variable", "variable"))
+    readable = _VARIABLES.get(var, var.replace("_", " "))
+    xl = f"{readable}{_units(ds['bin'])}"
+    yl = f"mean lidar − reference difference{_units(ds['mean_difference'])}"
+    units = ds["slope"].attrs.get("units", "")
+    rows, titles, layers = [], {}, []
+    for h in ds.height.values:
+        one = ds.sel(height=h)
+        used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
+        xb = one["bin"].values
+        sem = one["std_difference"].values / np.sqrt(np.maximum(one["sample_count"].values, 1))
+        slope, se, r = (float(one[k]) if k in one else np.nan
+                        for k in ("slope", "slope_standard_error", "correlation"))
+        label = f"{fmt(h)} m"
+        line = None
+        if used.sum() >= 2 and np.isfinite(slope):
+            x = np.linspace(xb[used].min(), xb[used].max(), 60)
+            line = (x, *confidence_band(ds, h, x))
+        layers.append((label, xb[used], one["mean_difference"].values[used], sem[used], line))
+        titles[label] = f"{fmt(h)} m: m = {fmt(slope)} ± {fmt(se)} {units}, R = {fmt(r, 2)}"
+        sig = [name for name, key in (("Eq. 12", "significant_eq12"), ("Eq. 13", "significant_eq13"))
+               if key in one and int(one[key]) == 1]
+        rows.append([fmt(h), f"{fmt(slope)} ± {fmt(se)}", fmt(r, 2),
+                     fmt(float(one["slope_times_std"])) if "slope_times_std" in one else "–",
+                     fmt(float(one["slope_times_std_times_r"])) if "slope_times_std_times_r" in one else "–",
+                     str(int(one["bins_used"])) if "bins_used" in one else str(int(used.sum())),
+                     ", ".join(sig) or "no"])
+
+    def build() -> Any:
+        from bokeh.models import DataRange1d
+
+        p = _plot("", xl, yl, width=_WIDTH - 80,
+                  x_range=DataRange1d(only_visible=True), y_range=DataRange1d(only_visible=True))
+        for label, x, y, s, line in layers:
+            if line is not None:
+                xf, fit, lo, hi = line
+                if np.isfinite(lo).any():
+                    p.varea(xf, lo, hi, color="#1f77b4", alpha=0.25, legend_label="95 % confidence band",
+                            name=label)
+                p.line(xf, fit, color="#1f77b4", line_width=2, legend_label="regression", name=label)
+            p.segment(x, y - s, x, y + s, color="black", name=label)
+            p.scatter(x, y, color="black", size=7, legend_label="bin mean ± s.e.", name=label)
+        _legend_outside(p)
+        return _menu(p, _by_name(p), list(titles)[0], titles)
+
+    note = (
+        "<p>Points: bin means of the difference with the standard error of the mean "
+        "(standard deviation / √periods); bins with fewer periods than the minimum are left out of "
+        "the regression and not drawn. Line: least-squares fit of the bin means on the bin centres; "
+        "band: its 95 % confidence band (from the slope's standard error).</p>"
+        + _table(["height (m)", f"slope m ({units})", "R", "m·std (%)", "m·std·R (%)", "bins", "significant"],
+                 rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
+                       "Eq. 13: |m·std·R| > 0.1 %)")
+    )
+    return Figure(f"Sensitivity to {readable}", build, note=note)
+
+
+def _sensitivity_plots(sens: Iterable[xr.Dataset]) -> dict[str, Figure]:
+    out = {}
+    for ds in sens:
+        var = str(ds.attrs.get("environmental_variable", "variable"))
+        out[f"sensitivity_{var}"] = _sensitivity_figure(ds)
+    if out:
+        def build() -> Any:
+            from bokeh.models import Span
+
+            p = _plot("m · std of each variable per height; threshold ±0.5 %", "height (m)", "m · std (%)")
+            values = []
+            for i, ds in enumerate(sens):
+                var = str(ds.attrs.get("environmental_variable", "variable"))
+                y = np.atleast_1d(ds["slope_times_std"].values)
+                values.append(y)
+                h = np.atleast_1d(ds.height.values)
+                name = _VARIABLES.get(var, var.replace("_", " "))
+                p.line(h, y, color=_COLORS[i % 10], line_width=2, legend_label=name)
+                p.scatter(h, y, color=_COLORS[i % 10], size=7, legend_label=name)
+            for s in (0.5, -0.5):
+                p.add_layout(Span(location=s, dimension="width", line_color="grey", line_dash="dashed"))
+            finite = np.concatenate(values)
+            finite = finite[np.isfinite(finite)]
+            lim = max(0.6, 1.1 * float(np.abs(finite).max())) if finite.size else 0.6
+            p.y_range.start, p.y_range.end = -lim, lim
+            _legend_outside(p)
+            return p
+
+        sens = list(sens)
+        out["sensitivity_slopes"] = Figure("Significance of the sensitivities (Eq. 12)", build)
+    return out
 
 
 def _los_label(cube: xr.Dataset, los: Any) -> str:
@@ -170,227 +342,82 @@ def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) 
 
     The colour scale spans the bins the simulation draws from (``drawn_cnr``, dB), else all bins.
     """
-    hv = _hv()
     out = {}
-    for name, heading, cmap, symmetric in (
-        ("los_bias", "Bench: mean LOS velocity error (measured − programmed)", "RdBu_r", True),
-        ("los_std", "Bench: standard deviation of the measured LOS velocity", "viridis", False),
+    for name, heading, palette, symmetric in (
+        ("los_bias", "Bench: mean LOS velocity error (measured − programmed)", "RdBu11", True),
+        ("los_std", "Bench: standard deviation of the measured LOS velocity", "Viridis256", False),
     ):
         if name not in cube:
             continue
         da = cube[name].transpose("los", "cnr", "velocity")
         clim = cube_colour_limits(da, drawn_cnr, symmetric)
         label = f"{name.replace('_', ' ')}{_units(da)}"
-        panels = {}
-        for los in da.los.values:
-            mesh = hv.QuadMesh(
-                (cube.velocity.values, cube.cnr.values, da.sel(los=los).values),
-                kdims=["velocity", "cnr"], vdims=[hv.Dimension(name, label=label)],
-            )
-            mesh = mesh.opts(cmap=cmap, clim=clim, colorbar=True, tools=["hover"], backend="bokeh")
-            mesh = mesh.opts(cmap=cmap, clim=clim, colorbar=True, backend="matplotlib")
-            panels[str(los)] = _style(
-                mesh, _los_label(cube, los), f"programmed radial velocity{_units(cube.velocity)}",
-                f"CNR{_units(cube.cnr)}", width=360, height=280, legend=False,
-            )
+
+        def build(da=da, clim=clim, label=label, palette=palette) -> Any:
+            from bokeh.layouts import gridplot
+            from bokeh.models import ColorBar, LinearColorMapper
+            from bokeh.palettes import Viridis256, all_palettes
+
+            colors = Viridis256 if palette == "Viridis256" else list(reversed(all_palettes["RdBu"][11]))
+            mapper = LinearColorMapper(palette=colors, low=clim[0], high=clim[1], nan_color=(0, 0, 0, 0))
+            v, c = cube.velocity.values, cube.cnr.values
+            dv = float(np.median(np.diff(v))) if v.size > 1 else 1.0
+            dc = float(np.median(np.diff(c))) if c.size > 1 else 1.0
+            plots = []
+            for los in da.los.values:
+                p = _plot(_los_label(cube, los), f"programmed radial velocity{_units(cube.velocity)}",
+                          f"CNR{_units(cube.cnr)}", width=360, height=280)
+                p.image(image=[da.sel(los=los).values], x=v.min() - dv / 2, y=c.min() - dc / 2,
+                        dw=float(np.ptp(v)) + dv, dh=float(np.ptp(c)) + dc, color_mapper=mapper)
+                plots.append(p)
+            plots[-1].add_layout(ColorBar(color_mapper=mapper, title=label), "right")
+            return gridplot(plots, ncols=3)
+
+        scale = (f"99th percentile of the CNR bins the simulation draws from, {fmt(drawn_cnr[0])} to "
+                 f"{fmt(drawn_cnr[1])} dB" if drawn_cnr else "99th percentile of all bins")
         out[f"cube_{name}"] = Figure(
-            f"{heading}, per line of sight", panels, kind="grid",
+            f"{heading}, per line of sight", build,
             note=f"<p>Colour: {html.escape(label)}; blank cells had no bench samples. "
                  "The colour scale is the same for every line of sight "
-                 f"({fmt(clim[0])} to {fmt(clim[1])}, "
-                 + (f"99th percentile of the CNR bins the simulation draws from, {fmt(drawn_cnr[0])} to "
-                    f"{fmt(drawn_cnr[1])} dB" if drawn_cnr else "99th percentile of all bins") + ").</p>",
+                 f"({fmt(clim[0])} to {fmt(clim[1])}, {scale}).</p>",
         )
     return out
 
 
 def _rwf_plots(rwf: xr.Dataset) -> dict[str, Figure]:
-    out = {}
     zd = float(rwf["zero_distance"]) if "zero_distance" in rwf else float("nan")
     column = rwf["rwf"].sel(cnr_gradient=0.0, method="nearest")
-    curves = {"RWF": column / float(column.max())}
+    curves = {"RWF": (column / float(column.max())).values}
     for name in ("pulse", "apodization"):
         if name in rwf:
-            curves[name] = rwf[name] / float(rwf[name].max())
-    norm = xr.Dataset(curves)
-    support = np.flatnonzero((norm["RWF"] > 1e-3).values)
-    lo, hi = (support.min(), support.max()) if support.size else (0, rwf.sizes["range_offset"] - 1)
+            curves[name] = (rwf[name] / float(rwf[name].max())).values
+    support = np.flatnonzero(curves["RWF"] > 1e-3)
+    n = rwf.sizes["range_offset"]
+    lo, hi = (support.min(), support.max()) if support.size else (0, n - 1)
     pad = max(5, (hi - lo) // 4)
-    sl = slice(max(lo - pad, 0), min(hi + pad, rwf.sizes["range_offset"] - 1) + 1)
-    norm = norm.isel(range_offset=sl)
+    sl = slice(max(lo - pad, 0), min(hi + pad, n - 1) + 1)
+    x = rwf["range_offset"].values[sl]
     xl = "range offset from gate centre (m)"
-    shape = _style(
-        norm.hvplot.line(x="range_offset", y=list(curves)),
-        f"Pulse, apodization and RWF (normalised), Zd = {fmt(zd)} m", xl, "normalised amplitude",
-    )
-    out["rwf_shape"] = Figure("Range-weighting function", {"shape": shape})
     g = rwf["cnr_gradient"].values
     pick = sorted(set(np.linspace(0, len(g) - 1, min(5, len(g))).round().astype(int).tolist()))
-    sub = rwf["rwf"].isel(cnr_gradient=pick, range_offset=sl)
-    sub = sub.assign_coords(cnr_gradient=[f"{fmt(v)} dB/m" for v in g[pick]])
-    grad = _style(
-        sub.hvplot.line(x="range_offset", by="cnr_gradient"),
-        "RWF for several CNR gradients (Eq. 2)", xl, f"RWF{_units(rwf['rwf'])}",
-    )
-    out["rwf_gradients"] = Figure("Range-weighting function for several CNR gradients", {"gradients": grad})
-    return out
 
+    def shape() -> Any:
+        p = _plot(f"Pulse, apodization and RWF (normalised), Zd = {fmt(zd)} m", xl, "normalised amplitude")
+        for i, (name, y) in enumerate(curves.items()):
+            p.line(x, y[sl], color=_COLORS[i], line_width=2, legend_label=name)
+        _legend_outside(p)
+        return p
 
-def _sensitivity_figure(ds: xr.Dataset) -> Figure:
-    hv = _hv()
-    var = str(ds.attrs.get("environmental_variable", "variable"))
-    readable = _VARIABLES.get(var, var.replace("_", " "))
-    xl = f"{readable}{_units(ds['bin'])}"
-    yl = f"mean lidar − reference difference{_units(ds['mean_difference'])}"
-    units = ds["slope"].attrs.get("units", "")
-    panels, rows = {}, []
-    for h in ds.height.values:
-        one = ds.sel(height=h)
-        used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
-        xb = one["bin"].values
-        n = np.maximum(one["sample_count"].values, 1)
-        sem = one["std_difference"].values / np.sqrt(n)
-        means = hv.Scatter((xb[used], one["mean_difference"].values[used]), "bin", "mean",
-                           label="bin mean").opts(color="black", size=7, backend="bokeh")
-        means = means.opts(color="black", s=30, backend="matplotlib")
-        bars = hv.ErrorBars((xb[used], one["mean_difference"].values[used], sem[used]),
-                            "bin", ["mean", "sem"]).opts(color="black", backend="bokeh")
-        layers = [bars, means]
-        slope, se, r = (float(one[k]) if k in one else np.nan
-                        for k in ("slope", "slope_standard_error", "correlation"))
-        if used.sum() >= 2 and np.isfinite(slope):
-            x = np.linspace(xb[used].min(), xb[used].max(), 60)
-            fit, lo, hi = confidence_band(ds, h, x)
-            if np.isfinite(lo).any():
-                band = hv.Area((x, lo, hi), "bin", ["mean", "upper"], label="95 % confidence band")
-                layers.insert(0, band.opts(color="#1f77b4", alpha=0.25, line_alpha=0, backend="bokeh")
-                              .opts(color="#1f77b4", alpha=0.25, backend="matplotlib"))
-            layers.append(hv.Curve((x, fit), "bin", "mean", label="regression").opts(
-                color="#1f77b4", line_width=2, backend="bokeh").opts(color="#1f77b4", backend="matplotlib"))
-        title = f"{fmt(h)} m: m = {fmt(slope)} ± {fmt(se)} {units}, R = {fmt(r, 2)}"
-        overlay = hv.Overlay(layers).opts(padding=0.05)
-        panels[f"{fmt(h)} m"] = _style(overlay, title, xl, yl, width=_WIDTH - 80)
-        sig = [name for name, key in (("Eq. 12", "significant_eq12"), ("Eq. 13", "significant_eq13"))
-               if key in one and int(one[key]) == 1]
-        rows.append([fmt(h), f"{fmt(slope)} ± {fmt(se)}", fmt(r, 2),
-                     fmt(float(one["slope_times_std"])) if "slope_times_std" in one else "–",
-                     fmt(float(one["slope_times_std_times_r"])) if "slope_times_std_times_r" in one else "–",
-                     str(int(one["bins_used"])) if "bins_used" in one else str(int(used.sum())),
-                     ", ".join(sig) or "no"])
-    note = (
-        "<p>Points: bin means of the difference with the standard error of the mean "
-        "(standard deviation / √periods); bins with fewer periods than the minimum are left out of "
-        "the regression and not drawn. Line: least-squares fit of the bin means on the bin centres; "
-        "band: its 95 % confidence band (from the slope's standard error).</p>"
-        + _table(["height (m)", f"slope m ({units})", "R", "m·std (%)", "m·std·R (%)", "bins", "significant"],
-                 rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
-                       "Eq. 13: |m·std·R| > 0.1 %)")
-    )
-    return Figure(f"Sensitivity to {readable}", panels, kind="select", note=note)
+    def gradients() -> Any:
+        p = _plot("RWF for several CNR gradients (Eq. 2)", xl, f"RWF{_units(rwf['rwf'])}")
+        for k, i in enumerate(pick):
+            p.line(x, rwf["rwf"].isel(cnr_gradient=i).values[sl], color=_COLORS[k % 10], line_width=2,
+                   legend_label=f"{fmt(g[i])} dB/m")
+        _legend_outside(p)
+        return p
 
-
-def _sensitivity_plots(sens: Iterable[xr.Dataset]) -> dict[str, Figure]:
-    hv = _hv()
-    out = {}
-    stats = []
-    for ds in sens:
-        var = str(ds.attrs.get("environmental_variable", "variable"))
-        out[f"sensitivity_{var}"] = _sensitivity_figure(ds)
-        stats.append(ds["slope_times_std"].expand_dims(variable=[_VARIABLES.get(var, var.replace("_", " "))])
-                     .reset_coords(drop=True))
-    if stats:
-        all_stats = xr.concat(stats, dim="variable", join="outer").rename("slope_times_std")
-        lo, hi = (1.1 * float(f(all_stats)) for f in (np.nanmin, np.nanmax))
-        limit = hv.HLine(0.5) * hv.HLine(-0.5)
-        limit = limit.opts(
-            hv.opts.HLine(color="grey", line_dash="dashed", backend="bokeh"),
-            hv.opts.HLine(color="grey", linestyle="--", backend="matplotlib"),
-        )
-        lines = all_stats.hvplot.line(x="height", by="variable") * all_stats.hvplot.scatter(
-            x="height", by="variable").opts(hv.opts.Scatter(size=7, backend="bokeh"))
-        out["sensitivity_slopes"] = Figure(
-            "Significance of the sensitivities (Eq. 12)",
-            {"slopes": _style((lines * limit).opts(ylim=(min(-0.6, lo), max(0.6, hi))),
-                              "m · std of each variable per height; threshold ±0.5 %",
-                              "height (m)", "m · std (%)")},
-        )
-    return out
-
-
-def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
-    """Plot the expanded (k = 2) uncertainty per height (menu: all heights or one) and the contributors."""
-    hv = _hv()
-    k = float(budget.attrs.get("coverage_factor", 2.0))
-    xl = f"reference wind speed bin{_units(budget.wind_speed)}"
-    rel = budget["relative_expanded_uncertainty"]
-    flag = budget["bin_flag"]
-    ws = budget.wind_speed.values
-    # the axes show the certified bins (flag ok, 4-16 m/s); the others stay reachable by panning
-    g = certified_grid(budget)
-    certified = g["value"][g["certified"]]
-    ylim = (0.0, float(certified.max()) * 1.15) if certified.size else (0.0, 1.0)
-    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
-    xlim = (HEADLINE_WIND_SPEEDS[0] - step / 2, HEADLINE_WIND_SPEEDS[1] + step / 2)
-    yl = f"relative expanded uncertainty, k = {fmt(k)} (%)"
-
-    def layers(h: Any, color: str, label: str) -> list[Any]:
-        y = rel.sel(height=h).values
-        f = flag.sel(height=h).values
-        ok = np.where(f == 0, y, np.nan)
-        thin = (f == 1) & np.isfinite(y)
-        curve = hv.Curve((ws, ok), "wind_speed", "U", label=label)
-        dots = hv.Scatter((ws[f == 0], y[f == 0]), "wind_speed", "U", label=label)
-        thin_pts = hv.Scatter((ws[thin], y[thin]), "wind_speed", "U", label="thin bin (too few periods)")
-        return [
-            curve.opts(line_width=2, color=color, backend="bokeh").opts(color=color, backend="matplotlib"),
-            dots.opts(size=5, color=color, backend="bokeh").opts(s=12, color=color, backend="matplotlib"),
-            thin_pts.opts(marker="x", size=11, line_width=2, color=_THIN, backend="bokeh")
-            .opts(marker="X", s=60, color=_THIN, backend="matplotlib"),
-        ]
-
-    colors = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
-              "#17becf", "#000000"]
-    heights = budget.height.values
-    all_layers = []
-    for i, h in enumerate(heights):
-        lay = layers(h, colors[i % len(colors)], f"{fmt(h)} m")
-        all_layers += lay[:2] + ([lay[2].relabel("thin bin (too few periods)")] if i == 0 else [lay[2]])
-    title = f"Expanded uncertainty (k = {fmt(k)}), {budget.attrs.get('approach', '')} approach".rstrip(", ")
-    everything = _style(hv.Overlay(all_layers).opts(ylim=ylim, xlim=xlim), f"{title}, all heights", xl, yl)
-    panels = {"all heights": everything}
-    for h in heights:
-        panels[f"{fmt(h)} m"] = _style(hv.Overlay(layers(h, "#1f77b4", "bins with enough periods"))
-                                       .opts(ylim=ylim, xlim=xlim), f"{title}, {fmt(h)} m", xl, yl)
-    out = {"budget": Figure(
-        f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", panels, kind="select",
-        note="<p>Red crosses: thin bins (fewer periods than the minimum); they are kept in the budget "
-             "but left out of the certificate's headline range. Empty bins are not drawn.</p>",
-    )}
-    contrib = budget["relative_contribution"]
-    names = [str(c).replace("_", " ") for c in contrib.contributor.values]
-    cpanels = {}
-    for h in heights:
-        ok = flag.sel(height=h).values == 0
-        rows = []
-        for j, w in enumerate(ws):
-            if not ok[j]:
-                continue
-            for c, name in zip(contrib.contributor.values, names, strict=True):
-                rows.append((fmt(w), name, float(contrib.sel(height=h, wind_speed=w, contributor=c))))
-            combined = budget["relative_uncertainty"].sel(height=h, wind_speed=w)
-            rows.append((fmt(w), "combined", float(combined)))
-        bars = hv.Bars(rows, ["wind_speed", "contributor"], "u").opts(
-            tools=["hover"], xrotation=90, multi_level=False, show_legend=True, backend="bokeh")
-        bars = bars.opts(xrotation=90, multi_level=False, show_legend=True, backend="matplotlib")
-        cpanels[f"{fmt(h)} m"] = _style(bars, f"Standard uncertainty contributors at {fmt(h)} m", xl,
-                                        "relative standard uncertainty (%)", width=_WIDTH + 140)
-    default = f"{fmt(float(budget.height.sel(height=120.0, method='nearest')))} m"
-    out["budget_contributors"] = Figure(
-        "Uncertainty contributors per height", cpanels, kind="select", default=default,
-        note="<p>Relative standard uncertainty (k = 1) of each contributor per wind-speed bin with enough "
-             "periods; <em>combined</em> is their root sum of squares.</p>",
-    )
-    return out
+    return {"rwf_shape": Figure("Range-weighting function", shape),
+            "rwf_gradients": Figure("Range-weighting function for several CNR gradients", gradients)}
 
 
 def report_figures(
@@ -406,7 +433,6 @@ def report_figures(
     The budget comes first (what an engineer reads first), then the sensitivities, the bench
     cube and the range-weighting function.
     """
-    _hv()
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     figs: dict[str, Figure] = {}
     if budget is not None:

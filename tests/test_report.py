@@ -96,38 +96,49 @@ def _glyphs(plot, glyph_type):
 
 
 def test_budget_plot_shows_every_height_and_marks_thin_bins(inputs):
-    from bokeh.models import Line, Scatter, Select
+    from bokeh.models import GlyphRenderer, Line, Scatter, Select
 
     # the factory fills every bin with 10-39 periods: min_samples=20 leaves thin bins with a finite U
     b = budget(inputs["records"], min_samples=20)
     figs = report_figures(budget=b)
     assert list(figs) == ["budget", "budget_contributors"]
     page = figs["budget"].bokeh()
-    select, plots = page.children[0], page.children[1:]
+    select, plot = page.children
     assert isinstance(select, Select)
     assert select.options == ["all heights", "80 m", "100 m", "120 m"] and select.value == "all heights"
-    assert [p.visible for p in plots] == [True, False, False, False]
+    renderers = [r for r in plot.renderers if isinstance(r, GlyphRenderer)]
+    assert all(r.visible for r in renderers)  # "all heights" shows every height
+    # the axes are the certified range: bins with enough periods, centres 4-16 m/s
+    inside = (b.wind_speed >= 4) & (b.wind_speed <= 16) & (b.bin_flag == 0)
+    step = float(b.wind_speed[1] - b.wind_speed[0])
+    assert (plot.x_range.start, plot.x_range.end) == pytest.approx((4 - step / 2, 16 + step / 2))
+    assert plot.y_range.end == pytest.approx(1.15 * float(b.relative_expanded_uncertainty.where(inside).max()))
     k = b.attrs["coverage_factor"]
     thin_seen = 0
-    for plot, h in zip(plots[1:], b.height.values, strict=True):
-        assert plot.title.text.endswith(f"{h:g} m")
-        (line,) = _glyphs(plot, Line)
+    for h in b.height.values:
+        mine = [r for r in renderers if r.name == f"{h:g} m"]
+        (line,) = [r for r in mine if isinstance(r.glyph, Line)]
         data = line.data_source.data
         flag = b.bin_flag.sel(height=h).values
         # U = k u_c, recomputed from the combined standard uncertainty; thin and empty bins not on the line
         expected = np.where(flag == 0, k * b.relative_uncertainty.sel(height=h).values, np.nan)
         np.testing.assert_array_equal(data["wind_speed"], b.wind_speed.values)
         np.testing.assert_allclose(data["U"], expected, rtol=1e-12)
-        thin = [r for r in _glyphs(plot, Scatter) if r.glyph.marker == "x"]
+        thin = [r for r in mine if isinstance(r.glyph, Scatter) and r.glyph.marker == "x"]
         assert len(thin) == 1
         finite = np.isfinite(b.relative_expanded_uncertainty.sel(height=h).values)
         expect_x = b.wind_speed.values[(flag == 1) & finite]
-        np.testing.assert_array_equal(thin[0].data_source.data["wind_speed"], expect_x)
+        np.testing.assert_array_equal(thin[0].data_source.data["x"], expect_x)
         thin_seen += len(expect_x)
     assert thin_seen > 0  # the factory's records do leave thin bins, so the marker is exercised
     contributors = figs["budget_contributors"].bokeh()
     assert contributors.children[0].value == "120 m"
-    assert len(contributors.children) == 1 + b.sizes["height"]
+    bars = contributors.children[1].renderers
+    assert len(bars) == b.sizes["contributor"] + 1  # one per contributor, and the combined
+    combined = bars[-1].data_source.data
+    ok = b.bin_flag.sel(height=120.0).values == 0
+    np.testing.assert_allclose(combined["top"], np.where(ok, b.relative_uncertainty.sel(height=120.0).values,
+                                                         np.nan))
 
 
 def test_confidence_band_matches_numpy_polyfit_covariance(inputs):
@@ -257,19 +268,20 @@ def test_report_renders_offline_in_headless_chromium(report, chromium):
         state = wait_for(all_drawn)
         assert state is not None, "BokehJS never loaded"
         assert all_drawn(state), state  # one root per figure, every visible plot drew pixels
-        # the height menu: choosing 100 m shows that plot alone, and it draws
+        # the height menu: choosing 100 m shows that height's renderers alone, and the plot draws
         menu = """
           const root = Bokeh.documents[0].roots().find((r) => r.children && r.children[0].options);
           if (arguments[0]) root.children[0].value = arguments[0];
-          return root.children.slice(1).map((p) => p.visible);
+          const names = root.children[1].renderers.filter((r) => r.visible).map((r) => r.name);
+          return [...new Set(names)];
         """
         driver.execute_script(menu, "100 m")
         deadline = time.monotonic() + 30  # BokehJS compiles and runs the CustomJS asynchronously
-        while (shown := driver.execute_script(menu, "")) != [False, False, True, False]:
+        while (shown := driver.execute_script(menu, "")) != ["100 m"]:
             if time.monotonic() > deadline:
                 break
             time.sleep(0.2)
-        assert shown == [False, False, True, False], shown
+        assert shown == ["100 m"], shown
         state = wait_for(all_drawn)
         assert all_drawn(state), state
         errors = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
