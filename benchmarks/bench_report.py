@@ -50,14 +50,22 @@ def main() -> None:
     runs = []
     for i in range(args.repeat):
         with tempfile.TemporaryDirectory() as tmp:
-            done = subprocess.run([sys.executable, "-c", _CHILD, args.certificate, tmp, "1" if args.png else "0"],
-                                  check=True, capture_output=True, text=True)
+            done = subprocess.run(
+                [sys.executable, "-c", _CHILD, args.certificate, tmp, "1" if args.png else "0"],
+                check=True,
+                capture_output=True,
+                text=True,
+            )
         run = json.loads(done.stdout.strip().splitlines()[-1])
         runs.append(run)
-        print(f"run {i + 1}: report (HTML + PDF{' + PNGs' if args.png else ''}) {run['report']:.2f} s CPU; "
-              f"PDF alone (libraries loaded) {run['pdf']:.2f} s CPU; {run['pages']} pages, {run['png']} PNGs")
-    print(f"median: report {statistics.median(r['report'] for r in runs):.2f} s CPU, "
-          f"PDF {statistics.median(r['pdf'] for r in runs):.2f} s CPU (target: report <= 5 s)")
+        print(
+            f"run {i + 1}: report (HTML + PDF{' + PNGs' if args.png else ''}) {run['report']:.2f} s CPU; "
+            f"PDF alone (libraries loaded) {run['pdf']:.2f} s CPU; {run['pages']} pages, {run['png']} PNGs"
+        )
+    print(
+        f"median: report {statistics.median(r['report'] for r in runs):.2f} s CPU, "
+        f"PDF {statistics.median(r['pdf'] for r in runs):.2f} s CPU (target: report <= 5 s)"
+    )
 
 
 if __name__ == "__main__":

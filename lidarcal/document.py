@@ -30,16 +30,40 @@ from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_compo
 from lidarcal.io import atomic_path, check_writable
 from lidarcal.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
 
-__all__ = ["A4", "confidence_band", "NOT_STATED", "DRAWERS", "certificate_facts", "signature_status", "certified_grid",
-           "drawn_cnr_range", "headline_sentence", "write_document"]
+__all__ = [
+    "A4",
+    "confidence_band",
+    "NOT_STATED",
+    "DRAWERS",
+    "certificate_facts",
+    "signature_status",
+    "certified_grid",
+    "drawn_cnr_range",
+    "headline_sentence",
+    "write_document",
+]
 
 A4 = (8.27, 11.69)  # inches, portrait
 NOT_STATED = "not stated"
 _FONT = 8.0
-_COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
-           "#bcbd22", "#17becf"]
-_VARIABLES = {"wind_shear_exponent": "wind shear exponent", "turbulence_intensity": "turbulence intensity",
-              "cnr_gradient": "CNR gradient", "cnr": "CNR"}
+_COLORS = [
+    "#1f77b4",
+    "#ff7f0e",
+    "#2ca02c",
+    "#d62728",
+    "#9467bd",
+    "#8c564b",
+    "#e377c2",
+    "#7f7f7f",
+    "#bcbd22",
+    "#17becf",
+]
+_VARIABLES = {
+    "wind_shear_exponent": "wind shear exponent",
+    "turbulence_intensity": "turbulence intensity",
+    "cnr_gradient": "CNR gradient",
+    "cnr": "CNR",
+}
 
 
 def _fmt(value: Any, digits: int = 3) -> str:
@@ -73,13 +97,17 @@ def _attr(attrs: Mapping[str, Any], *names: str) -> str:
 
 
 def signature_status(attrs: Mapping[str, Any]) -> str:
-    """What the certificate's seal and signature attributes say (not a verification)."""
+    """Say what the certificate's seal and signature attributes say (not a verification)."""
     if SIGNATURE_ATTR in attrs:
-        return (f"signed (Ed25519) by key {attrs.get(SIGNATURE_KEY_ATTR, NOT_STATED)}; check with "
-                "lidarcal verify CERT.nc --public-key KEY.pub")
+        return (
+            f"signed (Ed25519) by key {attrs.get(SIGNATURE_KEY_ATTR, NOT_STATED)}; check with "
+            "lidarcal verify CERT.nc --public-key KEY.pub"
+        )
     if INTEGRITY_ATTR in attrs:
-        return ("sealed, unsigned: SHA-256 integrity record only (whoever can rewrite the file can "
-                "re-seal it); check with lidarcal verify CERT.nc")
+        return (
+            "sealed, unsigned: SHA-256 integrity record only (whoever can rewrite the file can "
+            "re-seal it); check with lidarcal verify CERT.nc"
+        )
     return "not sealed (this document was made from a certificate not yet written)"
 
 
@@ -91,52 +119,88 @@ def certificate_facts(attrs: Mapping[str, Any]) -> list[tuple[str, list[tuple[st
     bench = bench_start if bench_end in (NOT_STATED, bench_start) else f"{bench_start} to\n{bench_end}"
     version = attrs.get("lidarcal_version")
     return [
-        ("Status", [("Calibration status", _attr(attrs, "calibration_status")),
-                    ("Certificate id", certificate_id(attrs)),
-                    ("Date of issue", _attr(attrs, "date_issued", "date_created"))]),
-        ("Issuer", [("Laboratory", _attr(attrs, "laboratory_name", "institution")),
-                    ("Address", _attr(attrs, "laboratory_address")),
-                    ("Responsible", persons.replace("; ", "\n") if persons != NOT_STATED else persons),
-                    ("Created by", _attr(attrs, "creator_name"))]),
-        ("Customer", [("Name", _attr(attrs, "customer_name")), ("Address", _attr(attrs, "customer_address"))]),
-        ("Calibrated item", [("Manufacturer", _attr(attrs, "item_manufacturer")),
-                             ("Model", _attr(attrs, "item_model")),
-                             ("Serial number", _attr(attrs, "item_serial_number", "lidar_serial")),
-                             ("Firmware", _attr(attrs, "item_firmware"))]),
-        ("Dates and place", [("Bench run", bench),
-                             ("Simulation", _attr(attrs, "simulation_date")),
-                             ("Place", _attr(attrs, "calibration_location"))]),
-        ("Method", [("Method", _attr(attrs, "method_reference", "references")),
-                    ("Software", f"lidarcal {version}" if version else NOT_STATED),
-                    ("Approach", _attr(attrs, "budget_approach"))]),
-        ("Traceability of the bench", [("Bench", _attr(attrs, "bench_id")),
-                                       ("Bench run", _attr(attrs, "bench_run_id")),
-                                       ("Operator", _attr(attrs, "bench_operator")),
-                                       ("RF driver cal.", _attr(attrs, "rf_driver_calibration_reference"))]),
+        (
+            "Status",
+            [
+                ("Calibration status", _attr(attrs, "calibration_status")),
+                ("Certificate id", certificate_id(attrs)),
+                ("Date of issue", _attr(attrs, "date_issued", "date_created")),
+            ],
+        ),
+        (
+            "Issuer",
+            [
+                ("Laboratory", _attr(attrs, "laboratory_name", "institution")),
+                ("Address", _attr(attrs, "laboratory_address")),
+                ("Responsible", persons.replace("; ", "\n") if persons != NOT_STATED else persons),
+                ("Created by", _attr(attrs, "creator_name")),
+            ],
+        ),
+        (
+            "Customer",
+            [("Name", _attr(attrs, "customer_name")), ("Address", _attr(attrs, "customer_address"))],
+        ),
+        (
+            "Calibrated item",
+            [
+                ("Manufacturer", _attr(attrs, "item_manufacturer")),
+                ("Model", _attr(attrs, "item_model")),
+                ("Serial number", _attr(attrs, "item_serial_number", "lidar_serial")),
+                ("Firmware", _attr(attrs, "item_firmware")),
+            ],
+        ),
+        (
+            "Dates and place",
+            [
+                ("Bench run", bench),
+                ("Simulation", _attr(attrs, "simulation_date")),
+                ("Place", _attr(attrs, "calibration_location")),
+            ],
+        ),
+        (
+            "Method",
+            [
+                ("Method", _attr(attrs, "method_reference", "references")),
+                ("Software", f"lidarcal {version}" if version else NOT_STATED),
+                ("Approach", _attr(attrs, "budget_approach")),
+            ],
+        ),
+        (
+            "Traceability of the bench",
+            [
+                ("Bench", _attr(attrs, "bench_id")),
+                ("Bench run", _attr(attrs, "bench_run_id")),
+                ("Operator", _attr(attrs, "bench_operator")),
+                ("RF driver cal.", _attr(attrs, "rf_driver_calibration_reference")),
+            ],
+        ),
         ("Signature", [("Seal", signature_status(attrs))]),
     ]
 
 
 def certificate_id(attrs: Mapping[str, Any]) -> str:
-    """The certificate id (``certificate_id``, else the ACDD ``id``)."""
+    """Return the certificate id (``certificate_id``, else the ACDD ``id``)."""
     return _attr(attrs, "certificate_id", "id")
 
 
 def headline_sentence(budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS) -> str:
-    """The headline: the range of the certified relative expanded uncertainty (k = 2)."""
+    """Return the headline: the range of the certified relative expanded uncertainty (k = 2)."""
     k = float(budget.attrs.get("coverage_factor", 2.0))
     lo, hi = wind_speeds
     where = f"bins flagged ok with centres {lo:g} to {hi:g} m/s"
     rng = headline_range(budget, wind_speeds=wind_speeds)
     if rng is None:
         return f"Relative expanded uncertainty (k = {k:g}): no {where}, nothing is certified."
-    return (f"Relative expanded uncertainty (k = {k:g}) of the lidar's horizontal wind speed, {where}: "
-            f"{rng[0]:.2f} % to {rng[1]:.2f} %.")
+    return (
+        f"Relative expanded uncertainty (k = {k:g}) of the lidar's horizontal wind speed, {where}: "
+        f"{rng[0]:.2f} % to {rng[1]:.2f} %."
+    )
 
 
-def certified_grid(budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS
-                   ) -> dict[str, Any]:
-    """The certified result: per (wind speed, height) bin the relative U (k = 2) and its tolerance.
+def certified_grid(
+    budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS
+) -> dict[str, Any]:
+    """Return the certified result: per (wind speed, height) bin the relative U (k = 2) and its tolerance.
 
     ``certified`` marks the bins of the headline (flag ok, centre in ``wind_speeds``);
     ``tolerance`` is the budget's ``numerical_tolerance`` (same units) or None.
@@ -145,18 +209,45 @@ def certified_grid(budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLI
     rel = b["relative_expanded_uncertainty"].values
     inside = (b["wind_speed"].values >= wind_speeds[0]) & (b["wind_speed"].values <= wind_speeds[1])
     certified = (b["bin_flag"].values == 0) & inside[:, None] & np.isfinite(rel)
-    tol = b["numerical_tolerance"].transpose("wind_speed", "height").values if "numerical_tolerance" in b else None
-    return {"wind_speed": b["wind_speed"].values, "height": b["height"].values, "value": rel,
-            "tolerance": tol, "certified": certified, "inside": inside, "flag": b["bin_flag"].values}
+    tol = (
+        b["numerical_tolerance"].transpose("wind_speed", "height").values
+        if "numerical_tolerance" in b
+        else None
+    )
+    return {
+        "wind_speed": b["wind_speed"].values,
+        "height": b["height"].values,
+        "value": rel,
+        "tolerance": tol,
+        "certified": certified,
+        "inside": inside,
+        "flag": b["bin_flag"].values,
+    }
 
 
 # ------------------------------------------------------------------ figures
 
 
-def _axes(fig, nrows: int, ncols: int, *, top: float = 0.9, bottom: float = 0.08, left: float = 0.1,
-          right: float = 0.96, hspace: float = 0.55, wspace: float = 0.3, **kw) -> list:
-    axes = fig.subplots(nrows, ncols, squeeze=False, gridspec_kw=dict(
-        top=top, bottom=bottom, left=left, right=right, hspace=hspace, wspace=wspace), **kw)
+def _axes(
+    fig,
+    nrows: int,
+    ncols: int,
+    *,
+    top: float = 0.9,
+    bottom: float = 0.08,
+    left: float = 0.1,
+    right: float = 0.96,
+    hspace: float = 0.55,
+    wspace: float = 0.3,
+    **kw,
+) -> list:
+    axes = fig.subplots(
+        nrows,
+        ncols,
+        squeeze=False,
+        gridspec_kw=dict(top=top, bottom=bottom, left=left, right=right, hspace=hspace, wspace=wspace),
+        **kw,
+    )
     return list(axes.flat)
 
 
@@ -177,25 +268,39 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = HEAD
     step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
     for j, h in enumerate(g["height"]):
         c = _COLORS[j % len(_COLORS)]
-        top.plot(ws, np.where(cert[:, j], val[:, j], np.nan), "-o", color=c, ms=3, lw=1.5, label=f"{_fmt(h)} m")
+        top.plot(
+            ws, np.where(cert[:, j], val[:, j], np.nan), "-o", color=c, ms=3, lw=1.5, label=f"{_fmt(h)} m"
+        )
         apart = ~cert[:, j] & np.isfinite(val[:, j])
         bottom.plot(ws[apart], val[apart, j], "x" if True else "o", color=c, ms=4, label=f"{_fmt(h)} m")
     certified_values = val[cert]
     ymax = float(certified_values.max()) * 1.15 if certified_values.size else 1.0
     top.set_xlim(wind_speeds[0] - step / 2, wind_speeds[1] + step / 2)
     top.set_ylim(0, ymax)
-    _small(top, f"Relative expanded uncertainty (k = {k:g}), certified bins "
-                f"({wind_speeds[0]:g} to {wind_speeds[1]:g} m/s, enough periods)",
-           f"reference wind speed bin{_units(budget.wind_speed)}", f"U, k = {k:g} (%)")
-    top.legend(fontsize=_FONT - 1, loc="upper left", bbox_to_anchor=(1.01, 1), title="height", title_fontsize=_FONT)
+    _small(
+        top,
+        f"Relative expanded uncertainty (k = {k:g}), certified bins "
+        f"({wind_speeds[0]:g} to {wind_speeds[1]:g} m/s, enough periods)",
+        f"reference wind speed bin{_units(budget.wind_speed)}",
+        f"U, k = {k:g} (%)",
+    )
+    top.legend(
+        fontsize=_FONT - 1, loc="upper left", bbox_to_anchor=(1.01, 1), title="height", title_fontsize=_FONT
+    )
     if bottom.lines and any(line.get_xdata().size for line in bottom.lines):
         bottom.set_yscale("log")
     bottom.axvspan(wind_speeds[0] - step / 2, wind_speeds[1] + step / 2, color="0.9", zorder=0)
-    _small(bottom, "Not certified: bins outside that range or with too few periods (own scale)",
-           f"reference wind speed bin{_units(budget.wind_speed)}", f"U, k = {k:g} (%)")
+    _small(
+        bottom,
+        "Not certified: bins outside that range or with too few periods (own scale)",
+        f"reference wind speed bin{_units(budget.wind_speed)}",
+        f"U, k = {k:g} (%)",
+    )
 
 
-def draw_contributors(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS) -> None:
+def draw_contributors(
+    fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS
+) -> None:
     """Standard-uncertainty contributors per height as grouped bars, certified bins only."""
     g = certified_grid(budget, wind_speeds)
     b = budget.transpose("wind_speed", "height", ...)
@@ -215,14 +320,17 @@ def draw_contributors(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] 
             ax.bar(ws[ok] + (i - (len(names) - 1) / 2) * width, v, width, label=name, color=_COLORS[i % 10])
         ax.set_xlim(wind_speeds[0] - step, wind_speeds[1] + step)
         _small(ax, f"{_fmt(h)} m", f"wind speed bin{_units(budget.wind_speed)}", "u (%)")
-    for ax in axes[len(heights):]:
+    for ax in axes[len(heights) :]:
         ax.set_visible(False)
     axes[0].legend(fontsize=_FONT - 1, ncol=min(len(names), 4), loc="lower left", bbox_to_anchor=(0, 1.25))
-    fig.suptitle("Relative standard uncertainty (k = 1) of each contributor, certified bins", fontsize=_FONT + 3)
+    fig.suptitle(
+        "Relative standard uncertainty (k = 1) of each contributor, certified bins", fontsize=_FONT + 3
+    )
 
 
-def confidence_band(ds: xr.Dataset, height: Any, x: np.ndarray,
-                    level: float = 0.95) -> tuple[np.ndarray, ...]:
+def confidence_band(
+    ds: xr.Dataset, height: Any, x: np.ndarray, level: float = 0.95
+) -> tuple[np.ndarray, ...]:
     """Fitted line and its two-sided ``level`` confidence band at ``x`` for one height.
 
     The regression is of the kept bin means (``bin_flag == 0``) on the bins' mean of the
@@ -281,10 +389,14 @@ def draw_sensitivity(fig, ds: xr.Dataset) -> None:
             ax.fill_between(x, lo, hi, color="#1f77b4", alpha=0.25, lw=0, label="95 % band")
             ax.plot(x, fit, color="#1f77b4", lw=1.5, label="regression")
         se = float(one["slope_standard_error"]) if "slope_standard_error" in one else np.nan
-        _small(ax, f"{_fmt(h)} m: m = {_fmt(float(one['slope']))} ± {_fmt(se)} {units}, "
-                   f"R = {_fmt(float(one['correlation']), 2)}",
-               f"{readable}{_units(ds['bin'])}", f"lidar − ref.{_units(ds['mean_difference'])}")
-    for ax in axes[len(heights):]:
+        _small(
+            ax,
+            f"{_fmt(h)} m: m = {_fmt(float(one['slope']))} ± {_fmt(se)} {units}, "
+            f"R = {_fmt(float(one['correlation']), 2)}",
+            f"{readable}{_units(ds['bin'])}",
+            f"lidar − ref.{_units(ds['mean_difference'])}",
+        )
+    for ax in axes[len(heights) :]:
         ax.set_visible(False)
     axes[0].legend(fontsize=_FONT - 1)
     fig.suptitle(f"Sensitivity to {readable}", fontsize=_FONT + 3)
@@ -298,8 +410,14 @@ def draw_significance(fig, sens: Iterable[xr.Dataset]) -> None:
         var = str(ds.attrs.get("environmental_variable", "variable"))
         y = np.atleast_1d(ds["slope_times_std"].values)
         values.append(y)
-        ax.plot(np.atleast_1d(ds.height.values), y, "-o", ms=3, color=_COLORS[i % 10],
-                label=_VARIABLES.get(var, var.replace("_", " ")))
+        ax.plot(
+            np.atleast_1d(ds.height.values),
+            y,
+            "-o",
+            ms=3,
+            color=_COLORS[i % 10],
+            label=_VARIABLES.get(var, var.replace("_", " ")),
+        )
     for s in (0.5, -0.5):
         ax.axhline(s, color="grey", ls="--", lw=0.8)
     finite = np.concatenate(values) if values else np.array([])
@@ -310,7 +428,9 @@ def draw_significance(fig, sens: Iterable[xr.Dataset]) -> None:
     _small(ax, "Significance (Eq. 12): m · std per height; threshold ±0.5 %", "height (m)", "m · std (%)")
 
 
-def drawn_cnr_range(cube: xr.Dataset, records_summary: Mapping[str, Any] | None) -> tuple[float, float] | None:
+def drawn_cnr_range(
+    cube: xr.Dataset, records_summary: Mapping[str, Any] | None
+) -> tuple[float, float] | None:
     """CNR (dB) span of the cube bins the simulation drew from, from the records' CNR range.
 
     The virtual lidar interpolates the cube between the two CNR bins around a period's CNR
@@ -326,7 +446,9 @@ def drawn_cnr_range(cube: xr.Dataset, records_summary: Mapping[str, Any] | None)
     return float(axis[i0]), float(axis[i1])
 
 
-def cube_colour_limits(da: xr.DataArray, drawn: tuple[float, float] | None, symmetric: bool) -> tuple[float, float]:
+def cube_colour_limits(
+    da: xr.DataArray, drawn: tuple[float, float] | None, symmetric: bool
+) -> tuple[float, float]:
     """Colour limits of a cube heatmap: the 99th percentile of the bins the simulation draws from.
 
     All bins when ``drawn`` (dB) is unknown; cells beyond the limits show the end colours.
@@ -350,8 +472,15 @@ def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | Non
     axes = _axes(fig, int(np.ceil(len(los) / 2)), 2, top=0.87, bottom=0.06, right=0.86, hspace=0.6)
     mesh = None
     for ax, one in zip(axes, los, strict=False):
-        mesh = ax.pcolormesh(cube.velocity.values, cube.cnr.values, da.sel(los=one).values,
-                             cmap="RdBu_r" if symmetric else "viridis", vmin=vmin, vmax=vmax, shading="nearest")
+        mesh = ax.pcolormesh(
+            cube.velocity.values,
+            cube.cnr.values,
+            da.sel(los=one).values,
+            cmap="RdBu_r" if symmetric else "viridis",
+            vmin=vmin,
+            vmax=vmax,
+            shading="nearest",
+        )
         if drawn is not None:
             for y in drawn:
                 ax.axhline(y, color="black", lw=0.8, ls=":")
@@ -359,15 +488,24 @@ def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | Non
         if "los_azimuth" in cube.coords and str(one).upper() != "V":
             label += f" (azimuth {_fmt(cube.los_azimuth.sel(los=one).item())}°)"
         _small(ax, label, f"programmed radial velocity{_units(cube.velocity)}", f"CNR{_units(cube.cnr)}")
-    for ax in axes[len(los):]:
+    for ax in axes[len(los) :]:
         ax.set_visible(False)
     if mesh is not None:
         cax = fig.add_axes([0.89, 0.3, 0.02, 0.4])
-        fig.colorbar(mesh, cax=cax, extend="both").set_label(f"{name.replace('_', ' ')}{_units(da)}", fontsize=_FONT)
-    what = ("mean LOS velocity error (measured − programmed)" if symmetric
-            else "standard deviation of the measured LOS velocity")
-    scale = (f"colour scale: 99th percentile of the CNR bins the simulation draws from ({_fmt(drawn[0])} to "
-             f"{_fmt(drawn[1])} dB, dotted lines)" if drawn else "colour scale: 99th percentile of all bins")
+        fig.colorbar(mesh, cax=cax, extend="both").set_label(
+            f"{name.replace('_', ' ')}{_units(da)}", fontsize=_FONT
+        )
+    what = (
+        "mean LOS velocity error (measured − programmed)"
+        if symmetric
+        else "standard deviation of the measured LOS velocity"
+    )
+    scale = (
+        f"colour scale: 99th percentile of the CNR bins the simulation draws from ({_fmt(drawn[0])} to "
+        f"{_fmt(drawn[1])} dB, dotted lines)"
+        if drawn
+        else "colour scale: 99th percentile of all bins"
+    )
     fig.suptitle(f"Bench: {what}\n{scale}\nblank cells had no bench samples", fontsize=_FONT + 2)
 
 
@@ -388,16 +526,29 @@ def draw_rwf(fig, rwf: xr.Dataset) -> None:
         if name in rwf:
             a.plot(x, (rwf[name] / float(rwf[name].max())).values[sl], label=name)
     a.legend(fontsize=_FONT - 1, loc="upper left", bbox_to_anchor=(1.01, 1))
-    _small(a, f"Pulse, apodization and RWF (normalised), Zd = {_fmt(zd)} m", "range offset from gate centre (m)",
-           "normalised amplitude")
+    _small(
+        a,
+        f"Pulse, apodization and RWF (normalised), Zd = {_fmt(zd)} m",
+        "range offset from gate centre (m)",
+        "normalised amplitude",
+    )
     g = rwf["cnr_gradient"].values
     pick = sorted(set(np.linspace(0, len(g) - 1, min(5, len(g))).round().astype(int).tolist()))
     for i in pick:
         b.plot(x, rwf["rwf"].isel(cnr_gradient=i).values[sl], label=f"{_fmt(g[i])} dB/m")
-    b.legend(fontsize=_FONT - 1, loc="upper left", bbox_to_anchor=(1.01, 1), title="CNR gradient",
-             title_fontsize=_FONT)
-    _small(b, "RWF for several CNR gradients (Eq. 2)", "range offset from gate centre (m)",
-           f"RWF{_units(rwf['rwf'])}")
+    b.legend(
+        fontsize=_FONT - 1,
+        loc="upper left",
+        bbox_to_anchor=(1.01, 1),
+        title="CNR gradient",
+        title_fontsize=_FONT,
+    )
+    _small(
+        b,
+        "RWF for several CNR gradients (Eq. 2)",
+        "range offset from gate centre (m)",
+        f"RWF{_units(rwf['rwf'])}",
+    )
 
 
 #: Figure name -> (what it needs, drawer(fig, parts)); names match the HTML report's sections.
@@ -412,7 +563,7 @@ DRAWERS: dict[str, Callable[..., None]] = {
 
 
 def figure_names(parts: Mapping[str, Any]) -> list[str]:
-    """The figures ``parts`` (budget, sensitivities, cube, rwf) can draw, in page order."""
+    """List the figures ``parts`` (budget, sensitivities, cube, rwf) can draw, in page order."""
     names = []
     if parts.get("budget") is not None:
         names += ["budget", "budget_contributors"]
@@ -432,14 +583,16 @@ def draw(fig, name: str, parts: Mapping[str, Any]) -> None:
     """Draw figure ``name`` of :func:`figure_names` on ``fig``."""
     if name.startswith("sensitivity_") and name != "sensitivity_slopes":
         var = name.removeprefix("sensitivity_")
-        ds = next(d for d in parts["sensitivities"] if d.attrs.get("environmental_variable", "variable") == var)
+        ds = next(
+            d for d in parts["sensitivities"] if d.attrs.get("environmental_variable", "variable") == var
+        )
         draw_sensitivity(fig, ds)
     else:
         DRAWERS[name](fig, parts)
 
 
 def parts_of(cert: xr.Dataset) -> dict[str, Any]:
-    """The components of a certificate a document draws (budget, sensitivities, cube, rwf)."""
+    """Return the components of a certificate a document draws (budget, sensitivities, cube, rwf)."""
     parts: dict[str, Any] = {"sensitivities": []}
     for comp in components(cert):
         name = comp["name"]
@@ -456,8 +609,9 @@ def parts_of(cert: xr.Dataset) -> dict[str, Any]:
 # ------------------------------------------------------------------ pages
 
 
-def _text_page(fig, y: float, lines: list[tuple[str, str, dict]], *, x0: float = 0.07, x1: float = 0.33,
-               width: int = 80) -> float:
+def _text_page(
+    fig, y: float, lines: list[tuple[str, str, dict]], *, x0: float = 0.07, x1: float = 0.33, width: int = 80
+) -> float:
     """Write (label, value, style) rows from ``y`` (figure fraction) down; return the next free y."""
     line = _FONT * 1.45 / 72 / A4[1]
     for label, value, style in lines:
@@ -468,14 +622,22 @@ def _text_page(fig, y: float, lines: list[tuple[str, str, dict]], *, x0: float =
             continue
         wrapped = [w for part in str(value).split("\n") for w in (textwrap.wrap(part, width) or [""])]
         fig.text(x0 + 0.015, y, label, fontsize=_FONT, va="top", color="0.25")
-        fig.text(x1, y, "\n".join(wrapped), fontsize=_FONT, va="top", linespacing=1.3,
-                 color=style.get("color", "black"), weight=style.get("weight", "normal"))
+        fig.text(
+            x1,
+            y,
+            "\n".join(wrapped),
+            fontsize=_FONT,
+            va="top",
+            linespacing=1.3,
+            color=style.get("color", "black"),
+            weight=style.get("weight", "normal"),
+        )
         y -= line * len(wrapped)
     return y
 
 
 def _grid_table(fig, y: float, g: dict[str, Any], rows: np.ndarray, *, only_certified: bool) -> float:
-    """A wind speed × height table of U (k = 2, %) starting at ``y``; returns the next free y."""
+    """Write a wind speed × height table of U (k = 2, %) starting at ``y``; returns the next free y."""
     heights, ws = g["height"], g["wind_speed"]
     x0, first, x1 = 0.07, 0.19, 0.95
     cols = np.linspace(first, x1, len(heights) + 1)[1:]
@@ -525,10 +687,13 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None) -> None:
     attrs = cert.attrs
     status = _attr(attrs, "calibration_status")
     _title(fig, "Calibration certificate: pulsed Doppler wind lidar", _attr(attrs, "title"))
-    banner = {"demonstration": ("DEMONSTRATION: made from simulated or sample data; not a calibration of "
-                                "an instrument", "#b22222"),
-              "issued": ("ISSUED calibration certificate", "#1a6b1a")}.get(
-        status, (f"Calibration status: {status}", "#8a5a00"))
+    banner = {
+        "demonstration": (
+            "DEMONSTRATION: made from simulated or sample data; not a calibration of an instrument",
+            "#b22222",
+        ),
+        "issued": ("ISSUED calibration certificate", "#1a6b1a"),
+    }.get(status, (f"Calibration status: {status}", "#8a5a00"))
     fig.text(0.07, 0.915, banner[0], fontsize=_FONT + 3, weight="bold", color=banner[1], va="top")
     columns: list[list[tuple[str, str, dict]]] = [[], []]
     facts = certificate_facts(attrs)
@@ -540,43 +705,73 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None) -> None:
             if value == NOT_STATED:
                 style = {"color": "0.5"}
             rows.append((label, value, style))
-    y = min(_text_page(fig, 0.9, columns[0], x0=0.07, x1=0.22, width=44),
-            _text_page(fig, 0.9, columns[1], x0=0.52, x1=0.67, width=44))
+    y = min(
+        _text_page(fig, 0.9, columns[0], x0=0.07, x1=0.22, width=44),
+        _text_page(fig, 0.9, columns[1], x0=0.52, x1=0.67, width=44),
+    )
     if budget is None:
-        fig.text(0.07, y - 0.02, "This certificate carries no uncertainty budget.", fontsize=_FONT + 1, va="top")
+        fig.text(
+            0.07, y - 0.02, "This certificate carries no uncertainty budget.", fontsize=_FONT + 1, va="top"
+        )
         return
     k = float(budget.attrs.get("coverage_factor", 2.0))
     y -= 0.012
-    fig.text(0.07, y, f"Certified result: relative expanded uncertainty U (%), k = {k:g}", fontsize=_FONT + 1.5,
-             weight="bold", va="top")
+    fig.text(
+        0.07,
+        y,
+        f"Certified result: relative expanded uncertainty U (%), k = {k:g}",
+        fontsize=_FONT + 1.5,
+        weight="bold",
+        va="top",
+    )
     y -= 0.018
-    fig.text(0.07, y, textwrap.fill(headline_sentence(budget), 105), fontsize=_FONT + 0.5, va="top",
-             weight="bold")
+    fig.text(
+        0.07, y, textwrap.fill(headline_sentence(budget), 105), fontsize=_FONT + 0.5, va="top", weight="bold"
+    )
     y -= 0.03
     g = certified_grid(budget)
     tol = "; ± its numerical tolerance (Monte Carlo)" if g["tolerance"] is not None else ""
-    fig.text(0.07, y, f"Per height and wind-speed bin (bin centre){tol}; – : bin not certified (too few periods "
-             "or no data).", fontsize=_FONT - 0.5, va="top", color="0.3")
+    fig.text(
+        0.07,
+        y,
+        f"Per height and wind-speed bin (bin centre){tol}; – : bin not certified (too few periods "
+        "or no data).",
+        fontsize=_FONT - 0.5,
+        va="top",
+        color="0.3",
+    )
     _grid_table(fig, y - 0.016, g, np.flatnonzero(g["inside"]), only_certified=True)
 
 
 def _all_bins_page(fig, budget: xr.Dataset) -> None:
     k = float(budget.attrs.get("coverage_factor", 2.0))
-    _title(fig, f"Every bin of the budget: U (%), k = {k:g}",
-           "Grey: not certified (t: too few periods; o: outside the certified wind-speed range); "
-           "– : no data. Only the black values are certified.")
+    _title(
+        fig,
+        f"Every bin of the budget: U (%), k = {k:g}",
+        "Grey: not certified (t: too few periods; o: outside the certified wind-speed range); "
+        "– : no data. Only the black values are certified.",
+    )
     g = certified_grid(budget)
     _grid_table(fig, 0.91, g, np.arange(g["wind_speed"].size), only_certified=False)
 
 
 def _provenance_page(fig, cert: xr.Dataset) -> None:
-    _title(fig, "Inputs and provenance", "Each input file of the certificate with its SHA-256; the full chain, "
-           "configuration and seeds are in the certificate's lidarcal_* attributes.")
+    _title(
+        fig,
+        "Inputs and provenance",
+        "Each input file of the certificate with its SHA-256; the full chain, "
+        "configuration and seeds are in the certificate's lidarcal_* attributes.",
+    )
     rows: list[tuple[str, str, dict]] = [("Inputs", "", {"section": True})]
     chain = cert.attrs.get("lidarcal_provenance_chain")
     for item in json.loads(chain) if chain else []:
-        rows.append((f"{item.get('role')}", f"{item.get('file')} ({item.get('kind', '')})\n"
-                     f"sha256 {item.get('sha256')}", {}))
+        rows.append(
+            (
+                f"{item.get('role')}",
+                f"{item.get('file')} ({item.get('kind', '')})\nsha256 {item.get('sha256')}",
+                {},
+            )
+        )
     rows.append(("Certificate", "", {"section": True}))
     for key in ("certificate_components", "lidarcal_version", "date_created", "history"):
         if key in cert.attrs:
@@ -584,8 +779,13 @@ def _provenance_page(fig, cert: xr.Dataset) -> None:
     _text_page(fig, 0.9, rows, x1=0.3, width=100)
 
 
-def write_document(path: str | os.PathLike, cert: xr.Dataset, *, overwrite: bool = False,
-                   parts: Mapping[str, Any] | None = None) -> dict[str, Any]:
+def write_document(
+    path: str | os.PathLike,
+    cert: xr.Dataset,
+    *,
+    overwrite: bool = False,
+    parts: Mapping[str, Any] | None = None,
+) -> dict[str, Any]:
     """Write the certificate document ``path`` (A4 PDF) of certificate ``cert``.
 
     ``parts`` (from :func:`parts_of`) saves extracting the components again.
@@ -624,8 +824,14 @@ def write_document(path: str | os.PathLike, cert: xr.Dataset, *, overwrite: bool
             fig.text(0.07, 0.025, f"Certificate {cid} · status: {status}", fontsize=_FONT - 1, va="top")
             fig.text(0.95, 0.025, f"page {i} of {len(pages)}", fontsize=_FONT - 1, va="top", ha="right")
         with atomic_path(path, overwrite=overwrite) as tmp:
-            with PdfPages(tmp, metadata={"Title": f"Calibration certificate {cid}", "Creator": "lidarcal",
-                                         "Subject": f"status: {status}"}) as pdf:
+            with PdfPages(
+                tmp,
+                metadata={
+                    "Title": f"Calibration certificate {cid}",
+                    "Creator": "lidarcal",
+                    "Subject": f"status: {status}",
+                },
+            ) as pdf:
                 for fig in pages:
                     pdf.savefig(fig)
     return {"pdf": path, "pages": len(pages)}

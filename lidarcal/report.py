@@ -1,23 +1,29 @@
-"""Offline HTML report of a calibration: interactive hvplot/bokeh plots plus static PNGs.
+"""Offline HTML report of a calibration (interactive bokeh plots) and the certificate document.
 
-The page embeds BokehJS inline (``resources=INLINE``), so it opens without network access,
-and shows, as available, budget first:
+The page embeds BokehJS inline (``resources=INLINE``), so it opens without network access.
+It opens with the calibration status, the headline sentence and the certified result (per
+height and wind-speed bin, U for k = 2), then the certificate's administrative data, and
+shows, as available:
 
-- the expanded (k = 2) uncertainty vs wind speed (paper Figure 9), a menu choosing all
-  heights or one, thin bins (fewer periods than ``min_samples``) marked with red crosses;
-- the uncertainty contributors as grouped bars per wind-speed bin, a menu choosing the height;
+- the expanded (k = 2) uncertainty vs wind speed (paper Figure 9), the axes set by the
+  certified bins (4-16 m/s, enough periods), a menu choosing all heights or one, thin bins
+  (fewer periods than ``min_samples``) marked with red crosses;
+- the uncertainty contributors as grouped bars per certified wind-speed bin, a menu choosing
+  the height;
 - the sensitivities (Figure 7): per height (menu) the bin means with the standard error of
   the mean, the regression line and its 95 % confidence band, plus a table of the slopes,
   R and the Eqs. 12-13 statistics rounded to 3 significant digits; and (Figure 8) the Eq. 12
   statistic m·std per height for every variable against the ±0.5 % threshold;
 - the bench cube (Figure 5): CNR x programmed velocity heatmaps of the LOS bias and of the
-  LOS standard deviation, one per line of sight on one colour scale;
+  LOS standard deviation, one per line of sight on one colour scale, set by the CNR bins the
+  simulation draws from;
 - the range-weighting function (Figure 6): pulse, apodization and RWF, and the RWF for a few
-  CNR gradients, with the zero distance Zd.
+  CNR gradients, with the zero distance Zd;
 
-Every figure is also written as a PNG at 150 dpi through HoloViews' matplotlib backend (or
-matplotlib itself), next to the page (``<stem>_<figure>.png``); a menu's PNG shows every
-height.
+and last the inputs with their SHA-256.  The plots are plain bokeh models (one plot per
+figure; a menu shows one height's renderers), which keeps the page cheap to write.  Beside
+the page, :func:`write_report` writes the certificate document (:mod:`lidarcal.document`,
+``<stem>.pdf``) and, on request, a PNG of each of its figures.
 """
 
 from __future__ import annotations
@@ -122,17 +128,22 @@ def _plot(title: str, xlabel: str, ylabel: str, *, width: int = _WIDTH, height: 
     return p
 
 
-def _legend_outside(p: Any) -> None:
+def _legend_outside(p: Any, click_policy: str = "hide") -> None:
+    """Move the legend right of the plot.
+
+    A menu's plot takes ``"none"``: BokehJS greys an item that has a hidden renderer, and the
+    menu hides the other heights' renderers of every item.
+    """
     from bokeh.models import Legend
 
     if p.legend:
         items = p.legend[0].items
         p.legend[0].visible = False
-        p.add_layout(Legend(items=items, click_policy="hide", label_text_font_size="9pt"), "right")
+        p.add_layout(Legend(items=items, click_policy=click_policy, label_text_font_size="9pt"), "right")
 
 
 def _menu(p: Any, groups: Mapping[str, list], shown: str, titles: Mapping[str, str]) -> Any:
-    """A drop-down above ``p`` choosing which group of its renderers is shown (and the title)."""
+    """Add a drop-down above ``p`` choosing which group of its renderers is shown (and the title)."""
     from bokeh.layouts import column
     from bokeh.models import CustomJS, Select
 
@@ -187,7 +198,7 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
             thin = (f == 1) & np.isfinite(y)
             p.scatter(ws[thin], y[thin], marker="x", size=11, line_width=2, color=_THIN,
                       legend_label="thin bin (too few periods)", name=name)
-        _legend_outside(p)
+        _legend_outside(p, "none")
         groups = {"all heights": list(p.renderers), **_by_name(p)}
         return _menu(p, groups, "all heights", {lab: f"{title}, {lab}" for lab in labels})
 
@@ -210,7 +221,7 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
         width = 0.85 * step / len(names)
         p = _plot(f"Standard uncertainty contributors at {default}", xl, "relative standard uncertainty (%)",
                   width=_WIDTH + 140, x_range=(xlim[0] - step / 2, xlim[1] + step / 2))
-        ok = flag.transpose("wind_speed", "height").values == 0
+        ok = g["certified"]  # (wind_speed, height): the bins on the certificate
         j0 = hlabels.index(default)
         for i, name in enumerate(names):
             values = combined if name == "combined" else contrib.values[:, :, i]
@@ -231,8 +242,8 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
 
     out["budget_contributors"] = Figure(
         "Uncertainty contributors per height", build_contributors,
-        note="<p>Relative standard uncertainty (k = 1) of each contributor per wind-speed bin with enough "
-             "periods; <em>combined</em> is their root sum of squares.</p>",
+        note="<p>Relative standard uncertainty (k = 1) of each contributor per certified wind-speed bin "
+             "(enough periods, 4 to 16 m/s); <em>combined</em> is their root sum of squares.</p>",
     )
     return out
 
@@ -280,7 +291,7 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
                 p.line(xf, fit, color="#1f77b4", line_width=2, legend_label="regression", name=label)
             p.segment(x, y - s, x, y + s, color="black", name=label)
             p.scatter(x, y, color="black", size=7, legend_label="bin mean ± s.e.", name=label)
-        _legend_outside(p)
+        _legend_outside(p, "none")
         return _menu(p, _by_name(p), list(titles)[0], titles)
 
     note = (
@@ -358,7 +369,8 @@ def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) 
             from bokeh.models import ColorBar, LinearColorMapper
             from bokeh.palettes import Viridis256, all_palettes
 
-            colors = Viridis256 if palette == "Viridis256" else list(reversed(all_palettes["RdBu"][11]))
+            # bokeh's RdBu runs blue (low) to red (high), as matplotlib's RdBu_r in the PDF
+            colors = Viridis256 if palette == "Viridis256" else list(all_palettes["RdBu"][11])
             mapper = LinearColorMapper(palette=colors, low=clim[0], high=clim[1], nan_color=(0, 0, 0, 0))
             v, c = cube.velocity.values, cube.cnr.values
             dv = float(np.median(np.diff(v))) if v.size > 1 else 1.0
@@ -460,12 +472,13 @@ def _from_certificate(cert: xr.Dataset) -> dict[str, Any]:
 
 
 def _header(cert: xr.Dataset | None, budget: xr.Dataset | None) -> str:
-    """The top of the page: status, the headline and the certified result, then the certificate's facts."""
+    """Return the top of the page: status, headline, certified result, then the certificate's facts."""
     out = []
     if cert is not None:
         status = cert.attrs.get("calibration_status", NOT_STATED)
+        cid = html.escape(certificate_id(cert.attrs))
         out.append(f'<p class="status status-{html.escape(str(status))}"><strong>Calibration status: '
-                   f"{html.escape(str(status))}</strong> · certificate {html.escape(certificate_id(cert.attrs))}</p>")
+                   f"{html.escape(str(status))}</strong> · certificate {cid}</p>")
     if budget is not None:
         out.append(f'<p class="headline"><strong>{html.escape(headline_sentence(budget))}</strong></p>')
         g = certified_grid(budget)
@@ -493,7 +506,7 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None) -> str:
 
 
 def _provenance(cert: xr.Dataset | None) -> str:
-    """The end of the page: the certificate's components and inputs with their SHA-256."""
+    """Return the end of the page: the certificate's components and inputs with their SHA-256."""
     if cert is None:
         return ""
     rows = []
@@ -544,9 +557,10 @@ def write_report(
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     if sens:
         parts["sensitivities"] = sens
-    if certificate is not None and parts.get("cube") is not None and certificate.attrs.get("lidarcal_records_summary"):
-        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], json.loads(certificate.attrs["lidarcal_records_summary"]))
-    figs = report_figures(**{k: v for k, v in parts.items() if k != "drawn_cnr"}, drawn_cnr=parts.get("drawn_cnr"))
+    summary = certificate.attrs.get("lidarcal_records_summary") if certificate is not None else None
+    if summary and parts.get("cube") is not None:
+        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], json.loads(summary))
+    figs = report_figures(**parts)
     path = Path(path)
     pdf_path = path.with_suffix(".pdf") if pdf and certificate is not None else None
     pngs = {name: path.with_name(f"{path.stem}_{name}.png") for name in figure_names(parts)} if png else {}

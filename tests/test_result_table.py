@@ -152,7 +152,8 @@ def test_open_certificate_tree(cert_path):
     assert tree.attrs["lidar_serial"] == SERIAL
     # eager: a certificate is small, values are numpy arrays an analyst can .item()
     assert tree["budget"].dataset["uncertainty"].chunks is None
-    value = tree["budget"].ds.relative_expanded_uncertainty.sel(height=120, wind_speed=8, method="nearest").item()
+    cell = tree["budget"].ds.relative_expanded_uncertainty.sel(height=120, wind_speed=8, method="nearest")
+    value = cell.item()
     assert value == expected.item()
     # lazy on request
     lazy = lidarcal.open_certificate(cert_path, chunks={})

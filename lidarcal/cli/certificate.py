@@ -46,7 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--records", metavar="RECORDS.nc", help="simulated_rtd / field_campaign records (summarised)"
     )
     add_output_options(p, "CERT.nc")
-    p.add_argument("--report", metavar="CERT.html", help="also write the HTML report and, beside it, the certificate document (CERT.pdf, A4)")
+    p.add_argument("--report", metavar="CERT.html",
+                   help="also write the HTML report and, beside it, the certificate document (CERT.pdf, A4)")
     p.add_argument("--sign", metavar="KEY",
                    help="sign the seal with this Ed25519 private key (lidarcal keygen); without it the "
                    "certificate is sealed for integrity only")
