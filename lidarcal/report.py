@@ -43,6 +43,7 @@ from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_compo
 from lidarcal.document import (
     A4,
     NOT_STATED,
+    STYLE,
     certificate_facts,
     certificate_id,
     certified_grid,
@@ -577,14 +578,16 @@ def write_report(
                         footer=_provenance(certificate))
     written = []
     if pngs:
+        import matplotlib
         from matplotlib.figure import Figure as MplFigure
 
-        for name, target in pngs.items():
-            fig = MplFigure(figsize=A4)
-            draw(fig, name, parts)
-            with atomic_path(target, overwrite=overwrite) as tmp:
-                fig.savefig(tmp, dpi=_PNG_DPI, format="png")
-            written.append(target)
+        with matplotlib.rc_context(STYLE):
+            for name, target in pngs.items():
+                fig = MplFigure(figsize=A4)
+                draw(fig, name, parts)
+                with atomic_path(target, overwrite=overwrite) as tmp:
+                    fig.savefig(tmp, dpi=_PNG_DPI, format="png")
+                written.append(target)
     document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts) if pdf_path else None
     write_text(path, page, overwrite=overwrite)
     return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
