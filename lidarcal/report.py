@@ -279,21 +279,47 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
                      ", ".join(sig) or "no"])
 
     def build() -> Any:
-        from bokeh.models import DataRange1d
+        # one source of points and one of curves, holding every height's columns ("x|40 m" ...);
+        # the menu copies the chosen height's into the drawn ones: 4 renderers, not 4 per height
+        from bokeh.layouts import column
+        from bokeh.models import ColumnDataSource, CustomJS, Select
 
-        p = _plot("", xl, yl, width=_WIDTH - 80,
-                  x_range=DataRange1d(only_visible=True), y_range=DataRange1d(only_visible=True))
+        n_pts = max(1, max(x.size for _, x, _, _, _ in layers))
+        n_line = max([1] + [line[0].size for *_, line in layers if line is not None])
+
+        def pad(v: np.ndarray, n: int) -> np.ndarray:
+            out = np.full(n, np.nan)
+            out[: v.size] = v
+            return out
+
+        pts: dict[str, np.ndarray] = {}
+        crv: dict[str, np.ndarray] = {}
         for label, x, y, s, line in layers:
-            if line is not None:
-                xf, fit, lo, hi = line
-                if np.isfinite(lo).any():
-                    p.varea(xf, lo, hi, color="#1f77b4", alpha=0.25, legend_label="95 % confidence band",
-                            name=label)
-                p.line(xf, fit, color="#1f77b4", line_width=2, legend_label="regression", name=label)
-            p.segment(x, y - s, x, y + s, color="black", name=label)
-            p.scatter(x, y, color="black", size=7, legend_label="bin mean ± s.e.", name=label)
-        _legend_outside(p, "none")
-        return _menu(p, _by_name(p), list(titles)[0], titles)
+            pts.update({f"x|{label}": pad(x, n_pts), f"y|{label}": pad(y, n_pts),
+                        f"y0|{label}": pad(y - s, n_pts), f"y1|{label}": pad(y + s, n_pts)})
+            xf, fit, lo, hi = line if line is not None else (np.array([]),) * 4
+            crv.update({f"xf|{label}": pad(xf, n_line), f"fit|{label}": pad(fit, n_line),
+                        f"lo|{label}": pad(lo, n_line), f"hi|{label}": pad(hi, n_line)})
+        shown = list(titles)[0]
+        for data in (pts, crv):
+            data.update({k.split("|")[0]: v for k, v in list(data.items()) if k.endswith(f"|{shown}")})
+        points, curve = ColumnDataSource(pts), ColumnDataSource(crv)
+        p = _plot(titles[shown], xl, yl, width=_WIDTH - 80)
+        p.varea("xf", "lo", "hi", source=curve, color="#1f77b4", alpha=0.25,
+                legend_label="95 % confidence band")
+        p.line("xf", "fit", source=curve, color="#1f77b4", line_width=2, legend_label="regression")
+        p.segment("x", "y0", "x", "y1", source=points, color="black")
+        p.scatter("x", "y", source=points, color="black", size=7, legend_label="bin mean ± s.e.")
+        _legend_outside(p)
+        select = Select(title="Show:", value=shown, options=list(titles), width=220)
+        select.js_on_change("value", CustomJS(
+            args={"sources": [points, curve], "plot": p, "titles": dict(titles)},
+            code="for (const src of sources) { const d = {...src.data};"
+                 "  for (const k of Object.keys(d)) { const [base, h] = k.split('|');"
+                 "    if (h === cb_obj.value) { d[base] = d[k]; } }"
+                 "  src.data = d; }"
+                 "plot.title.text = titles[cb_obj.value];"))
+        return column(select, p)
 
     note = (
         "<p>Points: bin means of the difference with the standard error of the mean "

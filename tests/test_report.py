@@ -283,6 +283,24 @@ def test_report_renders_offline_in_headless_chromium(report, chromium):
                 break
             time.sleep(0.2)
         assert shown == ["100 m"], shown
+        # a sensitivity's menu copies that height's columns into the drawn ones, and retitles the plot
+        sens_menu = """
+          const root = Bokeh.documents[0].roots().find((r) => r.children && r.children[0].options
+                                                       && r.children[1].title.text.includes(" m = "));
+          if (arguments[0]) root.children[0].value = arguments[0];
+          const src = root.children[1].renderers.map((r) => r.data_source.data)
+                          .find((d) => d["x|100 m"] !== undefined);
+          return [root.children[1].title.text.split(":")[0],
+                  Array.from(src["y"]).every((v, i) => Object.is(v, src["y|100 m"][i]))
+                  && !Array.from(src["y"]).every((v, i) => Object.is(v, src["y|80 m"][i]))];
+        """
+        driver.execute_script(sens_menu, "100 m")
+        deadline = time.monotonic() + 30
+        while (state := driver.execute_script(sens_menu, "")) != ["100 m", True]:
+            if time.monotonic() > deadline:
+                break
+            time.sleep(0.2)
+        assert state == ["100 m", True], state
         state = wait_for(all_drawn)
         assert all_drawn(state), state
         errors = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
