@@ -203,13 +203,27 @@ def certified_grid(
 ) -> dict[str, Any]:
     """Return the certified result: per (wind speed, height) bin the relative U (k = 2) and its tolerance.
 
-    ``certified`` marks the bins of the headline (flag ok, centre in ``wind_speeds``);
-    ``tolerance`` is the budget's ``numerical_tolerance`` (same units) or None.
+    ``certified`` marks the bins of the headline (flag ok, centre in ``wind_speeds``), or the
+    bins the budget's ``bin_flag`` itself calls ``certified`` when its ``flag_meanings`` have
+    that meaning; ``tolerance`` is the budget's ``numerical_tolerance`` (same units) or None.
     """
     b = budget.transpose("wind_speed", "height", ...)
     rel = b["relative_expanded_uncertainty"].values
     inside = (b["wind_speed"].values >= wind_speeds[0]) & (b["wind_speed"].values <= wind_speeds[1])
-    certified = (b["bin_flag"].values == 0) & inside[:, None] & np.isfinite(rel)
+    flag = b["bin_flag"]
+    meanings = dict(
+        zip(
+            str(flag.attrs.get("flag_meanings", "")).split(),
+            np.atleast_1d(flag.attrs.get("flag_values", [])).tolist(),
+            strict=False,
+        )
+    )
+    good = (
+        flag.values == meanings["certified"]
+        if "certified" in meanings
+        else (flag.values == 0) & inside[:, None]
+    )
+    certified = good & np.isfinite(rel)
     tol = (
         b["numerical_tolerance"].transpose("wind_speed", "height").values
         if "numerical_tolerance" in b
@@ -341,8 +355,15 @@ def draw_contributors(
         points = ax.get_position().width * fig.get_figwidth() * 72 / span  # points per m/s
         for i, (name, v) in enumerate(zip(names, values, strict=True)):
             # bars as one line collection each (butt caps, width in points): ~1,000 rectangles are slow
-            ax.vlines(ws[ok] + (i - (len(names) - 1) / 2) * width, 0, v, label=name, color=_COLORS[i % 10],
-                      linewidth=points * width, capstyle="butt")
+            ax.vlines(
+                ws[ok] + (i - (len(names) - 1) / 2) * width,
+                0,
+                v,
+                label=name,
+                color=_COLORS[i % 10],
+                linewidth=points * width,
+                capstyle="butt",
+            )
         ax.set_xlim(wind_speeds[0] - step, wind_speeds[1] + step)
         _small(ax, f"{_fmt(h)} m", f"wind speed bin{_units(budget.wind_speed)}", "u (%)")
     for ax in axes[len(heights) :]:
@@ -495,8 +516,16 @@ def _heatmap(ax, da: xr.DataArray, cmap: str, vmin: float, vmax: float) -> Any:
     dx, dy = (np.diff(x) if x.size > 1 else np.ones(1)), (np.diff(y) if y.size > 1 else np.ones(1))
     if np.allclose(dx, dx[0]) and np.allclose(dy, dy[0]):
         extent = (x[0] - dx[0] / 2, x[-1] + dx[0] / 2, y[0] - dy[0] / 2, y[-1] + dy[0] / 2)
-        return ax.imshow(da.values, origin="lower", extent=extent, aspect="auto", interpolation="nearest",
-                         cmap=cmap, vmin=vmin, vmax=vmax)
+        return ax.imshow(
+            da.values,
+            origin="lower",
+            extent=extent,
+            aspect="auto",
+            interpolation="nearest",
+            cmap=cmap,
+            vmin=vmin,
+            vmax=vmax,
+        )
     return ax.pcolormesh(x, y, da.values, cmap=cmap, vmin=vmin, vmax=vmax, shading="nearest")
 
 

@@ -376,7 +376,8 @@ def test_certificate_document_states_status_admin_data_and_tolerance(inputs, rep
     cert.attrs.update(calibration_status="demonstration", certificate_id="LAB-2026-0042",
                       item_manufacturer="Acme Lidar", item_model="WL-7", item_firmware="3.2.1",
                       laboratory_name="Test Lab", responsible_persons="A. Person (head); B. Other (operator)",
-                      rf_driver_calibration_reference="RF-CAL-17")
+                      rf_driver_calibration_reference="RF-CAL-17", lidarcal_signature="c2ln",
+                      lidarcal_signature_key="ed25519:0123abcd")
     parts = parts_of(cert)
     parts["budget"]["numerical_tolerance"] = parts["budget"]["relative_expanded_uncertainty"] * 0 + 0.012
     out = write_document(tmp_path / "doc.pdf", cert, parts=parts)
@@ -384,7 +385,8 @@ def test_certificate_document_states_status_admin_data_and_tolerance(inputs, rep
     first = " ".join(pages[0].split())
     for words in ("DEMONSTRATION", "Calibration status demonstration", "Certificate id LAB-2026-0042",
                   "Manufacturer Acme Lidar", "Model WL-7", "Firmware 3.2.1", "Laboratory Test Lab",
-                  "A. Person (head)", "B. Other (operator)", "RF driver cal. RF-CAL-17", "± 0.012"):
+                  "A. Person (head)", "B. Other (operator)", "RF driver cal. RF-CAL-17", "± 0.012",
+                  "Seal signed (Ed25519) by key ed25519:0123abcd"):
         assert words in first, words
     assert all("LAB-2026-0042 · status: demonstration" in p for p in pages)
     with pytest.raises(OutputExistsError):
