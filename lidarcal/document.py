@@ -37,6 +37,7 @@ __all__ = [
     "DRAWERS",
     "certificate_facts",
     "signature_status",
+    "seal_statement",
     "certified_grid",
     "drawn_cnr_range",
     "STYLE",
@@ -97,22 +98,32 @@ def _attr(attrs: Mapping[str, Any], *names: str) -> str:
     return NOT_STATED
 
 
-def signature_status(attrs: Mapping[str, Any]) -> str:
-    """Say what the certificate's seal and signature attributes say (not a verification)."""
+def seal_statement(signed_by: str | None) -> str:
+    """Describe the seal of a certificate signed by key ``signed_by`` (fingerprint), or unsigned."""
+    if signed_by:
+        return f"signed (Ed25519) by key {signed_by}; check with lidarcal verify CERT.nc --public-key KEY.pub"
+    return (
+        "sealed, unsigned: SHA-256 integrity record only (whoever can rewrite the file can "
+        "re-seal it); check with lidarcal verify CERT.nc"
+    )
+
+
+def signature_status(attrs: Mapping[str, Any], seal: str | None = None) -> str:
+    """Say what the certificate's seal and signature attributes say (not a verification).
+
+    ``seal`` (:func:`seal_statement`) stands for a certificate not yet written, whose seal
+    and signature are added when it is.
+    """
     if SIGNATURE_ATTR in attrs:
-        return (
-            f"signed (Ed25519) by key {attrs.get(SIGNATURE_KEY_ATTR, NOT_STATED)}; check with "
-            "lidarcal verify CERT.nc --public-key KEY.pub"
-        )
+        return seal_statement(str(attrs.get(SIGNATURE_KEY_ATTR, NOT_STATED)))
     if INTEGRITY_ATTR in attrs:
-        return (
-            "sealed, unsigned: SHA-256 integrity record only (whoever can rewrite the file can "
-            "re-seal it); check with lidarcal verify CERT.nc"
-        )
-    return "not sealed (this document was made from a certificate not yet written)"
+        return seal_statement(None)
+    return seal or "not sealed (this document was made from a certificate not yet written)"
 
 
-def certificate_facts(attrs: Mapping[str, Any]) -> list[tuple[str, list[tuple[str, str]]]]:
+def certificate_facts(
+    attrs: Mapping[str, Any], seal: str | None = None
+) -> list[tuple[str, list[tuple[str, str]]]]:
     """Page 1's administrative data as (section, [(label, value)]) from the global attributes."""
     persons = _attr(attrs, "responsible_persons")
     bench_start = _attr(attrs, "bench_run_start", "bench_time_coverage_start")
@@ -175,7 +186,7 @@ def certificate_facts(attrs: Mapping[str, Any]) -> list[tuple[str, list[tuple[st
                 ("RF driver cal.", _attr(attrs, "rf_driver_calibration_reference")),
             ],
         ),
-        ("Signature", [("Seal", signature_status(attrs))]),
+        ("Signature", [("Seal", signature_status(attrs, seal))]),
     ]
 
 
@@ -741,7 +752,7 @@ def _title(fig, text: str, sub: str = "") -> None:
         fig.text(0.07, 0.94, sub, fontsize=_FONT, va="top", color="0.3")
 
 
-def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None) -> None:
+def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None, seal: str | None = None) -> None:
     attrs = cert.attrs
     status = _attr(attrs, "calibration_status")
     _title(fig, "Calibration certificate: pulsed Doppler wind lidar", _attr(attrs, "title"))
@@ -754,7 +765,7 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None) -> None:
     }.get(status, (f"Calibration status: {status}", "#8a5a00"))
     fig.text(0.07, 0.915, banner[0], fontsize=_FONT + 3, weight="bold", color=banner[1], va="top")
     columns: list[list[tuple[str, str, dict]]] = [[], []]
-    facts = certificate_facts(attrs)
+    facts = certificate_facts(attrs, seal)
     for n, (section, items) in enumerate(facts):
         rows = columns[0 if n < (len(facts) + 1) // 2 else 1]
         rows.append((section, "", {"section": True}))
@@ -843,10 +854,14 @@ def write_document(
     *,
     overwrite: bool = False,
     parts: Mapping[str, Any] | None = None,
+    seal: str | None = None,
+    warning: str | None = None,
 ) -> dict[str, Any]:
     """Write the certificate document ``path`` (A4 PDF) of certificate ``cert``.
 
-    ``parts`` (from :func:`parts_of`) saves extracting the components again.
+    ``parts`` (from :func:`parts_of`) saves extracting the components again; ``seal``
+    (:func:`seal_statement`) states the seal of a certificate written after its document;
+    ``warning`` (an invalid seal) is printed in red on page 1 and in every page's footer.
 
     Returns
     -------
@@ -869,7 +884,18 @@ def write_document(
         return fig
 
     with matplotlib.rc_context(STYLE):
-        _page_one(page(), cert, budget)
+        first = page()
+        _page_one(first, cert, budget, seal)
+        if warning:  # over the title block, in red: the numbers below are not certified
+            first.text(
+                0.07,
+                0.99,
+                textwrap.fill(warning, 110),
+                fontsize=_FONT,
+                color="#b22222",
+                weight="bold",
+                va="top",
+            )
         for name in figure_names(parts):
             fig = page()
             draw(fig, name, parts)
@@ -879,7 +905,15 @@ def write_document(
         cid, status = certificate_id(cert.attrs), _attr(cert.attrs, "calibration_status")
         for i, fig in enumerate(pages, 1):
             fig.add_artist(_rule(0.035))
-            fig.text(0.07, 0.025, f"Certificate {cid} · status: {status}", fontsize=_FONT - 1, va="top")
+            invalid = " · INVALID SEAL: these numbers are NOT certified" if warning else ""
+            fig.text(
+                0.07,
+                0.025,
+                f"Certificate {cid} · status: {status}{invalid}",
+                fontsize=_FONT - 1,
+                va="top",
+                color="#b22222" if warning else "black",
+            )
             fig.text(0.95, 0.025, f"page {i} of {len(pages)}", fontsize=_FONT - 1, va="top", ha="right")
         with atomic_path(path, overwrite=overwrite) as tmp:
             with PdfPages(

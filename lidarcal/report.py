@@ -39,7 +39,13 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component
+from lidarcal.certificate import (
+    HEADLINE_WIND_SPEEDS,
+    components,
+    extract_component,
+    invalid_seal_banner,
+    require_valid_seal,
+)
 from lidarcal.document import (
     A4,
     NOT_STATED,
@@ -498,7 +504,7 @@ def _from_certificate(cert: xr.Dataset) -> dict[str, Any]:
     return parts
 
 
-def _header(cert: xr.Dataset | None, budget: xr.Dataset | None) -> str:
+def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None = None) -> str:
     """Return the top of the page: status, headline, certified result, then the certificate's facts."""
     out = []
     if cert is not None:
@@ -527,7 +533,8 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None) -> str:
         facts = "\n".join(
             f"<tr><th>{html.escape(section if n == 0 else '')}</th><td>{html.escape(label)}</td>"
             f"<td>{html.escape(value).replace(chr(10), '<br>')}</td></tr>"
-            for section, items in certificate_facts(cert.attrs) for n, (label, value) in enumerate(items))
+            for section, items in certificate_facts(cert.attrs, seal)
+            for n, (label, value) in enumerate(items))
         out.append(f'<table class="facts">\n{facts}\n</table>')
     return "\n".join(out)
 
@@ -561,20 +568,31 @@ def write_report(
     png: bool = False,
     pdf: bool = True,
     overwrite: bool = False,
+    allow_invalid: bool = False,
+    seal: str | None = None,
 ) -> dict[str, Any]:
     """Write the offline HTML report, and beside it the certificate document (PDF) and PNGs.
 
     With ``certificate`` the components are taken from it; explicit arguments override them.
     The page opens with the status, the headline and the certified result; the inputs'
     SHA-256 come last.  With ``certificate`` and ``pdf`` the certificate document
-    (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``.  With ``png``
-    every figure of the document is also written as ``<stem>_<figure>.png`` (150 dpi).
+    (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``; ``seal``
+    (:func:`lidarcal.document.seal_statement`) states the seal of a certificate written after
+    its report.  With ``png`` every figure of the document is also written as
+    ``<stem>_<figure>.png`` (150 dpi).
+
+    A certificate read from a file has its seal checked first
+    (:func:`lidarcal.seal.require_valid_seal`): an altered one is refused
+    (:class:`~lidarcal.errors.SealError`), or with ``allow_invalid`` reported under a
+    warning banner (on the page and on every page of the document).
 
     Returns
     -------
     dict
         ``{"html": Path, "figures": [names], "png": [Paths], "pdf": Path or None}``.
     """
+    check = require_valid_seal(certificate, allow_invalid=allow_invalid) if certificate is not None else None
+    banner = invalid_seal_banner(check) if check is not None and not check.ok else None
     parts: dict[str, Any] = (
         _from_certificate(certificate) if certificate is not None else {"sensitivities": []}
     )
@@ -599,8 +617,9 @@ def write_report(
     )
     models = {name: fig.bokeh() for name, fig in figs.items()}
     after = {name: fig.note for name, fig in figs.items()}
-    page = offline_html(models, title=title, header=_header(certificate, parts.get("budget")), after=after,
-                        titles={name: fig.heading for name, fig in figs.items()},
+    warning = f'<p class="invalid"><strong>{html.escape(banner)}</strong></p>\n' if banner else ""
+    page = offline_html(models, title=title, header=warning + _header(certificate, parts.get("budget"), seal),
+                        after=after, titles={name: fig.heading for name, fig in figs.items()},
                         footer=_provenance(certificate))
     written = []
     if pngs:
@@ -614,7 +633,10 @@ def write_report(
                 with atomic_path(target, overwrite=overwrite) as tmp:
                     fig.savefig(tmp, dpi=_PNG_DPI, format="png")
                 written.append(target)
-    document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts) if pdf_path else None
+    document = None
+    if pdf_path:
+        document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
+                                  warning=banner)
     write_text(path, page, overwrite=overwrite)
     return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
             "pages": document["pages"] if document else 0}
