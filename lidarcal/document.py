@@ -689,7 +689,7 @@ def _text_page(
             fig.text(x0, y, label, fontsize=_FONT + 1.5, weight="bold", va="top")
             y -= 1.25 * line
             continue
-        wrapped = [w for part in str(value).split("\n") for w in (textwrap.wrap(part, width) or [""])]
+        wrapped = [w for part in str(value).split("\n") for w in (textwrap.wrap(part, width, break_on_hyphens=False) or [""])]
         fig.text(x0 + 0.015, y, label, fontsize=_FONT, va="top", color="0.25")
         fig.text(
             x1,
@@ -756,27 +756,33 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None, seal: str | None
     attrs = cert.attrs
     status = _attr(attrs, "calibration_status")
     _title(fig, "Calibration certificate: pulsed Doppler wind lidar", _attr(attrs, "title"))
+    reason = attrs.get("calibration_status_reason")
     banner = {
         "demonstration": (
-            "DEMONSTRATION: made from simulated or sample data; not a calibration of an instrument",
+            "DEMONSTRATION: not a calibration of a real instrument"
+            + (f" ({reason})" if reason else " (made from simulated or sample data)"),
             "#b22222",
         ),
         "issued": ("ISSUED calibration certificate", "#1a6b1a"),
     }.get(status, (f"Calibration status: {status}", "#8a5a00"))
-    fig.text(0.07, 0.915, banner[0], fontsize=_FONT + 3, weight="bold", color=banner[1], va="top")
-    columns: list[list[tuple[str, str, dict]]] = [[], []]
+    text = textwrap.fill(banner[0], 95)
+    fig.text(0.07, 0.915, text, fontsize=_FONT + 2, weight="bold", color=banner[1], va="top")
+    shift = 0.016 * text.count("\n")  # a long reason takes more lines: the columns start lower
+    # the status block (status, id, date of issue) across the page, the other sections in two columns
+    blocks: list[list[tuple[str, str, dict]]] = [[], [], []]
     facts = certificate_facts(attrs, seal)
     for n, (section, items) in enumerate(facts):
-        rows = columns[0 if n < (len(facts) + 1) // 2 else 1]
+        rows = blocks[0 if n == 0 else 1 if n <= len(facts) // 2 else 2]
         rows.append((section, "", {"section": True}))
         for label, value in items:
             style = {"color": "#b22222", "weight": "bold"} if label == "Calibration status" else {}
             if value == NOT_STATED:
                 style = {"color": "0.5"}
             rows.append((label, value, style))
+    y = _text_page(fig, 0.9 - shift, blocks[0], x0=0.07, x1=0.22, width=100)
     y = min(
-        _text_page(fig, 0.9, columns[0], x0=0.07, x1=0.22, width=44),
-        _text_page(fig, 0.9, columns[1], x0=0.52, x1=0.67, width=44),
+        _text_page(fig, y, blocks[1], x0=0.07, x1=0.22, width=44),
+        _text_page(fig, y, blocks[2], x0=0.52, x1=0.67, width=44),
     )
     if budget is None:
         fig.text(

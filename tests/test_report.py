@@ -339,14 +339,17 @@ def test_certificate_document_pages(report, poppler):
     assert pdf.read_bytes()[:5] == b"%PDF-"
     cert = xr.open_dataset(report.with_name("cert.nc"))
     pages, images = _pdf_pages(pdf, poppler)
+    cid = cert.attrs["certificate_id"]  # the lab's id (the ACDD id only when there is none)
     n = len(pages)
     assert n == len(images) >= 8  # page 1, budget, contributors, 2 sensitivities + Eq. 12, cube x2, RWF ...
     for i, (page, image) in enumerate(zip(pages, images, strict=True), 1):
-        assert cert.attrs["id"] in page and f"page {i} of {n}" in page, (i, page[-300:])
+        assert f"Certificate {cid} · status: demonstration" in " ".join(page.split()), (i, page[-300:])
+        assert f"page {i} of {n}" in page, (i, page[-300:])
         assert image.shape == (468, 331)  # A4 portrait at 40 dpi: 11.69 x 8.27 in
         assert (image < 128).mean() > 0.005  # something is drawn on every page
     first = " ".join(pages[0].split())
-    for words in ("Calibration status not stated", "Serial number WLS7-TEST", "Bench run",
+    for words in ("DEMONSTRATION: not a calibration of a real instrument", "Calibration status demonstration",
+                  f"Certificate id {cid}", "Serial number WLS7-TEST", "Bench run",
                   "Seal sealed, unsigned",
                   "Certified result: relative expanded uncertainty U (%), k = 2"):
         assert words in first, words
