@@ -135,6 +135,11 @@ def certificate_facts(
             "Status",
             [
                 ("Calibration status", _attr(attrs, "calibration_status")),
+                *(
+                    [("Why", str(attrs["calibration_status_reason"]))]
+                    if attrs.get("calibration_status_reason")
+                    else []
+                ),
                 ("Certificate id", certificate_id(attrs)),
                 ("Date of issue", _attr(attrs, "date_issued", "date_created")),
             ],
@@ -689,7 +694,11 @@ def _text_page(
             fig.text(x0, y, label, fontsize=_FONT + 1.5, weight="bold", va="top")
             y -= 1.25 * line
             continue
-        wrapped = [w for part in str(value).split("\n") for w in (textwrap.wrap(part, width, break_on_hyphens=False) or [""])]
+        wrapped = [
+            w
+            for part in str(value).split("\n")
+            for w in (textwrap.wrap(part, width, break_on_hyphens=False) or [""])
+        ]
         fig.text(x0 + 0.015, y, label, fontsize=_FONT, va="top", color="0.25")
         fig.text(
             x1,
@@ -705,12 +714,19 @@ def _text_page(
     return y
 
 
-def _grid_table(fig, y: float, g: dict[str, Any], rows: np.ndarray, *, only_certified: bool) -> float:
-    """Write a wind speed × height table of U (k = 2, %) starting at ``y``; returns the next free y."""
+def _grid_table(
+    fig, y: float, g: dict[str, Any], rows: np.ndarray, *, only_certified: bool, bottom: float = 0.05
+) -> float:
+    """Write a wind speed × height table of U (k = 2, %) from ``y`` down; returns the next free y.
+
+    The font shrinks (to 5.5 pt at least) when the rows would not fit above ``bottom``.
+    """
     heights, ws = g["height"], g["wind_speed"]
     x0, first, x1 = 0.07, 0.19, 0.95
     cols = np.linspace(first, x1, len(heights) + 1)[1:]
     size = _FONT - 0.5 if g["tolerance"] is not None else _FONT
+    fits = (y - bottom) / (len(rows) + 2.8) * 72 * A4[1] / 1.4  # the font size whose rows fit
+    size = max(5.5, min(size, fits))
     line = size * 1.4 / 72 / A4[1]
     fig.text(x0, y, "wind speed\nbin (m/s)", fontsize=size, va="top", weight="bold", linespacing=1.1)
     for c, h in zip(cols, heights, strict=True):
@@ -760,7 +776,7 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None, seal: str | None
     banner = {
         "demonstration": (
             "DEMONSTRATION: not a calibration of a real instrument"
-            + (f" ({reason})" if reason else " (made from simulated or sample data)"),
+            + ("" if reason else " (made from simulated or sample data)"),
             "#b22222",
         ),
         "issued": ("ISSUED calibration certificate", "#1a6b1a"),
@@ -782,7 +798,7 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None, seal: str | None
     y = _text_page(fig, 0.9 - shift, blocks[0], x0=0.07, x1=0.22, width=100)
     y = min(
         _text_page(fig, y, blocks[1], x0=0.07, x1=0.22, width=44),
-        _text_page(fig, y, blocks[2], x0=0.52, x1=0.67, width=44),
+        _text_page(fig, y, blocks[2], x0=0.52, x1=0.67, width=40),
     )
     if budget is None:
         fig.text(
