@@ -168,8 +168,8 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
     :func:`extract_component` restores it, so ``tree["budget"].sel(height=120, wind_speed=8,
     method="nearest")`` and the ``cf`` accessor work.  The root holds the certificate's global
     attributes (provenance, integrity record).  Values are loaded into memory (a certificate
-    is small), so ``....item()`` and ``float(...)`` work at once and the file is closed; give
-    ``chunks`` (e.g. ``{}``) to read lazily with dask instead.  Opening also registers
+    is small), so ``....item()`` and ``float(...)`` work at once; give ``chunks`` (e.g. ``{}``)
+    to read lazily with dask instead.  Opening also registers
     cf-xarray's unit registry with pint, so ``tree["budget"].dataset.pint.quantify()``
     understands the stored units.
 
@@ -185,12 +185,16 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
         If its seal does not match its contents (unless ``allow_invalid``).
     """
     register_units()
-    ds = open_artefact(path, load=chunks is None, chunks=chunks)
+    # read without closing: xarray shares one cached handle per file, and closing it under
+    # another open Dataset of the same file made netCDF4's next open of it crash (HDF5)
+    ds = open_artefact(path, load=False, chunks=chunks)
     if ds.attrs.get("lidarcal_artefact") != "certificate":
         found = ds.attrs.get("lidarcal_artefact")
         raise InputError(f"{path}: not a lidarcal certificate: it is "
                          f"{repr(found) + ' artefact' if found else 'not a lidarcal artefact'}")
     seal = require_valid_seal(path, allow_invalid=allow_invalid)
+    if chunks is None:
+        ds = ds.load()  # a certificate is small: values an analyst can .item()
     nodes: dict[str, xr.Dataset] = {"/": xr.Dataset(attrs=dict(ds.attrs))}
     if seal is not None and not seal.ok:
         nodes["/"].attrs["lidarcal_seal_problems"] = invalid_seal_banner(seal)
