@@ -859,7 +859,7 @@ def _provenance_page(fig, cert: xr.Dataset) -> None:
         rows.append(
             (
                 f"{item.get('role')}",
-                f"{item.get('file')} ({item.get('kind', '')})\nsha256 {item.get('sha256')}",
+                f"{item.get('file')} ({item.get('kind', '')}), SHA-256:\n{item.get('sha256')}",
                 {},
             )
         )
@@ -867,7 +867,7 @@ def _provenance_page(fig, cert: xr.Dataset) -> None:
     for key in ("certificate_components", "lidarcal_version", "date_created", "history"):
         if key in cert.attrs:
             rows.append((key, str(cert.attrs[key]), {}))
-    _text_page(fig, 0.9, rows, x1=0.3, width=100)
+    _text_page(fig, 0.9, rows, x1=0.4, width=85)
 
 
 def write_document(
