@@ -24,7 +24,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey,
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
 
 from lidarcal.errors import InputError, SealError
-from lidarcal.io import atomic_path, check_writable, open_artefact, write_into
+from lidarcal.io import atomic_path, check_input_file, check_writable, open_artefact, write_into
 from lidarcal.schema import validate_dataset
 from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign, verify_signature
 
@@ -210,9 +210,7 @@ def verify_certificate(path: str | os.PathLike, *,
     """
     import netCDF4
 
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: file not found")
+    path = check_input_file(path, "certificate file")  # missing, a directory, a FIFO: refused here
     try:
         with netCDF4.Dataset(path, "r") as nc:
             kind = nc.getncattr("lidarcal_artefact") if "lidarcal_artefact" in nc.ncattrs() else None

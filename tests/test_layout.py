@@ -43,6 +43,7 @@ STAGES = (
     "document",
     "report",
     "diagnose",
+    "compare",
     "pipeline",
     "cli",
 )
