@@ -229,9 +229,11 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
     the component under its original variable and dimension names, as
     :func:`extract_component` restores it, so ``tree["budget"].sel(height=120, wind_speed=8,
     method="nearest")`` and the ``cf`` accessor work.  The root holds the certificate's global
-    attributes (provenance, integrity record).  Values are read lazily (dask, ``chunks={}``
-    unless given); opening also registers cf-xarray's unit registry with pint, so
-    ``tree["budget"].dataset.pint.quantify()`` understands the stored units.
+    attributes (provenance, integrity record).  Values are loaded into memory (a certificate
+    is small), so ``....item()`` and ``float(...)`` work at once; give ``chunks`` (e.g. ``{}``)
+    to read lazily with dask instead.  Opening also registers
+    cf-xarray's unit registry with pint, so ``tree["budget"].dataset.pint.quantify()``
+    understands the stored units.
 
     The seal is checked first (:func:`require_valid_seal`); with ``allow_invalid`` an altered
     certificate is opened anyway, its problems listed in the root attribute
@@ -245,12 +247,16 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
         If its seal does not match its contents (unless ``allow_invalid``).
     """
     register_units()
-    ds = open_artefact(path, load=False, chunks={} if chunks is None else chunks)
+    # read without closing: xarray shares one cached handle per file, and closing it under
+    # another open Dataset of the same file made netCDF4's next open of it crash (HDF5)
+    ds = open_artefact(path, load=False, chunks=chunks)
     if ds.attrs.get("lidarcal_artefact") != "certificate":
         found = ds.attrs.get("lidarcal_artefact")
         raise InputError(f"{path}: not a lidarcal certificate: it is "
                          f"{repr(found) + ' artefact' if found else 'not a lidarcal artefact'}")
     seal = require_valid_seal(path, allow_invalid=allow_invalid)
+    if chunks is None:
+        ds = ds.load()  # a certificate is small: values an analyst can .item()
     nodes: dict[str, xr.Dataset] = {"/": xr.Dataset(attrs=dict(ds.attrs))}
     if seal is not None and not seal.ok:
         nodes["/"].attrs["lidarcal_seal_problems"] = invalid_seal_banner(seal)
@@ -594,6 +600,10 @@ def _records_summary(records: xr.Dataset) -> dict[str, Any]:
         t = records["time"].values
         out["time_coverage_start"] = str(np.min(t))
         out["time_coverage_end"] = str(np.max(t))
+    if "cnr" in records and records["cnr"].attrs.get("units") == "dB":
+        cnr = np.asarray(records["cnr"].values, dtype=float)
+        if np.isfinite(cnr).any():  # the CNR range the virtual lidar drew the bench cube at
+            out["cnr_min_db"], out["cnr_max_db"] = float(np.nanmin(cnr)), float(np.nanmax(cnr))
     for name in ("lidarcal_base_seed", "lidarcal_lidar_model"):
         if name in records.attrs:
             out[name] = read_json_attr(records, name)
