@@ -183,6 +183,12 @@ def test_the_lidar_simulated_is_nominal_bench_calibrated_or_a_diagnosis(field_fi
     assert stored.cone_angle == 28.0 and origin == "corrected model of the diagnosis c.nc"
     with pytest.raises(ValueError, match="not both"):
         model(rwf=rwf, diagnosis=run[2])
+    # a diagnosis made with an RWF records its profile by digest: --rwf restores it (checked)
+    diag = xr.Dataset(attrs={"lidarcal_lidar_model": bench.to_json(), "lidarcal_source_file": "d.nc"})
+    restored, origin = model(rwf=rwf, diagnosis=diag)
+    assert restored == bench and origin == "corrected model of the diagnosis d.nc"
+    with pytest.raises(ValueError, match="not the one the model was built from"):
+        model(rwf=range_weighting_function(asymmetry=0.3), diagnosis=diag)
 
 
 def test_compare_report_draws_both_figures_offline(run):

@@ -40,6 +40,7 @@ STAGES = (
     "seal",
     "certificate",
     "dcc",
+    "document",
     "report",
     "diagnose",
     "compare",

@@ -53,7 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--model",
         metavar="DIAGNOSIS.nc",
         help="simulate the corrected model of a diagnosis (its lidarcal_lidar_model attribute) "
-        "instead of --rwf; --cube restores its bench residuals",
+        "instead of --rwf; --cube restores the bench data it records by digest, and --rwf its RWF "
+        "profile when it records one",
     )
     add_los_noise_option(g)
     add_output_options(p, "COMPARE.nc", help="comparison artefact to write")

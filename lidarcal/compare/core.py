@@ -52,6 +52,7 @@ from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
+from lidarcal.lidar.model import RwfProfileDigest
 from lidarcal.units import to_magnitude
 
 __all__ = [
@@ -141,14 +142,16 @@ def _load(field: str | os.PathLike | xr.Dataset, min_samples: int) -> tuple[xr.D
 def _model(ds: xr.Dataset, source: str, *, cube, rwf, model, diagnosis, los_noise_model) -> tuple[Any, str]:
     """Return the lidar to simulate and a description of where it came from."""
     if diagnosis is not None:
-        if rwf is not None or model is not None:
+        found = corrected_model(diagnosis, cube=cube) if model is None else None
+        # an rwf only restores the RWF profile the diagnosis records by digest (checked against it)
+        if model is not None or (rwf is not None and not isinstance(found.rwf_profile, RwfProfileDigest)):
             raise InputError(
                 "give either a diagnosis (its corrected model) or the lidar's rwf/model, not both"
             )
         name = source_name(diagnosis, "<diagnosis>")
-        return corrected_model(
-            diagnosis, cube=cube
-        ), f"corrected model of the diagnosis {os.path.basename(name)}"
+        if rwf is not None:
+            found = found.with_rwf(rwf)
+        return found, f"corrected model of the diagnosis {os.path.basename(name)}"
     if model is not None:
         return model, "the model given"
     if cube is not None or rwf is not None:
