@@ -305,6 +305,7 @@ def budget(
     noise_terms: str = "printed",
     source: str | None = None,
     call: str | None = None,
+    min_samples: int | None = None,
 ) -> xr.Dataset:
     """Uncertainty budget per height and reference wind-speed bin.
 
@@ -340,6 +341,8 @@ def budget(
         bin's mean reference wind speed.
     source, call : str, optional
         File name for messages and the command recorded in ``history``.
+    min_samples : int, optional
+        The former name of ``min_periods`` (given, it replaces it).
 
     Returns
     -------
@@ -349,6 +352,8 @@ def budget(
     source = source or source_name(records)
     if approach not in CONTRIBUTORS:
         raise InputError(f"approach must be one of {sorted(CONTRIBUTORS)}; got {approach!r}")
+    if min_samples is not None:
+        min_periods = int(min_samples)
     if int(min_periods) < 2:
         raise InputError(f"min_periods must be >= 2 (a standard deviation needs two periods); "
                          f"got {min_periods}")
