@@ -123,7 +123,8 @@ class Case:
             sig = SIGMA_RATIOS[k] * self.ti * U
             seed = int(np.random.SeedSequence([*seed_key, k]).generate_state(1)[0])
             df = gen_turb(spat, T=T, nt=NT, coh_model="iec3d", coh_file=self.files[k], nf_chunk=NT // 2 + 1,
-                          seed=seed, u_ref=U, l_c=L_C, wsp_func=lambda spat_df, **kw: np.zeros(spat_df.shape[1]),
+                          seed=seed, u_ref=U, l_c=L_C,
+                          wsp_func=lambda spat_df, **kw: np.zeros(spat_df.shape[1]),
                           sig_func=lambda spat_df, sig=sig, n=n, **kw: np.full(n, sig))
             out.append(df.to_numpy())
         return out

@@ -51,7 +51,7 @@ __all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "LOS_NOISE_MODEL
            "REFERENCE_TURBULENCE"]
 
 #: Conventions of ``LidarModel.reference_turbulence`` (``docs/validation.md``).
-REFERENCE_TURBULENCE = ("pinned_u", "pinned_uvw", "free")
+REFERENCE_TURBULENCE = ("pinned_u", "pinned_uvw", "free", "inferred_level")
 #: Records written before ``reference_turbulence`` existed carried ``turbulence_amplitudes``.
 _LEGACY_AMPLITUDES = {"deterministic": "pinned_uvw", "rayleigh": "free"}
 
@@ -95,7 +95,8 @@ class LidarModel:
     #: ``"pinned_u"`` its realised 10-min σ_u is the period's TI·U (the measured value), everything
     #: else follows PyConTurb's point-level convention through the continuous RWF (Gaussian LOS
     #: coefficients); ``"pinned_uvw"`` the engine before this field existed (σ_u and σ_v pinned, six
-    #: fixed-amplitude signals; records without this field mean it); ``"free"`` a Gaussian process
+    #: fixed-amplitude signals; records without this field mean it); ``"free"`` a Gaussian process;
+    #: ``"inferred_level"`` σ_u pinned as well, but the field's level is unknown given it (scales with it)
     reference_turbulence: str = "pinned_u"
     #: LOS error of a bench-calibrated lidar: ``"residuals"`` resamples the bench bin's measured
     #: residuals (bad estimates included), ``"gaussian"`` draws N(los_bias, los_std) (MAD-trimmed);

@@ -67,7 +67,15 @@ convention of ``LidarModel.reference_turbulence`` (``docs/validation.md``):
 * ``"free"`` (``"rayleigh"``): every ``ξ`` circular complex Gaussian (a Gaussian process; the
   reference's realised σ_u scatters ~10 %).
 
-``"first_fixed"`` draws the same numbers as ``"rayleigh"`` and only normalises ``ξ_0``.
+* ``"inferred_level"`` (``"first_rescaled"``): the field's turbulence level is *unknown*, and
+  the reference's realised σ_u is what was measured: all six signals are drawn as ``"free"``
+  and then scaled by the one factor that makes the reference's realised σ_u equal ``TI U``.
+  Given one 10-minute σ_u (and no prior on the level, the scale-invariant 1/σ), this is the
+  posterior of the field: its level is ``TI U / sqrt(V)`` with ``V`` the realised variance
+  of a unit-level reference, so it scatters about the measured value as a 10-minute σ_u
+  scatters about the atmosphere's (±10 %).
+
+``"first_fixed"`` and ``"first_rescaled"`` draw the same numbers as ``"rayleigh"``.
 """
 
 from __future__ import annotations
@@ -90,9 +98,10 @@ N_CROSS = 8
 #: Fine-grid spacing of the same-beam autocorrelation, as a fraction of the RWF's standard deviation.
 GRID_PER_SIGMA = 1.0 / 6.0
 #: Amplitude schemes of :func:`draw_coefficients`.
-AMPLITUDES = ("deterministic", "rayleigh", "first_fixed")
+AMPLITUDES = ("deterministic", "rayleigh", "first_fixed", "first_rescaled")
 #: ``LidarModel.reference_turbulence`` -> amplitude scheme.
-REFERENCE_AMPLITUDES = {"pinned_u": "first_fixed", "pinned_uvw": "deterministic", "free": "rayleigh"}
+REFERENCE_AMPLITUDES = {"pinned_u": "first_fixed", "pinned_uvw": "deterministic", "free": "rayleigh",
+                        "inferred_level": "first_rescaled"}
 #: Above this height (m) PyConTurb's Kaimal length scale stops depending on z.
 _Z_KAIMAL = 60.0
 #: The continuous RWF is cut off below this height (m): at 40 m the part of a 30-m Gaussian RWF
@@ -628,7 +637,7 @@ def draw_coefficients(C: np.ndarray, rng: np.random.Generator, amplitudes: str =
         if nt is not None and nt % 2 == 0:
             phase[-1] = np.pi * (np.round(np.cos(phase[-1])) != 0.0)
         xi = np.exp(1j * phase)
-    elif amplitudes in ("rayleigh", "first_fixed"):
+    elif amplitudes in ("rayleigh", "first_fixed", "first_rescaled"):
         xi = (rng.standard_normal((n_f, n)) + 1j * rng.standard_normal((n_f, n))) * np.sqrt(0.5)
         if nt is not None and nt % 2 == 0:
             xi[-1] = np.real(xi[-1]) * np.sqrt(2.0)
@@ -637,7 +646,16 @@ def draw_coefficients(C: np.ndarray, rng: np.random.Generator, amplitudes: str =
             xi[:, 0] = np.where(a > 0, xi[:, 0] / np.where(a > 0, a, 1.0), 1.0)
     else:
         raise ValueError(f"amplitudes must be one of {AMPLITUDES}; got {amplitudes!r}")
-    return (d * np.einsum("fij,fj->fi", L, xi)).T
+    coef = (d * np.einsum("fij,fj->fi", L, xi)).T
+    if amplitudes == "first_rescaled":  # all signals x the factor giving signal 0 its expected variance
+        want, got = _realised_power(d[:, 0], nt), _realised_power(np.abs(coef[0]), nt)
+        coef *= np.sqrt(want / got) if got > 0 else 1.0
+    return coef
+
+
+def _realised_power(m: np.ndarray, nt: int | None) -> float:
+    """``2 Σ |m|² − |m_Nyquist|²`` (nt even): the realised variance of a series, up to ``nt/(nt-1)``."""
+    return float(2.0 * np.sum(m**2) - (m[-1] ** 2 if nt is not None and nt % 2 == 0 else 0.0))
 
 
 def synthesise(coef: np.ndarray, nt: int) -> np.ndarray:
