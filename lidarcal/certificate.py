@@ -33,6 +33,13 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.admin import (
+    DEMONSTRATION,
+    STATUS_ATTR,
+    STATUS_REASON_ATTR,
+    certificate_attributes,
+    default_method_reference,
+)
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import jsonable, read_json_attr, stamp
@@ -47,6 +54,8 @@ from lidarcal.seal import (
     SIGNATURE_PUBLIC_KEY_ATTR,
     VerificationReport,
     integrity_record,
+    invalid_seal_banner,
+    require_valid_seal,
     verify_certificate,
     write_certificate,
 )
@@ -57,6 +66,8 @@ __all__ = [
     "write_certificate",
     "verify_certificate",
     "integrity_record",
+    "require_valid_seal",
+    "invalid_seal_banner",
     "extract_component",
     "components",
     "open_certificate",
@@ -148,7 +159,8 @@ def components(cert: xr.Dataset) -> list[dict[str, Any]]:
     return comps
 
 
-def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> xr.DataTree:
+def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
+                     allow_invalid: bool = False) -> xr.DataTree:
     """Open a certificate as an :class:`xarray.DataTree`, one group per component.
 
     Every group (``budget``, ``cube``, ``rwf``, ``terms``, ``sensitivity_<variable>``) holds
@@ -159,10 +171,16 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> 
     unless given); opening also registers cf-xarray's unit registry with pint, so
     ``tree["budget"].dataset.pint.quantify()`` understands the stored units.
 
+    The seal is checked first (:func:`require_valid_seal`); with ``allow_invalid`` an altered
+    certificate is opened anyway, its problems listed in the root attribute
+    ``lidarcal_seal_problems``.
+
     Raises
     ------
     InputError
         If ``path`` is missing, unreadable or not a lidarcal certificate.
+    SealError
+        If its seal does not match its contents (unless ``allow_invalid``).
     """
     register_units()
     ds = open_artefact(path, load=False, chunks={} if chunks is None else chunks)
@@ -170,7 +188,10 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None) -> 
         found = ds.attrs.get("lidarcal_artefact")
         raise InputError(f"{path}: not a lidarcal certificate: it is "
                          f"{repr(found) + ' artefact' if found else 'not a lidarcal artefact'}")
+    seal = require_valid_seal(path, allow_invalid=allow_invalid)
     nodes: dict[str, xr.Dataset] = {"/": xr.Dataset(attrs=dict(ds.attrs))}
+    if seal is not None and not seal.ok:
+        nodes["/"].attrs["lidarcal_seal_problems"] = invalid_seal_banner(seal)
     for comp in components(ds):
         nodes[f"/{comp['name']}"] = extract_component(ds, comp["name"])
     return xr.DataTree.from_dict(nodes)
@@ -244,7 +265,7 @@ def _significant_sensitivities(cert: xr.Dataset) -> dict[float, str]:
 
 
 def result_table(cert: xr.Dataset, *, contributors: int = 3,
-                 wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS):
+                 wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS, allow_invalid: bool = False):
     """IEC-style result table of a certificate: one row per height and wind-speed bin.
 
     Columns: ``height_m``, ``wind_speed_m_s`` (bin centre) and its bounds, ``sample_count``,
@@ -254,11 +275,18 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3,
     standard-uncertainty contributions, in %) and ``significant_sensitivities`` (per height,
     Eqs. 12-13).  Numbers are the certificate's own values, not rounded.
 
+    A certificate read from a file has its seal checked first (:func:`require_valid_seal`):
+    an altered one raises :class:`~lidarcal.errors.SealError` unless ``allow_invalid`` (the
+    caller then shows :func:`invalid_seal_banner` with the table).
+
     Returns
     -------
     pandas.DataFrame
     """
     import pandas as pd
+
+    if not allow_invalid and "lidarcal_components" in cert.attrs:
+        require_valid_seal(cert)
 
     budget = _budget_of(cert).load()
     k = float(budget.attrs.get("coverage_factor", 2.0))
@@ -366,19 +394,39 @@ def _check_consistent(inputs: Mapping[str, xr.Dataset]) -> str | None:
         parts = [f"{_label(r, inputs[r])} was computed from records {f!r} (sha256 {sha[:12]}...)"
                  for r, (f, sha) in chains.items()]
         raise InputError("inputs disagree on the records: " + "; ".join(parts))
-    known = {role: ds.attrs.get("lidarcal_source_sha256") for role, ds in inputs.items()}
-    for role, ds in inputs.items():
-        recorded = read_json_attr(ds, "lidarcal_inputs")
-        for rec in recorded if isinstance(recorded, list) else []:
-            other = rec.get("role")
-            if other in known and known[other] and other != role and rec.get("sha256") != known[other]:
-                raise InputError(
-                    f"inputs disagree: {_label(role, ds)} was computed from {other} "
-                    f"{rec.get('file')!r} (sha256 {str(rec.get('sha256'))[:12]}...), "
-                    f"but the {other} given is "
-                    f"{inputs[other].attrs.get('lidarcal_source_file')!r} (sha256 {known[other][:12]}...)"
-                )
+    _check_chains(inputs)
     return distinct[0] if distinct else None
+
+
+def _chain(recorded: Any, via: tuple[Mapping[str, Any], ...] = ()
+           ) -> Iterable[tuple[tuple[Mapping[str, Any], ...], Mapping[str, Any]]]:
+    """Every record of a provenance chain (``lidarcal_inputs``), with the records leading to it."""
+    for rec in recorded if isinstance(recorded, list) else []:
+        if isinstance(rec, Mapping):
+            yield via, rec
+            yield from _chain(rec.get("inputs"), (*via, rec))
+
+
+def _check_chains(inputs: Mapping[str, xr.Dataset]) -> None:
+    """Refuse an input whose provenance chain names another file in a role that was given.
+
+    The chain is followed to any depth, so a budget computed from records simulated with
+    another bench cube or RWF is refused without the records themselves (``--records``).
+    """
+    known = {role: str(sha) for role, ds in inputs.items() if (sha := ds.attrs.get("lidarcal_source_sha256"))}
+    for role, ds in inputs.items():
+        for via, rec in _chain(read_json_attr(ds, "lidarcal_inputs")):
+            other, sha = rec.get("role"), rec.get("sha256")
+            if other not in known or other == role or not sha or str(sha) == known[other]:
+                continue
+            steps = "".join(f"{hop.get('role')} {hop.get('file')!r} (sha256 {hop.get('sha256')}), which was "
+                            "computed from " for hop in via)
+            raise InputError(
+                f"inputs disagree: {_label(role, ds)} was computed from {steps}{other} {rec.get('file')!r} "
+                f"(sha256 {sha}), but the {other} given is "
+                f"{inputs[other].attrs.get('lidarcal_source_file')!r} (sha256 {known[other]}); give the "
+                f"{other} it was computed from, or recompute it from this one"
+            )
 
 
 def _check_kind(role: str, ds: xr.Dataset, kinds: Iterable[str]) -> None:
@@ -447,6 +495,8 @@ def make_certificate(
     records: xr.Dataset | None = None,
     config: Mapping[str, Any] | None = None,
     call: str = "lidarcal.certificate.make_certificate",
+    admin: Mapping[str, str] | None = None,
+    demonstration: bool = False,
 ) -> xr.Dataset:
     """Bundle a calibration into one flat ``certificate`` Dataset (not yet sealed).
 
@@ -463,12 +513,22 @@ def make_certificate(
         (not copied) and checked against the other inputs.
     config : mapping, optional
         The full configuration of the calibration run, recorded as JSON.
+    admin : mapping, optional
+        Administrative data (:func:`lidarcal.admin.load_admin`: item, laboratory, responsible
+        persons, customer, place, dates, certificate id ...), stored as global attributes
+        (docs/certificate.md); what the data state (lidar serial, bench id, run, operator,
+        the RF driver's calibration reference, dates) is filled in.
+    demonstration : bool
+        Force ``calibration_status = "demonstration"``.  Without it the status is
+        ``demonstration`` when an input is lidarcal's embedded sample data or a simulated bench
+        run, else ``issued``, which needs an issuer (laboratory and responsible person).
 
     Raises
     ------
     InputError
         If inputs describe different lidars (``lidar_serial``), if an input was computed from
-        a different file than the one given, or an input is of the wrong kind.
+        a different file than the one given, or an input is of the wrong kind; if ``admin``
+        contradicts the data; if the certificate would be issued without an issuer.
     """
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     inputs: dict[str, xr.Dataset] = {"budget": budget}
@@ -538,7 +598,7 @@ def make_certificate(
     for key in ("bench_id", "operator", "run_id", "time_coverage_start", "time_coverage_end"):
         if cube is not None and key in cube.attrs:
             cert.attrs[f"bench_{key}" if not key.startswith("bench") else key] = str(cube.attrs[key])
-    return stamp(
+    cert = stamp(
         cert,
         "certificate",
         title=f"Lidar calibration certificate{' for ' + serial if serial else ''}",
@@ -553,3 +613,37 @@ def make_certificate(
         config=dict(config or {}),
         keywords="Doppler lidar, wind speed, calibration certificate, uncertainty, traceability",
     )
+    return _with_admin(cert, admin, demonstration, cube=cube, records=records, config=config)
+
+
+def _with_admin(cert: xr.Dataset, admin: Mapping[str, str] | None, demonstration: bool, *,
+                cube: xr.Dataset | None, records: xr.Dataset | None,
+                config: Mapping[str, Any] | None) -> xr.Dataset:
+    """Add ``calibration_status`` and the administrative attributes (lidarcal.admin)."""
+    cube_attrs = cube.attrs if cube is not None else {}
+    derived = {
+        "item_serial_number": cert.attrs.get("lidar_serial"),
+        "bench_id": cube_attrs.get("bench_id"),
+        "bench_run_id": cube_attrs.get("run_id"),
+        "bench_operator": cube_attrs.get("operator"),
+        "rf_driver_calibration_reference": cube_attrs.get("rf_driver_calibration_reference"),
+        "bench_run_start": cube_attrs.get("time_coverage_start"),
+        "bench_run_end": cube_attrs.get("time_coverage_end"),
+        "simulation_date": records.attrs.get("date_created") if records is not None else None,
+        "method_reference": default_method_reference(cert.attrs.get("budget_approach", "unknown"), config),
+    }
+    extra = certificate_attributes(cert.attrs, admin, derived={k: str(v) for k, v in derived.items() if v},
+                                   demonstration=demonstration)
+    cert.attrs.update(extra)
+    if cert.attrs.get("institution") in (None, "unspecified") and extra.get("laboratory_name"):
+        cert.attrs["institution"] = extra["laboratory_name"]  # ACDD institution carries the laboratory
+    if cert.attrs.get("creator_name") in (None, "lidarcal") and extra.get("responsible_persons"):
+        # ACDD creator: the first responsible person, without the role
+        first = extra["responsible_persons"].split(";")[0].strip()
+        cert.attrs["creator_name"] = first.rsplit(" (", 1)[0] if first.endswith(")") else first
+        cert.attrs["creator_type"] = "person"
+    if extra[STATUS_ATTR] == DEMONSTRATION:
+        cert.attrs["title"] = f"{cert.attrs['title']} - DEMONSTRATION, not a calibration of a real instrument"
+        cert.attrs["summary"] = (f"DEMONSTRATION certificate ({extra[STATUS_REASON_ATTR]}). "
+                                 + str(cert.attrs.get("summary", "")))
+    return cert

@@ -36,11 +36,16 @@ docs/certificate.md.
 from __future__ import annotations
 
 import contextlib
+import copy
+import functools
 import io
 import os
 import re
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass, field
+
+from lidarcal.provenance import CONTACT_ENV, USER_ATTRIBUTES
 
 __all__ = ["ComplianceReport", "check_compliance", "summary_lines", "SUITES"]
 
@@ -113,14 +118,25 @@ def summary_lines(report: ComplianceReport, *, verbose: bool = False) -> list[st
         if verbose:
             out.extend(f"  {line}" for line in lines)
     checks: dict[str, list[str]] = {}
+    missing: list[str] = []
     for line in report.warnings:
+        if (m := _ACDD_ABSENT.match(line)) and not verbose:
+            missing.append(m.group(1))
+            continue
         checks.setdefault(line[: line.index("]") + 1] if "]" in line else line, []).append(line)
+    site_missing = any(name in _SITE_ATTRIBUTES for name in missing)
+    if missing:  # ACDD: each attribute it asks for once, grouped by what supplies it
+        out.append(f"warning: {len(missing)} ACDD attribute(s) not present; give them with:")
+        by_option: dict[str, list[str]] = {}
+        for name in missing:
+            option = supplied_by(name)
+            by_option.setdefault("--attribute NAME=VALUE" if option.startswith("--attribute") else option,
+                                 []).append(name)
+        out.extend(f"  {option}: {', '.join(names)}" for option, names in by_option.items())
     for check, lines in checks.items():
-        absent = [line[len(check):].strip()[: -len(" not present")] for line in lines
-                  if line.endswith(" not present")]
-        if not verbose and len(absent) == len(lines) > 1:  # ACDD: the attributes it asks for, by name
-            out.append(f"warning: {check} not present ({len(absent)}): {', '.join(absent)}")
-        elif verbose or len(lines) == 1:
+        if site_missing and _EXTENTS.search(check) and not verbose:
+            continue  # "geospatial_lat_min/max attribute not found": the site, listed above
+        if verbose or len(lines) == 1:
             out.extend(f"warning: {line}" for line in lines)
         else:
             first = lines[0][len(check):].strip()
@@ -128,19 +144,122 @@ def summary_lines(report: ComplianceReport, *, verbose: bool = False) -> list[st
     return out
 
 
+_ACDD_ABSENT = re.compile(r"^acdd:\S+ \[Global Attributes\] (\S+) not present$")
+_EXTENTS = re.compile(r"\[geospatial_(lat|lon)_extents_match\]")
+
+#: ACDD attributes lidarcal writes only when the user gives them, and the option of every
+#: writing command (or its environment variable) that does (``lidarcal validate`` says which).
+_CONTACT_OPTIONS = {
+    "creator_name": "--creator", "institution": "--institution", "creator_institution": "--institution",
+    "creator_email": "--creator-email", "creator_url": "--creator-url", "publisher_name": "--publisher",
+    "publisher_type": "--publisher", "publisher_institution": "--publisher",
+    "publisher_email": "--publisher-email", "publisher_url": "--publisher-url",
+}
+_SITE_ATTRIBUTES = ("geospatial_lat_min", "geospatial_lat_max", "geospatial_lon_min", "geospatial_lon_max",
+                    "geospatial_lat_units", "geospatial_lon_units", "geospatial_lat_resolution",
+                    "geospatial_lon_resolution", "geospatial_bounds", "geospatial_bounds_crs")
+
+
+def supplied_by(attribute: str) -> str:
+    """Name the option of lidarcal's writing commands that supplies a missing ACDD ``attribute``.
+
+    >>> supplied_by("creator_email")
+    '--creator-email TEXT (or $LIDARCAL_CREATOR_EMAIL)'
+    >>> supplied_by("geospatial_lat_min")
+    '--site-latitude DEGREES --site-longitude DEGREES (or $LIDARCAL_SITE_LATITUDE/_LONGITUDE)'
+    >>> supplied_by("program")
+    '--attribute program=VALUE'
+    """
+    if attribute in _CONTACT_OPTIONS:
+        env = CONTACT_ENV.get(attribute) or CONTACT_ENV.get(
+            {"creator_institution": "institution"}.get(attribute, "publisher_name"))
+        return f"{_CONTACT_OPTIONS[attribute]} TEXT (or ${env})"
+    if attribute in _SITE_ATTRIBUTES:
+        return "--site-latitude DEGREES --site-longitude DEGREES (or $LIDARCAL_SITE_LATITUDE/_LONGITUDE)"
+    if attribute in USER_ATTRIBUTES:
+        return f"--attribute {attribute}=VALUE"
+    return "not settable by an option (lidarcal writes it; report a missing one as a bug)"
+
+
 _SUBJECTS = (re.compile(r"units for (\S+), "), re.compile(r'variable "([^"]+)"'),
              re.compile(r"\] ((?:time_coverage|geospatial_vertical)_\S+) not present"))
 
 
-def check_compliance(path: str | os.PathLike) -> ComplianceReport:
-    """Run CF-1.11 and ACDD-1.3 checks on ``path`` (no network needed)."""
+#: Functions of ``compliance_checker.cf.util`` that only read the dataset (and a variable name):
+#: the checker calls them again and again for every variable (6,700 times for a certificate of 88
+#: variables, each scanning every variable's attributes), so one run answers each question once.
+_PURE_QUERIES = (
+    "get_coordinate_variables", "get_auxiliary_coordinate_variables", "get_geophysical_variables",
+    "get_z_variable", "get_z_variables", "get_lat_variable", "get_latitude_variables",
+    "get_true_latitude_variables", "get_lon_variable", "get_longitude_variables",
+    "get_true_longitude_variables", "get_platform_variables", "get_instrument_variables",
+    "get_time_variable", "get_time_variables", "get_axis_variables", "get_climatology_variable",
+    "get_flag_variables", "get_grid_mapping_variables", "get_axis_map", "is_coordinate_variable",
+    "coordinate_dimension_matrix", "is_geophysical", "guess_feature_type", "get_cell_boundary_map",
+    "get_cell_boundary_variables", "get_bounds_variables", "get_forecast_metadata_variables",
+)
+
+
+def _fresh(value):
+    """Copy ``value``'s containers (lists, tuples, sets, dicts), sharing the netCDF objects in them."""
+    if isinstance(value, dict):
+        out = copy.copy(value)  # keeps a defaultdict's factory
+        out.update((k, _fresh(v)) for k, v in value.items())
+        return out
+    if isinstance(value, list | set | tuple):
+        return type(value)(_fresh(v) for v in value)
+    return value
+
+
+@contextlib.contextmanager
+def _answers_once() -> Iterator[None]:
+    """Within the block, each read-only query of the checker's ``cf.util`` is computed once per argument.
+
+    The file is opened read-only and never changes during a run, so the findings are the same
+    as without the cache (``tests/test_artefact_metadata.py`` checks that on a file with failures);
+    callers get a copy of each answer, so none can alter another's.
+    """
+    from compliance_checker.cf import util
+
+    saved = {name: getattr(util, name) for name in _PURE_QUERIES if hasattr(util, name)}
+
+    def once(func):
+        answers: dict = {}
+
+        @functools.wraps(func)
+        def query(nc, *args):
+            key = (id(nc), *args)
+            try:
+                hit = key in answers
+            except TypeError:  # an unhashable argument: ask the checker itself
+                return func(nc, *args)
+            if not hit:
+                answers[key] = func(nc, *args)
+            return _fresh(answers[key])
+        return query
+
+    try:
+        for name, func in saved.items():
+            setattr(util, name, once(func))
+        yield
+    finally:
+        for name, func in saved.items():
+            setattr(util, name, func)
+
+
+def check_compliance(path: str | os.PathLike, *, cache: bool = True) -> ComplianceReport:
+    """Run CF-1.11 and ACDD-1.3 checks on ``path`` (no network needed).
+
+    ``cache=False`` runs the stock checker without :func:`_answers_once` (same findings, slower).
+    """
     from compliance_checker.cf.util import get_time_variable, get_z_variable
     from compliance_checker.runner import CheckSuite
 
     report = ComplianceReport(str(path))
     suite = CheckSuite()
     suite.load_all_available_checkers()
-    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()):  # its "Using ... table"
+    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()), \
+            (_answers_once() if cache else contextlib.nullcontext()):  # its "Using ... table" on stdout
         warnings.simplefilter("ignore")
         ds = suite.load_dataset(str(path))
         has_time, has_z = get_time_variable(ds) is not None, get_z_variable(ds) is not None

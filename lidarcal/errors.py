@@ -36,6 +36,10 @@ class ValidationError(InputError):
         super().__init__(f"{source}: {len(self.problems)} problem(s) found:\n{lines}")
 
 
+class SealError(InputError):
+    """A certificate's seal or signature does not match its contents: its numbers are not shown."""
+
+
 class ComputeError(LidarcalError, RuntimeError):
     """A parallel computation could not run or finish.
 
@@ -45,3 +49,7 @@ class ComputeError(LidarcalError, RuntimeError):
 
 class OutputExistsError(LidarcalError, FileExistsError):
     """Refusing to overwrite an existing output without an explicit request."""
+
+
+class DiskFullError(LidarcalError):
+    """An output could not be written for want of space; nothing was published."""

@@ -10,8 +10,10 @@ never leaves a partial file.  It refuses to replace an existing file unless aske
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import re
+import shutil
 import socket
 import tempfile
 from collections.abc import Iterator
@@ -20,13 +22,13 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from lidarcal.errors import InputError, OutputExistsError
+from lidarcal.errors import DiskFullError, InputError, OutputExistsError
 from lidarcal.provenance import sha256
 from lidarcal.schema import validate_dataset
 
 __all__ = [
     "write_artefact", "open_artefact", "atomic_path", "check_writable", "source_name",
-    "part_path", "publish", "remove_stale_parts",
+    "part_path", "publish", "remove_stale_parts", "write_into", "disk_full", "LOW_SPACE_BYTES",
 ]
 
 
@@ -62,13 +64,24 @@ def check_writable(path: str | os.PathLike, *, overwrite: bool = False) -> Path:
         with tempfile.TemporaryFile(dir=parent):
             pass
     except OSError as exc:
+        if (full := disk_full(exc, path)) is not None and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise full from None
         raise InputError(f"{path}: output directory {parent} is not writable ({exc.strerror})") from None
     return path
 
 
 #: Temporary files are ``.<name>.<host>-<pid>.<random>.part`` next to their destination, so a
-#: later writer of the same path can recognise those of runs that died and remove them.
-_PART = re.compile(r"(?P<host>[A-Za-z0-9_-]*)-(?P<pid>[0-9]+)\.[A-Za-z0-9_]+\.part")
+#: later writer of the same path can recognise those of runs that died and remove them.  (A
+#: renderer that insists on its own suffix may end one in ``.png`` instead.)  Writers never nest
+#: temporaries; those older versions left (``..<name>.<host>-<pid>.<random>.part.<host>-<pid>.
+#: <random>.part``, a temporary of a temporary) are recognised too.
+_PART = re.compile(r"(?P<host>[A-Za-z0-9_-]*)-(?P<pid>[0-9]+)\.[A-Za-z0-9_]+\.(?:part|png)")
+_NESTED = re.compile(r"(?P<host>[A-Za-z0-9_-]*)-(?P<pid>[0-9]+)\.[A-Za-z0-9_]+\.part\.(?P<inner>.+)")
+
+#: Below this much free space (bytes) in the destination's file system, a failed write is
+#: reported as a full disk (:func:`disk_full`): HDF5 says only "HDF error" (or, creating a
+#: file, "Permission denied") when it cannot get a block.
+LOW_SPACE_BYTES = 8 * 1024 * 1024
 
 
 def _host() -> str:
@@ -85,27 +98,66 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def _stale(rest: str, host: str) -> bool:
+    """Say whether ``rest`` (a temporary's name after ``.<name>.``) belongs only to dead writers here."""
+    m = _PART.fullmatch(rest)
+    if m is not None:
+        return m["host"] == host and not _pid_alive(int(m["pid"]))
+    m = _NESTED.fullmatch(rest)  # a temporary of a temporary (older lidarcal): every writer dead
+    return (m is not None and m["host"] == host and not _pid_alive(int(m["pid"]))
+            and _stale(m["inner"], host))
+
+
 def remove_stale_parts(path: str | os.PathLike) -> list[Path]:
     """Remove the temporary files of writers of ``path`` that died (killed runs); return them.
 
     Only files named by :func:`part_path` on this host whose process no longer exists are
-    removed: a live writer's temporary (this or another process, or another host sharing the
-    directory) is never touched.
+    removed (and the nested ``..<name>.*.part.*.part`` ones older versions left): a live
+    writer's temporary (this or another process, or another host sharing the directory) is
+    never touched.
     """
     path = Path(path)
-    prefix, host, removed = f".{path.name}.", _host(), []
+    prefixes, host, removed = (f".{path.name}.", f"..{path.name}."), _host(), []
     try:
-        candidates = [p for p in path.parent.iterdir() if p.name.startswith(prefix)]
+        candidates = [p for p in path.parent.iterdir() if p.name.startswith(prefixes)]
     except OSError:
         return removed
     for p in candidates:
-        m = _PART.fullmatch(p.name[len(prefix):])
-        if m is None or m["host"] != host or _pid_alive(int(m["pid"])):
+        nested = p.name.startswith(prefixes[1])
+        rest = p.name[len(prefixes[1] if nested else prefixes[0]):]
+        if (nested and _NESTED.fullmatch(rest) is None) or not _stale(rest, host):
             continue
         with contextlib.suppress(OSError):
             p.unlink()
             removed.append(p)
     return removed
+
+
+def _free_bytes(directory: Path) -> int | None:
+    try:
+        return shutil.disk_usage(directory).free
+    except OSError:
+        return None
+
+
+def disk_full(exc: BaseException, path: str | os.PathLike) -> DiskFullError | None:
+    """Return the :class:`~lidarcal.errors.DiskFullError` ``exc`` means when writing ``path``, or None.
+
+    An ``ENOSPC``/``EDQUOT`` error is one; so is any other ``OSError`` or ``RuntimeError`` (netCDF's
+    "HDF error") raised while the destination's file system has less than
+    :data:`LOW_SPACE_BYTES` free.  Call it before the failed temporary is removed: what it
+    holds is part of the shortage.
+    """
+    path = Path(path)
+    if not isinstance(exc, OSError | RuntimeError) or isinstance(exc, DiskFullError):
+        return None
+    free = _free_bytes(path.parent)
+    code = getattr(exc, "errno", None)
+    if code not in (errno.ENOSPC, errno.EDQUOT) and (free is None or free >= LOW_SPACE_BYTES):
+        return None
+    left = f"{free} bytes free in {path.parent}" if free is not None else f"in {path.parent}"
+    return DiskFullError(f"no space left on device writing {path} ({left}; {type(exc).__name__}: {exc}); "
+                         "nothing was written: free some space and run again")
 
 
 def part_path(path: str | os.PathLike) -> Path:
@@ -151,7 +203,10 @@ def atomic_path(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator
 
     The temporary is removed on failure; temporaries of earlier writers of ``path`` that were
     killed are removed first (:func:`remove_stale_parts`).  Publishing is exclusive unless
-    ``overwrite`` (:func:`publish`).
+    ``overwrite`` (:func:`publish`).  A write that fails for want of space raises
+    :class:`~lidarcal.errors.DiskFullError` naming ``path`` (:func:`disk_full`).  Write into
+    the temporary directly (:func:`write_into` for an artefact), never through another
+    ``atomic_path``: a temporary of a temporary is not recognised as ``path``'s.
     """
     path = check_writable(path, overwrite=overwrite)
     remove_stale_parts(path)
@@ -162,8 +217,13 @@ def atomic_path(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator
     try:
         yield tmp
         publish(tmp, path, overwrite=overwrite)
+    except (OSError, RuntimeError) as exc:
+        full = disk_full(exc, path)  # checked while the temporary still takes its space
+        if full is None:
+            raise
+        raise full from None
     finally:
-        if tmp.exists():
+        with contextlib.suppress(OSError):
             tmp.unlink()
 
 
@@ -208,16 +268,31 @@ def write_artefact(
         If ``path`` exists and ``overwrite`` is false.
     """
     path = check_writable(path, overwrite=overwrite)
+    ds = _ready(ds, path, validate=validate)
+    with atomic_path(path, overwrite=overwrite) as tmp:
+        ds.to_netcdf(tmp, format="NETCDF4", engine="netcdf4", encoding=_encoding(ds))
+    return path
+
+
+def write_into(ds: xr.Dataset, tmp: str | os.PathLike, *, target: str | os.PathLike,
+               validate: bool = True) -> None:
+    """Write ``ds`` as :func:`write_artefact` would, into the temporary ``tmp`` of ``target``.
+
+    For writers that finish the file before publishing it (the certificate's seal): ``tmp``
+    comes from :func:`atomic_path` for ``target``, which publishes it.  Messages name ``target``.
+    """
+    ds = _ready(ds, target, validate=validate)
+    ds.to_netcdf(tmp, format="NETCDF4", engine="netcdf4", encoding=_encoding(ds))
+
+
+def _ready(ds: xr.Dataset, path: str | os.PathLike, *, validate: bool) -> xr.Dataset:
     # open_artefact's in-memory notes on where a dataset was read from describe that file,
     # not this one: never persist them
     ds = ds.copy(deep=False)
     ds.attrs = {k: v for k, v in ds.attrs.items() if not k.startswith("lidarcal_source_")}
     if validate:
         validate_dataset(ds, source=str(path), raise_on_error=True)
-    ds = _cf_ready(ds)
-    with atomic_path(path, overwrite=overwrite) as tmp:
-        ds.to_netcdf(tmp, format="NETCDF4", engine="netcdf4", encoding=_encoding(ds))
-    return path
+    return _cf_ready(ds)
 
 
 def _bounds_names(ds: xr.Dataset) -> list[str]:

@@ -38,10 +38,12 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.admin import demonstration_reasons, issuer_problem
 from lidarcal.analysis.budget import budget
 from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES, sensitivity
 from lidarcal.analysis.sweep import analyse_sweep
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
+from lidarcal.bench.formats import read_control_log
 from lidarcal.bench.ingest import ingest
 from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.certificate import make_certificate, write_certificate
@@ -52,7 +54,7 @@ from lidarcal.data import sample_file
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel
-from lidarcal.provenance import stamp
+from lidarcal.provenance import contact_attributes, sha256, stamp
 from lidarcal.report import write_report
 from lidarcal.rwf import range_weighting_function
 from lidarcal.signing import load_private_key
@@ -188,6 +190,49 @@ def _conditions(cfg: CalibrationConfig) -> tuple[xr.Dataset, dict]:
     return ds, {"conditions_source": path}
 
 
+def _check_issuer(cfg: CalibrationConfig, admin: Mapping[str, str], demonstration: bool) -> None:
+    """Refuse, before any work, a run that would issue a certificate without an issuer."""
+    if demonstration:
+        return
+    attrs = {**contact_attributes(), **admin}
+    if attrs.get("institution") not in (None, "unspecified"):
+        attrs.setdefault("laboratory_name", attrs["institution"])
+    if attrs.get("creator_name") not in (None, "lidarcal"):
+        attrs.setdefault("responsible_persons", attrs["creator_name"])
+    problem = issuer_problem(attrs)
+    if problem is None:
+        return
+    bench = [cfg.cube] if cfg.cube is not None else [cfg.bench_rtd, cfg.bench_control]
+    given = [*bench, cfg.rwf or cfg.pulse_file, cfg.conditions]
+    if any(path is None for path in given):
+        return  # the embedded sample data: a demonstration
+    records = [{"file": Path(p).name, "sha256": sha256(p)} for p in given if Path(p).is_file()]
+    for path in (cfg.cube, cfg.rwf, cfg.conditions):  # artefacts: their own provenance chain counts too
+        if path is not None and Path(path).is_file() and Path(path).suffix == ".nc":
+            records.append(dict(open_artefact(path, load=False).attrs))
+    if cfg.cube is None and cfg.bench_control is not None and Path(cfg.bench_control).is_file():
+        records.append({"data_origin": read_control_log(cfg.bench_control).metadata.get("data_origin")})
+    if not any(demonstration_reasons(rec) for rec in records) and not demonstration_reasons({}, records):
+        raise InputError(problem)
+
+
+def _retire_previous(paths: Mapping[str, Path], *, overwrite: bool) -> None:
+    """Remove an earlier run's certificate and report before this run replaces their artefacts.
+
+    Each removal is logged (WARNING) with the file's SHA-256, so the user knows what went.
+    """
+    if not overwrite:
+        return  # existing outputs were refused before any work
+    for key in ("certificate", "report"):
+        path = paths[key]
+        if not path.is_file():
+            continue
+        digest = sha256(path)
+        path.unlink()
+        log.warning("removed the previous run's %s %s (sha256 %s) before writing this run's artefacts: it "
+                    "was not built from them (this run's certificate is written last)", key, path, digest)
+
+
 def calibrate(
     outdir: str | os.PathLike = "lidarcal-output",
     config: CalibrationConfig | None = None,
@@ -195,6 +240,8 @@ def calibrate(
     overwrite: bool = False,
     progress: bool = False,
     signing_key: str | os.PathLike | None = None,
+    admin: Mapping[str, str] | None = None,
+    demonstration: bool = False,
 ) -> CalibrationResult:
     """Run the whole calibration; return the path and dataset of every artefact written.
 
@@ -211,6 +258,12 @@ def calibrate(
     signing_key : path, optional
         Ed25519 private key (``lidarcal keygen``) signing the certificate's seal; read before
         any work.  Not part of the configuration: it changes who vouches, not the numbers.
+    admin : mapping, optional
+        Administrative data of the certificate (:func:`lidarcal.admin.load_admin`).
+    demonstration : bool
+        Force the demonstration status.  Without it a run on anything but the sample data or a
+        simulated bench run issues the certificate, which needs an issuer (laboratory and
+        responsible person: the contact options or ``admin``); that is checked before any work.
 
     Returns
     -------
@@ -232,10 +285,16 @@ def calibrate(
     for path in paths.values():  # refuse before doing an hour of work
         check_writable(path, overwrite=overwrite)
     signer = load_private_key(signing_key) if signing_key is not None else None
+    _check_issuer(cfg, admin or {}, demonstration)
     t0 = time.perf_counter()
 
     def done(key: str, what: str) -> None:
         log.info("[%6.1f s] %s: %s", time.perf_counter() - t0, what, paths[key])
+
+    # A certificate (and the report showing it) from an earlier run in this directory would sit
+    # beside artefacts it was not built from, still verifying, if this run stopped half-way:
+    # remove it before the first new artefact is published; this run's is written last.
+    _retire_previous(paths, overwrite=overwrite)
 
     # Each artefact is written, then read back with open_artefact: downstream stages then
     # record the checksum of the file on disk as their input (the certificate's chain).
@@ -324,16 +383,18 @@ def calibrate(
     bud = open_artefact(paths["budget"], "uncertainty_budget")
     done("budget", "uncertainty budget (Monte Carlo approach)")
 
-    # 6. certificate and report
+    # 6. report, then the certificate: the last file written, so that one present always
+    # belongs to the artefacts beside it
     cert = make_certificate(budget=bud, sensitivities=sens, cube=cube, rwf=rwf, terms=terms,
-                            records=records, config=cfg.to_dict(), call="lidarcal calibrate")
-    write_certificate(cert, paths["certificate"], overwrite=overwrite, signing_key=signer)
-    done("certificate", "calibration certificate (check with: lidarcal verify"
-         + (f" --public-key {signing_key}.pub)" if signer else ")"))
+                            records=records, config=cfg.to_dict(), call="lidarcal calibrate",
+                            admin=admin, demonstration=demonstration)
     written = write_report(paths["report"], certificate=cert, overwrite=overwrite)
     for png in written.get("png", []):
         paths[f"png:{Path(png).name}"] = Path(png)
     done("report", f"HTML report ({len(written.get('png', []))} PNG figures beside it)")
+    write_certificate(cert, paths["certificate"], overwrite=overwrite, signing_key=signer)
+    done("certificate", "calibration certificate (check with: lidarcal verify"
+         + (f" --public-key {signing_key}.pub)" if signer else ")"))
     datasets = {"cube": cube, "rwf": rwf, "conditions": open_artefact(paths["conditions"], "conditions"),
                 "simulated": records, "terms": terms, **{f"sensitivity_{v}": d for v, d in sens.items()},
                 "budget": bud, "certificate": open_artefact(paths["certificate"], "certificate")}

@@ -28,7 +28,8 @@ from lidarcal import __version__
 from lidarcal.cf import canonical_order
 from lidarcal.errors import InputError
 
-__all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "jsonable", "contact", "merge_history",
+__all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "jsonable", "contact",
+           "contact_attributes", "merge_history",
            "CONVENTIONS", "CONTACT_ENV", "SITE_ENV", "USER_ATTRIBUTES", "REFERENCES"]
 
 CONVENTIONS = "CF-1.11, ACDD-1.3"
@@ -153,6 +154,11 @@ def contact(**values: str | None) -> Iterator[None]:
     finally:
         _contact_override.clear()
         _contact_override.update(saved)
+
+
+def contact_attributes() -> dict[str, str]:
+    """Return the contact attributes :func:`stamp` would record now (options, environment, defaults)."""
+    return _contact_attrs()
 
 
 def _contact_attrs() -> dict[str, str]:

@@ -33,7 +33,14 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component, headline_range
+from lidarcal.certificate import (
+    HEADLINE_WIND_SPEEDS,
+    components,
+    extract_component,
+    headline_range,
+    invalid_seal_banner,
+    require_valid_seal,
+)
 from lidarcal.errors import InputError
 from lidarcal.htmlpage import offline_html, write_text
 from lidarcal.io import atomic_path, check_writable
@@ -599,16 +606,23 @@ def write_report(
     title: str | None = None,
     png: bool = True,
     overwrite: bool = False,
+    allow_invalid: bool = False,
 ) -> dict[str, Any]:
     """Write the offline HTML report (and PNGs next to it).
 
     With ``certificate`` the components are taken from it; explicit arguments override them.
+    A certificate read from a file has its seal checked first
+    (:func:`lidarcal.seal.require_valid_seal`): an altered one is refused
+    (:class:`~lidarcal.errors.SealError`), or with ``allow_invalid`` reported under a
+    warning banner.
 
     Returns
     -------
     dict
         ``{"html": Path, "figures": [names], "png": [Paths]}``.
     """
+    seal = require_valid_seal(certificate, allow_invalid=allow_invalid) if certificate is not None else None
+    banner = invalid_seal_banner(seal) if seal is not None and not seal.ok else None
     hv = _hv()
     parts: dict[str, Any] = (
         _from_certificate(certificate) if certificate is not None else {"sensitivities": []}
@@ -633,7 +647,8 @@ def write_report(
     models = {name: fig.bokeh() for name, fig in figs.items()}
     links = {name: f'<p class="png"><a href="{p.name}">static PNG</a></p>' for name, p in pngs.items()}
     after = {name: fig.note + links.get(name, "") for name, fig in figs.items()}
-    page = offline_html(models, title=title, header=f"<table>\n{table}\n</table>", after=after,
+    warning = f'<p class="invalid"><strong>{html.escape(banner)}</strong></p>\n' if banner else ""
+    page = offline_html(models, title=title, header=f"{warning}<table>\n{table}\n</table>", after=after,
                         titles={name: fig.heading for name, fig in figs.items()})
     written = []
     if png:

@@ -23,8 +23,8 @@ import xarray as xr
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
 
-from lidarcal.errors import InputError
-from lidarcal.io import atomic_path, check_writable, open_artefact, write_artefact
+from lidarcal.errors import InputError, SealError
+from lidarcal.io import atomic_path, check_writable, open_artefact, write_into
 from lidarcal.schema import validate_dataset
 from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign, verify_signature
 
@@ -128,7 +128,7 @@ def write_certificate(cert: xr.Dataset, path: str | os.PathLike, *, overwrite: b
         )
     path = check_writable(path, overwrite=overwrite)
     with atomic_path(path, overwrite=overwrite) as tmp:
-        write_artefact(cert, tmp, overwrite=True)
+        write_into(cert, tmp, target=path)  # into this temporary: never a temporary of it
         if signing_key is not None:
             public = signing_key.public_key().public_bytes(Encoding.Raw, PublicFormat.Raw)
             with netCDF4.Dataset(tmp, "a") as nc:
@@ -270,3 +270,66 @@ def verify_certificate(path: str | os.PathLike, *,
     finally:
         ds.close()
     return report
+
+
+# ------------------------------------------------------------------ showing a certificate's numbers
+
+
+def _certificate_file(obj: str | os.PathLike | xr.Dataset, source: str | os.PathLike | None) -> Path | None:
+    if source is not None:
+        return Path(source)
+    if isinstance(obj, str | os.PathLike):
+        return Path(obj)
+    found = obj.encoding.get("source")
+    return Path(found) if found else None
+
+
+def require_valid_seal(obj: str | os.PathLike | xr.Dataset, *, source: str | os.PathLike | None = None,
+                       public_key: str | os.PathLike | Ed25519PublicKey | None = None,
+                       allow_invalid: bool = False) -> VerificationReport | None:
+    """Check a certificate's seal before any of its numbers are shown; refuse a broken one.
+
+    Every command and function that displays a certificate's values (``lidarcal table``, the
+    HTML report, exports) calls this first.  ``obj`` is the certificate file or a Dataset read
+    from one (its file is ``source``, else the path xarray opened it from); the file is checked
+    as :func:`verify_certificate` does (with ``public_key`` when given).  A Dataset that was
+    never sealed and came from no file (a certificate being built, before
+    :func:`write_certificate`) has nothing to check: None is returned.
+
+    Returns
+    -------
+    VerificationReport or None
+        The report; with ``allow_invalid`` it may list problems, and the caller must show
+        :func:`invalid_seal_banner` with the numbers.
+
+    Raises
+    ------
+    SealError
+        The seal or signature does not match the contents, the file is not sealed, or a sealed
+        Dataset's file cannot be found to check (unless ``allow_invalid``).
+    InputError
+        The file is missing, unreadable or not a certificate.
+    """
+    path = _certificate_file(obj, source)
+    if path is None:
+        if isinstance(obj, xr.Dataset) and INTEGRITY_ATTR not in obj.attrs:
+            return None  # in memory, not yet sealed: built here, nothing altered it
+        report = VerificationReport(path="<dataset>", problems=[
+            "sealed certificate read from no known file: its seal cannot be checked (pass source=)"])
+    else:
+        report = verify_certificate(path, public_key=public_key)
+    if report.ok or allow_invalid:
+        return report
+    shown = "; ".join(report.problems[:5]) + (f"; and {len(report.problems) - 5} more"
+                                              if len(report.problems) > 5 else "")
+    raise SealError(f"{report.path}: refusing to show this certificate's numbers: its seal does not match "
+                    f"its contents ({len(report.problems)} problem(s): {shown}); it was altered after it was "
+                    f"sealed, or never sealed. See lidarcal verify {report.path}; to show them anyway, "
+                    "marked as invalid, pass --allow-invalid (allow_invalid=True)")
+
+
+def invalid_seal_banner(report: VerificationReport) -> str:
+    """One line saying the numbers shown come from a certificate whose seal does not hold."""
+    return (f"WARNING: INVALID CERTIFICATE {report.path}: its seal does not match its contents "
+            f"({len(report.problems)} problem(s), e.g. {report.problems[0]}); these numbers are NOT "
+            "certified (lidarcal verify lists every problem)")

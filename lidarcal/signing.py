@@ -15,6 +15,7 @@ named by its fingerprint, ``sha256:`` and the hex SHA-256 of its 32 raw public b
 from __future__ import annotations
 
 import base64
+import contextlib
 import hashlib
 import os
 from pathlib import Path
@@ -24,7 +25,7 @@ from cryptography.hazmat.primitives import serialization
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 
 from lidarcal.errors import InputError
-from lidarcal.io import atomic_path, check_writable, part_path, publish, remove_stale_parts
+from lidarcal.io import check_writable, disk_full, part_path, publish, remove_stale_parts
 
 __all__ = [
     "ALGORITHM",
@@ -63,17 +64,33 @@ def generate_keypair(path: str | os.PathLike, *, overwrite: bool = False) -> tup
     public_pem = key.public_key().public_bytes(
         serialization.Encoding.PEM, serialization.PublicFormat.SubjectPublicKeyInfo
     )
+    # both files or neither: the two temporaries are complete before either is published, and
+    # the private key is withdrawn again if the public one cannot follow it
     remove_stale_parts(path)
+    remove_stale_parts(pub)
     tmp = part_path(path)  # created 0600 and never widened: the private key is never readable by others
+    tmp_pub = part_path(pub)
+    published = False
     try:
-        tmp.write_bytes(private_pem)
-        os.chmod(tmp, 0o600)
+        try:
+            tmp.write_bytes(private_pem)
+            os.chmod(tmp, 0o600)
+            tmp_pub.write_bytes(public_pem)
+            os.chmod(tmp_pub, 0o644)
+        except OSError as exc:
+            raise disk_full(exc, path if tmp.stat().st_size < len(private_pem) else pub) or exc from None
         publish(tmp, path, overwrite=overwrite)
+        published = True
+        publish(tmp_pub, pub, overwrite=overwrite)
+    except BaseException:
+        if published:  # the public key could not follow: leave neither
+            with contextlib.suppress(OSError):
+                path.unlink()
+        raise
     finally:
-        if tmp.exists():
-            tmp.unlink()
-    with atomic_path(pub, overwrite=overwrite) as tmp_pub:
-        tmp_pub.write_bytes(public_pem)
+        for t in (tmp, tmp_pub):
+            with contextlib.suppress(OSError):
+                t.unlink()
     return path, pub, fingerprint(key)
 
 
@@ -87,8 +104,30 @@ def _read(path: str | os.PathLike, what: str) -> bytes:
         raise InputError(f"{path}: cannot read the {what}: {exc.strerror}") from None
 
 
+def _check_private(path: str | os.PathLike) -> None:
+    """Refuse a private key file other users can read or write, as ssh does."""
+    if os.name != "posix":
+        return  # Windows: access is by ACL, which st_mode does not show
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return  # _read reports it
+    if mode & 0o077:
+        raise InputError(
+            f"{path}: private key is readable or writable by others (mode {mode & 0o777:04o}): refusing to "
+            "sign with it (as ssh refuses such a key): anyone who could read it can sign certificates as "
+            f"you. Restrict it with 'chmod 600 {path}', and if others may have copied it, make a new key "
+            "(lidarcal keygen) and withdraw the old public key"
+        )
+
+
 def load_private_key(path: str | os.PathLike) -> Ed25519PrivateKey:
-    """Read an Ed25519 private key (PEM, unencrypted) with a clear error for anything else."""
+    """Read an Ed25519 private key (PEM, unencrypted) with a clear error for anything else.
+
+    On POSIX systems a key file other users can read or write (any group or other permission
+    bit, e.g. mode 0644) is refused, as ssh refuses one: a signature vouches for a file only
+    while the key is its holder's alone.
+    """
     data = _read(path, "private key")
     try:
         key = serialization.load_pem_private_key(data, password=None)
@@ -98,6 +137,7 @@ def load_private_key(path: str | os.PathLike) -> Ed25519PrivateKey:
         raise InputError(f"{path}: not an unencrypted PEM private key{hint}: {exc}") from None
     if not isinstance(key, Ed25519PrivateKey):
         raise InputError(f"{path}: expected an Ed25519 private key; found {type(key).__name__}")
+    _check_private(path)
     return key
 
 

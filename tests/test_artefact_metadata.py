@@ -127,7 +127,7 @@ def test_stock_checker_finds_only_documented_exceptions(run_dir):
 
 @pytest.mark.slow
 def test_stock_checker_on_every_artefact_of_a_run(run_dir):
-    # every file calibrate writes (the certificate alone takes ~30 s); the sweep, diagnosis,
+    # every file calibrate writes; the sweep, diagnosis,
     # turbulence box and repeatability kinds are checked in their own modules' tests
     files = sorted(run_dir.glob("*.nc"))
     kinds = {xr.open_dataset(f).attrs["lidarcal_artefact"] for f in files}
@@ -184,10 +184,57 @@ def test_validate_folds_repeated_findings():
     ], warnings=["acdd:1.3 [Global Attributes] comment not present",
                  "acdd:1.3 [Global Attributes] creator_url not present"])
     lines = summary_lines(report)
-    assert len(lines) == 2
+    assert len(lines) == 4
     assert lines[0].startswith("documented exception (dB") and "40 finding(s)" in lines[0]
-    assert lines[1] == "warning: acdd:1.3 [Global Attributes] not present (2): comment, creator_url"
+    # each missing ACDD attribute once, under what supplies it
+    assert lines[1] == "warning: 2 ACDD attribute(s) not present; give them with:"
+    assert sorted(lines[2:]) == [
+        "  --creator-url TEXT (or $LIDARCAL_CREATOR_URL): creator_url",
+        "  not settable by an option (lidarcal writes it; report a missing one as a bug): comment"]
     assert len(summary_lines(report, verbose=True)) == 1 + 40 + 2
+
+
+def test_every_missing_acdd_attribute_names_an_option_that_exists(tmp_path, capsys):
+    # a file written without any user details: validate names, for each attribute the checker
+    # asks for, an option that the writing commands really accept
+    from lidarcal.cli import build_parser
+    from lidarcal.compliance import supplied_by
+
+    ds = xr.open_dataset(sample_file("conditions/conditions.nc"))
+    with contact():
+        out = stamp(ds.isel(time=slice(0, 6)), "conditions", title="t", summary="s", call="test")
+    write_artefact(out, tmp_path / "c.nc")
+    report = check_compliance(tmp_path / "c.nc")
+    absent = [w.split("] ")[1].removesuffix(" not present") for w in report.warnings
+              if w.startswith("acdd") and w.endswith(" not present")]
+    assert len(absent) >= 10
+    calibrate = build_parser()._subparsers._group_actions[0].choices["calibrate"]
+    for attr in absent:
+        option = supplied_by(attr)
+        assert not option.startswith("not settable"), attr
+        for word in option.split():
+            if word.startswith("--"):
+                assert word in calibrate._option_string_actions, (attr, word)
+    lines = summary_lines(report)
+    assert sum(attr in line for line in lines for attr in absent) >= len(absent)
+    assert not any("extents_match" in line for line in lines)  # the site, said once
+
+
+def test_compliance_cache_gives_the_stock_checker_findings(tmp_path):
+    # the per-run cache of the checker's read-only queries must not change a single finding:
+    # compared on a file with failures (bad units, a variable without long_name) and findings of
+    # every kind
+    ds = xr.open_dataset(sample_file("conditions/conditions.nc")).isel(time=slice(0, 6))
+    with contact():
+        out = stamp(ds, "conditions", title="t", summary="s", call="test")
+    out["wind_speed"].attrs["units"] = "furlongs"
+    out["extra"] = out["wind_speed"] * 2
+    out["extra"].attrs = {"units": "m s-1", "coordinates": "nowhere"}
+    out.to_netcdf(tmp_path / "bad.nc")
+    cached, stock = check_compliance(tmp_path / "bad.nc"), check_compliance(tmp_path / "bad.nc", cache=False)
+    assert cached.failures and cached.warnings
+    assert (cached.failures, cached.exceptions, cached.warnings) == (stock.failures, stock.exceptions,
+                                                                     stock.warnings)
 
 
 def test_merge_history_dedupes_and_orders():

@@ -50,7 +50,7 @@ def _certificate(tmp_path, capsys, budget, sens, *extra):
     out = tmp_path / "cert.nc"
     capsys.readouterr()
     code = main(["certificate", "--budget", str(budget), "--sensitivity", str(sens), *map(str, extra),
-                 "-o", str(out)])
+                 "-o", str(out), "--demonstration"])
     err = capsys.readouterr().err
     if code != 0:
         assert not out.exists() and "Traceback" not in err

@@ -23,7 +23,7 @@ PACKAGE = Path(lidarcal.__file__).parent
 
 #: Shared infrastructure: importable from anywhere, imports no stage.
 INFRASTRUCTURE = ("", "errors", "units", "schema", "cf", "binning", "provenance", "io", "compliance", "data",
-                  "htmlpage", "signing")
+                  "htmlpage", "signing", "admin")
 
 #: Stages in dependency order: each may import only infrastructure and the stages before it.
 #: ``analysis`` reads records but never runs a campaign, so it comes before ``campaign``
@@ -39,6 +39,7 @@ STAGES = (
     "campaign",
     "seal",
     "certificate",
+    "dcc",
     "report",
     "diagnose",
     "pipeline",

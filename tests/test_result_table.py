@@ -38,7 +38,7 @@ def cert_path(tmp_path_factory):
     rel[{"height": 0, "wind_speed": j2}] = 40.0
     sens = [sensitivity(records, v) for v in ("wind_shear_exponent", "turbulence_intensity")]
     terms = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS)
-    cert = make_certificate(budget=bud, sensitivities=sens, terms=terms)
+    cert = make_certificate(budget=bud, sensitivities=sens, terms=terms, demonstration=True)
     path = write_certificate(cert, d / "cert.nc")
     write_artefact(bud, d / "budget.nc")
     return path

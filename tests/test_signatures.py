@@ -49,7 +49,7 @@ def keys(tmp_path_factory):
 
 def _certificate(inputs, out, *extra):
     code = main(["certificate", "--budget", str(inputs["budget"]), "--sensitivity", str(inputs["sens"]),
-                 "-o", str(out), *extra])
+                 "-o", str(out), "--demonstration", *extra])
     assert code == 0
     return out
 

@@ -297,6 +297,8 @@ def build_cube(
         "los_sign_convention": "as reported by the lidar (bench programmed shift in the lidar's convention)",
         **{f"ingest_{k}": v for k, v in counts.items()},
     })
+    if meta.get("data_origin"):  # "simulated by lidarcal bench simulate ...": a demonstration run
+        ds.attrs["data_origin"] = str(meta["data_origin"])
     return ds, counts
 
 

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from lidarcal.admin import SIMULATED_ORIGIN
 from lidarcal.bench.formats import ControlLog, RtdTable, write_control_log, write_rtd
 from lidarcal.bench.grid import CNR_NODES, LOS_LABELS, VELOCITY_NODES, los_index
 from lidarcal.bench.response import TrueResponse
@@ -238,6 +239,8 @@ def simulate_run(
         "rf_driver_relative_uncertainty_percent": RF_DRIVER_RELATIVE_UNCERTAINTY_PERCENT,
         "accumulation_time_s": acc,
         "sweep_order": "los, cnr, velocity (velocity fastest)",
+        # a certificate built from this run is a demonstration (lidarcal.admin)
+        "data_origin": SIMULATED_ORIGIN,
     }
     control = ControlLog(starts, ends, li, vi, ci, meta, "<simulated control log>")
     seed_entropy = list(seed) if isinstance(seed, tuple | list) else int(seed)

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from lidarcal.conditions.variables import CONDITION_NAMES
-from lidarcal.io import part_path, publish, remove_stale_parts
+from lidarcal.io import disk_full, part_path, publish, remove_stale_parts
 from lidarcal.lidar import LidarModel, simulate_period
 
 __all__ = ["OUTPUTS", "chunk_key", "chunk_path", "load_chunk", "period_keys", "run_chunk", "seed_entropy"]
@@ -125,6 +125,8 @@ def _save_atomic(path: Path, key: str, result: dict[str, np.ndarray]) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         publish(tmp, path, overwrite=True)
+    except OSError as exc:
+        raise disk_full(exc, path) or exc from None  # a full disk: one clear message
     finally:
         if tmp.exists():
             tmp.unlink()

@@ -38,6 +38,7 @@ COMMANDS = (
     "budget",
     "sweep",
     "certificate",
+    "dcc",
     "verify",
     "keygen",
     "table",

@@ -19,8 +19,10 @@ from __future__ import annotations
 
 import argparse
 
+from lidarcal.admin import status_line
 from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES
 from lidarcal.cli.options import (
+    add_admin_options,
     add_contact_options,
     add_heights_option,
     add_los_noise_option,
@@ -29,6 +31,7 @@ from lidarcal.cli.options import (
     add_progress_option,
     add_reference_turbulence_option,
     add_seed_option,
+    admin_from_args,
     positive_int,
     progress_enabled,
 )
@@ -74,6 +77,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_parallel_options(p, workdir=False)  # chunks are cached in OUTDIR/.simulation-chunks
     add_overwrite_option(p)
     add_contact_options(p)
+    add_admin_options(p)
     add_progress_option(p)
     p.add_argument("--sign", metavar="KEY",
                    help="sign the certificate's seal with this Ed25519 private key (lidarcal keygen); "
@@ -93,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
         terms={} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms},
     )
     result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args),
-                       signing_key=args.sign)
+                       signing_key=args.sign, admin=admin_from_args(args), demonstration=args.demonstration)
+    print(f"done: {status_line(result.datasets['certificate'].attrs)}")
     print(f"done: certificate {result.paths['certificate']}, report {result.paths['report']}")
     return 0

@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import argparse
 
+from lidarcal.admin import status_line
 from lidarcal.certificate import make_certificate, write_certificate
 from lidarcal.cli import command_line
-from lidarcal.cli.options import add_output_options
+from lidarcal.cli.options import add_admin_options, add_output_options, admin_from_args
 from lidarcal.io import check_writable, open_artefact
 from lidarcal.report import write_report
 from lidarcal.signing import fingerprint, load_private_key
@@ -45,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         "--records", metavar="RECORDS.nc", help="simulated_rtd / field_campaign records (summarised)"
     )
     add_output_options(p, "CERT.nc")
+    add_admin_options(p)
     p.add_argument("--report", metavar="CERT.html", help="also write the HTML report (and its PNGs)")
     p.add_argument("--sign", metavar="KEY",
                    help="sign the seal with this Ed25519 private key (lidarcal keygen); without it the "
@@ -58,6 +60,7 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         check_writable(args.report, overwrite=args.overwrite)
     key = load_private_key(args.sign) if args.sign else None  # a bad key fails before any work
+    admin = admin_from_args(args)  # a bad --admin file fails before any work
     budget = open_artefact(args.budget, "uncertainty_budget")
     sens = [open_artefact(path, "sensitivity") for path in args.sensitivity]
     optional = {
@@ -71,10 +74,12 @@ def run(args: argparse.Namespace) -> int:
     }
     config = {k: v for k, v in vars(args).items() if k != "handler"}
     call = command_line(args)
-    cert = make_certificate(budget=budget, sensitivities=sens, config=config, call=call, **optional)
+    cert = make_certificate(budget=budget, sensitivities=sens, config=config, call=call, admin=admin,
+                            demonstration=args.demonstration, **optional)
     path = write_certificate(cert, args.output, overwrite=args.overwrite, signing_key=key)
     how = (f"sealed and signed by {fingerprint(key)} (check with: lidarcal verify {path} --public-key "
            f"{args.sign}.pub)" if key else f"sealed, unsigned (check with: lidarcal verify {path})")
+    print(f"{path}: {status_line(cert.attrs)}")
     print(f"{path}: certificate with components {cert.attrs['certificate_components']}; {how}")
     if args.report:
         written = write_report(args.report, certificate=cert, overwrite=args.overwrite)

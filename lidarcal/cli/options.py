@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from lidarcal.admin import load_admin, merge_admin
 from lidarcal.campaign import DEFAULT_BASE_SEED
 from lidarcal.lidar.model import REFERENCE_TURBULENCE
 from lidarcal.provenance import USER_ATTRIBUTES
@@ -48,6 +49,8 @@ __all__ = [
     "add_contact_options",
     "contact_from_args",
     "add_overwrite_option",
+    "add_admin_options",
+    "admin_from_args",
     "progress_enabled",
     "simulation_options",
 ]
@@ -296,6 +299,53 @@ def contact_from_args(args: argparse.Namespace) -> dict[str, str]:
     """Return the contact attributes given on the command line (for ``provenance.contact``)."""
     return {attr: value for attr in [a for a, _ in CONTACT_OPTIONS.values()] + list(USER_ATTRIBUTES)
             if (value := getattr(args, f"contact_{attr}", None))}
+
+
+#: option -> administrative attribute (lidarcal.admin; docs/certificate.md)
+ADMIN_OPTIONS = {
+    "--certificate-id": "certificate_id",
+    "--item-manufacturer": "item_manufacturer",
+    "--item-model": "item_model",
+    "--item-serial-number": "item_serial_number",
+    "--item-firmware": "item_firmware",
+    "--laboratory-address": "laboratory_address",
+    "--customer-name": "customer_name",
+    "--customer-address": "customer_address",
+    "--calibration-location": "calibration_location",
+    "--method-reference": "method_reference",
+}
+
+
+def add_admin_options(parser: argparse.ArgumentParser) -> None:
+    """``--admin ADMIN.yaml``, ``--demonstration`` and one option per administrative attribute.
+
+    The laboratory is ``--institution`` and the first responsible person ``--creator`` (the
+    contact options); options win over the file.
+    """
+    g = parser.add_argument_group(
+        "certificate status and administrative data (docs/certificate.md); an issued certificate needs "
+        "--creator and --institution or an --admin file naming the laboratory and responsible persons")
+    g.add_argument("--admin", metavar="ADMIN.yaml",
+                   help="administrative data: item, laboratory, responsible persons, customer, place, dates, "
+                   "bench traceability, certificate id (keys in docs/certificate.md)")
+    g.add_argument("--demonstration", action="store_true",
+                   help="mark the certificate calibration_status = demonstration (automatic when an input is "
+                   "lidarcal's sample data or a simulated bench run)")
+    for option, attr in ADMIN_OPTIONS.items():
+        g.add_argument(option, dest=f"admin_{attr}", metavar="TEXT",
+                       help=f"{attr} attribute (default: from --admin"
+                       f"{', or generated' if attr == 'certificate_id' else ''})")
+    g.add_argument("--responsible-person", dest="admin_responsible_persons", action="append",
+                   metavar="'NAME (ROLE)'",
+                   help="a person responsible for the certificate (repeatable; default: --creator)")
+
+
+def admin_from_args(args: argparse.Namespace) -> dict[str, str]:
+    """Return the administrative data of ``--admin`` with the options' values on top (validated)."""
+    given = load_admin(args.admin) if getattr(args, "admin", None) else {}
+    options = {attr: getattr(args, f"admin_{attr}", None)
+               for attr in [*ADMIN_OPTIONS.values(), "responsible_persons"]}
+    return merge_admin(given, {k: v for k, v in options.items() if v}, source="options")
 
 
 def add_overwrite_option(parser: argparse.ArgumentParser) -> None:

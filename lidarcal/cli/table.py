@@ -9,6 +9,11 @@ are ``ok`` with a centre from 4 to 16 m/s (``--wind-speeds``); ``in_headline`` m
 CSV (the default) carries every column with the certificate's unrounded values; Markdown and
 HTML round for reading and list the sensitivities once per height.  Without ``-o`` the table
 goes to stdout.
+
+The certificate's seal is checked first (as ``lidarcal verify`` does): the numbers of an
+altered, unsealed or wrongly signed certificate are not shown (exit status 2), unless
+``--allow-invalid`` is given, which shows them under a warning banner (on stderr, and as the
+first line of the table: a ``#`` comment in CSV).
 """
 
 from __future__ import annotations
@@ -18,9 +23,11 @@ import html
 import sys
 from pathlib import Path
 
+from lidarcal.admin import status_line
 from lidarcal.certificate import HEADLINE_WIND_SPEEDS, result_table
 from lidarcal.cli.options import add_overwrite_option
 from lidarcal.io import atomic_path, check_writable, open_artefact
+from lidarcal.seal import invalid_seal_banner, require_valid_seal
 
 FORMATS = ("csv", "md", "html")
 _SUFFIXES = {".csv": "csv", ".md": "md", ".markdown": "md", ".html": "html", ".htm": "html"}
@@ -39,6 +46,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="bin centres (m/s) the headline range covers (default %(default)s)")
     p.add_argument("--contributors", type=int, default=3, metavar="N",
                    help="contributors listed per bin, largest first (default %(default)s)")
+    p.add_argument("--allow-invalid", action="store_true",
+                   help="show the table even if the certificate's seal does not match its contents, "
+                   "under a warning banner (by default such a certificate is refused)")
     add_overwrite_option(p)
     p.set_defaults(handler=run)
 
@@ -80,6 +90,7 @@ def _cell(value) -> str:
 def _markdown(table) -> str:
     body = _rounded(table)
     lines = [f"# Result table: {table.attrs.get('title', 'calibration certificate')}", "",
+             *([f"**{table.attrs['status']}**", ""] if table.attrs.get("status") else []),
              _headline(table), "",
              "| " + " | ".join(body.columns) + " |", "|" + "---|" * len(body.columns)]
     lines += ["| " + " | ".join(_cell(v) for v in row) + " |" for row in body.itertuples(index=False)]
@@ -92,16 +103,29 @@ def _html(table) -> str:
     title = html.escape(f"Result table: {table.attrs.get('title', 'calibration certificate')}")
     sens = "".join(f"<li>{z:g} m: {html.escape(s or 'none')}</li>" for z, s in _sensitivities(table))
     grid = _rounded(table).to_html(index=False, na_rep="", border=0)
+    status = table.attrs.get("status")
+    status = f"<p><strong>{html.escape(status)}</strong></p>\n" if status else ""
     return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{title}</title></head><body>\n"
-            f"<h1>{title}</h1>\n<p>{html.escape(_headline(table))}</p>\n{grid}\n"
+            f"<h1>{title}</h1>\n{status}<p>{html.escape(_headline(table))}</p>\n{grid}\n"
             f"<h2>Significant sensitivities (Eqs. 12-13)</h2>\n<ul>{sens}</ul>\n</body></html>\n")
 
 
-def render(table, fmt: str) -> str:
-    """Return ``table`` (from :func:`lidarcal.certificate.result_table`) as csv, md or html text."""
+def render(table, fmt: str, *, banner: str | None = None) -> str:
+    """Return ``table`` (from :func:`lidarcal.certificate.result_table`) as csv, md or html text.
+
+    ``banner`` (a certificate whose seal does not hold) goes first: a ``#`` line in CSV, a
+    bold paragraph in Markdown and HTML.
+    """
     if fmt == "csv":
-        return table.to_csv(index=False, lineterminator="\n")
-    return _markdown(table) if fmt == "md" else _html(table)
+        head = f"# {banner}\n" if banner else ""
+        return head + table.to_csv(index=False, lineterminator="\n")
+    if fmt == "md":
+        return (f"**{banner}**\n\n" if banner else "") + _markdown(table)
+    page = _html(table)
+    if banner:
+        warning = f'<p class="invalid"><strong>{html.escape(banner)}</strong></p>\n'
+        page = page.replace("<body>\n", "<body>\n" + warning, 1)
+    return page
 
 
 def run(args: argparse.Namespace) -> int:
@@ -110,12 +134,21 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         check_writable(args.output, overwrite=args.overwrite)
     cert = open_artefact(args.certificate, "certificate")
-    table = result_table(cert, contributors=args.contributors, wind_speeds=tuple(args.wind_speeds))
+    seal = require_valid_seal(args.certificate, allow_invalid=args.allow_invalid)
+    banner = invalid_seal_banner(seal) if seal is not None and not seal.ok else None
+    if banner:
+        print(f"lidarcal table: {banner}", file=sys.stderr)
+    table = result_table(cert, contributors=args.contributors, wind_speeds=tuple(args.wind_speeds),
+                         allow_invalid=True)  # checked just above
     table.attrs["title"] = cert.attrs.get("title", "calibration certificate")
-    text = render(table, fmt)
+    table.attrs["status"] = status_line(cert.attrs)
+    text = render(table, fmt, banner=banner)
     if not args.output:
+        if fmt == "csv":  # the CSV stays a plain table: the status goes first on stderr
+            print(f"{args.certificate}: {table.attrs['status']}", file=sys.stderr)
         sys.stdout.write(text)
         return 0
+    print(f"{args.output}: {table.attrs['status']}")
     with atomic_path(args.output, overwrite=args.overwrite) as tmp:
         Path(tmp).write_text(text, encoding="utf-8")
     print(f"{args.output}: {len(table)} bins; {_headline(table)}")

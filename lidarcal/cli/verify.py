@@ -21,6 +21,9 @@ from __future__ import annotations
 import argparse
 import sys
 
+import netCDF4
+
+from lidarcal.admin import status_line
 from lidarcal.certificate import verify_certificate
 from lidarcal.errors import LidarcalError
 from lidarcal.signing import load_public_key
@@ -47,6 +50,12 @@ def _signature_line(report, public_key: str | None) -> str:
             "to check it is a key you trust)")
 
 
+def _status(path: str) -> str:
+    with netCDF4.Dataset(path) as nc:
+        attrs = {k: nc.getncattr(k) for k in nc.ncattrs()}
+    return status_line(attrs)
+
+
 def run(args: argparse.Namespace) -> int:
     """Verify every file, reporting each; 2 if any could not be checked, else 1 if any was altered."""
     bad = failed = 0
@@ -59,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{path}: NOT CHECKED (see the error above)")
             failed += 1
             continue
+        print(f"{path}: {_status(path)}")  # the status first: a demonstration is never mistaken for more
         if report.ok:
             print(
                 f"{path}: OK ({report.variables_checked} variables and {report.attributes_checked} global "

@@ -1,0 +1,589 @@
+"""Digital Calibration Certificate (DCC): a certificate as PTB DCC XML, schema 3.1.2 with D-SI 2.1.0.
+
+:func:`dcc_tree` turns a sealed netCDF certificate into the XML of PTB's Digital Calibration
+Certificate (``https://ptb.de/dcc``, ``dcc.xsd`` 3.1.2, importing the D-SI ``SI_Format.xsd``
+2.1.0, ``https://ptb.de/si``):
+
+* ``administrativeData``: ``dccSoftware`` (lidarcal and its version); ``coreData`` with the
+  certificate id as ``uniqueIdentifier``, the SHA-256 of the netCDF certificate as an
+  identification, the performance dates (bench run to simulation) and location; the calibrated
+  lidar (``items``); the laboratory; the responsible persons; the customer; statements giving
+  the ``calibration_status`` (first), the place of the bench run and the netCDF's SHA-256.
+* ``measurementResults``: one result per height with the wind-speed bin centres as a D-SI
+  ``realListXMLList`` whose ``expandedUncXMLList`` holds the expanded uncertainty (k = 2,
+  coverage probability 0.95) and whose ``dcc:relativeUncertainty`` the relative expanded
+  uncertainty (%), the relative expanded uncertainty as its own list, the numerical tolerance
+  when the budget has one and the number of periods per bin; the method, lidarcal as the
+  software, the bench as the measuring equipment; and a second result with the environmental
+  sensitivity slopes significant by Eq. 12 or 13.
+
+The XML refers to the netCDF certificate by SHA-256, so the two stay one record: the netCDF is
+the sealed (optionally signed) original, the XML its exchange form.  :func:`validate_dcc`
+checks a document against the XSDs (not shipped with lidarcal: they are PTB's, LGPL).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import re
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+from lxml import etree
+
+from lidarcal import __version__
+from lidarcal.admin import (
+    ADMIN_FILE_KEYS,
+    STATUS_ATTR,
+    STATUS_REASON_ATTR,
+    certificate_attributes,
+    status_line,
+)
+from lidarcal.certificate import components, extract_component
+from lidarcal.errors import InputError, ValidationError
+from lidarcal.io import atomic_path, check_writable, open_artefact
+from lidarcal.provenance import sha256
+
+__all__ = ["DCC_NS", "SI_NS", "DCC_SCHEMA_VERSION", "SI_SCHEMA_VERSION", "SI_SCHEMA_URL", "dcc_tree",
+           "write_dcc", "validate_dcc", "dcc_attributes", "si_unit", "COVERAGE_PROBABILITY"]
+
+DCC_NS = "https://ptb.de/dcc"
+SI_NS = "https://ptb.de/si"
+DCC_SCHEMA_VERSION = "3.1.2"
+SI_SCHEMA_VERSION = "2.1.0"
+#: Where ``dcc.xsd`` 3.1.2 imports the D-SI schema from (resolved to a local file by :func:`validate_dcc`).
+SI_SCHEMA_URL = "https://ptb.de/si/v2.1.0/SI_Format.xsd"
+_XSI = "http://www.w3.org/2001/XMLSchema-instance"
+#: Coverage probability stated with the k = 2 expanded uncertainty (normal distribution).
+COVERAGE_PROBABILITY = 0.95
+_NOT_STATED = "not stated"
+
+# ------------------------------------------------------------------ units
+
+
+#: UDUNITS symbol -> D-SI (BIPM SI brochure) unit macro.
+_SI_UNITS = {"m": r"\metre", "s": r"\second", "%": r"\percent", "1": r"\one", "dB": r"\decibel",
+             "K": r"\kelvin", "kg": r"\kilogram", "rad": r"\radian", "degree": r"\degree", "Hz": r"\hertz",
+             "W": r"\watt", "Pa": r"\pascal", "hPa": r"\hecto\pascal", "km": r"\kilo\metre", "h": r"\hour",
+             "min": r"\minute", "degC": r"\degreecelsius"}
+
+
+def si_unit(units: str) -> str:
+    """D-SI unit text of a UDUNITS unit string such as ``"m s-1"``, ``"%"`` or ``"% dB-1 m"``.
+
+    Raises
+    ------
+    InputError
+        For a unit symbol lidarcal does not know how to write in D-SI.
+    """
+    text = str(units).strip()
+    if text in ("", "1"):
+        return r"\one"
+    out = []
+    for token in text.split():
+        m = re.fullmatch(r"([A-Za-z%]+)(\^?[-+]?\d+)?", token)
+        if not m or m.group(1) not in _SI_UNITS:
+            raise InputError(f"unit {units!r}: no D-SI form known for {token!r}; known symbols "
+                             f"{sorted(_SI_UNITS)}")
+        power = int(m.group(2).lstrip("^")) if m.group(2) else 1
+        out.append(_SI_UNITS[m.group(1)] + (rf"\tothe{{{power}}}" if power != 1 else ""))
+    return "".join(out)
+
+
+# ------------------------------------------------------------------ XML helpers
+
+
+def _d(tag: str) -> str:
+    return f"{{{DCC_NS}}}{tag}"
+
+
+def _s(tag: str) -> str:
+    return f"{{{SI_NS}}}{tag}"
+
+
+def _sub(parent: etree._Element, tag: str, text: str | None = None, **attrib: str) -> etree._Element:
+    el = etree.SubElement(parent, tag, {k: v for k, v in attrib.items() if v is not None})
+    if text is not None:
+        el.text = str(text)
+    return el
+
+
+def _text(parent: etree._Element, tag: str, *contents: str, ref_type: str | None = None) -> etree._Element:
+    """Add a ``dcc:textType`` / ``dcc:richContentType`` element with English content(s)."""
+    el = _sub(parent, _d(tag), refType=ref_type)
+    for content in contents:
+        _sub(el, _d("content"), content, lang="en")
+    return el
+
+
+def _numbers(values: Iterable[float]) -> str:
+    return " ".join(repr(float(v)) for v in values)
+
+
+def _location(parent: etree._Element, address: str | None, country: str | None) -> None:
+    loc = _sub(parent, _d("location"))
+    if country:
+        _sub(loc, _d("countryCode"), country)
+    further = _sub(loc, _d("further"))
+    _sub(further, _d("content"), address or _NOT_STATED, lang="en")
+
+
+def _contact(parent: etree._Element, tag: str, name: str | None, *, email: str | None, address: str | None,
+             country: str | None = None) -> etree._Element:
+    """Add a ``dcc:contactType`` (name, eMail and location are required by the schema)."""
+    el = _sub(parent, _d(tag))
+    _text(el, "name", name or _NOT_STATED)
+    _sub(el, _d("eMail"), email or _NOT_STATED)
+    _location(el, address, country)
+    return el
+
+
+def _release(version: str) -> str:
+    """Software release as PTB's rules spell it: a letter, then the version (``v0.1.0``)."""
+    return f"v{version}" if version[:1].isdigit() else version
+
+
+def _date(text: str | None) -> _dt.date | None:
+    if not text:
+        return None
+    try:
+        return _dt.datetime.fromisoformat(str(text).replace("Z", "+00:00")).date()
+    except ValueError:
+        try:
+            return _dt.date.fromisoformat(str(text)[:10])
+        except ValueError:
+            return None
+
+
+def _persons(text: str | None) -> list[tuple[str, str | None]]:
+    out = []
+    for part in str(text or "").split(";"):
+        part = part.strip()
+        if not part:
+            continue
+        m = re.fullmatch(r"(.*?)\s*\(([^()]*)\)", part)
+        out.append((m.group(1), m.group(2)) if m and m.group(1) else (part, None))
+    return out
+
+
+# ------------------------------------------------------------------ the document
+
+
+def _administrative(root: etree._Element, attrs: Mapping[str, Any], digest: str, file_name: str) -> None:
+    admin = _sub(root, _d("administrativeData"))
+    software = _sub(_sub(admin, _d("dccSoftware")), _d("software"))
+    _text(software, "name", "lidarcal")
+    _sub(software, _d("release"), _release(__version__))
+    _sub(software, _d("type"), "application")
+    _text(software, "description", "Anemometer-free calibration of pulsed Doppler wind lidars: fiber-optic "
+          "bench and Monte Carlo virtual lidar; wrote this DCC from the netCDF certificate")
+
+    core = _sub(admin, _d("coreData"))
+    country = attrs.get("laboratory_country_code")
+    _sub(core, _d("countryCodeISO3166_1"), country or "ZZ")  # ZZ: ISO 3166 user-assigned, "not stated"
+    _sub(core, _d("usedLangCodeISO639_1"), "en")
+    _sub(core, _d("mandatoryLangCodeISO639_1"), "en")
+    _sub(core, _d("uniqueIdentifier"), attrs.get("certificate_id") or f"sha256:{digest}")
+    idents = _sub(core, _d("identifications"))
+    ident = _sub(idents, _d("identification"), refType="lidarcal_netcdfCertificateSha256")
+    _sub(ident, _d("issuer"), "calibrationLaboratory")
+    _sub(ident, _d("value"), f"sha256:{digest}")
+    _text(ident, "name", f"SHA-256 of the sealed netCDF certificate {file_name}, the original record of "
+          "these results")
+    keys = ("bench_run_start", "bench_run_end", "bench_time_coverage_start", "bench_time_coverage_end",
+            "simulation_date")
+    dates = [d for d in (_date(attrs.get(k)) for k in keys) if d is not None]
+    created = _date(attrs.get("date_created")) or _dt.date.today()
+    _sub(core, _d("beginPerformanceDate"), min(dates, default=created).isoformat())
+    _sub(core, _d("endPerformanceDate"), max(dates, default=created).isoformat())
+    _sub(core, _d("performanceLocation"), "laboratory")
+
+    items = _sub(admin, _d("items"))
+    item = _sub(items, _d("item"))
+    _text(item, "name", "Pulsed Doppler wind lidar")
+    _text(item, "description", "Lidar whose 10-minute mean horizontal wind speed this certificate states "
+          "the uncertainty of (bench-calibrated line-of-sight response, Monte Carlo virtual lidar)")
+    if attrs.get("item_firmware"):
+        fw = _sub(_sub(item, _d("installedSoftwares")), _d("software"))
+        _text(fw, "name", "lidar firmware")
+        _sub(fw, _d("release"), _release(str(attrs["item_firmware"])))
+        _sub(fw, _d("type"), "firmware")
+    manufacturer = _sub(item, _d("manufacturer"))
+    _text(manufacturer, "name", attrs.get("item_manufacturer") or _NOT_STATED)
+    if attrs.get("item_model"):
+        _sub(item, _d("model"), attrs["item_model"])
+    ids = _sub(item, _d("identifications"))
+    ident = _sub(ids, _d("identification"), refType="basic_serialNumber")
+    _sub(ident, _d("issuer"), "manufacturer")
+    _sub(ident, _d("value"), attrs.get("item_serial_number") or attrs.get("lidar_serial") or _NOT_STATED)
+    _text(ident, "name", "Serial number")
+
+    lab = _sub(admin, _d("calibrationLaboratory"))
+    _contact(lab, "contact", attrs.get("laboratory_name") or (
+        attrs.get("institution") if attrs.get("institution") != "unspecified" else None),
+        email=attrs.get("creator_email"), address=attrs.get("laboratory_address"), country=country)
+
+    persons = _sub(admin, _d("respPersons"))
+    listed = _persons(attrs.get("responsible_persons")) or [(f"{_NOT_STATED} (demonstration certificate)"
+                                                             if attrs.get(STATUS_ATTR) != "issued"
+                                                             else _NOT_STATED, None)]
+    for i, (name, role) in enumerate(listed):
+        person = _sub(persons, _d("respPerson"))
+        _text(_sub(person, _d("person")), "name", name)
+        if role:
+            _sub(person, _d("role"), role)
+        if i == 0:
+            _sub(person, _d("mainSigner"), "true" if attrs.get(STATUS_ATTR) == "issued" else "false")
+
+    _contact(admin, "customer", attrs.get("customer_name"), email=None, address=attrs.get("customer_address"))
+
+    statements = _sub(admin, _d("statements"))
+    status = _sub(statements, _d("statement"), refType="lidarcal_calibrationStatus")
+    _sub(status, _d("convention"), f"lidarcal {STATUS_ATTR}: {attrs.get(STATUS_ATTR) or _NOT_STATED}")
+    _text(status, "declaration", status_line(attrs))
+    _sub(status, _d("valid"), "true" if attrs.get(STATUS_ATTR) == "issued" else "false")
+    record = _sub(statements, _d("statement"), refType="lidarcal_netcdfCertificate")
+    _sub(record, _d("reference"), f"{file_name} sha256:{digest}")
+    _text(record, "declaration", f"The sealed netCDF certificate {file_name} (SHA-256 {digest}) is the "
+          "original record of these results; check it with: lidarcal verify " + file_name)
+    if attrs.get("calibration_location"):
+        place = _sub(statements, _d("statement"), refType="lidarcal_calibrationLocation")
+        _text(place, "declaration", f"Place of the bench run: {attrs['calibration_location']}")
+    if attrs.get("expanded_uncertainty_headline"):
+        head = _sub(statements, _d("statement"), refType="lidarcal_headline")
+        _text(head, "declaration", f"Expanded uncertainty: {attrs['expanded_uncertainty_headline']}")
+
+
+def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:
+    methods = _sub(parent, _d("usedMethods"))
+    method = _sub(methods, _d("usedMethod"), refType="lidarcal_anemometerFreeCalibration")
+    _text(method, "name", "Anemometer-free calibration of a pulsed Doppler wind lidar: fiber-optic bench "
+          "and Monte Carlo virtual lidar in synthetic turbulence")
+    _text(method, "description", "The lidar's line-of-sight response is measured on a fiber-optic bench "
+          "(programmed Doppler shift, SI-traceable through the RF driver's calibration); a virtual lidar "
+          "configured by it is simulated against a virtual point reference in synthetic turbulence driven "
+          "by measured 10-minute conditions; the budget combines the simulated differences with the terms "
+          "not simulated (GUM, coverage factor 2). Budget approach: "
+          f"{attrs.get('budget_approach', 'unknown')}.")
+    _sub(method, _d("reference"), attrs.get("method_reference") or str(attrs.get("references", _NOT_STATED)))
+    software = _sub(_sub(parent, _d("usedSoftware")), _d("software"))
+    _text(software, "name", "lidarcal")
+    _sub(software, _d("release"), _release(str(attrs.get("product_version", __version__))))
+    _sub(software, _d("type"), "application")
+
+    equipment = _sub(_sub(parent, _d("measuringEquipments")), _d("measuringEquipment"),
+                     refType="lidarcal_fiberOpticBench")
+    _text(equipment, "name", f"Fiber-optic lidar calibration bench {attrs.get('bench_id') or ''}".strip())
+    lines = [f"bench run {attrs.get('bench_run_id') or _NOT_STATED}",
+             f"operator {attrs.get('bench_operator') or _NOT_STATED}",
+             f"from {attrs.get('bench_run_start') or attrs.get('bench_time_coverage_start') or _NOT_STATED} "
+             f"to {attrs.get('bench_run_end') or attrs.get('bench_time_coverage_end') or _NOT_STATED}",
+             "RF driver calibration: " + str(attrs.get("rf_driver_calibration_reference") or _NOT_STATED)]
+    _text(equipment, "description", *lines)
+    ids = _sub(equipment, _d("identifications"))
+    for ref, value, name in (("lidarcal_benchId", attrs.get("bench_id"), "Bench id"),
+                             ("lidarcal_benchRunId", attrs.get("bench_run_id"), "Bench run")):
+        ident = _sub(ids, _d("identification"), refType=ref)
+        _sub(ident, _d("issuer"), "calibrationLaboratory")
+        _sub(ident, _d("value"), value or _NOT_STATED)
+        _text(ident, "name", name)
+
+    conditions = _sub(_sub(parent, _d("influenceConditions")), _d("influenceCondition"),
+                      refType="lidarcal_simulatedConditions")
+    _text(conditions, "name", "Atmospheric conditions of the Monte Carlo simulation")
+    _text(conditions, "description", "The virtual lidar and the virtual reference were simulated in "
+          "synthetic turbulence driven by a record of measured 10-minute conditions (wind speed, turbulence "
+          "intensity, shear, CNR); the certificate holds their provenance.")
+    summary = _records_text(attrs)
+    _text(_sub(conditions, _d("data")), "text", summary)
+
+
+def _records_text(attrs: Mapping[str, Any]) -> str:
+    try:
+        records = json.loads(attrs["lidarcal_records_summary"])
+    except (KeyError, TypeError, ValueError):
+        return "Simulated periods: not stated in the certificate."
+    heights = ", ".join(f"{float(z):g}" for z in records.get("heights_m", []))
+    return (f"{records.get('periods', _NOT_STATED)} simulated 10-minute periods"
+            + (f" at heights {heights} m" if heights else "")
+            + (f", conditions from {records['time_coverage_start']} to {records['time_coverage_end']}"
+               if records.get("time_coverage_start") else "") + ".")
+
+
+def _flags(budget: xr.Dataset) -> dict[int, str]:
+    var = budget["bin_flag"]
+    values = np.atleast_1d(var.attrs.get("flag_values", []))
+    meanings = str(var.attrs.get("flag_meanings", "")).split()
+    return {int(v): m for v, m in zip(values, meanings, strict=False)}
+
+
+def _real_list(parent: etree._Element, name: str, values: np.ndarray, unit: str, *,
+               labels: list[str] | None = None, ref_type: str | None = None,
+               expanded: np.ndarray | None = None, k: float = 2.0,
+               relative: np.ndarray | None = None, description: str | None = None) -> etree._Element:
+    quantity = _sub(parent, _d("quantity"), refType=ref_type)
+    _text(quantity, "name", name)
+    if description:
+        _text(quantity, "description", description)
+    rl = _sub(quantity, _s("realListXMLList"))
+    if labels is not None:
+        _sub(rl, _s("labelXMLList"), " ".join(labels))
+    _sub(rl, _s("valueXMLList"), _numbers(values))
+    _sub(rl, _s("unitXMLList"), unit)
+    if expanded is not None:
+        unc = _sub(rl, _s("expandedUncXMLList"))
+        _sub(unc, _s("uncertaintyXMLList"), _numbers(expanded))
+        _sub(unc, _s("coverageFactorXMLList"), f"{k:g}")
+        _sub(unc, _s("coverageProbabilityXMLList"), f"{COVERAGE_PROBABILITY:g}")
+        _sub(unc, _s("distributionXMLList"), "normal")
+    if relative is not None:
+        rel = _sub(_sub(quantity, _d("relativeUncertainty")), _d("relativeUncertaintyXmlList"))
+        _sub(rel, _s("valueXMLList"), _numbers(relative))
+        _sub(rel, _s("unitXMLList"), r"\percent")
+    return quantity
+
+
+def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, Any], digest: str,
+                    file_name: str) -> None:
+    budget = extract_component(cert, "budget").load()
+    k = float(budget.attrs.get("coverage_factor", 2.0))
+    flags = _flags(budget)
+    result_el = _sub(root, _d("measurementResult"), refType="lidarcal_windSpeedUncertainty")
+    _text(result_el, "name", "Expanded uncertainty of the lidar's 10-minute mean horizontal wind speed")
+    _text(result_el, "description",
+          "Per height and 0.5 m/s bin of the reference wind speed: expanded uncertainty (coverage factor "
+          f"{k:g}, coverage probability {COVERAGE_PROBABILITY:g}) in m/s and in % of the bin's mean "
+          "reference wind speed. Each value's label is the bin's flag (" + ", ".join(flags.values())
+          + "); bins without a value (no period) are left out. " + status_line(attrs))
+    _methods(result_el, attrs)
+    results = _sub(result_el, _d("results"))
+    budget = budget.transpose("height", "wind_speed", ...)
+    tolerance = budget.get("numerical_tolerance")
+    for i, z in enumerate(np.atleast_1d(budget["height"].values)):
+        rel = budget["relative_expanded_uncertainty"].values[i]
+        absolute = budget["expanded_uncertainty"].values[i]
+        keep = np.isfinite(rel) & np.isfinite(absolute) & (absolute >= 0) & (rel >= 0)
+        result = _sub(results, _d("result"), refType="lidarcal_heightResult")
+        _text(result, "name", f"Height {float(z):g} m")
+        data = _sub(result, _d("data"))
+        if not keep.any():
+            _text(data, "text", f"No wind-speed bin at {float(z):g} m has a value.")
+            continue
+        speeds = budget["wind_speed"].values[keep]
+        labels = [flags.get(int(f), str(int(f))) for f in budget["bin_flag"].values[i][keep]]
+        lst = _sub(data, _d("list"), refType="lidarcal_windSpeedBins")
+        _text(lst, "name", f"Wind-speed bins at {float(z):g} m")
+        _real_list(lst, "Reference wind speed, bin centre, with the expanded uncertainty of the lidar's "
+                   "10-minute mean horizontal wind speed", speeds, r"\metre\second\tothe{-1}", labels=labels,
+                   ref_type="lidarcal_windSpeedBinCentre", expanded=absolute[keep], k=k, relative=rel[keep])
+        _real_list(lst, f"Relative expanded uncertainty (k = {k:g})", rel[keep], r"\percent", labels=labels,
+                   ref_type="lidarcal_relativeExpandedUncertainty",
+                   description=f"coverage factor {k:g}, coverage probability {COVERAGE_PROBABILITY:g}")
+        if tolerance is not None:
+            tol = tolerance.transpose("height", "wind_speed").values[i][keep]
+            if np.isfinite(tol).all():
+                _real_list(lst, "Numerical tolerance of the relative expanded uncertainty (Monte Carlo)", tol,
+                           si_unit(str(tolerance.attrs.get("units", "%"))), labels=labels,
+                           ref_type="lidarcal_numericalTolerance")
+        _real_list(lst, "10-minute periods in the bin", budget["sample_count"].values[i][keep].astype(float),
+                   r"\one", labels=labels, ref_type="lidarcal_sampleCount")
+    meta = _sub(result_el, _d("measurementMetaData"))
+    known = {**attrs, **budget.attrs}  # the budget's, or the certificate's own
+    names = ("monte_carlo_replicas", "monte_carlo_trials", "monte_carlo_significant_digits")
+    monte_carlo = [f"{name.replace('monte_carlo_', '').replace('_', ' ')} {known[name]}"
+                   for name in names if name in known]
+    if monte_carlo:
+        mc = _sub(meta, _d("metaData"), refType="lidarcal_monteCarlo")
+        _text(mc, "declaration", "Monte Carlo: " + ", ".join(monte_carlo))
+    record = _sub(meta, _d("metaData"), refType="lidarcal_netcdfCertificate")
+    _sub(record, _d("reference"), f"{file_name} sha256:{digest}")
+    _text(record, "declaration", f"Values copied unrounded from the sealed netCDF certificate {file_name} "
+          f"(SHA-256 {digest}).")
+
+
+def _sensitivity_results(root: etree._Element, cert: xr.Dataset) -> None:
+    result_el = _sub(root, _d("measurementResult"), refType="lidarcal_sensitivities")
+    _text(result_el, "name", "Environmental sensitivities significant by Eq. 12 or Eq. 13")
+    _text(result_el, "description", "Slope m of the lidar-minus-reference wind-speed difference against an "
+          "environmental variable, per height where m * std (Eq. 12) or m * std * R (Eq. 13) is significant.")
+    _methods(result_el, cert.attrs)
+    results = _sub(result_el, _d("results"))
+    found = 0
+    for comp in components(cert):
+        if not comp["name"].startswith("sensitivity_"):
+            continue
+        sens = extract_component(cert, comp["name"]).load()
+        var = sens.attrs.get("environmental_variable", comp["name"][len("sensitivity_"):])
+        sig = np.atleast_1d(sens["significant"].values).astype(bool) & np.isfinite(np.atleast_1d(
+            sens["slope"].values))
+        if not sig.any():
+            continue
+        found += 1
+        heights = np.atleast_1d(sens["height"].values)[sig]
+        labels = [f"{float(z):g}m" for z in heights]
+        result = _sub(results, _d("result"), refType="lidarcal_sensitivity")
+        _text(result, "name", f"Sensitivity to {var.replace('_', ' ')}")
+        lst = _sub(_sub(result, _d("data")), _d("list"))
+        _real_list(lst, "Height", heights, r"\metre", labels=labels, ref_type="lidarcal_height")
+        _real_list(lst, f"Slope m against {var.replace('_', ' ')}", np.atleast_1d(sens["slope"].values)[sig],
+                   si_unit(str(sens["slope"].attrs.get("units", "1"))), labels=labels,
+                   ref_type="lidarcal_sensitivitySlope")
+        for name, title in (("slope_times_std", "Eq. 12 statistic m * std"),
+                            ("slope_times_std_times_r", "Eq. 13 statistic m * std * R")):
+            if name in sens:
+                _real_list(lst, title, np.atleast_1d(sens[name].values)[sig],
+                           si_unit(str(sens[name].attrs.get("units", "1"))), labels=labels,
+                           ref_type=f"lidarcal_{name}")
+    if not found:
+        result = _sub(results, _d("result"))
+        _text(result, "name", "No significant sensitivity")
+        _text(_sub(result, _d("data")), "text", "No environmental sensitivity in the certificate is "
+              "significant by Eq. 12 or Eq. 13 at any height.")
+
+
+def dcc_attributes(cert: xr.Dataset, *, admin: Mapping[str, str] | None = None,
+                   certificate_file: str = "certificate.nc") -> dict[str, Any]:
+    """Return the certificate's global attributes with ``admin`` added, as the DCC states them.
+
+    A certificate written before ``calibration_status`` existed is judged now by the same rule
+    (:func:`lidarcal.admin.certificate_attributes`); one that could not be issued (no issuer)
+    says "not stated".  An issued DCC needs ``laboratory_country_code``; a demonstration without
+    one states ``ZZ`` (ISO 3166 user-assigned: unknown).
+
+    Raises
+    ------
+    InputError
+        Not a certificate, ``admin`` contradicting it, or an issued one without a country.
+    """
+    if cert.attrs.get("lidarcal_artefact") != "certificate":
+        raise InputError(f"{certificate_file}: not a lidarcal certificate (lidarcal_artefact "
+                         f"{cert.attrs.get('lidarcal_artefact')!r})")
+    attrs = dict(cert.attrs)
+    for key, value in (admin or {}).items():
+        if attrs.get(key) not in (None, "", value):
+            raise InputError(f"--admin: {key} {value!r} contradicts the certificate {certificate_file}, "
+                             f"which states {attrs[key]!r} (sealed); a DCC only adds what the certificate "
+                             "does not say")
+        attrs[key] = value
+    if STATUS_ATTR not in cert.attrs:
+        # a certificate written before calibration_status existed: judge it now, never issue it
+        try:
+            given = {k: v for k, v in attrs.items() if k in ADMIN_FILE_KEYS.values()}
+            judged = certificate_attributes(attrs, given)
+        except InputError:
+            judged = {STATUS_ATTR: "not stated"}
+        attrs.setdefault(STATUS_ATTR, judged.get(STATUS_ATTR, "not stated"))
+        if judged.get(STATUS_REASON_ATTR):
+            attrs.setdefault(STATUS_REASON_ATTR, judged[STATUS_REASON_ATTR])
+    if attrs.get(STATUS_ATTR) == "issued" and not attrs.get("laboratory_country_code"):
+        raise InputError(f"{certificate_file}: an issued DCC needs the laboratory's country (coreData "
+                         "countryCodeISO3166_1): give laboratory.country_code in --admin ADMIN.yaml "
+                         "(docs/certificate.md)")
+    return attrs
+
+
+def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str = "certificate.nc",
+             admin: Mapping[str, str] | None = None) -> etree._ElementTree:
+    """Build the DCC XML of certificate ``cert`` (an opened netCDF certificate).
+
+    Parameters
+    ----------
+    cert : xarray.Dataset
+        The certificate as read from its file.
+    certificate_sha256 : str
+        SHA-256 of that file: the XML names it, so XML and netCDF stay one record.
+    certificate_file : str
+        The netCDF file's name, as the XML refers to it.
+    admin : mapping, optional
+        Administrative data (:func:`lidarcal.admin.load_admin`) the certificate does not state
+        itself; a value that contradicts the certificate's own is refused.
+
+    Raises
+    ------
+    InputError
+        If ``cert`` is not a certificate or ``admin`` contradicts it.
+    """
+    attrs = dcc_attributes(cert, admin=admin, certificate_file=certificate_file)
+    etree.register_namespace("dcc", DCC_NS)
+    etree.register_namespace("si", SI_NS)
+    root = etree.Element(_d("digitalCalibrationCertificate"), nsmap={"dcc": DCC_NS, "si": SI_NS, "xsi": _XSI})
+    root.set("schemaVersion", DCC_SCHEMA_VERSION)
+    root.set(f"{{{_XSI}}}schemaLocation", f"{DCC_NS} https://ptb.de/dcc/v{DCC_SCHEMA_VERSION}/dcc.xsd")
+    # XML comments may not hold "--": the option names are written with non-breaking hyphens
+    root.append(etree.Comment(f" {status_line(attrs)} ".replace("--", "\u2011\u2011")))
+    _administrative(root, attrs, certificate_sha256, certificate_file)
+    results = _sub(root, _d("measurementResults"))
+    _budget_results(results, cert, attrs, certificate_sha256, certificate_file)
+    _sensitivity_results(results, cert)
+    return etree.ElementTree(root)
+
+
+def write_dcc(certificate: str | os.PathLike, output: str | os.PathLike, *,
+              admin: Mapping[str, str] | None = None, overwrite: bool = False,
+              xsd: str | os.PathLike | None = None) -> Path:
+    """Write the DCC XML of the netCDF certificate file ``certificate`` to ``output`` (atomically).
+
+    With ``xsd`` (PTB's ``dcc.xsd``, ``SI_Format.xsd`` beside it) the document is validated
+    first and nothing is written when it is invalid.
+
+    Raises
+    ------
+    InputError
+        Bad certificate or administrative data, or the document does not validate.
+    """
+    check_writable(output, overwrite=overwrite)
+    cert = open_artefact(certificate, "certificate")
+    tree = dcc_tree(cert, certificate_sha256=sha256(certificate), certificate_file=Path(certificate).name,
+                    admin=admin)
+    if xsd is not None:
+        problems = validate_dcc(tree, xsd)
+        if problems:
+            raise ValidationError(problems, source=f"{output} (against {xsd})")
+    with atomic_path(output, overwrite=overwrite) as tmp:
+        tree.write(str(tmp), xml_declaration=True, encoding="UTF-8", pretty_print=True)
+    return Path(output)
+
+
+class _LocalSchemas(etree.Resolver):
+    def __init__(self, mapping: Mapping[str, str]):
+        super().__init__()
+        self.mapping = dict(mapping)
+
+    def resolve(self, url, pubid, context):
+        if url in self.mapping:
+            return self.resolve_filename(self.mapping[url], context)
+        return None
+
+
+def validate_dcc(document: str | os.PathLike | etree._ElementTree, xsd: str | os.PathLike,
+                 si_xsd: str | os.PathLike | None = None) -> list[str]:
+    """Validate a DCC against ``dcc.xsd``; return the schema's error messages (empty: valid).
+
+    ``dcc.xsd`` imports the D-SI schema from :data:`SI_SCHEMA_URL`; it is read from ``si_xsd``
+    (default: ``SI_Format.xsd`` next to ``xsd``), never from the network.
+
+    Raises
+    ------
+    InputError
+        If a schema file is missing or not a schema.
+    """
+    xsd = Path(xsd)
+    si_path = Path(si_xsd) if si_xsd is not None else xsd.with_name("SI_Format.xsd")
+    for path, what in ((xsd, "DCC schema dcc.xsd"), (si_path, "D-SI schema SI_Format.xsd")):
+        if not path.is_file():
+            raise InputError(f"{path}: {what} not found")
+    parser = etree.XMLParser(no_network=True)
+    parser.resolvers.add(_LocalSchemas({SI_SCHEMA_URL: str(si_path)}))
+    try:
+        schema = etree.XMLSchema(etree.parse(str(xsd), parser))
+    except (etree.XMLSchemaParseError, etree.XMLSyntaxError) as exc:
+        raise InputError(f"{xsd}: not a usable XML schema (with {si_path}): {exc}") from None
+    tree = document if isinstance(document, etree._ElementTree) else etree.parse(str(document))
+    if schema.validate(tree):
+        return []
+    return [f"line {e.line}: {e.message}" for e in schema.error_log]

@@ -1,0 +1,145 @@
+"""A certificate's numbers are shown only after its seal is checked.
+
+Issue 20, item 3: ``lidarcal table`` printed a tampered certificate (uncertainties halved in
+place, seal left as it was) as if it were valid.  Every command or function that shows a
+certificate's numbers (``table``, the HTML report, ``result_table``, ``open_certificate``)
+now refuses it (exit 2, a message naming the file and what changed), or with an explicit
+``--allow-invalid`` / ``allow_invalid=True`` shows them under a warning banner.  Signing keys
+readable by others (item 10) are refused too.
+"""
+
+from __future__ import annotations
+
+import os
+
+import netCDF4
+import numpy as np
+import pytest
+import xarray as xr
+from analysis_factories import make_records
+
+import lidarcal
+from lidarcal.analysis import budget, sensitivity
+from lidarcal.certificate import INTEGRITY_ATTR, make_certificate, result_table, write_certificate
+from lidarcal.cli import main
+from lidarcal.errors import InputError, SealError
+from lidarcal.io import open_artefact, write_artefact
+from lidarcal.report import write_report
+from lidarcal.seal import require_valid_seal
+
+HALVED = ("budget_uncertainty", "budget_expanded_uncertainty", "budget_relative_expanded_uncertainty")
+
+
+@pytest.fixture(scope="module")
+def sealed(tmp_path_factory):
+    d = tmp_path_factory.mktemp("seal-check")
+    make_records(n=300).to_netcdf(d / "records.nc")
+    records = open_artefact(d / "records.nc")
+    out = {"budget": write_artefact(budget(records), d / "budget.nc"),
+           "sens": write_artefact(sensitivity(records, "wind_shear_exponent"), d / "sens.nc")}
+    cert = make_certificate(budget=open_artefact(out["budget"]), sensitivities=[open_artefact(out["sens"])],
+                            demonstration=True)  # test data: no issuer
+    out["cert"] = write_certificate(cert, d / "cert.nc")
+    return out
+
+
+@pytest.fixture
+def tampered(sealed, tmp_path):
+    """The certificate with its uncertainties halved in place (the seal left as it was)."""
+    path = tmp_path / "tampered.nc"
+    path.write_bytes(sealed["cert"].read_bytes())
+    with netCDF4.Dataset(path, "a") as nc:
+        for name in HALVED:
+            nc[name][...] = nc[name][...] / 2
+    return path
+
+
+def _run(capsys, *argv):
+    capsys.readouterr()
+    code = main(list(map(str, argv)))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+@pytest.mark.parametrize("fmt", ["csv", "md", "html"])
+def test_table_refuses_a_tampered_certificate(tampered, capsys, tmp_path, fmt):
+    code, out, err = _run(capsys, "table", tampered, "--format", fmt)
+    assert code == 2, err
+    assert out == ""  # not one number shown
+    assert f"{tampered}: refusing to show this certificate's numbers" in err
+    assert "'budget_expanded_uncertainty': values altered" in err and "--allow-invalid" in err
+    code, out, err = _run(capsys, "table", tampered, "-o", tmp_path / f"t.{fmt}")
+    assert code == 2 and not (tmp_path / f"t.{fmt}").exists()
+
+
+def test_table_allow_invalid_shows_a_banner(sealed, tampered, capsys, tmp_path):
+    code, out, err = _run(capsys, "table", tampered, "--allow-invalid")
+    assert code == 0, err
+    assert out.startswith("# WARNING: INVALID CERTIFICATE") and "NOT certified" in out.splitlines()[0]
+    assert "WARNING: INVALID CERTIFICATE" in err
+    code, md, _ = _run(capsys, "table", tampered, "--allow-invalid", "--format", "md")
+    assert code == 0 and md.startswith("**WARNING: INVALID CERTIFICATE")
+    # the halved numbers are what is shown: the banner is about these very numbers
+    code, good, _ = _run(capsys, "table", sealed["cert"])
+    assert code == 0 and not good.startswith("#")
+    col = [c for c in good.splitlines()[0].split(",") if c.endswith("_m_s") and "expanded" in c][0]
+    import io
+
+    import pandas as pd
+    shown = pd.read_csv(io.StringIO(out), comment="#")[col].to_numpy()
+    truth = pd.read_csv(io.StringIO(good))[col].to_numpy()
+    np.testing.assert_allclose(shown, truth / 2)
+
+
+def test_table_refuses_an_unsealed_certificate(sealed, tmp_path, capsys):
+    path = tmp_path / "unsealed.nc"
+    path.write_bytes(sealed["cert"].read_bytes())
+    with netCDF4.Dataset(path, "a") as nc:
+        nc.delncattr(INTEGRITY_ATTR)
+    code, out, err = _run(capsys, "table", path)
+    assert code == 2 and out == "" and f"'{INTEGRITY_ATTR}' is missing" in err
+
+
+def test_result_table_and_report_check_the_seal(sealed, tampered, tmp_path):
+    assert len(result_table(xr.open_dataset(sealed["cert"]))) > 0
+    with pytest.raises(SealError, match="values altered"):
+        result_table(xr.open_dataset(tampered))
+    with pytest.raises(SealError, match="values altered"):
+        write_report(tmp_path / "r.html", certificate=open_artefact(tampered), png=False)
+    assert not (tmp_path / "r.html").exists()
+    write_report(tmp_path / "r.html", certificate=open_artefact(tampered), png=False, allow_invalid=True)
+    assert "WARNING: INVALID CERTIFICATE" in (tmp_path / "r.html").read_text()
+    with pytest.raises(SealError, match="values altered"):
+        lidarcal.open_certificate(tampered)
+    tree = lidarcal.open_certificate(tampered, allow_invalid=True)
+    assert "INVALID CERTIFICATE" in tree.attrs["lidarcal_seal_problems"]
+    assert "lidarcal_seal_problems" not in lidarcal.open_certificate(sealed["cert"]).attrs
+    # a certificate being built (in memory, not yet sealed) has nothing to check
+    fresh = make_certificate(budget=open_artefact(sealed["budget"]),
+                             sensitivities=[open_artefact(sealed["sens"])], demonstration=True)
+    assert require_valid_seal(fresh) is None
+    # a sealed dataset whose file is unknown cannot be checked: refused
+    detached = xr.open_dataset(sealed["cert"]).load()
+    detached.encoding = {}
+    with pytest.raises(SealError, match="cannot be checked"):
+        require_valid_seal(detached)
+
+
+def test_signing_key_readable_by_others_is_refused(sealed, tmp_path, capsys):
+    """Item 10: like ssh, a private key others can read is not used (exit 2, nothing written)."""
+    key = tmp_path / "KEY"
+    assert main(["keygen", "-o", str(key)]) == 0
+    os.chmod(key, 0o644)
+    out = tmp_path / "c.nc"
+    code, _, err = _run(capsys, "certificate", "--budget", sealed["budget"], "--sensitivity", sealed["sens"],
+                        "-o", out, "--sign", key, "--demonstration")
+    assert code == 2 and not out.exists()
+    assert f"{key}: private key is readable or writable by others (mode 0644)" in err and "chmod 600" in err
+    os.chmod(key, 0o640)  # group-readable: refused as well
+    with pytest.raises(InputError, match="mode 0640"):
+        from lidarcal.signing import load_private_key
+        load_private_key(key)
+    os.chmod(key, 0o600)
+    code, _, err = _run(capsys, "certificate", "--budget", sealed["budget"], "--sensitivity", sealed["sens"],
+                        "-o", out, "--sign", key, "--demonstration")
+    assert code == 0, err
