@@ -196,8 +196,9 @@ def add_reference_turbulence_option(parser: argparse.ArgumentParser | argparse._
                         help="what the virtual reference's turbulence is conditioned on: pinned_u (its "
                         "realised sigma_u is the period's TI*U, the rest Gaussian through the RWF; the "
                         "default), pinned_uvw (the engine's convention before this option: sigma_u and "
-                        "sigma_v pinned, fixed amplitudes; reproduces earlier results) or free (a "
-                        "Gaussian process); docs/validation.md")
+                        "sigma_v pinned, fixed amplitudes; reproduces earlier results), free (a "
+                        "Gaussian process) or inferred_level (sigma_u pinned, the field's level unknown "
+                        "given it); docs/validation.md")
 
 
 def add_progress_option(parser: argparse.ArgumentParser) -> None:
