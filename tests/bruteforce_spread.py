@@ -27,7 +27,7 @@ scalar average, Gaussian LOS noise 0.1 m/s) and a cup at ``(0, 0, h)`` in unifor
   (``gen_turb``'s ``iec3d`` coherence sees y and z only).
 * **Cup**: 10-minute mean of ``sqrt((U + u)² + v²)`` at 1 Hz.
 
-``python tests/bruteforce_spread.py [n_periods]`` regenerates the stored file (about 0.3 s per
+``python tests/bruteforce_spread.py [n_periods [case,case...]]`` extends the stored file (about 0.3 s per
 period and case on a quiet core); ``tests/test_reference_turbulence.py`` checks a live subset
 of it bit for bit and compares lidarcal's engine with its statistics.
 """
@@ -167,23 +167,34 @@ def run_case(case_id: int, periods, workdir: Path) -> np.ndarray:
     return np.array(out)
 
 
-def main(n_periods: int) -> None:
-    result = {"pyconturb": pyconturb.__version__, "settings": {
+def main(n_periods: int, cases=None) -> None:
+    """Write ``n_periods`` periods of each case in ``cases`` (default all); stored periods are kept.
+
+    A period depends only on its case and index, so extending a stored case gives the numbers a
+    single longer run would.
+    """
+    result = json.loads(DATA.read_text()) if DATA.exists() else {"cases": {}}
+    result.update({"pyconturb": pyconturb.__version__, "settings": {
         "wind_speed": U, "cone_angle": CONE, "hybrid_weight": P_HYBRID, "rwf_fwhm": FWHM,
         "los_noise_std": NOISE, "duration": T, "nt": NT, "nodes_per_beam": N_NODES,
-        "reference": "first in the u factorisation, after the beam points in v"}, "cases": {}}
+        "reference": "first in the u factorisation, after the beam points in v"}})
     for cid, case in enumerate(CASES):
+        if cases is not None and cid not in cases:
+            continue
+        old = result["cases"].get(case_name(*case), {"ratio": [], "cpu_s": 0.0})
         t0 = time.process_time()
         with tempfile.TemporaryDirectory() as tmp:
-            ratio = run_case(cid, range(n_periods), Path(tmp))
+            new = run_case(cid, range(len(old["ratio"]), n_periods), Path(tmp))
         cpu = time.process_time() - t0
+        ratio = np.concatenate([old["ratio"], new])
         result["cases"][case_name(*case)] = {"ratio": [round(float(r), 12) for r in ratio],
-                                             "cpu_s": round(cpu, 1)}
+                                             "cpu_s": round(old["cpu_s"] + cpu, 1)}
         print(f"{case_name(*case)}: mean {100 * ratio.mean():+.4f} %  std {100 * ratio.std(ddof=1):.4f} %  "
-              f"({n_periods} periods, {cpu:.0f} s CPU)", flush=True)
+              f"({ratio.size} periods, {cpu:.0f} s CPU)", flush=True)
         DATA.parent.mkdir(exist_ok=True)
         DATA.write_text(json.dumps(result, indent=0))
 
 
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 1000)
+    main(int(sys.argv[1]) if len(sys.argv) > 1 else 600,
+         [int(c) for c in sys.argv[2].split(",")] if len(sys.argv) > 2 else None)

@@ -120,20 +120,32 @@ def bruteforce():
 @pytest.mark.slow
 @pytest.mark.filterwarnings("ignore")
 def test_spread_and_mean_match_a_gen_turb_brute_force(bruteforce):
+    """Std of the per-period (L − R)/R and its mean, engine (pinned_u) against gen_turb, 8 cases.
+
+    The std must agree within 5 % or, where the two samples cannot resolve 5 %, within three
+    standard errors of their ratio (sqrt(1/2n + 1/2m): 3.4 % for 600 against 1,500 periods);
+    the mean within 0.05 % of wind speed; all eight together within 3 % and chi-square
+    consistent with sampling noise (docs/validation.md gives the numbers).
+    """
+    from scipy.stats import chi2
+
     bf, stored = bruteforce
-    rel = []
+    rel, z = [], []
     for case in bf.CASES:
         ref = np.array(stored["cases"][bf.case_name(*case)]["ratio"])
         assert ref.size >= 600
         ours = engine_ratios(*case, N_ENGINE)
         s_ref, s_ours = ref.std(ddof=1), ours.std(ddof=1)
+        se = np.sqrt(1.0 / (2 * ref.size) + 1.0 / (2 * ours.size))
         rel.append(s_ours / s_ref - 1.0)
-        print(f"\n{bf.case_name(*case)}: std {100 * s_ours:.4f} % vs {100 * s_ref:.4f} % "
-              f"({100 * rel[-1]:+.1f} %), mean {100 * ours.mean():+.4f} % vs {100 * ref.mean():+.4f} %")
-        assert abs(rel[-1]) < 0.05, (case, s_ours, s_ref)
+        z.append(rel[-1] / se)
+        print(f"\n{bf.case_name(*case)}: std {100 * s_ours:.4f} % vs {100 * s_ref:.4f} % (n {ref.size}) "
+              f"({100 * rel[-1]:+.1f} %, z {z[-1]:+.1f}), mean {100 * ours.mean():+.4f} % vs "
+              f"{100 * ref.mean():+.4f} %")
+        assert abs(rel[-1]) < max(0.05, 3.0 * se), (case, s_ours, s_ref)
         assert abs(ours.mean() - ref.mean()) < 5e-4, (case, ours.mean(), ref.mean())
-    # all eight together: the engine's spread is unbiased to within 3 % (pooled error ~1.2 %)
     assert abs(np.mean(rel)) < 0.03, rel
+    assert chi2.sf(np.sum(np.square(z)), len(z)) > 0.01, z
 
 
 # -- an effect-free independent campaign driven by its measured TIs (slow) ----------------------------
