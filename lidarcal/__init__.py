@@ -13,6 +13,7 @@ Stages (one module or sub-package each; imports flow from kernels to datasets to
 - :mod:`lidarcal.analysis` — sensitivities, uncertainty budgets, classification sweeps.
 - :mod:`lidarcal.certificate`, :mod:`lidarcal.report` — archiving and presenting results.
 - :mod:`lidarcal.diagnose` — find, name and fix model–field discrepancies.
+- :mod:`lidarcal.compare` — a field campaign's slopes and budget beside the virtual lidar's.
 
 Shared infrastructure: :mod:`lidarcal.units`, :mod:`lidarcal.schema`, :mod:`lidarcal.io`,
 :mod:`lidarcal.provenance`, :mod:`lidarcal.compliance`, :mod:`lidarcal.errors`.

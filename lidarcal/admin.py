@@ -283,7 +283,8 @@ def default_method_reference(approach: str, config: Mapping[str, Any] | None = N
 
 def certificate_attributes(attrs: Mapping[str, Any], given: Mapping[str, str] | None = None, *,
                            derived: Mapping[str, str] | None = None, demonstration: bool = False,
-                           source: str = "administrative data") -> dict[str, str]:
+                           source: str = "administrative data",
+                           provenance: Iterable[Mapping[str, Any]] = ()) -> dict[str, str]:
     """Status and administrative attributes of a certificate with global attributes ``attrs``.
 
     ``given`` (from :func:`load_admin` and the options) wins over ``derived`` (what the data
@@ -291,7 +292,9 @@ def certificate_attributes(attrs: Mapping[str, Any], given: Mapping[str, str] | 
     operator) that contradicts the data is refused.  ``laboratory_name`` and
     ``responsible_persons`` default to the ACDD ``institution`` and ``creator_name`` when those
     were given.  The status is ``demonstration`` when asked for or when
-    :func:`demonstration_reasons` finds a reason, else ``issued``, which needs an issuer.
+    :func:`demonstration_reasons` finds a reason (in ``attrs`` and the ``provenance`` records:
+    a certificate's chain and components, which its attributes only point to), else ``issued``,
+    which needs an issuer.
 
     Raises
     ------
@@ -311,7 +314,7 @@ def certificate_attributes(attrs: Mapping[str, Any], given: Mapping[str, str] | 
     if creator and creator != "lidarcal":
         out.setdefault("responsible_persons", str(creator))
     out.setdefault("certificate_id", new_certificate_id())
-    reasons = demonstration_reasons(attrs)
+    reasons = demonstration_reasons(attrs, provenance)
     if demonstration:
         reasons.insert(0, "demonstration status requested (--demonstration)")
     if reasons:

@@ -6,8 +6,12 @@ every component's variables, coordinates and dimensions are renamed with a prefi
 (``budget_uncertainty``, ``cube_los_bias``, ``rwf_zero_distance``,
 ``sensitivity_wind_shear_exponent_slope`` ...), so that plain netCDF tools (ncdump, netCDF4,
 any language) read it without groups.  :func:`extract_component` gives a component back as
-the Dataset it was.  The full configuration and the provenance chain of every input (file
-name, SHA-256, its own inputs, configuration, seeds and history) are global attributes.
+the Dataset it was.  The full configuration is a global attribute; each input's global
+attributes (file name, SHA-256, its own inputs, configuration, seeds and history) are the
+attributes of a scalar variable ``provenance_<role>``, one short attribute each, so that
+``ncdump -h`` reads as text; :func:`components` and :func:`provenance_chain` read them (and the
+earlier layout, where they were JSON inside the global attributes ``lidarcal_components`` and
+``lidarcal_provenance_chain``).
 
 :func:`write_certificate` writes atomically, refuses to replace an existing file unless asked,
 and **seals** it: a global attribute ``lidarcal_integrity`` records the SHA-256 of every
@@ -70,6 +74,10 @@ __all__ = [
     "invalid_seal_banner",
     "extract_component",
     "components",
+    "provenance_chain",
+    "records_summary",
+    "container_attributes",
+    "PROVENANCE_PREFIX",
     "open_certificate",
     "result_table",
     "headline_range",
@@ -147,16 +155,70 @@ def extract_component(cert: xr.Dataset, name: str) -> xr.Dataset:
         if "cell_methods" in var.attrs:
             var.attrs["cell_methods"] = _renamed_cell_methods(var.attrs["cell_methods"], rename)
     out.attrs = dict(info[name].get("attributes", {}))
+    out = out.drop_vars([v for v in out.variables if str(v).startswith(PROVENANCE_PREFIX)], errors="ignore")
     scalars = [n for n in info[name].get("scalar_coordinates", []) if n in out.variables]
     return out.set_coords(scalars)
 
 
 def components(cert: xr.Dataset) -> list[dict[str, Any]]:
-    """List the components of a certificate (name, prefix, kind, file, sha256, attributes)."""
+    """List the components of a certificate (name, prefix, kind, file, sha256, attributes).
+
+    Reads both layouts: a component's global ``attributes`` are the attributes of its
+    ``provenance_<name>`` variable (certificates written since the attributes were made short),
+    or a key of the ``lidarcal_components`` JSON (certificates written before).
+    """
     comps = read_json_attr(cert, "lidarcal_components")
     if not isinstance(comps, list):
         raise InputError("not a lidarcal certificate: global attribute 'lidarcal_components' is missing")
-    return comps
+    out = []
+    for comp in comps:
+        comp = dict(comp)
+        if "attributes" not in comp and comp.get("variable") in cert.variables:
+            attrs = container_attributes(cert[comp["variable"]])
+            comp["attributes"] = {k: v for k, v in attrs.items() if not k.startswith("lidarcal_source_")}
+        out.append(comp)
+    return out
+
+
+def container_attributes(var: xr.DataArray) -> dict[str, Any]:
+    """Return the global attributes of an input recorded on its ``provenance_<role>`` variable.
+
+    Names CF reserves for variables were stored as ``global_<name>`` and are restored; the
+    variable's own ``long_name``, ``coverage_content_type``, ``units`` and seal digest are left out.
+    """
+    out = {}
+    for key, value in var.attrs.items():
+        if key in _CONTAINER_OWN:
+            continue
+        out[key[len("global_"):] if key.startswith("global_") else key] = jsonable(value, strict=True)
+    return out
+
+
+def provenance_chain(cert: xr.Dataset) -> list[dict[str, Any]]:
+    """Return the provenance chain of a certificate's inputs, one record per role, in either layout.
+
+    Each record holds ``role``, ``kind``, ``file``, ``sha256``, ``id``, ``lidarcal_version``,
+    ``inputs`` (the input's own chain, to any depth), ``config``, ``seeds`` and ``history``: read
+    from the input's ``provenance_<role>`` variable, or from the ``lidarcal_provenance_chain``
+    JSON of a certificate written before the attributes were made short.
+    """
+    chain = read_json_attr(cert, "lidarcal_provenance_chain")
+    if not isinstance(chain, list):
+        return []
+    out = []
+    for rec in chain:
+        if isinstance(rec, Mapping) and rec.get("variable") in cert.variables:
+            attrs = container_attributes(cert[rec["variable"]])
+            rec = {**_provenance_record(attrs), "role": rec.get("role"), "kind": rec.get("kind"),
+                   "file": rec.get("file"), "sha256": rec.get("sha256")}
+        out.append(rec)
+    return out
+
+
+def records_summary(cert: xr.Dataset) -> dict[str, Any] | None:
+    """Return the summary of the records a certificate's budget came from (``lidarcal_records_summary``)."""
+    out = read_json_attr(cert, "lidarcal_records_summary")
+    return out if isinstance(out, dict) else None
 
 
 def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
@@ -167,9 +229,11 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
     the component under its original variable and dimension names, as
     :func:`extract_component` restores it, so ``tree["budget"].sel(height=120, wind_speed=8,
     method="nearest")`` and the ``cf`` accessor work.  The root holds the certificate's global
-    attributes (provenance, integrity record).  Values are read lazily (dask, ``chunks={}``
-    unless given); opening also registers cf-xarray's unit registry with pint, so
-    ``tree["budget"].dataset.pint.quantify()`` understands the stored units.
+    attributes (provenance, integrity record).  Values are loaded into memory (a certificate
+    is small), so ``....item()`` and ``float(...)`` work at once; give ``chunks`` (e.g. ``{}``)
+    to read lazily with dask instead.  Opening also registers
+    cf-xarray's unit registry with pint, so ``tree["budget"].dataset.pint.quantify()``
+    understands the stored units.
 
     The seal is checked first (:func:`require_valid_seal`); with ``allow_invalid`` an altered
     certificate is opened anyway, its problems listed in the root attribute
@@ -183,12 +247,16 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
         If its seal does not match its contents (unless ``allow_invalid``).
     """
     register_units()
-    ds = open_artefact(path, load=False, chunks={} if chunks is None else chunks)
+    # read without closing: xarray shares one cached handle per file, and closing it under
+    # another open Dataset of the same file made netCDF4's next open of it crash (HDF5)
+    ds = open_artefact(path, load=False, chunks=chunks)
     if ds.attrs.get("lidarcal_artefact") != "certificate":
         found = ds.attrs.get("lidarcal_artefact")
         raise InputError(f"{path}: not a lidarcal certificate: it is "
                          f"{repr(found) + ' artefact' if found else 'not a lidarcal artefact'}")
     seal = require_valid_seal(path, allow_invalid=allow_invalid)
+    if chunks is None:
+        ds = ds.load()  # a certificate is small: values an analyst can .item()
     nodes: dict[str, xr.Dataset] = {"/": xr.Dataset(attrs=dict(ds.attrs))}
     if seal is not None and not seal.ok:
         nodes["/"].attrs["lidarcal_seal_problems"] = invalid_seal_banner(seal)
@@ -442,18 +510,83 @@ def _check_kind(role: str, ds: xr.Dataset, kinds: Iterable[str]) -> None:
 
 
 def _provenance(role: str, ds: xr.Dataset) -> dict[str, Any]:
+    return {"role": role, **_provenance_record(ds.attrs)}
+
+
+def _provenance_record(attrs: Mapping[str, Any]) -> dict[str, Any]:
+    def json_attr(name):
+        value = attrs.get(name)
+        if isinstance(value, str):
+            try:
+                return json.loads(value)
+            except ValueError:
+                return value
+        return value
+
     return {
-        "role": role,
-        "kind": ds.attrs.get("lidarcal_artefact"),
-        "file": ds.attrs.get("lidarcal_source_file"),
-        "sha256": ds.attrs.get("lidarcal_source_sha256"),
-        "id": ds.attrs.get("id"),
-        "lidarcal_version": ds.attrs.get("lidarcal_version"),
-        "inputs": read_json_attr(ds, "lidarcal_inputs"),
-        "config": read_json_attr(ds, "lidarcal_config"),
-        "seeds": read_json_attr(ds, "lidarcal_seeds"),
-        "history": ds.attrs.get("history"),
+        "kind": attrs.get("lidarcal_artefact"),
+        "file": attrs.get("lidarcal_source_file"),
+        "sha256": attrs.get("lidarcal_source_sha256"),
+        "id": attrs.get("id"),
+        "lidarcal_version": attrs.get("lidarcal_version"),
+        "inputs": json_attr("lidarcal_inputs"),
+        "config": json_attr("lidarcal_config"),
+        "seeds": json_attr("lidarcal_seeds"),
+        "history": attrs.get("history"),
     }
+
+
+#: Prefix of the variables holding each certificate input's global attributes.
+PROVENANCE_PREFIX = "provenance_"
+#: The container variable's own attributes (not the input's).
+_CONTAINER_OWN = ("long_name", "coverage_content_type", "units", "lidarcal_sha256")
+#: Attribute names CF or xarray give a meaning on a variable: an input's global attribute of
+#: that name is stored on its container as ``global_<name>``.
+_VARIABLE_RESERVED = frozenset({
+    "Conventions", "featureType", "external_variables", "_FillValue", "missing_value", "units", "calendar",
+    "coordinates", "scale_factor", "add_offset", "dtype", "bounds", "grid_mapping", "cell_methods",
+    "cell_measures", "ancillary_variables", "standard_name", "long_name", "valid_min", "valid_max",
+    "valid_range", "flag_values", "flag_masks", "flag_meanings", "compress", "formula_terms", "positive",
+    "axis", "climatology", "coverage_content_type", "lidarcal_sha256", "_Unsigned", "_Encoding",
+})
+#: The attributes of a non-component input (the records) kept on its container: its chain entry.
+_CHAIN_ATTRS = ("lidarcal_artefact", "lidarcal_source_file", "lidarcal_source_sha256", "id",
+                "lidarcal_version",
+                "lidarcal_inputs", "lidarcal_config", "lidarcal_seeds", "history")
+
+
+def _netcdf_attr(value: Any) -> Any:
+    """Return ``value`` if netCDF stores it as it is (text, numbers, 1-D numbers), else its JSON."""
+    if isinstance(value, str | np.str_):
+        return str(value)
+    if isinstance(value, bool | np.bool_):
+        return int(value)
+    if isinstance(value, int | float | np.integer | np.floating):
+        return value
+    arr = np.asarray(value) if isinstance(value, list | tuple | np.ndarray) else None
+    if arr is not None and arr.ndim == 1 and arr.size and arr.dtype.kind in "iuf":
+        return arr
+    return json.dumps(jsonable(value, strict=True), sort_keys=True)
+
+
+def _container(role: str, ds: xr.Dataset, *, component: bool) -> xr.DataArray:
+    """Return a scalar container variable whose attributes are the input's global attributes.
+
+    Each attribute stays a line of its own in ``ncdump -h`` (no JSON of JSON); a component keeps
+    every global attribute (restored by :func:`extract_component`), the records only their
+    chain entry.
+    """
+    keep = ds.attrs if component else {k: ds.attrs[k] for k in _CHAIN_ATTRS if k in ds.attrs}
+    attrs = {(f"global_{k}" if k in _VARIABLE_RESERVED or k.startswith("global_") else k): _netcdf_attr(v)
+             for k, v in keep.items() if v is not None}
+    what = ("global attributes" if component
+            else "provenance (file, SHA-256, inputs, configuration, seeds, history)")
+    attrs["long_name"] = f"{what} of the certificate's {role} input"
+    attrs["coverage_content_type"] = "auxiliaryInformation"
+    attrs["units"] = "1"  # every variable has units; this one's value (0) carries no meaning
+    # numeric, not a text scalar: netCDF-C/HDF5 can crash reopening a file after a scalar
+    # variable-length string was read from it while another handle was open
+    return xr.DataArray(np.int8(0), attrs=attrs)
 
 
 def _records_summary(records: xr.Dataset) -> dict[str, Any]:
@@ -467,6 +600,10 @@ def _records_summary(records: xr.Dataset) -> dict[str, Any]:
         t = records["time"].values
         out["time_coverage_start"] = str(np.min(t))
         out["time_coverage_end"] = str(np.max(t))
+    if "cnr" in records and records["cnr"].attrs.get("units") == "dB":
+        cnr = np.asarray(records["cnr"].values, dtype=float)
+        if np.isfinite(cnr).any():  # the CNR range the virtual lidar drew the bench cube at
+            out["cnr_min_db"], out["cnr_max_db"] = float(np.nanmin(cnr)), float(np.nanmax(cnr))
     for name in ("lidarcal_base_seed", "lidarcal_lidar_model"):
         if name in records.attrs:
             out[name] = read_json_attr(records, name)
@@ -559,10 +696,11 @@ def make_certificate(
 
     parts = [_prefixed(ds, f"{role}_") for role, ds in {**inputs, **sens_roles}.items()]
     cert = xr.merge(parts, compat="no_conflicts", join="exact", combine_attrs="drop_conflicts")
+    # Each input's global attributes go on a variable of their own (provenance_<role>), one
+    # attribute a line in ncdump -h; the global JSON attributes only list and point to them.
     comps = []
     for role, ds in {**inputs, **sens_roles}.items():
-        attrs = {k: jsonable(v, strict=True) for k, v in ds.attrs.items()
-                 if not k.startswith("lidarcal_source_")}
+        cert[f"{PROVENANCE_PREFIX}{role}"] = _container(role, ds, component=True)
         comps.append(
             {
                 "name": role,
@@ -571,15 +709,19 @@ def make_certificate(
                 "file": ds.attrs.get("lidarcal_source_file"),
                 "sha256": ds.attrs.get("lidarcal_source_sha256"),
                 "scalar_coordinates": _scalar_coords(ds),
-                "attributes": attrs,
+                "variable": f"{PROVENANCE_PREFIX}{role}",
             }
         )
+    if records is not None:
+        cert[f"{PROVENANCE_PREFIX}records"] = _container("records", records, component=False)
     chain = [_provenance(role, ds) for role, ds in everything.items()]
     seeds = _chain_seeds(chain)
+    pointers = [{"role": rec["role"], "kind": rec["kind"], "file": rec["file"], "sha256": rec["sha256"],
+                 "variable": f"{PROVENANCE_PREFIX}{rec['role']}"} for rec in chain]
     cert.attrs = {
         "certificate_components": " ".join(c["name"] for c in comps),
         "lidarcal_components": json.dumps(jsonable(comps, strict=True), sort_keys=True),
-        "lidarcal_provenance_chain": json.dumps(jsonable(chain, strict=True), sort_keys=True),
+        "lidarcal_provenance_chain": json.dumps(jsonable(pointers, strict=True), sort_keys=True),
         "budget_approach": str(budget.attrs.get("approach", "unknown")),
     }
     if (rng := headline_range(budget)) is not None:
@@ -613,6 +755,13 @@ def make_certificate(
         config=dict(config or {}),
         keywords="Doppler lidar, wind speed, calibration certificate, uncertainty, traceability",
     )
+    # the certificate's direct inputs; each one's own chain is on its provenance_<role> variable
+    direct = read_json_attr(cert, "lidarcal_inputs")
+    if isinstance(direct, list):
+        for rec in direct:
+            if isinstance(rec, dict) and rec.pop("inputs", None) is not None:
+                rec["inputs_on"] = f"{PROVENANCE_PREFIX}{rec.get('role')}"
+        cert.attrs["lidarcal_inputs"] = json.dumps(jsonable(direct, strict=True), sort_keys=True)
     return _with_admin(cert, admin, demonstration, cube=cube, records=records, config=config)
 
 
@@ -632,7 +781,9 @@ def _with_admin(cert: xr.Dataset, admin: Mapping[str, str] | None, demonstration
         "simulation_date": records.attrs.get("date_created") if records is not None else None,
         "method_reference": default_method_reference(cert.attrs.get("budget_approach", "unknown"), config),
     }
+    # the inputs' own provenance is on the provenance_<role> variables: searched there too
     extra = certificate_attributes(cert.attrs, admin, derived={k: str(v) for k, v in derived.items() if v},
+                                   provenance=[*provenance_chain(cert), *components(cert)],
                                    demonstration=demonstration)
     cert.attrs.update(extra)
     if cert.attrs.get("institution") in (None, "unspecified") and extra.get("laboratory_name"):

@@ -15,6 +15,7 @@ import os
 import re
 import shutil
 import socket
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -46,6 +47,24 @@ def source_name(obj: object, default: str = "<dataset>") -> str:
         return str(obj.attrs.get("lidarcal_source_file") or obj.encoding.get("source")
                    or obj.attrs.get("id") or default)
     return default
+
+
+def check_input_file(path: str | os.PathLike, what: str = "file") -> Path:
+    """Refuse, before opening it, an input that is missing or not a regular file (a FIFO would hang)."""
+    path = Path(path)
+    try:
+        mode = path.stat().st_mode
+    except FileNotFoundError:
+        raise InputError(f"{path}: file not found") from None
+    except OSError as exc:
+        raise InputError(f"{path}: {what} cannot be read ({exc.strerror})") from None
+    if stat.S_ISDIR(mode):
+        raise InputError(f"{path}: is a directory; expected a {what}")
+    if not stat.S_ISREG(mode):
+        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a socket" if stat.S_ISSOCK(mode)
+                else "a device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "not a regular file")
+        raise InputError(f"{path}: is {kind}; expected a regular {what} (reading it could block forever)")
+    return path
 
 
 def check_writable(path: str | os.PathLike, *, overwrite: bool = False) -> Path:
@@ -340,11 +359,7 @@ def open_artefact(
     The file's SHA-256 and name are attached as ``lidarcal_source_sha256`` and
     ``lidarcal_source_file`` so that downstream artefacts can record their inputs.
     """
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: file not found")
-    if path.is_dir():
-        raise InputError(f"{path}: is a directory; expected a netCDF file")
+    path = check_input_file(path, "netCDF file")
     if path.stat().st_size == 0:
         raise InputError(f"{path}: file is empty")
     try:

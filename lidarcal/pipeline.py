@@ -10,7 +10,7 @@ every artefact into one output directory::
     Table 4 inputs ───────────────────> terms.nc        (Eqs. 6-11, per height)
     simulated ──────────────────────── > sensitivity_<variable>.nc (Eqs. 12-13)
     simulated + terms ────────────────> budget.nc       (§3.4, 0.5 m/s bins)
-    everything ───────────────────────> certificate.nc + report.html (+ PNGs)
+    everything ───────────────────────> certificate.nc + report.html + report.pdf
 
 Every input defaults to the embedded sample data and can be replaced by the user's own file.
 Outputs that already exist are refused before any work starts, unless ``overwrite``.
@@ -51,13 +51,14 @@ from lidarcal.cf import canonical_order
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
 from lidarcal.conditions.grid import sweep_conditions
 from lidarcal.data import sample_file
+from lidarcal.document import seal_statement
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel
 from lidarcal.provenance import contact_attributes, sha256, stamp
 from lidarcal.report import write_report
 from lidarcal.rwf import range_weighting_function
-from lidarcal.signing import load_private_key
+from lidarcal.signing import fingerprint, load_private_key
 from lidarcal.units import Q_
 
 __all__ = ["CalibrationConfig", "CalibrationResult", "calibrate", "sweep", "OUTPUT_NAMES", "DEFAULT_HEIGHTS"]
@@ -77,6 +78,7 @@ OUTPUT_NAMES = {
     "budget": "budget.nc",
     "certificate": "certificate.nc",
     "report": "report.html",
+    "report_pdf": "report.pdf",  # written by write_report beside report.html
 }
 
 #: Scratch directory (inside the output directory) for finished simulation chunks.
@@ -159,8 +161,8 @@ class CalibrationResult:
     """What :func:`calibrate` wrote: the path and the dataset of every artefact.
 
     ``paths`` maps each artefact key (``cube``, ``rwf``, ``conditions``, ``simulated``,
-    ``terms``, ``sensitivity_<variable>``, ``budget``, ``certificate``, ``report`` and one
-    ``png:<name>`` per figure) to its file.  ``datasets`` maps the netCDF artefacts' keys to
+    ``terms``, ``sensitivity_<variable>``, ``budget``, ``certificate``, ``report`` (HTML) and
+    ``report_pdf`` (the certificate document)) to its file.  ``datasets`` maps the netCDF artefacts' keys to
     the dataset as read back from that file with :func:`lidarcal.io.open_artefact`.
     """
 
@@ -223,7 +225,7 @@ def _retire_previous(paths: Mapping[str, Path], *, overwrite: bool) -> None:
     """
     if not overwrite:
         return  # existing outputs were refused before any work
-    for key in ("certificate", "report"):
+    for key in ("certificate", "report", "report_pdf"):
         path = paths[key]
         if not path.is_file():
             continue
@@ -388,10 +390,11 @@ def calibrate(
     cert = make_certificate(budget=bud, sensitivities=sens, cube=cube, rwf=rwf, terms=terms,
                             records=records, config=cfg.to_dict(), call="lidarcal calibrate",
                             admin=admin, demonstration=demonstration)
-    written = write_report(paths["report"], certificate=cert, overwrite=overwrite)
-    for png in written.get("png", []):
-        paths[f"png:{Path(png).name}"] = Path(png)
-    done("report", f"HTML report ({len(written.get('png', []))} PNG figures beside it)")
+    # the document states the seal the certificate gets when it is written, just below
+    written = write_report(paths["report"], certificate=cert, overwrite=overwrite,
+                           seal=seal_statement(fingerprint(signer) if signer else None))
+    done("report", "HTML report (interactive plots)")
+    done("report_pdf", f"certificate document ({written['pages']} pages, A4)")
     write_certificate(cert, paths["certificate"], overwrite=overwrite, signing_key=signer)
     done("certificate", "calibration certificate (check with: lidarcal verify"
          + (f" --public-key {signing_key}.pub)" if signer else ")"))

@@ -1,23 +1,29 @@
-"""Offline HTML report of a calibration: interactive hvplot/bokeh plots plus static PNGs.
+"""Offline HTML report of a calibration (interactive bokeh plots) and the certificate document.
 
-The page embeds BokehJS inline (``resources=INLINE``), so it opens without network access,
-and shows, as available, budget first:
+The page embeds BokehJS inline (``resources=INLINE``), so it opens without network access.
+It opens with the calibration status, the headline sentence and the certified result (per
+height and wind-speed bin, U for k = 2), then the certificate's administrative data, and
+shows, as available:
 
-- the expanded (k = 2) uncertainty vs wind speed (paper Figure 9), a menu choosing all
-  heights or one, thin bins (fewer periods than ``min_samples``) marked with red crosses;
-- the uncertainty contributors as grouped bars per wind-speed bin, a menu choosing the height;
+- the expanded (k = 2) uncertainty vs wind speed (paper Figure 9), the axes set by the
+  certified bins (4-16 m/s, enough periods), a menu choosing all heights or one, thin bins
+  (fewer periods than ``min_samples``) marked with red crosses;
+- the uncertainty contributors as grouped bars per certified wind-speed bin, a menu choosing
+  the height;
 - the sensitivities (Figure 7): per height (menu) the bin means with the standard error of
   the mean, the regression line and its 95 % confidence band, plus a table of the slopes,
   R and the Eqs. 12-13 statistics rounded to 3 significant digits; and (Figure 8) the Eq. 12
   statistic m·std per height for every variable against the ±0.5 % threshold;
 - the bench cube (Figure 5): CNR x programmed velocity heatmaps of the LOS bias and of the
-  LOS standard deviation, one per line of sight on one colour scale;
+  LOS standard deviation, one per line of sight on one colour scale, set by the CNR bins the
+  simulation draws from;
 - the range-weighting function (Figure 6): pulse, apodization and RWF, and the RWF for a few
-  CNR gradients, with the zero distance Zd.
+  CNR gradients, with the zero distance Zd;
 
-Every figure is also written as a PNG at 150 dpi through HoloViews' matplotlib backend (or
-matplotlib itself), next to the page (``<stem>_<figure>.png``); a menu's PNG shows every
-height.
+and last the inputs with their SHA-256.  The plots are plain bokeh models (one plot per
+figure; a menu shows one height's renderers), which keeps the page cheap to write.  Beside
+the page, :func:`write_report` writes the certificate document (:mod:`lidarcal.document`,
+``<stem>.pdf``) and, on request, a PNG of each of its figures.
 """
 
 from __future__ import annotations
@@ -37,9 +43,23 @@ from lidarcal.certificate import (
     HEADLINE_WIND_SPEEDS,
     components,
     extract_component,
-    headline_range,
     invalid_seal_banner,
     require_valid_seal,
+)
+from lidarcal.document import (
+    A4,
+    NOT_STATED,
+    STYLE,
+    certificate_facts,
+    certificate_id,
+    certified_grid,
+    confidence_band,
+    cube_colour_limits,
+    draw,
+    drawn_cnr_range,
+    figure_names,
+    headline_sentence,
+    write_document,
 )
 from lidarcal.errors import InputError
 from lidarcal.htmlpage import offline_html, write_text
@@ -50,80 +70,14 @@ __all__ = ["Figure", "confidence_band", "fmt", "report_figures", "write_report"]
 _WIDTH, _HEIGHT = 900, 380
 _PNG_DPI = 150  # static figures: at least 150 dpi, written into the PNG's pHYs chunk
 _THIN = "#d62728"  # marker colour of thin bins (fewer periods than min_samples)
+_COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
+           "#17becf", "#000000"]
 _VARIABLES = {  # readable names of the environmental variables
     "wind_shear_exponent": "wind shear exponent",
     "turbulence_intensity": "turbulence intensity",
     "cnr_gradient": "CNR gradient",
     "cnr": "CNR",
 }
-
-
-@dataclass
-class Figure:
-    """One report figure: its heading, panels and how the page and the PNG show them.
-
-    ``kind`` is ``"single"`` (one panel), ``"grid"`` (all panels side by side, e.g. one
-    heatmap per line of sight) or ``"select"`` (one panel at a time, chosen with a drop-down
-    menu above the plot, e.g. one panel per height).  ``png`` is what the static PNG shows
-    (default: the single panel, or all panels as a grid); ``note`` is HTML shown below the
-    plot (a table of the numbers, rounded).
-    """
-
-    heading: str
-    panels: dict[str, Any]
-    kind: str = "single"
-    png: Any = None
-    note: str = ""
-    columns: int = 3
-    default: str | None = None
-
-    def png_object(self) -> Any:
-        """Return what the static PNG shows: a HoloViews object or a matplotlib figure."""
-        hv = _hv()
-        if callable(self.png):
-            return self.png()
-        if self.png is not None:
-            return self.png
-        if self.kind == "single":
-            return next(iter(self.panels.values()))
-        return hv.Layout(list(self.panels.values())).cols(self.columns if self.kind == "grid" else 2).opts(
-            hv.opts.Layout(sublabel_format="", fig_inches=7, hspace=0.4, vspace=0.5), backend="matplotlib"
-        )
-
-    def bokeh(self) -> Any:
-        """Render the page's bokeh model: one plot, a grid, or a drop-down menu and its plots."""
-        hv = _hv()
-        from bokeh.layouts import column
-        from bokeh.models import CustomJS, Select
-
-        if self.kind == "single":
-            return hv.render(next(iter(self.panels.values())), backend="bokeh")
-        if self.kind == "grid":
-            return hv.render(hv.Layout(list(self.panels.values())).cols(self.columns), backend="bokeh")
-        labels = list(self.panels)
-        shown = self.default if self.default in self.panels else labels[0]
-        plots = [hv.render(p, backend="bokeh") for p in self.panels.values()]
-        for label, plot in zip(labels, plots, strict=True):
-            plot.visible = label == shown
-        select = Select(title="Show:", value=shown, options=labels, width=220)
-        select.js_on_change(
-            "value",
-            CustomJS(
-                args={"plots": plots, "labels": labels},
-                code="const i = labels.indexOf(cb_obj.value);"
-                "plots.forEach((p, k) => { p.visible = k === i; });",
-            ),
-        )
-        return column(select, *plots)
-
-
-def _hv():
-    import holoviews as hv
-    import holoviews.plotting.mpl  # noqa: F401  (matplotlib backend for the PNGs)
-    import hvplot.xarray  # noqa: F401  (registers .hvplot)
-
-    hv.Store.set_current_backend("bokeh")
-    return hv
 
 
 def fmt(value: Any, digits: int = 3) -> str:
@@ -146,21 +100,276 @@ def _units(da: xr.DataArray) -> str:
     return f" ({u})" if u and u != "1" else ""
 
 
-def _style(obj: Any, title: str, xlabel: str, ylabel: str, *, width: int = _WIDTH, height: int = _HEIGHT,
-           legend: bool = True) -> Any:
-    """Apply the same labels for both backends (bokeh page, matplotlib PNG); legends outside the plot area."""
-    bk = dict(title=title, xlabel=xlabel, ylabel=ylabel, width=width, height=height, fontscale=1.1)
-    mp = dict(title=title, xlabel=xlabel, ylabel=ylabel, aspect=width / height, fig_size=200)
-    if legend:
-        bk["legend_position"] = mp["legend_position"] = "right"
-    return obj.opts(**bk, backend="bokeh").opts(**mp, backend="matplotlib")
-
-
 def _table(header: list[str], rows: list[list[str]], caption: str) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "\n".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
     return (f'<table class="numbers"><caption>{html.escape(caption)}</caption>'
             f"<tr>{head}</tr>\n{body}</table>")
+
+
+@dataclass
+class Figure:
+    """One report figure: its heading, its bokeh model and a note (HTML) shown below it.
+
+    ``build`` makes the bokeh model when the page is written (:meth:`bokeh`).  A figure with
+    a menu (``select``) is a column of a :class:`bokeh.models.Select` and one plot whose
+    renderers are grouped by the menu's labels (``name`` = label): choosing a label shows
+    its renderers only.
+    """
+
+    heading: str
+    build: Any
+    note: str = ""
+
+    def bokeh(self) -> Any:
+        """Return the page's bokeh model."""
+        return self.build()
+
+
+def _plot(title: str, xlabel: str, ylabel: str, *, width: int = _WIDTH, height: int = _HEIGHT, **kw) -> Any:
+    from bokeh.plotting import figure
+
+    p = figure(title=title, width=width, height=height, x_axis_label=xlabel, y_axis_label=ylabel,
+               tools="pan,box_zoom,wheel_zoom,reset,save", toolbar_location="right", **kw)
+    p.title.text_font_size = "12pt"
+    return p
+
+
+def _legend_outside(p: Any, click_policy: str = "hide") -> None:
+    """Move the legend right of the plot.
+
+    A menu's plot takes ``"none"``: BokehJS greys an item that has a hidden renderer, and the
+    menu hides the other heights' renderers of every item.
+    """
+    from bokeh.models import Legend
+
+    if p.legend:
+        items = p.legend[0].items
+        p.legend[0].visible = False
+        p.add_layout(Legend(items=items, click_policy=click_policy, label_text_font_size="9pt"), "right")
+
+
+def _menu(p: Any, groups: Mapping[str, list], shown: str, titles: Mapping[str, str]) -> Any:
+    """Add a drop-down above ``p`` choosing which group of its renderers is shown (and the title)."""
+    from bokeh.layouts import column
+    from bokeh.models import CustomJS, Select
+
+    for r in p.renderers:
+        r.visible = r in groups[shown]
+    p.title.text = titles[shown]
+    select = Select(title="Show:", value=shown, options=list(groups), width=220)
+    select.js_on_change("value", CustomJS(
+        args={"groups": dict(groups), "all": list(p.renderers), "plot": p, "titles": dict(titles)},
+        code="const on = new Set(groups[cb_obj.value]);"
+             "all.forEach((r) => { r.visible = on.has(r); });"
+             "plot.title.text = titles[cb_obj.value];"))
+    return column(select, p)
+
+
+def _by_name(p: Any) -> dict[str, list]:
+    groups: dict[str, list] = {}
+    for r in p.renderers:
+        groups.setdefault(r.name, []).append(r)
+    return groups
+
+
+def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
+    """Plot U (k = 2) per height on the certified range (menu: all heights or one) and the contributors."""
+    k = float(budget.attrs.get("coverage_factor", 2.0))
+    xl = f"reference wind speed bin{_units(budget.wind_speed)}"
+    rel = budget["relative_expanded_uncertainty"]
+    flag = budget["bin_flag"]
+    ws = budget.wind_speed.values
+    heights = budget.height.values
+    # the axes show the certified bins (flag ok, 4-16 m/s); the others stay reachable by panning
+    g = certified_grid(budget)
+    certified = g["value"][g["certified"]]
+    ylim = (0.0, float(certified.max()) * 1.15) if certified.size else (0.0, 1.0)
+    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
+    xlim = (HEADLINE_WIND_SPEEDS[0] - step / 2, HEADLINE_WIND_SPEEDS[1] + step / 2)
+    yl = f"relative expanded uncertainty, k = {fmt(k)} (%)"
+    title = f"Expanded uncertainty (k = {fmt(k)}), {budget.attrs.get('approach', '')} approach".rstrip(", ")
+    labels = ["all heights", *[f"{fmt(h)} m" for h in heights]]
+
+    def build() -> Any:
+        from bokeh.models import ColumnDataSource
+
+        p = _plot(f"{title}, all heights", xl, yl, x_range=xlim, y_range=ylim)
+        for i, h in enumerate(heights):
+            y = rel.sel(height=h).values
+            f = flag.sel(height=h).values
+            color, name = _COLORS[i % len(_COLORS)], f"{fmt(h)} m"
+            src = ColumnDataSource({"wind_speed": ws, "U": np.where(f == 0, y, np.nan)})
+            p.line("wind_speed", "U", source=src, color=color, line_width=2, legend_label=name, name=name)
+            p.scatter("wind_speed", "U", source=src, color=color, size=5, legend_label=name, name=name)
+            thin = (f == 1) & np.isfinite(y)
+            p.scatter(ws[thin], y[thin], marker="x", size=11, line_width=2, color=_THIN,
+                      legend_label="thin bin (too few periods)", name=name)
+        _legend_outside(p, "none")
+        groups = {"all heights": list(p.renderers), **_by_name(p)}
+        return _menu(p, groups, "all heights", {lab: f"{title}, {lab}" for lab in labels})
+
+    out = {"budget": Figure(
+        f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", build,
+        note="<p>The axes show the certified bins (enough periods, 4 to 16 m/s); pan or zoom out for the "
+             "others. Red crosses: thin bins (fewer periods than the minimum); they are kept in the budget "
+             "but left out of the certificate's headline range. Empty bins are not drawn.</p>",
+    )}
+    contrib = budget["relative_contribution"].transpose("wind_speed", "height", "contributor")
+    names = [str(c).replace("_", " ") for c in budget.contributor.values] + ["combined"]
+    combined = budget["relative_uncertainty"].transpose("wind_speed", "height").values
+    default = f"{fmt(float(budget.height.sel(height=120.0, method='nearest')))} m"
+    hlabels = [f"{fmt(h)} m" for h in heights]
+
+    def build_contributors() -> Any:
+        from bokeh.layouts import column
+        from bokeh.models import ColumnDataSource, CustomJS, Select
+
+        width = 0.85 * step / len(names)
+        p = _plot(f"Standard uncertainty contributors at {default}", xl, "relative standard uncertainty (%)",
+                  width=_WIDTH + 140, x_range=(xlim[0] - step / 2, xlim[1] + step / 2))
+        ok = g["certified"]  # (wind_speed, height): the bins on the certificate
+        j0 = hlabels.index(default)
+        for i, name in enumerate(names):
+            values = combined if name == "combined" else contrib.values[:, :, i]
+            data = {"x": ws + (i - (len(names) - 1) / 2) * width}
+            for j, lab in enumerate(hlabels):
+                data[lab] = np.where(ok[:, j], values[:, j], np.nan)
+            data["top"] = data[hlabels[j0]]
+            p.vbar(x="x", top="top", width=width, source=ColumnDataSource(data), color=_COLORS[i % 10],
+                   legend_label=name)
+        _legend_outside(p)
+        select = Select(title="Show:", value=default, options=hlabels, width=220)
+        select.js_on_change("value", CustomJS(
+            args={"renderers": p.renderers, "plot": p},
+            code="for (const r of renderers) { const d = r.data_source.data;"
+                 "  d.top = d[cb_obj.value]; r.data_source.change.emit(); }"
+                 "plot.title.text = 'Standard uncertainty contributors at ' + cb_obj.value;"))
+        return column(select, p)
+
+    out["budget_contributors"] = Figure(
+        "Uncertainty contributors per height", build_contributors,
+        note="<p>Relative standard uncertainty (k = 1) of each contributor per certified wind-speed bin "
+             "(enough periods, 4 to 16 m/s); <em>combined</em> is their root sum of squares.</p>",
+    )
+    return out
+
+
+def _sensitivity_figure(ds: xr.Dataset) -> Figure:
+    var = str(ds.attrs.get("environmental_variable", "variable"))
+    readable = _VARIABLES.get(var, var.replace("_", " "))
+    xl = f"{readable}{_units(ds['bin'])}"
+    yl = f"mean lidar − reference difference{_units(ds['mean_difference'])}"
+    units = ds["slope"].attrs.get("units", "")
+    rows, titles, layers = [], {}, []
+    for h in ds.height.values:
+        one = ds.sel(height=h)
+        used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
+        xb = one["bin"].values
+        sem = one["std_difference"].values / np.sqrt(np.maximum(one["sample_count"].values, 1))
+        slope, se, r = (float(one[k]) if k in one else np.nan
+                        for k in ("slope", "slope_standard_error", "correlation"))
+        label = f"{fmt(h)} m"
+        line = None
+        if used.sum() >= 2 and np.isfinite(slope):
+            x = np.linspace(xb[used].min(), xb[used].max(), 60)
+            line = (x, *confidence_band(ds, h, x))
+        layers.append((label, xb[used], one["mean_difference"].values[used], sem[used], line))
+        titles[label] = f"{fmt(h)} m: m = {fmt(slope)} ± {fmt(se)} {units}, R = {fmt(r, 2)}"
+        sig = [name for name, key in (("Eq. 12", "significant_eq12"), ("Eq. 13", "significant_eq13"))
+               if key in one and int(one[key]) == 1]
+        rows.append([fmt(h), f"{fmt(slope)} ± {fmt(se)}", fmt(r, 2),
+                     fmt(float(one["slope_times_std"])) if "slope_times_std" in one else "–",
+                     fmt(float(one["slope_times_std_times_r"])) if "slope_times_std_times_r" in one else "–",
+                     str(int(one["bins_used"])) if "bins_used" in one else str(int(used.sum())),
+                     ", ".join(sig) or "no"])
+
+    def build() -> Any:
+        # one source of points and one of curves, holding every height's columns ("x|40 m" ...);
+        # the menu copies the chosen height's into the drawn ones: 4 renderers, not 4 per height
+        from bokeh.layouts import column
+        from bokeh.models import ColumnDataSource, CustomJS, Select
+
+        n_pts = max(1, max(x.size for _, x, _, _, _ in layers))
+        n_line = max([1] + [line[0].size for *_, line in layers if line is not None])
+
+        def pad(v: np.ndarray, n: int) -> np.ndarray:
+            out = np.full(n, np.nan)
+            out[: v.size] = v
+            return out
+
+        pts: dict[str, np.ndarray] = {}
+        crv: dict[str, np.ndarray] = {}
+        for label, x, y, s, line in layers:
+            pts.update({f"x|{label}": pad(x, n_pts), f"y|{label}": pad(y, n_pts),
+                        f"y0|{label}": pad(y - s, n_pts), f"y1|{label}": pad(y + s, n_pts)})
+            xf, fit, lo, hi = line if line is not None else (np.array([]),) * 4
+            crv.update({f"xf|{label}": pad(xf, n_line), f"fit|{label}": pad(fit, n_line),
+                        f"lo|{label}": pad(lo, n_line), f"hi|{label}": pad(hi, n_line)})
+        shown = list(titles)[0]
+        for data in (pts, crv):
+            data.update({k.split("|")[0]: v for k, v in list(data.items()) if k.endswith(f"|{shown}")})
+        points, curve = ColumnDataSource(pts), ColumnDataSource(crv)
+        p = _plot(titles[shown], xl, yl, width=_WIDTH - 80)
+        p.varea("xf", "lo", "hi", source=curve, color="#1f77b4", alpha=0.25,
+                legend_label="95 % confidence band")
+        p.line("xf", "fit", source=curve, color="#1f77b4", line_width=2, legend_label="regression")
+        p.segment("x", "y0", "x", "y1", source=points, color="black")
+        p.scatter("x", "y", source=points, color="black", size=7, legend_label="bin mean ± s.e.")
+        _legend_outside(p)
+        select = Select(title="Show:", value=shown, options=list(titles), width=220)
+        select.js_on_change("value", CustomJS(
+            args={"sources": [points, curve], "plot": p, "titles": dict(titles)},
+            code="for (const src of sources) { const d = {...src.data};"
+                 "  for (const k of Object.keys(d)) { const [base, h] = k.split('|');"
+                 "    if (h === cb_obj.value) { d[base] = d[k]; } }"
+                 "  src.data = d; }"
+                 "plot.title.text = titles[cb_obj.value];"))
+        return column(select, p)
+
+    note = (
+        "<p>Points: bin means of the difference with the standard error of the mean "
+        "(standard deviation / √periods); bins with fewer periods than the minimum are left out of "
+        "the regression and not drawn. Line: least-squares fit of the bin means on the bin centres; "
+        "band: its 95 % confidence band (from the slope's standard error).</p>"
+        + _table(["height (m)", f"slope m ({units})", "R", "m·std (%)", "m·std·R (%)", "bins", "significant"],
+                 rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
+                       "Eq. 13: |m·std·R| > 0.1 %)")
+    )
+    return Figure(f"Sensitivity to {readable}", build, note=note)
+
+
+def _sensitivity_plots(sens: Iterable[xr.Dataset]) -> dict[str, Figure]:
+    out = {}
+    for ds in sens:
+        var = str(ds.attrs.get("environmental_variable", "variable"))
+        out[f"sensitivity_{var}"] = _sensitivity_figure(ds)
+    if out:
+        def build() -> Any:
+            from bokeh.models import Span
+
+            p = _plot("m · std of each variable per height; threshold ±0.5 %", "height (m)", "m · std (%)")
+            values = []
+            for i, ds in enumerate(sens):
+                var = str(ds.attrs.get("environmental_variable", "variable"))
+                y = np.atleast_1d(ds["slope_times_std"].values)
+                values.append(y)
+                h = np.atleast_1d(ds.height.values)
+                name = _VARIABLES.get(var, var.replace("_", " "))
+                p.line(h, y, color=_COLORS[i % 10], line_width=2, legend_label=name)
+                p.scatter(h, y, color=_COLORS[i % 10], size=7, legend_label=name)
+            for s in (0.5, -0.5):
+                p.add_layout(Span(location=s, dimension="width", line_color="grey", line_dash="dashed"))
+            finite = np.concatenate(values)
+            finite = finite[np.isfinite(finite)]
+            lim = max(0.6, 1.1 * float(np.abs(finite).max())) if finite.size else 0.6
+            p.y_range.start, p.y_range.end = -lim, lim
+            _legend_outside(p)
+            return p
+
+        sens = list(sens)
+        out["sensitivity_slopes"] = Figure("Significance of the sensitivities (Eq. 12)", build)
+    return out
 
 
 def _los_label(cube: xr.Dataset, los: Any) -> str:
@@ -172,354 +381,88 @@ def _los_label(cube: xr.Dataset, los: Any) -> str:
     return f"LOS {name}"
 
 
-def _cube_plots(cube: xr.Dataset) -> dict[str, Figure]:
-    """CNR x programmed velocity heatmaps, one per line of sight, one colour scale for all."""
-    hv = _hv()
+def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) -> dict[str, Figure]:
+    """CNR x programmed velocity heatmaps, one per line of sight, one colour scale for all.
+
+    The colour scale spans the bins the simulation draws from (``drawn_cnr``, dB), else all bins.
+    """
     out = {}
-    for name, heading, cmap, symmetric in (
-        ("los_bias", "Bench: mean LOS velocity error (measured − programmed)", "RdBu_r", True),
-        ("los_std", "Bench: standard deviation of the measured LOS velocity", "viridis", False),
+    for name, heading, palette, symmetric in (
+        ("los_bias", "Bench: mean LOS velocity error (measured − programmed)", "RdBu11", True),
+        ("los_std", "Bench: standard deviation of the measured LOS velocity", "Viridis256", False),
     ):
         if name not in cube:
             continue
         da = cube[name].transpose("los", "cnr", "velocity")
-        finite = da.values[np.isfinite(da.values)]
-        if finite.size:
-            top = float(np.percentile(np.abs(finite) if symmetric else finite, 99))
-            clim = (-top, top) if symmetric else (float(finite.min()), top)
-        else:
-            clim = (np.nan, np.nan)
+        clim = cube_colour_limits(da, drawn_cnr, symmetric)
         label = f"{name.replace('_', ' ')}{_units(da)}"
-        panels = {}
-        for los in da.los.values:
-            mesh = hv.QuadMesh(
-                (cube.velocity.values, cube.cnr.values, da.sel(los=los).values),
-                kdims=["velocity", "cnr"], vdims=[hv.Dimension(name, label=label)],
-            )
-            mesh = mesh.opts(cmap=cmap, clim=clim, colorbar=True, tools=["hover"], backend="bokeh")
-            mesh = mesh.opts(cmap=cmap, clim=clim, colorbar=True, backend="matplotlib")
-            panels[str(los)] = _style(
-                mesh, _los_label(cube, los), f"programmed radial velocity{_units(cube.velocity)}",
-                f"CNR{_units(cube.cnr)}", width=360, height=280, legend=False,
-            )
+
+        def build(da=da, clim=clim, label=label, palette=palette) -> Any:
+            from bokeh.layouts import gridplot
+            from bokeh.models import ColorBar, LinearColorMapper
+            from bokeh.palettes import Viridis256, all_palettes
+
+            # bokeh's RdBu runs blue (low) to red (high), as matplotlib's RdBu_r in the PDF
+            colors = Viridis256 if palette == "Viridis256" else list(all_palettes["RdBu"][11])
+            mapper = LinearColorMapper(palette=colors, low=clim[0], high=clim[1], nan_color=(0, 0, 0, 0))
+            v, c = cube.velocity.values, cube.cnr.values
+            dv = float(np.median(np.diff(v))) if v.size > 1 else 1.0
+            dc = float(np.median(np.diff(c))) if c.size > 1 else 1.0
+            plots = []
+            for los in da.los.values:
+                p = _plot(_los_label(cube, los), f"programmed radial velocity{_units(cube.velocity)}",
+                          f"CNR{_units(cube.cnr)}", width=360, height=280)
+                p.image(image=[da.sel(los=los).values], x=v.min() - dv / 2, y=c.min() - dc / 2,
+                        dw=float(np.ptp(v)) + dv, dh=float(np.ptp(c)) + dc, color_mapper=mapper)
+                plots.append(p)
+            plots[-1].add_layout(ColorBar(color_mapper=mapper, title=label), "right")
+            return gridplot(plots, ncols=3)
+
+        scale = (f"99th percentile of the CNR bins the simulation draws from, {fmt(drawn_cnr[0])} to "
+                 f"{fmt(drawn_cnr[1])} dB" if drawn_cnr else "99th percentile of all bins")
         out[f"cube_{name}"] = Figure(
-            f"{heading}, per line of sight", panels, kind="grid",
-            png=lambda da=da, cmap=cmap, clim=clim, label=label, heading=heading: _cube_png(
-                cube, da, cmap, clim, label, heading),
+            f"{heading}, per line of sight", build,
             note=f"<p>Colour: {html.escape(label)}; blank cells had no bench samples. "
                  "The colour scale is the same for every line of sight "
-                 f"({fmt(clim[0])} to {fmt(clim[1])}, 99th percentile).</p>",
+                 f"({fmt(clim[0])} to {fmt(clim[1])}, {scale}).</p>",
         )
     return out
-
-
-def _grid(n: int, ncol: int, width: float, height: float) -> tuple[Any, Any]:
-    import matplotlib.pyplot as plt
-
-    nrow = int(np.ceil(n / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(width * ncol, height * nrow), squeeze=False,
-                             layout="constrained")
-    for ax in axes.flat[n:]:
-        ax.set_visible(False)
-    return fig, list(axes.flat[:n])
-
-
-def _cube_png(cube: xr.Dataset, da: xr.DataArray, cmap: str, clim: tuple, label: str, heading: str) -> Any:
-    """All lines of sight as heatmaps on one colour scale, drawn with matplotlib (fast)."""
-    fig, axes = _grid(da.sizes["los"], 3, 4.6, 3.6)
-    mesh = None
-    for ax, los in zip(axes, da.los.values, strict=False):
-        mesh = ax.pcolormesh(cube.velocity.values, cube.cnr.values, da.sel(los=los).values, cmap=cmap,
-                             vmin=clim[0], vmax=clim[1], shading="nearest")
-        ax.set_title(_los_label(cube, los), fontsize=10)
-        ax.set_xlabel(f"programmed radial velocity{_units(cube.velocity)}", fontsize=9)
-        ax.set_ylabel(f"CNR{_units(cube.cnr)}", fontsize=9)
-    fig.suptitle(heading)
-    if mesh is not None:
-        fig.colorbar(mesh, ax=axes, label=label, shrink=0.8)
-    return fig
-
-
-def _sensitivity_png(ds: xr.Dataset, readable: str, xl: str, yl: str, units: str) -> Any:
-    """Every height's bin means, fit and 95 % band, drawn with matplotlib (fast)."""
-    fig, axes = _grid(ds.sizes["height"], 2, 6.0, 3.4)
-    for ax, h in zip(axes, ds.height.values, strict=False):
-        one = ds.sel(height=h)
-        used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
-        xb, yb = one["bin"].values[used], one["mean_difference"].values[used]
-        sem = (one["std_difference"].values / np.sqrt(np.maximum(one["sample_count"].values, 1)))[used]
-        ax.errorbar(xb, yb, yerr=sem, fmt="o", color="black", ms=4, label="bin mean ± s.e.")
-        if used.sum() >= 2 and np.isfinite(float(one["slope"])):
-            x = np.linspace(xb.min(), xb.max(), 60)
-            fit, lo, hi = confidence_band(ds, h, x)
-            ax.fill_between(x, lo, hi, color="#1f77b4", alpha=0.25, lw=0, label="95 % confidence band")
-            ax.plot(x, fit, color="#1f77b4", lw=2, label="regression")
-        se = float(one["slope_standard_error"]) if "slope_standard_error" in one else np.nan
-        ax.set_title(f"{fmt(h)} m: m = {fmt(float(one['slope']))} ± {fmt(se)} {units}, "
-                     f"R = {fmt(float(one['correlation']), 2)}", fontsize=10)
-        ax.set_xlabel(xl, fontsize=9)
-        ax.set_ylabel(yl, fontsize=8)
-    axes[0].legend(fontsize=8)
-    fig.suptitle(f"Sensitivity to {readable}")
-    return fig
 
 
 def _rwf_plots(rwf: xr.Dataset) -> dict[str, Figure]:
-    out = {}
     zd = float(rwf["zero_distance"]) if "zero_distance" in rwf else float("nan")
     column = rwf["rwf"].sel(cnr_gradient=0.0, method="nearest")
-    curves = {"RWF": column / float(column.max())}
+    curves = {"RWF": (column / float(column.max())).values}
     for name in ("pulse", "apodization"):
         if name in rwf:
-            curves[name] = rwf[name] / float(rwf[name].max())
-    norm = xr.Dataset(curves)
-    support = np.flatnonzero((norm["RWF"] > 1e-3).values)
-    lo, hi = (support.min(), support.max()) if support.size else (0, rwf.sizes["range_offset"] - 1)
+            curves[name] = (rwf[name] / float(rwf[name].max())).values
+    support = np.flatnonzero(curves["RWF"] > 1e-3)
+    n = rwf.sizes["range_offset"]
+    lo, hi = (support.min(), support.max()) if support.size else (0, n - 1)
     pad = max(5, (hi - lo) // 4)
-    sl = slice(max(lo - pad, 0), min(hi + pad, rwf.sizes["range_offset"] - 1) + 1)
-    norm = norm.isel(range_offset=sl)
+    sl = slice(max(lo - pad, 0), min(hi + pad, n - 1) + 1)
+    x = rwf["range_offset"].values[sl]
     xl = "range offset from gate centre (m)"
-    shape = _style(
-        norm.hvplot.line(x="range_offset", y=list(curves)),
-        f"Pulse, apodization and RWF (normalised), Zd = {fmt(zd)} m", xl, "normalised amplitude",
-    )
-    out["rwf_shape"] = Figure("Range-weighting function", {"shape": shape})
     g = rwf["cnr_gradient"].values
     pick = sorted(set(np.linspace(0, len(g) - 1, min(5, len(g))).round().astype(int).tolist()))
-    sub = rwf["rwf"].isel(cnr_gradient=pick, range_offset=sl)
-    sub = sub.assign_coords(cnr_gradient=[f"{fmt(v)} dB/m" for v in g[pick]])
-    grad = _style(
-        sub.hvplot.line(x="range_offset", by="cnr_gradient"),
-        "RWF for several CNR gradients (Eq. 2)", xl, f"RWF{_units(rwf['rwf'])}",
-    )
-    out["rwf_gradients"] = Figure("Range-weighting function for several CNR gradients", {"gradients": grad})
-    return out
 
+    def shape() -> Any:
+        p = _plot(f"Pulse, apodization and RWF (normalised), Zd = {fmt(zd)} m", xl, "normalised amplitude")
+        for i, (name, y) in enumerate(curves.items()):
+            p.line(x, y[sl], color=_COLORS[i], line_width=2, legend_label=name)
+        _legend_outside(p)
+        return p
 
-def confidence_band(ds: xr.Dataset, height: Any, x: np.ndarray,
-                    level: float = 0.95) -> tuple[np.ndarray, ...]:
-    """Fitted line and its two-sided ``level`` confidence band at ``x`` for one height.
+    def gradients() -> Any:
+        p = _plot("RWF for several CNR gradients (Eq. 2)", xl, f"RWF{_units(rwf['rwf'])}")
+        for k, i in enumerate(pick):
+            p.line(x, rwf["rwf"].isel(cnr_gradient=i).values[sl], color=_COLORS[k % 10], line_width=2,
+                   legend_label=f"{fmt(g[i])} dB/m")
+        _legend_outside(p)
+        return p
 
-    The regression is of the kept bin means (``bin_flag == 0``) on the bins' mean of the
-    variable (``variable_mean``) with weights ``regression_weight`` (weighted least squares,
-    ``docs/sensitivity.md``); an artefact without them was fitted on the bin centres with equal
-    weights.  With ``S = Σ w (x_i − x̄_w)²`` and the scale ``c²`` of the weights' errors, the band
-    of the mean line is ``t(k-2) · c · sqrt(1/Σw + (x − x̄_w)² / S)``; ``c² = s_m² S`` from the
-    slope's standard error ``s_m`` (``slope_standard_error``), else ``max(1, χ²_ν)`` of the
-    residuals (equal weights: their variance).
-
-    Returns
-    -------
-    fit, lower, upper : arrays like ``x`` (band NaN with fewer than three bins)
-    """
-    from scipy import stats
-
-    one = ds.sel(height=height)
-    weighted = "regression_weight" in one and "variable_mean" in one
-    xs = one["variable_mean"].values if weighted else one["bin"].values
-    ws = one["regression_weight"].values if weighted else np.ones(xs.shape)
-    yb_all = one["mean_difference"].values
-    used = (one["bin_flag"] == 0).values & np.isfinite(yb_all) & np.isfinite(xs) & np.isfinite(ws) & (ws > 0)
-    xb, yb, wb = xs[used], yb_all[used], ws[used]
-    slope, intercept = float(one["slope"]), float(one["intercept"])
-    fit = intercept + slope * x
-    n = int(used.sum())
-    if n < 3:
-        return fit, np.full_like(fit, np.nan), np.full_like(fit, np.nan)
-    xm = float((wb * xb).sum() / wb.sum())
-    sxx = float((wb * (xb - xm) ** 2).sum())
-    if "slope_standard_error" in one and np.isfinite(float(one["slope_standard_error"])):
-        scale2 = float(one["slope_standard_error"]) ** 2 * sxx
-    else:
-        chi2 = float((wb * (yb - (intercept + slope * xb)) ** 2).sum() / (n - 2))
-        scale2 = max(1.0, chi2) if weighted else chi2
-    half = stats.t.ppf(0.5 + level / 2, n - 2) * np.sqrt(scale2 * (1.0 / wb.sum() + (x - xm) ** 2 / sxx))
-    return fit, fit - half, fit + half
-
-
-def _sensitivity_figure(ds: xr.Dataset) -> Figure:
-    hv = _hv()
-    var = str(ds.attrs.get("environmental_variable", "variable"))
-    readable = _VARIABLES.get(var, var.replace("_", " "))
-    xl = f"{readable}{_units(ds['bin'])}"
-    yl = f"mean lidar − reference difference{_units(ds['mean_difference'])}"
-    units = ds["slope"].attrs.get("units", "")
-    panels, rows = {}, []
-    for h in ds.height.values:
-        one = ds.sel(height=h)
-        used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
-        xb = one["bin"].values
-        n = np.maximum(one["sample_count"].values, 1)
-        sem = one["std_difference"].values / np.sqrt(n)
-        means = hv.Scatter((xb[used], one["mean_difference"].values[used]), "bin", "mean",
-                           label="bin mean").opts(color="black", size=7, backend="bokeh")
-        means = means.opts(color="black", s=30, backend="matplotlib")
-        bars = hv.ErrorBars((xb[used], one["mean_difference"].values[used], sem[used]),
-                            "bin", ["mean", "sem"]).opts(color="black", backend="bokeh")
-        layers = [bars, means]
-        slope, se, r = (float(one[k]) if k in one else np.nan
-                        for k in ("slope", "slope_standard_error", "correlation"))
-        if used.sum() >= 2 and np.isfinite(slope):
-            x = np.linspace(xb[used].min(), xb[used].max(), 60)
-            fit, lo, hi = confidence_band(ds, h, x)
-            if np.isfinite(lo).any():
-                band = hv.Area((x, lo, hi), "bin", ["mean", "upper"], label="95 % confidence band")
-                layers.insert(0, band.opts(color="#1f77b4", alpha=0.25, line_alpha=0, backend="bokeh")
-                              .opts(color="#1f77b4", alpha=0.25, backend="matplotlib"))
-            layers.append(hv.Curve((x, fit), "bin", "mean", label="regression").opts(
-                color="#1f77b4", line_width=2, backend="bokeh").opts(color="#1f77b4", backend="matplotlib"))
-        title = f"{fmt(h)} m: m = {fmt(slope)} ± {fmt(se)} {units}, R = {fmt(r, 2)}"
-        overlay = hv.Overlay(layers).opts(padding=0.05)
-        panels[f"{fmt(h)} m"] = _style(overlay, title, xl, yl, width=_WIDTH - 80)
-        sig = [name for name, key in (("Eq. 12", "significant_eq12"), ("Eq. 13", "significant_eq13"))
-               if key in one and int(one[key]) == 1]
-        rows.append([fmt(h), f"{fmt(slope)} ± {fmt(se)}", fmt(r, 2),
-                     fmt(float(one["slope_times_std"])) if "slope_times_std" in one else "–",
-                     fmt(float(one["slope_times_std_times_r"])) if "slope_times_std_times_r" in one else "–",
-                     str(int(one["bins_used"])) if "bins_used" in one else str(int(used.sum())),
-                     ", ".join(sig) or "no"])
-    note = (
-        "<p>Points: bin means of the difference with the standard error of the mean "
-        "(standard deviation / √periods); bins with fewer periods than the minimum are left out of "
-        "the regression and not drawn. Line: least-squares fit of the bin means on the bin centres; "
-        "band: its 95 % confidence band (from the slope's standard error).</p>"
-        + _table(["height (m)", f"slope m ({units})", "R", "m·std (%)", "m·std·R (%)", "bins", "significant"],
-                 rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
-                       "Eq. 13: |m·std·R| > 0.1 %)")
-    )
-    return Figure(f"Sensitivity to {readable}", panels, kind="select", note=note,
-                  png=lambda: _sensitivity_png(ds, readable, xl, yl, units))
-
-
-def _sensitivity_plots(sens: Iterable[xr.Dataset]) -> dict[str, Figure]:
-    hv = _hv()
-    out = {}
-    stats = []
-    for ds in sens:
-        var = str(ds.attrs.get("environmental_variable", "variable"))
-        out[f"sensitivity_{var}"] = _sensitivity_figure(ds)
-        stats.append(ds["slope_times_std"].expand_dims(variable=[_VARIABLES.get(var, var.replace("_", " "))])
-                     .reset_coords(drop=True))
-    if stats:
-        all_stats = xr.concat(stats, dim="variable", join="outer").rename("slope_times_std")
-        lo, hi = (1.1 * float(f(all_stats)) for f in (np.nanmin, np.nanmax))
-        limit = hv.HLine(0.5) * hv.HLine(-0.5)
-        limit = limit.opts(
-            hv.opts.HLine(color="grey", line_dash="dashed", backend="bokeh"),
-            hv.opts.HLine(color="grey", linestyle="--", backend="matplotlib"),
-        )
-        lines = all_stats.hvplot.line(x="height", by="variable") * all_stats.hvplot.scatter(
-            x="height", by="variable").opts(hv.opts.Scatter(size=7, backend="bokeh"))
-        out["sensitivity_slopes"] = Figure(
-            "Significance of the sensitivities (Eq. 12)",
-            {"slopes": _style((lines * limit).opts(ylim=(min(-0.6, lo), max(0.6, hi))),
-                              "m · std of each variable per height; threshold ±0.5 %",
-                              "height (m)", "m · std (%)")},
-        )
-    return out
-
-
-def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
-    """Plot the expanded (k = 2) uncertainty per height (menu: all heights or one) and the contributors."""
-    hv = _hv()
-    k = float(budget.attrs.get("coverage_factor", 2.0))
-    xl = f"reference wind speed bin{_units(budget.wind_speed)}"
-    rel = budget["relative_expanded_uncertainty"]
-    flag = budget["bin_flag"]
-    ws = budget.wind_speed.values
-    finite = rel.values[np.isfinite(rel.values)]
-    ylim = (0.0, float(np.percentile(finite, 98)) * 1.15) if finite.size else (0.0, 1.0)
-    yl = f"relative expanded uncertainty, k = {fmt(k)} (%)"
-
-    def layers(h: Any, color: str, label: str) -> list[Any]:
-        y = rel.sel(height=h).values
-        f = flag.sel(height=h).values
-        ok = np.where(f == 0, y, np.nan)
-        thin = (f == 1) & np.isfinite(y)
-        curve = hv.Curve((ws, ok), "wind_speed", "U", label=label)
-        dots = hv.Scatter((ws[f == 0], y[f == 0]), "wind_speed", "U", label=label)
-        thin_pts = hv.Scatter((ws[thin], y[thin]), "wind_speed", "U", label="thin bin (too few periods)")
-        return [
-            curve.opts(line_width=2, color=color, backend="bokeh").opts(color=color, backend="matplotlib"),
-            dots.opts(size=5, color=color, backend="bokeh").opts(s=12, color=color, backend="matplotlib"),
-            thin_pts.opts(marker="x", size=11, line_width=2, color=_THIN, backend="bokeh")
-            .opts(marker="X", s=60, color=_THIN, backend="matplotlib"),
-        ]
-
-    colors = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
-              "#17becf", "#000000"]
-    heights = budget.height.values
-    all_layers = []
-    for i, h in enumerate(heights):
-        lay = layers(h, colors[i % len(colors)], f"{fmt(h)} m")
-        all_layers += lay[:2] + ([lay[2].relabel("thin bin (too few periods)")] if i == 0 else [lay[2]])
-    title = f"Expanded uncertainty (k = {fmt(k)}), {budget.attrs.get('approach', '')} approach".rstrip(", ")
-    everything = _style(hv.Overlay(all_layers).opts(ylim=ylim), f"{title}, all heights", xl, yl)
-    panels = {"all heights": everything}
-    for h in heights:
-        panels[f"{fmt(h)} m"] = _style(hv.Overlay(layers(h, "#1f77b4", "bins with enough periods"))
-                                       .opts(ylim=ylim), f"{title}, {fmt(h)} m", xl, yl)
-    out = {"budget": Figure(
-        f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", panels, kind="select", png=everything,
-        note="<p>Red crosses: thin bins (fewer periods than the minimum); they are kept in the budget "
-             "but left out of the certificate's headline range. Empty bins are not drawn.</p>",
-    )}
-    contrib = budget["relative_contribution"]
-    names = [str(c).replace("_", " ") for c in contrib.contributor.values]
-    cpanels = {}
-    for h in heights:
-        ok = flag.sel(height=h).values == 0
-        rows = []
-        for j, w in enumerate(ws):
-            if not ok[j]:
-                continue
-            for c, name in zip(contrib.contributor.values, names, strict=True):
-                rows.append((fmt(w), name, float(contrib.sel(height=h, wind_speed=w, contributor=c))))
-            combined = budget["relative_uncertainty"].sel(height=h, wind_speed=w)
-            rows.append((fmt(w), "combined", float(combined)))
-        bars = hv.Bars(rows, ["wind_speed", "contributor"], "u").opts(
-            tools=["hover"], xrotation=90, multi_level=False, show_legend=True, backend="bokeh")
-        bars = bars.opts(xrotation=90, multi_level=False, show_legend=True, backend="matplotlib")
-        cpanels[f"{fmt(h)} m"] = _style(bars, f"Standard uncertainty contributors at {fmt(h)} m", xl,
-                                        "relative standard uncertainty (%)", width=_WIDTH + 140)
-    default = f"{fmt(float(budget.height.sel(height=120.0, method='nearest')))} m"
-    out["budget_contributors"] = Figure(
-        "Uncertainty contributors per height", cpanels, kind="select", default=default,
-        png=lambda: _contributors_png(budget),
-        note="<p>Relative standard uncertainty (k = 1) of each contributor per wind-speed bin with enough "
-             "periods; <em>combined</em> is their root sum of squares.</p>",
-    )
-    return out
-
-
-def _contributors_png(budget: xr.Dataset) -> Any:
-    """All heights' contributors as grouped bars, drawn with matplotlib (HoloViews' bars are slow)."""
-    import matplotlib.pyplot as plt
-
-    heights = budget.height.values
-    ncol = 2
-    nrow = int(np.ceil(len(heights) / ncol))
-    fig, axes = plt.subplots(nrow, ncol, figsize=(13, 2.8 * nrow), squeeze=False, sharey=True)
-    names = [str(c).replace("_", " ") for c in budget.contributor.values] + ["combined"]
-    for ax, h in zip(axes.flat, heights, strict=False):
-        ok = budget["bin_flag"].sel(height=h).values == 0
-        ws = budget.wind_speed.values[ok]
-        values = np.concatenate(
-            [budget["relative_contribution"].sel(height=h).values[ok].T,
-             budget["relative_uncertainty"].sel(height=h).values[ok][None, :]])
-        step = float(np.median(np.diff(budget.wind_speed.values))) if budget.sizes["wind_speed"] > 1 else 1.0
-        width = 0.8 * step / len(names)
-        for i, (name, v) in enumerate(zip(names, values, strict=True)):
-            ax.bar(ws + (i - (len(names) - 1) / 2) * width, v, width, label=name)
-        ax.set_title(f"{fmt(h)} m", fontsize=10)
-        ax.set_xlabel(f"reference wind speed bin{_units(budget.wind_speed)}", fontsize=9)
-        ax.set_ylabel("relative std. uncertainty (%)", fontsize=9)
-    for ax in axes.flat[len(heights):]:
-        ax.set_visible(False)
-    axes.flat[0].legend(fontsize=8, ncol=len(names), loc="lower left", bbox_to_anchor=(0, 1.15))
-    fig.suptitle("Standard uncertainty contributors per height (bins with enough periods)")
-    fig.tight_layout()
-    return fig
+    return {"rwf_shape": Figure("Range-weighting function", shape),
+            "rwf_gradients": Figure("Range-weighting function for several CNR gradients", gradients)}
 
 
 def report_figures(
@@ -528,13 +471,13 @@ def report_figures(
     sensitivities: Iterable[xr.Dataset] | Mapping[str, xr.Dataset] = (),
     cube: xr.Dataset | None = None,
     rwf: xr.Dataset | None = None,
+    drawn_cnr: tuple[float, float] | None = None,
 ) -> dict[str, Figure]:
     """Build the report's :class:`Figure` for every component given, by figure name, in page order.
 
     The budget comes first (what an engineer reads first), then the sensitivities, the bench
     cube and the range-weighting function.
     """
-    _hv()
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     figs: dict[str, Figure] = {}
     if budget is not None:
@@ -542,7 +485,7 @@ def report_figures(
     if sens:
         figs.update(_sensitivity_plots(sens))
     if cube is not None:
-        figs.update(_cube_plots(cube))
+        figs.update(_cube_plots(cube, drawn_cnr))
     if rwf is not None:
         figs.update(_rwf_plots(rwf))
     if not figs:
@@ -561,38 +504,56 @@ def _from_certificate(cert: xr.Dataset) -> dict[str, Any]:
     return parts
 
 
-def _summary_rows(meta: xr.Dataset | None, budget: xr.Dataset | None) -> list[tuple[str, str]]:
+def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None = None) -> str:
+    """Return the top of the page: status, headline, certified result, then the certificate's facts."""
+    out = []
+    if cert is not None:
+        status = cert.attrs.get("calibration_status", NOT_STATED)
+        cid = html.escape(certificate_id(cert.attrs))
+        out.append(f'<p class="status status-{html.escape(str(status))}"><strong>Calibration status: '
+                   f"{html.escape(str(status))}</strong> · certificate {cid}</p>")
+    if budget is not None:
+        out.append(f'<p class="headline"><strong>{html.escape(headline_sentence(budget))}</strong></p>')
+        g = certified_grid(budget)
+        rows = []
+        for i in np.flatnonzero(g["inside"]):
+            cells = []
+            for j in range(g["height"].size):
+                v = g["value"][i, j]
+                text = f"{v:.2f}" if g["certified"][i, j] else "–"
+                if g["certified"][i, j] and g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]):
+                    text += f" ± {g['tolerance'][i, j]:.2g}"
+                cells.append(text)
+            rows.append([fmt(g["wind_speed"][i]), *cells])
+        k = float(budget.attrs.get("coverage_factor", 2.0))
+        out.append(_table(["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]], rows,
+                          f"Certified result: relative expanded uncertainty U (%), k = {k:g}, per height and "
+                          "wind-speed bin; – : not certified (too few periods or no data)"))
+    if cert is not None:
+        facts = "\n".join(
+            f"<tr><th>{html.escape(section if n == 0 else '')}</th><td>{html.escape(label)}</td>"
+            f"<td>{html.escape(value).replace(chr(10), '<br>')}</td></tr>"
+            for section, items in certificate_facts(cert.attrs, seal)
+            for n, (label, value) in enumerate(items))
+        out.append(f'<table class="facts">\n{facts}\n</table>')
+    return "\n".join(out)
+
+
+def _provenance(cert: xr.Dataset | None) -> str:
+    """Return the end of the page: the certificate's components and inputs with their SHA-256."""
+    if cert is None:
+        return ""
     rows = []
-    if meta is not None:
-        for key, label in (
-            ("lidar_serial", "Lidar serial"),
-            ("title", "Title"),
-            ("id", "Certificate id"),
-            ("date_created", "Created"),
-            ("lidarcal_version", "lidarcal version"),
-            ("certificate_components", "Components"),
-            ("zero_distance_m", "Zero distance Zd (m)"),
-        ):
-            if key in meta.attrs:
-                rows.append((label, fmt(meta.attrs[key]) if key.endswith("_m") else str(meta.attrs[key])))
-        chain = meta.attrs.get("lidarcal_provenance_chain")
-        if chain:
-            for item in json.loads(chain):
-                rows.append(
-                    (f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}")
-                )
-    # the headline: bins flagged ok, centres 4-16 m/s (certificate.headline_range, as `lidarcal table`)
-    rng = headline_range(budget) if budget is not None else None
-    if rng is not None:
-        lo, hi = HEADLINE_WIND_SPEEDS
-        rows.append(
-            (
-                f"Expanded uncertainty (k = {float(budget.attrs.get('coverage_factor', 2)):g}), "
-                f"bins with enough samples, {lo:g} to {hi:g} m/s",
-                f"{rng[0]:.2f} % to {rng[1]:.2f} %",
-            )
-        )
-    return rows
+    for key, label in (("title", "Title"), ("id", "Id"), ("date_created", "Created"),
+                       ("lidarcal_version", "lidarcal version"), ("certificate_components", "Components"),
+                       ("zero_distance_m", "Zero distance Zd (m)")):
+        if key in cert.attrs:
+            rows.append((label, fmt(cert.attrs[key]) if key.endswith("_m") else str(cert.attrs[key])))
+    chain = cert.attrs.get("lidarcal_provenance_chain")
+    for item in json.loads(chain) if chain else []:
+        rows.append((f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}"))
+    body = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
+    return f'<div id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></div>'
 
 
 def write_report(
@@ -604,26 +565,34 @@ def write_report(
     cube: xr.Dataset | None = None,
     rwf: xr.Dataset | None = None,
     title: str | None = None,
-    png: bool = True,
+    png: bool = False,
+    pdf: bool = True,
     overwrite: bool = False,
     allow_invalid: bool = False,
+    seal: str | None = None,
 ) -> dict[str, Any]:
-    """Write the offline HTML report (and PNGs next to it).
+    """Write the offline HTML report, and beside it the certificate document (PDF) and PNGs.
 
     With ``certificate`` the components are taken from it; explicit arguments override them.
+    The page opens with the status, the headline and the certified result; the inputs'
+    SHA-256 come last.  With ``certificate`` and ``pdf`` the certificate document
+    (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``; ``seal``
+    (:func:`lidarcal.document.seal_statement`) states the seal of a certificate written after
+    its report.  With ``png`` every figure of the document is also written as
+    ``<stem>_<figure>.png`` (150 dpi).
+
     A certificate read from a file has its seal checked first
     (:func:`lidarcal.seal.require_valid_seal`): an altered one is refused
     (:class:`~lidarcal.errors.SealError`), or with ``allow_invalid`` reported under a
-    warning banner.
+    warning banner (on the page and on every page of the document).
 
     Returns
     -------
     dict
-        ``{"html": Path, "figures": [names], "png": [Paths]}``.
+        ``{"html": Path, "figures": [names], "png": [Paths], "pdf": Path or None}``.
     """
-    seal = require_valid_seal(certificate, allow_invalid=allow_invalid) if certificate is not None else None
-    banner = invalid_seal_banner(seal) if seal is not None and not seal.ok else None
-    hv = _hv()
+    check = require_valid_seal(certificate, allow_invalid=allow_invalid) if certificate is not None else None
+    banner = invalid_seal_banner(check) if check is not None and not check.ok else None
     parts: dict[str, Any] = (
         _from_certificate(certificate) if certificate is not None else {"sensitivities": []}
     )
@@ -633,37 +602,41 @@ def write_report(
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     if sens:
         parts["sensitivities"] = sens
+    summary = certificate.attrs.get("lidarcal_records_summary") if certificate is not None else None
+    if summary and parts.get("cube") is not None:
+        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], json.loads(summary))
     figs = report_figures(**parts)
     path = Path(path)
-    pngs = {name: path.with_name(f"{path.stem}_{name}.png") for name in figs} if png else {}
-    for p in [path, *pngs.values()]:
+    pdf_path = path.with_suffix(".pdf") if pdf and certificate is not None else None
+    pngs = {name: path.with_name(f"{path.stem}_{name}.png") for name in figure_names(parts)} if png else {}
+    for p in [path, *([pdf_path] if pdf_path else []), *pngs.values()]:
         check_writable(p, overwrite=overwrite)
 
     title = title or (
         certificate.attrs.get("title") if certificate is not None else "lidarcal calibration report"
     )
-    rows = _summary_rows(certificate, parts.get("budget"))
-    table = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
     models = {name: fig.bokeh() for name, fig in figs.items()}
-    links = {name: f'<p class="png"><a href="{p.name}">static PNG</a></p>' for name, p in pngs.items()}
-    after = {name: fig.note + links.get(name, "") for name, fig in figs.items()}
+    after = {name: fig.note for name, fig in figs.items()}
     warning = f'<p class="invalid"><strong>{html.escape(banner)}</strong></p>\n' if banner else ""
-    page = offline_html(models, title=title, header=f"{warning}<table>\n{table}\n</table>", after=after,
-                        titles={name: fig.heading for name, fig in figs.items()})
+    page = offline_html(models, title=title, header=warning + _header(certificate, parts.get("budget"), seal),
+                        after=after, titles={name: fig.heading for name, fig in figs.items()},
+                        footer=_provenance(certificate))
     written = []
-    if png:
-        renderer = hv.renderer("matplotlib").instance(dpi=_PNG_DPI)
-        for name, fig in figs.items():
-            with atomic_path(pngs[name], overwrite=overwrite) as tmp:
-                obj = fig.png_object()
-                if hasattr(obj, "savefig"):  # a matplotlib figure
-                    obj.savefig(tmp.with_suffix(".png"), dpi=_PNG_DPI, format="png")
-                    import matplotlib.pyplot as plt
+    if pngs:
+        import matplotlib
+        from matplotlib.figure import Figure as MplFigure
 
-                    plt.close(obj)
-                else:
-                    renderer.save(obj, str(tmp.with_suffix("")), fmt="png")
-                tmp.with_suffix(".png").replace(tmp)
-            written.append(pngs[name])
+        with matplotlib.rc_context(STYLE):
+            for name, target in pngs.items():
+                fig = MplFigure(figsize=A4)
+                draw(fig, name, parts)
+                with atomic_path(target, overwrite=overwrite) as tmp:
+                    fig.savefig(tmp, dpi=_PNG_DPI, format="png")
+                written.append(target)
+    document = None
+    if pdf_path:
+        document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
+                                  warning=banner)
     write_text(path, page, overwrite=overwrite)
-    return {"html": path, "figures": list(figs), "png": written}
+    return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
+            "pages": document["pages"] if document else 0}

@@ -24,7 +24,7 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey,
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
 
 from lidarcal.errors import InputError, SealError
-from lidarcal.io import atomic_path, check_writable, open_artefact, write_into
+from lidarcal.io import atomic_path, check_input_file, check_writable, open_artefact, write_into
 from lidarcal.schema import validate_dataset
 from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign, verify_signature
 
@@ -41,6 +41,22 @@ CANONICAL_FORM = (
     "sha256(json(sorted {name: value}, strings as is, numbers as {dtype, values})); "
     "global attributes: one digest each, excluding lidarcal_integrity and lidarcal_signature"
 )
+#: The seal's second form (``"format": 2``), written since the seal had to read as text in
+#: ``ncdump -h``: the same digests as :data:`CANONICAL_FORM`, but ``lidarcal_integrity`` keeps only
+#: their root and each variable carries its own digests.  Certificates sealed in the first form
+#: (the whole record in ``lidarcal_integrity``) verify as before.
+CANONICAL_FORM_2 = (
+    CANONICAL_FORM + ", " + "lidarcal_integrity_attributes and every variable's lidarcal_sha256 "
+    "(the stored digests, which only locate a change); root: sha256(json(sorted {dimensions: {name: "
+    "length}, variables: {name: {data, attributes}}, global_attributes: {name: digest}})); each "
+    "variable's lidarcal_sha256 is 'data <hex> attributes <hex>', lidarcal_integrity_attributes "
+    "'<name> <first 12 hex>' joined by '; '"
+)
+SEAL_FORMAT = 2
+#: Per-variable digests (second form), and the global attributes' digest prefixes.
+VARIABLE_DIGEST_ATTR = "lidarcal_sha256"
+ATTRIBUTE_DIGESTS_ATTR = "lidarcal_integrity_attributes"
+_PREFIX = 12
 
 # ------------------------------------------------------------------ integrity
 
@@ -94,10 +110,11 @@ def integrity_record(path: str | os.PathLike) -> dict[str, Any]:
         if nc.groups:
             raise InputError(f"{path}: has netCDF groups; a lidarcal certificate is flat")
         variables = {
-            name: {"data": _data_digest(var), "attributes": _attrs_digest(var, var.ncattrs())}
+            name: {"data": _data_digest(var),
+                   "attributes": _attrs_digest(var, [n for n in var.ncattrs() if n != VARIABLE_DIGEST_ATTR])}
             for name, var in nc.variables.items()
         }
-        unsealed = (INTEGRITY_ATTR, SIGNATURE_ATTR)
+        unsealed = (INTEGRITY_ATTR, SIGNATURE_ATTR, ATTRIBUTE_DIGESTS_ATTR)
         glob = {n: _attrs_digest(nc, [n]) for n in nc.ncattrs() if n not in unsealed}
         dims = {name: len(d) for name, d in nc.dimensions.items()}
     return {
@@ -107,6 +124,29 @@ def integrity_record(path: str | os.PathLike) -> dict[str, Any]:
         "variables": variables,
         "global_attributes": glob,
     }
+
+
+def seal_root(record: Mapping[str, Any]) -> str:
+    """Return the root digest of an integrity record (what a second-form seal stores, a signature covers)."""
+    body = {key: record[key] for key in ("dimensions", "variables", "global_attributes")}
+    return _sha(json.dumps(body, sort_keys=True, ensure_ascii=False).encode("utf-8"))
+
+
+def _seal(path: str | os.PathLike) -> str:
+    """Seal the file at ``path`` in the second form and return the text of its ``lidarcal_integrity``."""
+    import netCDF4
+
+    record = integrity_record(path)
+    with netCDF4.Dataset(path, "a") as nc:
+        for name, digests in record["variables"].items():
+            text = f"data {digests['data']} attributes {digests['attributes']}"
+            nc[name].setncattr(VARIABLE_DIGEST_ATTR, text)
+        nc.setncattr(ATTRIBUTE_DIGESTS_ATTR, "; ".join(
+            f"{name} {digest[:_PREFIX]}" for name, digest in sorted(record["global_attributes"].items())))
+    return json.dumps({"format": SEAL_FORMAT, "algorithm": "sha256", "canonical_form": CANONICAL_FORM_2,
+                       "dimensions": record["dimensions"], "variables": len(record["variables"]),
+                       "global_attributes": len(record["global_attributes"]), "root": seal_root(record)},
+                      sort_keys=True)
 
 
 def write_certificate(cert: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False,
@@ -135,7 +175,7 @@ def write_certificate(cert: xr.Dataset, path: str | os.PathLike, *, overwrite: b
                 nc.setncattr(SIGNATURE_ALGORITHM_ATTR, ALGORITHM)
                 nc.setncattr(SIGNATURE_KEY_ATTR, fingerprint(signing_key))
                 nc.setncattr(SIGNATURE_PUBLIC_KEY_ATTR, base64.b64encode(public).decode("ascii"))
-        seal = json.dumps(integrity_record(tmp), sort_keys=True)
+        seal = _seal(tmp)
         with netCDF4.Dataset(tmp, "a") as nc:
             nc.setncattr(INTEGRITY_ATTR, seal)
             if signing_key is not None:
@@ -193,6 +233,57 @@ def _check_signature(report: VerificationReport, attrs: Mapping[str, Any],
         report.signed_by, report.key_trusted = claimed, trusted is not None
 
 
+def _changes(exp_vars: Mapping[str, Any], exp_glob: Mapping[str, Any], found: Mapping[str, Any]) -> list[str]:
+    """Name every variable and global attribute whose digest differs from the sealed one."""
+    problems = []
+    for name in sorted(set(exp_vars) | set(found["variables"])):
+        if name not in found["variables"]:
+            problems.append(f"variable {name!r} was removed")
+        elif name not in exp_vars:
+            problems.append(f"variable {name!r} was added")
+        else:
+            if exp_vars[name]["data"] != found["variables"][name]["data"]:
+                problems.append(f"variable {name!r}: values altered")
+            if exp_vars[name]["attributes"] != found["variables"][name]["attributes"]:
+                problems.append(f"variable {name!r}: attributes altered")
+    for name in sorted(set(exp_glob) | set(found["global_attributes"])):
+        if name not in found["global_attributes"]:
+            problems.append(f"global attribute {name!r} was removed")
+        elif name not in exp_glob:
+            problems.append(f"global attribute {name!r} was added")
+        elif exp_glob[name] != found["global_attributes"][name]:
+            problems.append(f"global attribute {name!r} altered")
+    return problems
+
+
+def _changes_against_root(path: Path, expected: Mapping[str, Any], found: Mapping[str, Any]) -> list[str]:
+    """Check a second-form seal: the root decides; the stored per-item digests say what changed."""
+    import netCDF4
+
+    if seal_root(found) == expected["root"]:
+        return []
+    exp_vars: dict[str, Any] = {}
+    with netCDF4.Dataset(path, "r") as nc:
+        for name, var in nc.variables.items():
+            text = str(var.getncattr(VARIABLE_DIGEST_ATTR)) if VARIABLE_DIGEST_ATTR in var.ncattrs() else ""
+            parts = text.split()
+            if len(parts) == 4 and parts[0] == "data" and parts[2] == "attributes":
+                exp_vars[name] = {"data": parts[1], "attributes": parts[3]}
+        listed = str(nc.getncattr(ATTRIBUTE_DIGESTS_ATTR)) if ATTRIBUTE_DIGESTS_ATTR in nc.ncattrs() else ""
+    exp_glob = dict(item.rsplit(" ", 1) for item in listed.split("; ") if " " in item)
+    found_glob = {name: digest[:_PREFIX] for name, digest in found["global_attributes"].items()}
+    problems = _changes(exp_vars, exp_glob,
+                        {"variables": found["variables"], "global_attributes": found_glob})
+    missing = int(expected["variables"]) - len(exp_vars)
+    if missing > 0:
+        problems.append(f"{missing} variable(s) removed ({expected['variables']} sealed, "
+                        f"{len(exp_vars)} of them found)")
+    if not problems:  # the stored digests were rewritten to match: only the root can tell
+        problems.append("contents do not match the seal's root digest (the per-variable digests were "
+                        "rewritten too)")
+    return problems
+
+
 def verify_certificate(path: str | os.PathLike, *,
                        public_key: str | os.PathLike | Ed25519PublicKey | None = None) -> VerificationReport:
     """Recompute a certificate's checksums, signature and schema; list everything that changed.
@@ -210,9 +301,7 @@ def verify_certificate(path: str | os.PathLike, *,
     """
     import netCDF4
 
-    path = Path(path)
-    if not path.exists():
-        raise InputError(f"{path}: file not found")
+    path = check_input_file(path, "certificate file")  # missing, a directory, a FIFO: refused here
     try:
         with netCDF4.Dataset(path, "r") as nc:
             kind = nc.getncattr("lidarcal_artefact") if "lidarcal_artefact" in nc.ncattrs() else None
@@ -237,28 +326,20 @@ def verify_certificate(path: str | os.PathLike, *,
         return report
     try:
         expected = json.loads(stored)
-        exp_vars, exp_glob = expected["variables"], expected["global_attributes"]
+        if not isinstance(expected, dict):
+            raise TypeError(type(expected))
+        if expected.get("format") == SEAL_FORMAT:
+            expected["root"], int(expected["variables"]), int(expected["global_attributes"])
+        else:
+            exp_vars, exp_glob = expected["variables"], expected["global_attributes"]
     except (ValueError, KeyError, TypeError):
         report.problems.append(f"global attribute {INTEGRITY_ATTR!r} is not a valid integrity record")
         return report
     found = integrity_record(path)
-    for name in sorted(set(exp_vars) | set(found["variables"])):
-        if name not in found["variables"]:
-            report.problems.append(f"variable {name!r} was removed")
-        elif name not in exp_vars:
-            report.problems.append(f"variable {name!r} was added")
-        else:
-            if exp_vars[name]["data"] != found["variables"][name]["data"]:
-                report.problems.append(f"variable {name!r}: values altered")
-            if exp_vars[name]["attributes"] != found["variables"][name]["attributes"]:
-                report.problems.append(f"variable {name!r}: attributes altered")
-    for name in sorted(set(exp_glob) | set(found["global_attributes"])):
-        if name not in found["global_attributes"]:
-            report.problems.append(f"global attribute {name!r} was removed")
-        elif name not in exp_glob:
-            report.problems.append(f"global attribute {name!r} was added")
-        elif exp_glob[name] != found["global_attributes"][name]:
-            report.problems.append(f"global attribute {name!r} altered")
+    if expected.get("format") == SEAL_FORMAT:
+        report.problems.extend(_changes_against_root(path, expected, found))
+    else:
+        report.problems.extend(_changes(exp_vars, exp_glob, found))
     if expected.get("dimensions") not in (None, found["dimensions"]):
         report.problems.append(f"dimensions changed: {expected['dimensions']} -> {found['dimensions']}")
     report.variables_checked = len(found["variables"])

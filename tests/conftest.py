@@ -24,3 +24,18 @@ def chromium() -> tuple[str, str]:
             pytest.fail(f"CI=true and {message}")
         pytest.skip(message)
     return browser, driver
+
+
+@pytest.fixture
+def poppler() -> tuple[str, str]:
+    """Paths of poppler-utils' ``pdftoppm`` and ``pdftotext`` for the certificate-document tests.
+
+    Skipped on a developer machine without them, failed under ``CI=true`` (as :func:`chromium`).
+    """
+    ppm, text = shutil.which("pdftoppm"), shutil.which("pdftotext")
+    if ppm is None or text is None:
+        message = "pdftoppm/pdftotext not found (apt-get install poppler-utils; .ci/run does it)"
+        if os.environ.get("CI") == "true":
+            pytest.fail(f"CI=true and {message}")
+        pytest.skip(message)
+    return ppm, text

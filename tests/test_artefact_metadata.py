@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
+from lidarcal.certificate import provenance_chain
 from lidarcal.cli import main
 from lidarcal.compliance import ComplianceReport, check_compliance, exception_kind, summary_lines
 from lidarcal.data import sample_file
@@ -67,7 +68,7 @@ def test_every_artefact_names_its_makers(run_dir):
 
 def test_certificate_chain_reaches_the_raw_mast_record(run_dir):
     cert = xr.open_dataset(run_dir / "certificate.nc")
-    chain = json.loads(cert.attrs["lidarcal_provenance_chain"])
+    chain = provenance_chain(cert)  # each input's own chain is on its provenance_<role> variable
     # independent reference: the packaged conditions file's own record of its source
     with netCDF4.Dataset(sample_file("conditions/conditions.nc")) as nc:
         raw_sha, raw_file = nc.getncattr("source_file_sha256"), nc.getncattr("source_file")
@@ -80,6 +81,49 @@ def test_certificate_chain_reaches_the_raw_mast_record(run_dir):
     seeds = json.loads(cert.attrs["lidarcal_seeds"])
     values = json.dumps(seeds)
     assert '"base_seed": 20240101' in values and '"cnr_model": 20160601' in values
+
+
+#: ``ncdump -h`` prints every attribute on one line (newlines as ``\\n``): none may be longer (issue 18)
+ATTRIBUTE_LIMIT = 4000
+
+
+def test_every_attribute_of_a_run_reads_as_one_short_line(run_dir):
+    """No global or variable attribute of any artefact of a run is over 4000 characters."""
+    found = {}
+    for path in sorted(run_dir.glob("*.nc")):
+        with netCDF4.Dataset(path) as nc:
+            items = [("", k, nc.getncattr(k)) for k in nc.ncattrs()]
+            for var in nc.variables.values():
+                items += [(var.name, k, var.getncattr(k)) for k in var.ncattrs()]
+        for var, key, value in items:
+            text = value if isinstance(value, str) else ", ".join(map(str, np.atleast_1d(value)))
+            found[f"{path.name}: {var}:{key}" if var else f"{path.name}: :{key}"] = len(text)
+    assert len({k.split(":")[0] for k in found}) == len(list(run_dir.glob("*.nc"))) >= 9
+    long = {k: n for k, n in found.items() if n > ATTRIBUTE_LIMIT}
+    assert not long, long
+    # nothing is lost: the lidar model restores from the run's cube and RWF by its digests, and the
+    # certificate's chain still reaches the simulation's configuration
+    from lidarcal.io import open_artefact
+    from lidarcal.lidar import LidarModel
+
+    with netCDF4.Dataset(run_dir / "simulated.nc") as nc:
+        record = nc.getncattr("lidarcal_lidar_model")
+    model = LidarModel.from_dict(record, cube=open_artefact(run_dir / "cube.nc"),
+                                 rwf=open_artefact(run_dir / "rwf.nc"))
+    assert not model.noise_table.needs_values and len(model.rwf_profile[0]) == json.loads(record)[
+        "rwf_profile"]["count"]
+    # `simulate --model` with the run's cube and RWF re-simulates its records bit for bit
+    cond, sim = run_dir.parent / "cond3.nc", run_dir.parent / "again.nc"
+    xr.load_dataset(run_dir / "conditions.nc").isel(time=slice(0, 3)).to_netcdf(cond)
+    assert main(["simulate", "--conditions", str(cond), "--model", str(run_dir / "simulated.nc"), "--cube",
+                 str(run_dir / "cube.nc"), "--rwf", str(run_dir / "rwf.nc"), "--workers", "1",
+                 "--no-progress", "-o", str(sim)]) == 0
+    again, first = xr.load_dataset(sim), xr.load_dataset(run_dir / "simulated.nc").isel(time=slice(0, 3))
+    np.testing.assert_array_equal(again.lidar_wind_speed.values,
+                                  first.lidar_wind_speed.sel(height=again.height).values)
+    chain = {r["role"]: r for r in provenance_chain(xr.load_dataset(run_dir / "certificate.nc"))}
+    assert chain["records"]["config"]["model"] == json.loads(record)
+    assert chain["budget"]["inputs"][0]["role"] == "records"
 
 
 def test_terms_describe_every_height(run_dir):

@@ -12,16 +12,21 @@ from lidarcal.analysis import budget, sensitivity
 from lidarcal.analysis.terms import PAPER_INPUTS, TABLE4_WIND_SPEEDS, uncertainty_terms
 from lidarcal.bench import build_cube, simulate_run
 from lidarcal.certificate import (
+    components,
     extract_component,
     integrity_record,
     make_certificate,
+    open_certificate,
+    provenance_chain,
+    result_table,
     verify_certificate,
     write_certificate,
 )
 from lidarcal.cli import main
 from lidarcal.errors import InputError, OutputExistsError
 from lidarcal.io import open_artefact, write_artefact
-from lidarcal.provenance import sha256, stamp
+from lidarcal.provenance import jsonable, sha256, stamp
+from lidarcal.seal import seal_root
 
 SERIAL = "WLS7-TEST"
 
@@ -81,7 +86,14 @@ def test_certificate_bundles_components_and_provenance(artefact_files):
     xr.testing.assert_identical(back.slope, inputs["sensitivities"][0].slope)
     assert back.attrs["environmental_variable"] == "wind_shear_exponent"
     # provenance chain: every input with its file name and SHA-256, and their own inputs
-    chain = {c["role"]: c for c in json.loads(cert.attrs["lidarcal_provenance_chain"])}
+    chain = {c["role"]: c for c in provenance_chain(cert)}
+    # each input's own provenance is on its provenance_<role> variable, one attribute per line
+    assert cert["provenance_budget"].attrs["lidarcal_source_file"] == artefact_files["budget"].name
+    assert json.loads(cert["provenance_budget"].attrs["lidarcal_inputs"]) == chain["budget"]["inputs"]
+    original = inputs["sensitivities"][0].attrs  # every global attribute comes back, Conventions included
+    assert back.attrs == jsonable({k: v for k, v in original.items() if not k.startswith("lidarcal_source_")},
+                                  strict=True) and back.attrs["Conventions"] == original["Conventions"]
+    assert "global_Conventions" in cert["provenance_budget"].attrs  # CF reserves Conventions for files
     for role, key in (
         ("budget", "budget"),
         ("cube", "cube"),
@@ -109,8 +121,14 @@ def test_write_seal_verify_and_tamper(artefact_files, tmp_path):
         stored = json.loads(nc.getncattr("lidarcal_integrity"))
     with pytest.raises(OutputExistsError):
         write_certificate(cert, path)
-    # the record is defined on the stored bytes: recomputing gives the stored one
-    assert stored["variables"] == integrity_record(path)["variables"]
+    # the record is defined on the stored bytes: recomputing gives the stored root, and each
+    # variable carries its own digests (the seal reads as text in ncdump -h)
+    record = integrity_record(path)
+    assert stored["format"] == 2 and stored["root"] == seal_root(record)
+    assert stored["variables"] == len(record["variables"]) == report.variables_checked
+    with netCDF4.Dataset(path) as nc:
+        digests = nc["budget_uncertainty"].getncattr("lidarcal_sha256").split()
+    assert digests[1::2] == [record["variables"]["budget_uncertainty"][k] for k in ("data", "attributes")]
     # alter one value of one variable with netCDF4 directly
     with netCDF4.Dataset(path, "a") as nc:
         v = nc["budget_uncertainty"]  # (budget_wind_speed, budget_height)
@@ -230,3 +248,30 @@ def test_inputs_that_disagree_are_refused(artefact_files, tmp_path):
         ]
     )
     assert rc == 2 and not out.exists()
+
+
+def _earlier_layout(cert: xr.Dataset) -> xr.Dataset:
+    """The layout certificates had before the short attributes: everything in two JSON attributes."""
+    old = cert.drop_vars([v for v in cert.variables if str(v).startswith("provenance_")])
+    comps = [{k: v for k, v in c.items() if k != "variable"} for c in components(cert)]
+    chain = provenance_chain(cert)
+    old.attrs["lidarcal_components"] = json.dumps(jsonable(comps, strict=True), sort_keys=True)
+    old.attrs["lidarcal_provenance_chain"] = json.dumps(jsonable(chain, strict=True), sort_keys=True)
+    return old
+
+
+def test_certificates_of_the_earlier_layout_still_open_and_verify(artefact_files, tmp_path):
+    """A certificate written before the short attributes (components and chain as JSON) reads the same."""
+    cert = make_certificate(**_open(artefact_files))
+    new = write_certificate(cert, tmp_path / "new.nc")
+    old = write_certificate(_earlier_layout(cert), tmp_path / "old.nc")
+    assert verify_certificate(old).ok and verify_certificate(new).ok
+    o, n = xr.load_dataset(old), xr.load_dataset(new)
+    assert len(o.attrs["lidarcal_provenance_chain"]) > 4000  # the long line the new layout avoids
+    assert max(len(str(v)) for v in n.attrs.values()) <= 4000
+    assert provenance_chain(o) == provenance_chain(n)
+    assert [{k: v for k, v in c.items() if k != "variable"} for c in components(n)] == components(o)
+    for name in ("budget", "sensitivity_wind_shear_exponent", "cube"):
+        xr.testing.assert_identical(extract_component(o, name), extract_component(n, name))
+    assert result_table(o).equals(result_table(n))
+    assert open_certificate(old)["budget"].attrs == open_certificate(new)["budget"].attrs

@@ -8,7 +8,7 @@ from lidarcal.campaign import DEFAULT_BASE_SEED
 from lidarcal.cli import build_parser
 from lidarcal.cli.options import progress_enabled
 
-SIMULATING = ("calibrate", "simulate", "sweep", "diagnose")
+SIMULATING = ("calibrate", "simulate", "sweep", "diagnose", "compare")
 
 
 def _parse(argv):
@@ -16,7 +16,8 @@ def _parse(argv):
 
 
 def _required(command):
-    return {"simulate": ["-o", "x.nc"], "sweep": ["-o", "x.nc"], "diagnose": ["f.nc", "-o", "x.nc"]}.get(
+    return {"simulate": ["-o", "x.nc"], "sweep": ["-o", "x.nc"], "diagnose": ["f.nc", "-o", "x.nc"],
+            "compare": ["f.nc", "-o", "x.nc"]}.get(
         command, [])
 
 

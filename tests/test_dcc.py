@@ -129,7 +129,9 @@ def test_dcc_results_are_the_certificates_values(certs, xml):
         absolute = np.asarray(nc["budget_expanded_uncertainty"][:])
         count = np.asarray(nc["budget_sample_count"][:])
         comps = json.loads(nc.getncattr("lidarcal_components"))
-    k = float(next(c for c in comps if c["name"] == "budget")["attributes"]["coverage_factor"])
+        # the budget's global attributes are those of its provenance variable
+        holder = next(c for c in comps if c["name"] == "budget")["variable"]
+        k = float(nc[holder].getncattr("coverage_factor"))
     assert k == 2.0
     if dims[0] != "budget_height":
         rel, absolute, count = rel.T, absolute.T, count.T

@@ -40,8 +40,10 @@ STAGES = (
     "seal",
     "certificate",
     "dcc",
+    "document",
     "report",
     "diagnose",
+    "compare",
     "pipeline",
     "cli",
 )

@@ -256,14 +256,66 @@ def test_from_artefacts_rwf_nodes_and_units():
 
 
 def test_model_roundtrip_json():
-    model = LidarModel.from_artefacts(cube=make_cube(0.01, 0.1), rwf=make_rwf(10, 14), hybrid_weight=0.5,
-                                      beam_angle_offset=0.3)
+    cube, rwf = make_cube(0.01, 0.1), make_rwf(10, 14)
+    model = LidarModel.from_artefacts(cube=cube, rwf=rwf, hybrid_weight=0.5, beam_angle_offset=0.3)
     text = json.dumps(model.to_dict())
-    back = LidarModel.from_dict(json.loads(text))
+    back = LidarModel.from_dict(json.loads(text), cube=cube, rwf=rwf)
     assert back == model and isinstance(back.noise_table, NoiseTable)
-    assert LidarModel.from_dict(model.to_json()) == model
+    assert LidarModel.from_dict(model.to_json(), cube=cube, rwf=rwf) == model
+    # the full form (what workers get) needs nothing else
+    assert LidarModel.from_dict(json.loads(json.dumps(model.to_dict(residuals=True)))) == model
     with pytest.raises(InputError, match="unknown field"):
         LidarModel.from_dict({"cone": 28})
+
+
+def test_model_record_holds_bench_data_by_digest():
+    """The attribute form names the cube's table and the RWF profile by SHA-256, computed here."""
+    import hashlib
+
+    cube, rwf = make_cube(np.array([0.01, 0.02, 0.03, 0.04, 0.0]), 0.1), make_rwf(10, 14)
+    model = LidarModel.from_artefacts(cube=cube, rwf=rwf)
+    record = json.loads(model.to_json())
+    table = record["noise_table"]
+    assert sorted(table) == ["cnr", "table_sha256", "velocity"]
+    rows = cube.los_bias.values[:4], cube.los_std.values[:4]  # the four oblique beams, bins already sorted
+    expected = hashlib.sha256(np.ascontiguousarray(rows[0], "<f8").tobytes()
+                              + np.ascontiguousarray(rows[1], "<f8").tobytes()).hexdigest()
+    assert table["table_sha256"] == expected
+    prof = np.asarray(model.rwf_profile, dtype="<f8")
+    assert record["rwf_profile"] == {"sha256": hashlib.sha256(prof.tobytes()).hexdigest(),
+                                     "count": prof.shape[1]}
+    assert len(model.to_json()) < 4000 and len(json.dumps(model.to_dict(residuals=True))) > 20_000
+    # without the artefacts the model is rebuilt but refuses to simulate or travel: never a silent default
+    bare = LidarModel.from_dict(model.to_json(), source="sim.nc: global attribute 'lidarcal_lidar_model'")
+    assert bare.noise_table.needs_table and bare != model
+    with pytest.raises(InputError, match=r"sim\.nc: .* records the RWF profile only by digest: no RWF given; "
+                                         r"pass the RWF artefact the model was built from \(--rwf\)"):
+        run(bare)
+    with pytest.raises(InputError, match=r"records the bench noise table \(los_bias, los_std\) only by dig"):
+        run(bare.with_rwf(rwf))
+    with pytest.raises(InputError, match="only by digest"):
+        bare.with_rwf(rwf).to_dict(residuals=True)
+    # the right artefacts restore it bit for bit; wrong ones are refused naming both digests
+    assert bare.with_rwf(rwf).with_residuals(cube) == model
+    np.testing.assert_array_equal(run(bare.with_rwf(rwf).with_residuals(cube))["lidar_wind_speed"],
+                                  run(model)["lidar_wind_speed"])
+    with pytest.raises(InputError, match=f"the RWF rwf.nc is not the one the model was built from: .*"
+                                         f"expected sha256 {record['rwf_profile']['sha256']}"):
+        bare.with_rwf(make_rwf(10, 15))
+    with pytest.raises(InputError, match=f"the bench cube cube.nc is not the one the model was built from: "
+                                         f"its noise table .*expected sha256 {table['table_sha256']}"):
+        bare.with_residuals(make_cube(0.02, 0.1))
+
+
+def test_model_records_written_before_digests_still_read():
+    """A record of the earlier form (bias, std and the RWF profile inline) reads without artefacts."""
+    cube, rwf = make_cube(0.01, 0.1), make_rwf(10, 14)
+    model = LidarModel.from_artefacts(cube=cube, rwf=rwf)
+    old = model.to_dict(residuals=True)
+    del old["noise_table"]["table_sha256"]  # the earlier form had the values and no digest
+    back = LidarModel.from_dict(json.dumps(old))
+    assert back == model and not back.noise_table.needs_table
+    assert json.loads(back.to_json()) == json.loads(model.to_json())  # re-recorded in the digest form
 
 
 def test_bad_inputs_raise_named_errors():

@@ -343,8 +343,9 @@ def test_attributes_carry_a_digest_not_the_residuals():
     extra = digest_fields + len("residuals") - len("gaussian")
     assert len(model.to_json()) - len(gaussian.to_json()) == extra
     # a table without residuals is recorded with the four fields it had before residuals existed
-    assert sorted(json.loads(gaussian.to_json())["noise_table"]) == ["bias", "cnr", "std", "velocity"]
-    assert len(model.to_json()) < 100_000  # bias + std, 2 x 1776 floats; the values alone are 355,200 floats
+    # a table without residuals is recorded by its bins and the digest of its bias and std
+    assert sorted(json.loads(gaussian.to_json())["noise_table"]) == ["cnr", "table_sha256", "velocity"]
+    assert len(model.to_json()) < 4000  # digests only: the values alone are 355,200 floats
     assert len(json.dumps(model.to_dict(residuals=True))) > 20 * len(model.to_json())
 
 
@@ -357,9 +358,12 @@ def test_cube_restores_the_same_draws():
     assert back == model and back.noise_table.has_residuals
     assert bare.with_residuals(cube) == model
     assert los_digest(back) == los_digest(model)
-    # the digest-only table still serves the Gaussian option, bit for bit as built from the cube
+    # the Gaussian option draws from the table's bias and std, which the record also holds by digest
     gaussian = LidarModel.from_artefacts(cube=cube, los_noise_model="gaussian")
-    assert los_digest(bare.replace(los_noise_model="gaussian")) == los_digest(gaussian)
+    with pytest.raises(InputError, match=r"records the bench noise table \(los_bias, los_std\) only by dig"):
+        los_digest(bare.replace(los_noise_model="gaussian"))
+    restored = bare.with_residuals(cube).replace(los_noise_model="gaussian")
+    assert los_digest(restored) == los_digest(gaussian)  # bit for bit as built from the cube
 
 
 def test_wrong_cube_is_refused_naming_both_digests():

@@ -141,6 +141,15 @@ def test_sample_lidar_reproduces_the_papers_findings(tmp_path):
     assert os.path.exists(tmp_path / "report.html")
 
 
+def _running(proc) -> bool:
+    import psutil
+
+    try:
+        return proc.is_running() and proc.status() != psutil.STATUS_ZOMBIE
+    except psutil.NoSuchProcess:
+        return False
+
+
 def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
     import signal
     import subprocess
@@ -158,9 +167,20 @@ def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
         if chunks.is_dir() and any(chunks.glob("chunk-*")):
             break
         time.sleep(0.05)
+    import psutil
+
+    children = psutil.Process(proc.pid).children(recursive=True) if proc.poll() is None else []
     if proc.poll() is None:
         proc.send_signal(signal.SIGKILL)
     proc.wait()
+    # no worker or resource tracker outlives the killed run (bounded wait; docs/reliability.md)
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and any(_running(c) for c in children):
+        time.sleep(0.1)
+    survivors = [c for c in children if _running(c)]
+    for c in survivors:
+        c.kill()
+    assert not survivors, [c.pid for c in survivors]
     assert not (out / "certificate.nc").exists()  # killed before the end
     assert main(["calibrate", "-o", str(out), "--periods", "48", "--min-samples", "3", "--heights", "60",
                  "120", "--workers", "1", "--chunk", "16", "--no-progress", "--overwrite"]) == 0

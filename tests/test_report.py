@@ -1,5 +1,6 @@
 """HTML report: content of the plots, offline page, PNGs, and rendering in headless Chromium."""
 
+import json
 import re
 import time
 
@@ -95,38 +96,50 @@ def _glyphs(plot, glyph_type):
 
 
 def test_budget_plot_shows_every_height_and_marks_thin_bins(inputs):
-    from bokeh.models import Line, Scatter, Select
+    from bokeh.models import GlyphRenderer, Line, Scatter, Select
 
     # the factory fills every bin with 10-39 periods: min_samples=20 leaves thin bins with a finite U
     b = budget(inputs["records"], min_samples=20)
     figs = report_figures(budget=b)
     assert list(figs) == ["budget", "budget_contributors"]
     page = figs["budget"].bokeh()
-    select, plots = page.children[0], page.children[1:]
+    select, plot = page.children
     assert isinstance(select, Select)
     assert select.options == ["all heights", "80 m", "100 m", "120 m"] and select.value == "all heights"
-    assert [p.visible for p in plots] == [True, False, False, False]
+    renderers = [r for r in plot.renderers if isinstance(r, GlyphRenderer)]
+    assert all(r.visible for r in renderers)  # "all heights" shows every height
+    # the axes are the certified range: bins with enough periods, centres 4-16 m/s
+    inside = (b.wind_speed >= 4) & (b.wind_speed <= 16) & (b.bin_flag == 0)
+    step = float(b.wind_speed[1] - b.wind_speed[0])
+    assert (plot.x_range.start, plot.x_range.end) == pytest.approx((4 - step / 2, 16 + step / 2))
+    top = 1.15 * float(b.relative_expanded_uncertainty.where(inside).max())
+    assert plot.y_range.end == pytest.approx(top)
     k = b.attrs["coverage_factor"]
     thin_seen = 0
-    for plot, h in zip(plots[1:], b.height.values, strict=True):
-        assert plot.title.text.endswith(f"{h:g} m")
-        (line,) = _glyphs(plot, Line)
+    for h in b.height.values:
+        mine = [r for r in renderers if r.name == f"{h:g} m"]
+        (line,) = [r for r in mine if isinstance(r.glyph, Line)]
         data = line.data_source.data
         flag = b.bin_flag.sel(height=h).values
         # U = k u_c, recomputed from the combined standard uncertainty; thin and empty bins not on the line
         expected = np.where(flag == 0, k * b.relative_uncertainty.sel(height=h).values, np.nan)
         np.testing.assert_array_equal(data["wind_speed"], b.wind_speed.values)
         np.testing.assert_allclose(data["U"], expected, rtol=1e-12)
-        thin = [r for r in _glyphs(plot, Scatter) if r.glyph.marker == "x"]
+        thin = [r for r in mine if isinstance(r.glyph, Scatter) and r.glyph.marker == "x"]
         assert len(thin) == 1
         finite = np.isfinite(b.relative_expanded_uncertainty.sel(height=h).values)
         expect_x = b.wind_speed.values[(flag == 1) & finite]
-        np.testing.assert_array_equal(thin[0].data_source.data["wind_speed"], expect_x)
+        np.testing.assert_array_equal(thin[0].data_source.data["x"], expect_x)
         thin_seen += len(expect_x)
     assert thin_seen > 0  # the factory's records do leave thin bins, so the marker is exercised
     contributors = figs["budget_contributors"].bokeh()
     assert contributors.children[0].value == "120 m"
-    assert len(contributors.children) == 1 + b.sizes["height"]
+    bars = contributors.children[1].renderers
+    assert len(bars) == b.sizes["contributor"] + 1  # one per contributor, and the combined
+    combined = bars[-1].data_source.data
+    ok = inside.sel(height=120.0).values
+    np.testing.assert_allclose(combined["top"], np.where(ok, b.relative_uncertainty.sel(height=120.0).values,
+                                                         np.nan))
 
 
 def test_confidence_band_matches_numpy_polyfit_covariance(inputs):
@@ -175,21 +188,15 @@ def test_report_files_are_self_contained(report):
     for name in FIGURES:
         assert f'id="{name}"' in text
     assert "WLS7-TEST" in text  # summary table: lidar serial
-    from PIL import Image
-
-    for name in FIGURES:
-        png = report.with_name(f"cert_{name}.png")
-        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-        with Image.open(png) as im:
-            w, h = im.size
-            dpi = im.info.get("dpi")
-        assert w > 400 and h > 200, (name, w, h)
-        assert dpi is not None and min(dpi) >= 149.9, (name, dpi)  # pHYs chunk; 150 dpi stored as 5906 px/m
+    assert not list(report.parent.glob("cert_*.png"))  # PNGs only when asked (write_report(png=True))
     body = re.sub(r"<script.*?</script>", "", text, flags=re.S)
     headings = re.findall(r"<h2>(.*?)</h2>", body)
+    assert headings[-1] == "Inputs and provenance"
+    headings = headings[:-1]
     assert len(headings) == len(FIGURES) and not any("_" in h for h in headings), headings
     assert "Expanded uncertainty (k = 2) vs wind speed" in headings
     # numbers a reader sees are rounded to 3 significant digits (4 allowed: "1230.5" style integer parts)
+    body = body.split('<div id="provenance">')[0]  # the inputs' file names and hashes are not numbers
     numbers = re.findall(r"\d+\.\d+", body)
     long_numbers = [s for s in numbers if len(s.replace(".", "").lstrip("0")) > 4]
     assert numbers and long_numbers == [], long_numbers[:5]
@@ -262,22 +269,192 @@ def test_report_renders_offline_in_headless_chromium(report, chromium):
         state = wait_for(all_drawn)
         assert state is not None, "BokehJS never loaded"
         assert all_drawn(state), state  # one root per figure, every visible plot drew pixels
-        # the height menu: choosing 100 m shows that plot alone, and it draws
+        # the height menu: choosing 100 m shows that height's renderers alone, and the plot draws
         menu = """
           const root = Bokeh.documents[0].roots().find((r) => r.children && r.children[0].options);
           if (arguments[0]) root.children[0].value = arguments[0];
-          return root.children.slice(1).map((p) => p.visible);
+          const names = root.children[1].renderers.filter((r) => r.visible).map((r) => r.name);
+          return [...new Set(names)];
         """
         driver.execute_script(menu, "100 m")
         deadline = time.monotonic() + 30  # BokehJS compiles and runs the CustomJS asynchronously
-        while (shown := driver.execute_script(menu, "")) != [False, False, True, False]:
+        while (shown := driver.execute_script(menu, "")) != ["100 m"]:
             if time.monotonic() > deadline:
                 break
             time.sleep(0.2)
-        assert shown == [False, False, True, False], shown
+        assert shown == ["100 m"], shown
+        # a sensitivity's menu copies that height's columns into the drawn ones, and retitles the plot
+        sens_menu = """
+          const root = Bokeh.documents[0].roots().find((r) => r.children && r.children[0].options
+                                                       && r.children[1].title.text.includes(" m = "));
+          if (arguments[0]) root.children[0].value = arguments[0];
+          const src = root.children[1].renderers.map((r) => r.data_source.data)
+                          .find((d) => d["x|100 m"] !== undefined);
+          return [root.children[1].title.text.split(":")[0],
+                  Array.from(src["y"]).every((v, i) => Object.is(v, src["y|100 m"][i]))
+                  && !Array.from(src["y"]).every((v, i) => Object.is(v, src["y|80 m"][i]))];
+        """
+        driver.execute_script(sens_menu, "100 m")
+        deadline = time.monotonic() + 30
+        while (state := driver.execute_script(sens_menu, "")) != ["100 m", True]:
+            if time.monotonic() > deadline:
+                break
+            time.sleep(0.2)
+        assert state == ["100 m", True], state
         state = wait_for(all_drawn)
         assert all_drawn(state), state
         errors = [e for e in driver.get_log("browser") if e["level"] == "SEVERE"]
         assert errors == [], errors
     finally:
         driver.quit()
+
+
+# ------------------------------------------------------------------ the certificate document (PDF)
+
+
+def _pdf_pages(pdf, poppler, mode="-layout"):
+    """Text of every page (pdftotext ``mode``) and the pages rendered to PNG (pdftoppm, 40 dpi).
+
+    ``-layout`` keeps a table's rows; ``-raw`` (content order) keeps each label with its value,
+    whatever pdftotext makes of the two columns of page 1.
+    """
+    import subprocess
+
+    from PIL import Image
+
+    text = subprocess.run([poppler[1], mode, str(pdf), "-"], check=True, capture_output=True,
+                          text=True).stdout
+    pages = text.split("\f")[:-1]  # pdftotext ends every page with a form feed
+    prefix = pdf.with_name(pdf.stem + "-page")
+    subprocess.run([poppler[0], "-r", "40", "-png", str(pdf), str(prefix)], check=True)
+    images = []
+    for png in sorted(pdf.parent.glob(prefix.name + "-*.png")):
+        with Image.open(png) as im:
+            images.append(np.asarray(im.convert("L")))
+    return pages, images
+
+
+def test_certificate_document_pages(report, poppler):
+    import xarray as xr
+
+    from lidarcal.certificate import headline_range
+
+    pdf = report.with_suffix(".pdf")
+    assert pdf.read_bytes()[:5] == b"%PDF-"
+    cert = xr.open_dataset(report.with_name("cert.nc"))
+    pages, images = _pdf_pages(pdf, poppler)
+    cid = cert.attrs["certificate_id"]  # the lab's id (the ACDD id only when there is none)
+    n = len(pages)
+    assert n == len(images) >= 8  # page 1, budget, contributors, 2 sensitivities + Eq. 12, cube x2, RWF ...
+    for i, (page, image) in enumerate(zip(pages, images, strict=True), 1):
+        assert f"Certificate {cid} · status: demonstration" in " ".join(page.split()), (i, page[-300:])
+        assert f"page {i} of {n}" in page, (i, page[-300:])
+        assert image.shape == (468, 331)  # A4 portrait at 40 dpi: 11.69 x 8.27 in
+        assert (image < 128).mean() > 0.005  # something is drawn on every page
+    first = " ".join(pages[0].split())
+    raw, _ = _pdf_pages(pdf, poppler, "-raw")
+    facts = " ".join(raw[0].split())
+    for words in ("DEMONSTRATION: not a calibration of a real instrument", "Calibration status demonstration",
+                  f"Certificate id {cid}", "Serial number WLS7-TEST", "Bench run",
+                  "Seal sealed, unsigned",
+                  "Certified result: relative expanded uncertainty U (%), k = 2"):
+        assert words in facts, words
+    lo, hi = headline_range(cert)
+    assert f"{lo:.2f} % to {hi:.2f} %" in first
+    # the result table: every certified bin's value, in its row, under the heights' header
+    budget = cert.rename({v: v[len("budget_"):] for v in cert.variables if v.startswith("budget_")})
+    header = [f"{h:g} m" for h in budget.height.values]
+    assert " ".join(header) in first
+    rel = budget.relative_expanded_uncertainty.transpose("wind_speed", "height")
+    ok = (budget.bin_flag.transpose("wind_speed", "height") == 0).values
+    for i, u in enumerate(budget.wind_speed.values):
+        if 4 <= u <= 16 and ok[i].any():
+            cells = [f"{v:.2f}" if good else "–" for v, good in zip(rel.values[i], ok[i], strict=True)]
+            assert f"{u:g} " + " ".join(cells) in first, u
+    # the SHA-256 of every input comes last
+    last = " ".join(pages[-1].split())
+    assert all(c["sha256"] in last for c in json.loads(cert.attrs["lidarcal_provenance_chain"]))
+
+
+def test_certificate_document_states_status_admin_data_and_tolerance(inputs, report, tmp_path, poppler):
+    import xarray as xr
+
+    from lidarcal.document import parts_of, write_document
+
+    cert = xr.open_dataset(report.with_name("cert.nc")).load()
+    cert.attrs.update(calibration_status="demonstration", certificate_id="LAB-2026-0042",
+                      item_manufacturer="Acme Lidar", item_model="WL-7", item_firmware="3.2.1",
+                      laboratory_name="Test Lab", responsible_persons="A. Person (head); B. Other (operator)",
+                      rf_driver_calibration_reference="RF-CAL-17", lidarcal_signature="c2ln",
+                      lidarcal_signature_key="ed25519:0123abcd")
+    parts = parts_of(cert)
+    parts["budget"]["numerical_tolerance"] = parts["budget"]["relative_expanded_uncertainty"] * 0 + 0.012
+    out = write_document(tmp_path / "doc.pdf", cert, parts=parts)
+    pages, _ = _pdf_pages(out["pdf"], poppler, "-raw")
+    first = " ".join(pages[0].split())
+    for words in ("DEMONSTRATION", "Calibration status demonstration", "Certificate id LAB-2026-0042",
+                  "Manufacturer Acme Lidar", "Model WL-7", "Firmware 3.2.1", "Laboratory Test Lab",
+                  "A. Person (head)", "B. Other (operator)", "RF driver cal. RF-CAL-17", "± 0.012",
+                  "Seal signed (Ed25519) by key ed25519:0123abcd"):
+        assert words in first, words
+    assert all("LAB-2026-0042 · status: demonstration" in p for p in pages)
+    with pytest.raises(OutputExistsError):
+        write_document(tmp_path / "doc.pdf", cert, parts=parts)
+
+
+def test_budget_figure_is_scaled_to_the_certified_range(inputs):
+    from matplotlib.figure import Figure
+
+    from lidarcal.document import draw_budget
+
+    b = budget(inputs["records"], min_samples=20)
+    fig = Figure()
+    draw_budget(fig, b)
+    top, bottom = fig.axes
+    inside = (b.wind_speed >= 4) & (b.wind_speed <= 16) & (b.bin_flag == 0)
+    certified = b.relative_expanded_uncertainty.where(inside)
+    step = float(b.wind_speed[1] - b.wind_speed[0])
+    assert top.get_xlim() == pytest.approx((4 - step / 2, 16 + step / 2))
+    assert top.get_ylim() == pytest.approx((0, 1.15 * float(certified.max())))
+    # the other bins (thin, or outside 4-16 m/s) are in the second panel, not on the first
+    drawn = np.concatenate([line.get_xdata()[np.isfinite(line.get_ydata())] for line in top.lines])
+    assert drawn.min() >= 4 and drawn.max() <= 16
+    apart = int((np.isfinite(b.relative_expanded_uncertainty) & ~inside).sum())
+    assert apart > 0 and sum(line.get_xdata().size for line in bottom.lines) == apart
+
+
+def test_cube_colour_scale_from_the_cnr_bins_drawn(inputs):
+    from lidarcal.document import cube_colour_limits, drawn_cnr_range
+
+    cube = inputs["cube"]
+    axis = np.sort(cube.cnr.values)
+    lo, hi = axis[1] + 0.3, axis[-2] - 0.3  # records between bins: the bracketing bins are drawn from
+    assert drawn_cnr_range(cube, {"cnr_min_db": lo, "cnr_max_db": hi}) == (axis[1], axis[-2])
+    assert drawn_cnr_range(cube, {}) is None
+    drawn = (axis[1], axis[-1])
+    keep = (cube.cnr >= drawn[0]) & (cube.cnr <= drawn[1])
+    values = cube.los_std.where(keep).values
+    values = values[np.isfinite(values)]
+    assert cube_colour_limits(cube.los_std, drawn, False) == pytest.approx(
+        (values.min(), np.percentile(values, 99)))
+    bias = np.abs(cube.los_bias.where(keep).values)
+    top = np.percentile(bias[np.isfinite(bias)], 99)
+    assert cube_colour_limits(cube.los_bias, drawn, True) == pytest.approx((-top, top))
+
+
+def test_report_page_order_result_first_hashes_last(report):
+    text = re.sub(r"<script.*?</script>", "", report.read_text(), flags=re.S)
+    status, headline = text.index("Calibration status"), text.index("Relative expanded uncertainty (k = 2)")
+    first_plot, hashes = text.index("<section id="), text.index("sha256")
+    assert status < headline < first_plot < hashes
+
+
+def test_report_pngs_on_request(inputs, tmp_path):
+    from PIL import Image
+
+    out = write_report(tmp_path / "r.html", budget=inputs["budget"], rwf=inputs["rwf"], png=True)
+    assert out["pdf"] is None  # the document needs a certificate
+    assert [p.name for p in out["png"]] == ["r_budget.png", "r_budget_contributors.png", "r_rwf.png"]
+    for png in out["png"]:
+        with Image.open(png) as im:
+            assert min(im.info["dpi"]) >= 149.9 and im.size[0] > 1000

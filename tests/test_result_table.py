@@ -150,8 +150,14 @@ def test_open_certificate_tree(cert_path):
     # the cf accessor finds one vertical axis per group (the flat file has one per component)
     assert tree["budget"].dataset.cf["Z"].name == "height"
     assert tree.attrs["lidar_serial"] == SERIAL
-    # lazy: values stay on disk until asked for
-    assert tree["budget"].dataset["uncertainty"].chunks is not None
+    # eager: a certificate is small, values are numpy arrays an analyst can .item()
+    assert tree["budget"].dataset["uncertainty"].chunks is None
+    cell = tree["budget"].ds.relative_expanded_uncertainty.sel(height=120, wind_speed=8, method="nearest")
+    value = cell.item()
+    assert value == expected.item()
+    # lazy on request
+    lazy = lidarcal.open_certificate(cert_path, chunks={})
+    assert lazy["budget"].dataset["uncertainty"].chunks is not None
 
 
 def test_open_certificate_refuses_other_artefacts(cert_path):

@@ -31,9 +31,10 @@ CONTRACT_UNITS = {
 }
 #: Schemas whose own spec of a same-named variable is another quantity: the bench's CNR setting
 #: (a bench-grid coordinate, -40 ... 10 dB), and the wind-speed axis of the Table 4 / budget
-#: tables (column speeds up to 100 m s-1), not the conditions' 10-minute mean.
+#: tables and of the comparison's budgets (column speeds up to 100 m s-1), not the conditions'
+#: 10-minute mean.
 OTHER_QUANTITY = {("bench_cube", "cnr"), ("repeatability", "cnr"), ("uncertainty_budget", "wind_speed"),
-                  ("uncertainty_terms", "wind_speed")}
+                  ("uncertainty_terms", "wind_speed"), ("comparison", "wind_speed")}
 PACKAGE = Path(lidarcal.__file__).parent
 
 

@@ -19,7 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from lidarcal.campaign.workers import one_blas_thread
 from lidarcal.conditions.variables import CONDITION_NAMES
+from lidarcal.errors import InputError
 from lidarcal.io import disk_full, part_path, publish, remove_stale_parts
 from lidarcal.lidar import LidarModel, simulate_period
 
@@ -92,6 +94,23 @@ def chunk_key(
     return hashlib.sha256(text.encode()).hexdigest()
 
 
+def make_workdir(workdir: str | os.PathLike) -> Path:
+    """Create the chunk cache directory (and its parents); a clear error if that cannot be done."""
+    path = Path(workdir)
+    if path.exists() and not path.is_dir():
+        raise InputError(f"{path}: --workdir must be a directory (the chunk cache); it is a file. Give a "
+                         f"new or existing directory")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:  # a parent is a file
+        raise InputError(f"{path}: --workdir cannot be created: one of its parents is a file") from None
+    except NotADirectoryError:
+        raise InputError(f"{path}: --workdir cannot be created: one of its parents is a file") from None
+    except OSError as exc:
+        raise InputError(f"{path}: --workdir cannot be created ({exc.strerror})") from None
+    return path
+
+
 def chunk_path(workdir: str | os.PathLike, start: int, stop: int, key: str) -> Path:
     """``workdir/chunk-<start>-<stop>-<key16>.npz``."""
     return Path(workdir) / f"chunk-{start:07d}-{stop:07d}-{key[:16]}.npz"
@@ -148,24 +167,28 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
     n, nh = valid.shape
     out = {name: np.full((n, nh), np.nan) for name in OUTPUTS}
     los: dict[int, dict[str, np.ndarray]] = {}
-    for i in range(n):
-        cols = np.flatnonzero(valid[i])
-        if cols.size == 0:
-            continue
-        pidx = int(task["period_index"][i])
-        want_los = bool(task["los"][i])
-        res = simulate_period(
-            model,
-            heights=heights[cols],
-            **{name: np.asarray(task[name][i, cols], dtype=float) for name in INPUTS},
-            seed=seed_entropy(task["base_seed"], task["period_key"][i]),
-            duration=float(task["duration"]),
-            return_los=want_los,
-        )
-        for name in OUTPUTS:
-            out[name][i, cols] = res[name]
-        if want_los:
-            los[pidx] = {"columns": cols, **{k: np.asarray(v) for k, v in res.items() if k not in OUTPUTS}}
+    # one BLAS thread whatever runs this (process pool, threads, synchronous, any dask worker):
+    # BLAS's multi-threaded sums differ in the last bits (docs/cluster.md)
+    with one_blas_thread():
+        for i in range(n):
+            cols = np.flatnonzero(valid[i])
+            if cols.size == 0:
+                continue
+            pidx = int(task["period_index"][i])
+            want_los = bool(task["los"][i])
+            res = simulate_period(
+                model,
+                heights=heights[cols],
+                **{name: np.asarray(task[name][i, cols], dtype=float) for name in INPUTS},
+                seed=seed_entropy(task["base_seed"], task["period_key"][i]),
+                duration=float(task["duration"]),
+                return_los=want_los,
+            )
+            for name in OUTPUTS:
+                out[name][i, cols] = res[name]
+            if want_los:
+                los[pidx] = {"columns": cols,
+                             **{k: np.asarray(v) for k, v in res.items() if k not in OUTPUTS}}
     if task.get("workdir"):
         flat = dict(out)
         for pidx, extra in los.items():

@@ -31,6 +31,7 @@
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import os
 import time
@@ -48,11 +49,13 @@ from lidarcal.campaign.chunks import (
     chunk_key,
     chunk_path,
     load_chunk,
+    make_workdir,
     period_keys,
     run_chunk,
     unflatten_los,
 )
 from lidarcal.campaign.los import los_variables
+from lidarcal.campaign.workers import BLAS_ENV, PARENT_PID_ENV, init_pool_worker, quiet_orphaned_gathers
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.conditions import CONDITION_VARIABLES, load_conditions
 from lidarcal.errors import ComputeError, InputError
@@ -67,13 +70,13 @@ __all__ = ["simulate_campaign", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV"
 log = logging.getLogger(__name__)
 
 DEFAULT_BASE_SEED = 20240101
-#: Environment of every simulation worker: one BLAS/OpenMP thread (docs/performance.md).
-BLAS_ENV = {"OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 #: Dask configuration for the worker processes lidarcal starts itself.  distributed sets
 #: ``MALLOC_TRIM_THRESHOLD_=65536`` in every nanny-spawned worker; any value of it switches off
 #: glibc's adaptive mmap threshold, so the engine's temporaries are mapped and unmapped on every
 #: call and a period costs 1.5x the CPU (measured: 40-45 against 27 ms; docs/performance.md).
 WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+#: LocalCluster workers import campaign.workers at start: they end with the lidarcal process.
+WORKER_PRELOAD = {"distributed.worker.preload": ["lidarcal.campaign.workers"]}
 
 _OUTPUT_ATTRS = {
     "lidar_wind_speed": var_attrs(
@@ -101,8 +104,10 @@ def local_cluster(n_workers: int, **kwargs):
     import dask
     from distributed import LocalCluster
 
-    kwargs = {"threads_per_worker": 1, "processes": True, "env": dict(BLAS_ENV), **kwargs}
-    with _blas_env(), dask.config.set(WORKER_CONFIG):
+    # workers die with this process (campaign.workers: preloaded, told our pid)
+    env = {**BLAS_ENV, PARENT_PID_ENV: str(os.getpid())}
+    kwargs = {"threads_per_worker": 1, "processes": True, "env": env, **kwargs}
+    with _blas_env(), dask.config.set({**WORKER_CONFIG, **WORKER_PRELOAD}):
         return LocalCluster(n_workers=n_workers, **kwargs)
 
 
@@ -228,6 +233,7 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
     from distributed.scheduler import KilledWorker
 
     address = str(getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler")
+    quiet_orphaned_gathers()  # no AllExit traceback after our own message when workers die
     _log_dashboard(client)
     _check_workers(client, address, worker_timeout)
     futures = {client.submit(run_chunk, payload, key=name, pure=False): name for name, payload in tasks}
@@ -315,8 +321,11 @@ def _run_local(
     with _blas_env(), contextlib.ExitStack() as stack:
         for cb in callbacks:
             stack.enter_context(cb)
-        if scheduler == "processes":
-            stack.enter_context(dask.config.set({"multiprocessing.context": "spawn"}))
+        if scheduler == "processes":  # pool workers die with this process (campaign.workers)
+            stack.enter_context(dask.config.set({
+                "multiprocessing.context": "spawn",
+                "multiprocessing.initializer": functools.partial(init_pool_worker, os.getpid()),
+            }))
         results = dask.compute(*delayed, **kw)
     yield from zip((name for name, _ in tasks), results, strict=True)
 
@@ -529,7 +538,7 @@ def _schedule(
     ``model_dict``) is what the tasks carry to the workers.
     """
     if workdir is not None:
-        os.makedirs(workdir, exist_ok=True)
+        make_workdir(workdir)
     z = camp.z
     results: dict[int, dict] = {}
     tasks: list[tuple[str, dict]] = []

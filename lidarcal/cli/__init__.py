@@ -43,6 +43,7 @@ COMMANDS = (
     "keygen",
     "table",
     "diagnose",
+    "compare",
     "validate",
 )
 

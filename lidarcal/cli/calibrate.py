@@ -99,5 +99,6 @@ def run(args: argparse.Namespace) -> int:
     result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args),
                        signing_key=args.sign, admin=admin_from_args(args), demonstration=args.demonstration)
     print(f"done: {status_line(result.datasets['certificate'].attrs)}")
-    print(f"done: certificate {result.paths['certificate']}, report {result.paths['report']}")
+    print(f"done: certificate {result.paths['certificate']}, report {result.paths['report']}, "
+          f"certificate document {result.paths['report_pdf']}")
     return 0

@@ -13,11 +13,13 @@ not sealed by the holder of KEY.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from lidarcal.admin import status_line
 from lidarcal.certificate import make_certificate, write_certificate
 from lidarcal.cli import command_line
 from lidarcal.cli.options import add_admin_options, add_output_options, admin_from_args
+from lidarcal.document import seal_statement
 from lidarcal.io import check_writable, open_artefact
 from lidarcal.report import write_report
 from lidarcal.signing import fingerprint, load_private_key
@@ -47,7 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     add_output_options(p, "CERT.nc")
     add_admin_options(p)
-    p.add_argument("--report", metavar="CERT.html", help="also write the HTML report (and its PNGs)")
+    p.add_argument("--report", metavar="CERT.html",
+                   help="also write the HTML report and, beside it, the certificate document (CERT.pdf, A4)")
     p.add_argument("--sign", metavar="KEY",
                    help="sign the seal with this Ed25519 private key (lidarcal keygen); without it the "
                    "certificate is sealed for integrity only")
@@ -59,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
     check_writable(args.output, overwrite=args.overwrite)
     if args.report:
         check_writable(args.report, overwrite=args.overwrite)
+        check_writable(Path(args.report).with_suffix(".pdf"), overwrite=args.overwrite)
     key = load_private_key(args.sign) if args.sign else None  # a bad key fails before any work
     admin = admin_from_args(args)  # a bad --admin file fails before any work
     budget = open_artefact(args.budget, "uncertainty_budget")
@@ -81,10 +85,9 @@ def run(args: argparse.Namespace) -> int:
            f"{args.sign}.pub)" if key else f"sealed, unsigned (check with: lidarcal verify {path})")
     print(f"{path}: {status_line(cert.attrs)}")
     print(f"{path}: certificate with components {cert.attrs['certificate_components']}; {how}")
-    if args.report:
-        written = write_report(args.report, certificate=cert, overwrite=args.overwrite)
-        print(
-            f"{args.report}: HTML report with {len(written['figures'])} interactive plots and "
-            f"{len(written['png'])} PNG files"
-        )
+    if args.report:  # the certificate as sealed just now: the document states its seal
+        written = write_report(args.report, certificate=cert, overwrite=args.overwrite,
+                               seal=seal_statement(fingerprint(key) if key else None))
+        print(f"{args.report}: HTML report with {len(written['figures'])} interactive plots; "
+              f"{written['pdf']}: certificate document ({written['pages']} pages, A4)")
     return 0

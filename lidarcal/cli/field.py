@@ -24,6 +24,9 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-availability", type=number("--min-availability", lo=0, hi=100), default=80.0,
                    metavar="PCT",
                    help="data availability (%%) a period needs at a height, else NaN there (default 80)")
+    p.add_argument("--allow-gaps", action="store_true",
+                   help="read rows cut short (truncated files) as missing periods, with a warning naming "
+                        "them, instead of refusing the file")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     add_contact_options(p)
 
@@ -52,6 +55,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="standard deviation column per height (TI from the mast; else from the lidar)")
     f.add_argument("--reference-timestamp", choices=("start", "end"), default="start",
                    help="the mast's stamps mark the interval start (default) or end")
+    f.add_argument("--reference-units", metavar="UNIT",
+                   help="unit of the mast's speed columns whose names declare none, e.g. km/h, knot "
+                        "(default m/s); a name like 'Spd80 (km/h)', 'Spd80 [km/h]' or 'Spd80_kmh' "
+                        "declares its own")
+    f.add_argument("--skip-ratio-check", action="store_true",
+                   help="accept a campaign whose median lidar / reference speed ratio is outside 0.8-1.25 "
+                        "(by default refused as a unit or column mix-up)")
     f.add_argument("--reference-time-column", metavar="NAME", help="time column (default: the first)")
     f.add_argument("-o", "--output", required=True, metavar="FIELD.nc")
     f.set_defaults(handler=run_field)
@@ -65,7 +75,7 @@ def _config(args: argparse.Namespace) -> dict:
 def run_conditions(args: argparse.Namespace) -> int:
     """Read the ``.sta`` files and write a ``conditions`` artefact."""
     check_writable(args.output, overwrite=args.overwrite)
-    ds = sta_conditions(args.files, args.min_availability)
+    ds = sta_conditions(args.files, args.min_availability, allow_gaps=args.allow_gaps)
     ds = stamp(
         ds, "conditions",
         title=f"Measured 10-minute conditions from WindCube {ds.attrs['lidar_serial_number']}",
@@ -88,7 +98,9 @@ def run_field(args: argparse.Namespace) -> int:
     columns = parse_height_columns(args.reference_columns, "--reference-columns")
     std = parse_height_columns(args.reference_std, "--reference-std") if args.reference_std else None
     ds = sta_field_campaign(args.files, args.reference, columns, std, timestamp=args.reference_timestamp,
-                            time_column=args.reference_time_column, min_availability=args.min_availability)
+                            time_column=args.reference_time_column, min_availability=args.min_availability,
+                            allow_gaps=args.allow_gaps, units=args.reference_units,
+                            check_ratio=not args.skip_ratio_check)
     ds = stamp(
         ds, "field_campaign",
         title=f"Field campaign: WindCube {ds.attrs['lidar_serial_number']} against a met mast",

@@ -55,8 +55,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_los_noise_option(lidar)
     add_reference_turbulence_option(lidar)
     p.add_argument("--model", metavar="FILE.nc", help="use the LidarModel in FILE's lidarcal_lidar_model "
-                   "attribute, e.g. a diagnosis with its fitted effect added (instead of --rwf; --cube "
-                   "then gives the bench residuals the attribute records only by digest)")
+                   "attribute, e.g. a diagnosis with its fitted effect added; the attribute records bench "
+                   "data by digest: --cube and --rwf then give the cube and RWF the model was built from)")
     add_heights_option(p, help="heights to simulate, m (default: all heights of the conditions)")
     add_seed_option(p, help="base seed; the period at time t uses SeedSequence([seed, t in whole "
                     "seconds since 1970, height_mm])")
@@ -101,10 +101,11 @@ def run(args: argparse.Namespace) -> int:
     inputs = {}
     if args.model:
         cube = open_artefact(args.cube, "bench_cube") if args.cube else None
-        model = corrected_model(args.model, cube=cube)
+        rwf = open_artefact(args.rwf, "rwf") if args.rwf else None
+        model = corrected_model(args.model, cube=cube, rwf=rwf)
         if args.los_noise:
             model = model.replace(los_noise_model=args.los_noise)
-        inputs.update({k: v for k, v in (("model", args.model), ("cube", args.cube)) if v})
+        inputs.update({k: v for k, v in (("model", args.model), ("cube", args.cube), ("rwf", args.rwf)) if v})
     elif args.cube or args.rwf:
         cube = open_artefact(args.cube, "bench_cube") if args.cube else None
         rwf = open_artefact(args.rwf, "rwf") if args.rwf else None

@@ -11,8 +11,10 @@ lidar's neighbouring altitudes (all of them, before keeping the mast heights).
 
 from __future__ import annotations
 
+import io
 import json
 import os
+import re
 import warnings
 from pathlib import Path
 
@@ -21,10 +23,48 @@ import pandas as pd
 import xarray as xr
 
 from lidarcal.cf import var_attrs
-from lidarcal.conditions.sta import DERIVED_LIMITS, PERIOD, _out_of_range, sta_conditions
-from lidarcal.errors import InputError, MissingVariableError
+from lidarcal.conditions.sta import (
+    DERIVED_LIMITS,
+    PERIOD,
+    RAW_RANGES,
+    SENTINELS,
+    _out_of_range,
+    sta_conditions,
+    value_problem,
+)
+from lidarcal.errors import InputError, LidarcalError, MissingVariableError
+from lidarcal.io import check_input_file
+from lidarcal.units import convert_values
 
-__all__ = ["parse_height_columns", "read_reference_csv", "sta_field_campaign"]
+__all__ = ["parse_height_columns", "read_reference_csv", "sta_field_campaign", "column_unit", "RATIO_LIMITS"]
+
+#: Plausible range of the campaign's median lidar / reference speed ratio; outside it the mast
+#: columns are almost certainly in another unit (km/h: 0.28) or the wrong columns.
+RATIO_LIMITS = (0.8, 1.25)
+
+#: Unit suffixes loggers append to column names (``Spd80mN_kmh``), lower case -> pint unit.
+_SUFFIX_UNITS = {"kmh": "km/h", "kph": "km/h", "ms": "m/s", "mps": "m/s", "kn": "knot", "kt": "knot",
+                 "kts": "knot", "knots": "knot", "mph": "mph"}
+
+
+#: A timestamp's trailing UTC offset (``+01:00``, ``-0500``, ``Z``).
+_OFFSET = r"((?:[+-]\d{2}:?\d{2}|Z|UTC|GMT)\s*)$"
+
+
+def _parser_message(exc: BaseException) -> str:
+    """Return pandas' tokenizer message with its line numbers (1-based file lines, the header is line 1)."""
+    return str(exc).replace("C error: ", "").strip()
+
+
+def column_unit(name: str) -> str | None:
+    """Return the unit a column name declares (``Spd80 (km/h)``, ``Spd80 [m/s]``, ``Spd80_kmh``), or None."""
+    m = re.search(r"[\(\[]\s*([^()\[\]]+?)\s*[\)\]]\s*$", name)
+    if m:
+        return m.group(1)
+    m = re.search(r"_([A-Za-z]+)$", name)
+    if m and m.group(1).lower() in _SUFFIX_UNITS:
+        return _SUFFIX_UNITS[m.group(1).lower()]
+    return None
 
 
 def parse_height_columns(text: str, option: str = "--reference-columns") -> dict[float, str]:
@@ -55,24 +95,32 @@ def read_reference_csv(
     *,
     timestamp: str = "start",
     time_column: str | None = None,
-) -> tuple[np.ndarray, dict[float, np.ndarray], dict[float, np.ndarray]]:
-    """Read a mast CSV: interval-start times and the mean (and std) speed columns per height.
+    units: str | None = None,
+) -> tuple[np.ndarray, dict[float, np.ndarray], dict[float, np.ndarray], dict[str, str]]:
+    """Read a mast CSV: interval-start times and the mean (and std) speed columns per height, in m s-1.
+
+    A column's unit is the one its name declares (:func:`column_unit`), else ``units``
+    (``--reference-units``), else m s-1; a name and ``units`` that disagree are refused.
+    Sentinels (9999, -999), negative speeds and speeds beyond the physical range are refused
+    with the file, line and column.
 
     Returns
     -------
-    (start times datetime64[ns], {height: mean speed}, {height: std})
+    (start times datetime64[ns], {height: mean speed}, {height: std}, {column: unit read})
     """
     path = Path(path)
     if timestamp not in ("start", "end"):
         raise InputError(f"--reference-timestamp: expected 'start' or 'end'; found {timestamp!r}")
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
+    check_input_file(path, "mast CSV file")
+    raw = path.read_bytes()
     try:
-        df = pd.read_csv(path, encoding="utf-8-sig", dtype=str, keep_default_na=False)
+        content = raw.decode("utf-8-sig")
     except UnicodeDecodeError:
-        df = pd.read_csv(path, encoding="latin-1", dtype=str, keep_default_na=False)
-    except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
-        raise InputError(f"{path}: not a readable CSV table: {exc}") from None
+        content = raw.decode("latin-1")  # every byte is a Latin-1 character: cannot fail
+    try:
+        df = pd.read_csv(io.StringIO(content), dtype=str, keep_default_na=False)
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable CSV table: {_parser_message(exc)}") from None
     names = list(df.columns)
     tcol = time_column or (names[0] if names else None)
     wanted = [tcol, *columns.values(), *(std or {}).values()]
@@ -80,9 +128,21 @@ def read_reference_csv(
     if missing:
         raise MissingVariableError(f"{path}: column(s) {missing} not found; the file has {names}")
     text = df[tcol].astype(str).str.strip()
+    offsets = text.str.extract(_OFFSET, expand=False).fillna("none")
+    if offsets.nunique() > 1:
+        r = int(np.flatnonzero((offsets != offsets.iloc[0]).to_numpy())[0])
+        raise InputError(
+            f"{path}: line {r + 2}, column {names.index(tcol) + 1} ({tcol!r}): timestamp {text.iloc[r]!r} "
+            f"has UTC offset {offsets.iloc[r]!r} but line 2 has {offsets.iloc[0]!r}; expected one offset "
+            f"throughout (a daylight-saving switch? convert the record to one clock, e.g. UTC, first)"
+        )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # format inference notices; unparsable cells are reported below
-        times = pd.to_datetime(text, errors="coerce")
+        try:
+            times = pd.to_datetime(text, errors="coerce")
+        except (ValueError, TypeError) as exc:  # mixtures pandas refuses even with errors="coerce"
+            raise InputError(f"{path}: column {names.index(tcol) + 1} ({tcol!r}): timestamps cannot be "
+                             f"read together: {exc}") from None
     bad = times.isna().to_numpy()
     if bad.any():
         r = int(np.flatnonzero(bad)[0])
@@ -100,22 +160,57 @@ def read_reference_csv(
             f"{text.iloc[b]!r} (also line {a + 2})"
         )
 
-    def numbers(col: str) -> np.ndarray:
+    used: dict[str, str] = {}
+
+    def numbers(col: str, role: str) -> np.ndarray:
         cells = df[col].astype(str).str.strip()
         values = pd.to_numeric(cells, errors="coerce").to_numpy(dtype=float)
         blank = cells.str.lower().isin(["", "nan", "na", "n/a", "null", "none", "-"]).to_numpy()
         bad = np.isnan(values) & ~blank
+        where = f"{path}: column {names.index(col) + 1} ({col!r})"
         if bad.any():
             r = int(np.flatnonzero(bad)[0])
             raise InputError(
                 f"{path}: line {r + 2}, column {names.index(col) + 1} ({col!r}): expected a number; found "
                 f"{cells.iloc[r]!r}"
             )
-        return values
+        sentinel = np.isin(values, SENTINELS)
+        declared = column_unit(col)
+        if declared and units and not _same_unit(declared, units):
+            raise InputError(f"{where}: the column name declares {declared!r} but --reference-units is "
+                             f"{units!r}")
+        unit = declared or units or "m/s"
+        used[col] = unit
+        try:
+            converted = convert_values(np.where(sentinel, np.nan, values), unit, "m s-1", where=where)
+        except LidarcalError as exc:
+            raise InputError(f"{exc} (--reference-units or the unit in the column name)") from None
+        (lo, hi), _ = RAW_RANGES[role]
+        bad = sentinel | (np.isfinite(converted) & ((converted < lo) | (converted > hi)))
+        if bad.any():
+            r = int(np.flatnonzero(bad)[0])
+            v = float(values[r])
+            if sentinel[r] or v < 0:
+                problem = value_problem(v, role, lo, hi, unit)
+            else:
+                problem = (f"{v:g} {unit} = {converted[r]:.4g} m/s is outside the physical range "
+                           f"[{lo:g}, {hi:g}] m/s")
+                if unit == "m/s" and v <= 360 and role == "speed":
+                    problem += " (a wind direction? are the column names swapped?)"
+            raise InputError(f"{path}: line {r + 2}, column {names.index(col) + 1} ({col!r}): {problem}")
+        return converted
 
-    means = {h: numbers(c) for h, c in columns.items()}
-    stds = {h: numbers(c) for h, c in (std or {}).items()}
-    return start, means, stds
+    means = {h: numbers(c, "speed") for h, c in columns.items()}
+    stds = {h: numbers(c, "dispersion") for h, c in (std or {}).items()}
+    return start, means, stds, used
+
+
+def _same_unit(a: str, b: str) -> bool:
+    try:
+        return bool(np.isclose(convert_values([1.0], a, "m s-1", where="unit"),
+                               convert_values([1.0], b, "m s-1", where="unit")).all())
+    except LidarcalError:
+        return False
 
 
 def _match_heights(heights: list[float], altitudes: np.ndarray, option: str, source: str) -> list[int]:
@@ -143,6 +238,9 @@ def sta_field_campaign(
     timestamp: str = "start",
     time_column: str | None = None,
     min_availability: float = 80.0,
+    allow_gaps: bool = False,
+    units: str | None = None,
+    check_ratio: bool = True,
 ) -> xr.Dataset:
     """Build a ``field_campaign`` Dataset (``docs/contracts.md``) from ``.sta`` files and a mast CSV.
 
@@ -160,6 +258,14 @@ def sta_field_campaign(
         The mast's time column (default: the first column).
     min_availability : float
         Lidar data availability (%) a period needs at a height.
+    allow_gaps : bool
+        Read ``.sta`` rows cut short as missing periods (warning) instead of refusing.
+    units : str, optional
+        Unit of the mast's speed columns (``"km/h"``, ``"knot"``, any pint unit of speed) where
+        the column name declares none; default m s-1.
+    check_ratio : bool
+        Refuse a campaign whose median lidar / reference speed ratio is outside
+        :data:`RATIO_LIMITS` (a unit or column mix-up); False records the ratio only.
 
     Returns
     -------
@@ -173,13 +279,13 @@ def sta_field_campaign(
             f"--reference-std: height(s) {[f'{h:g}' for h in extra]} m have no mean column in "
             f"--reference-columns ({[f'{h:g}' for h in columns]} m)"
         )
-    cond = sta_conditions(sta_paths, min_availability, warn=False)
+    cond = sta_conditions(sta_paths, min_availability, warn=False, allow_gaps=allow_gaps)
     z = cond.height.values
     source = ", ".join(Path(p).name for p in sta_paths)
     heights = sorted(columns)
     idx = _match_heights(heights, z, "--reference-columns", source)
-    start, means, stds = read_reference_csv(reference, columns, std, timestamp=timestamp,
-                                            time_column=time_column)
+    start, means, stds, used = read_reference_csv(reference, columns, std, timestamp=timestamp,
+                                                  time_column=time_column, units=units)
     times = cond.time.values
     pos = pd.Index(start).get_indexer(pd.Index(times))
     found = pos >= 0
@@ -196,6 +302,18 @@ def sta_field_campaign(
     ref = np.column_stack([on_lidar_times(means[h]) for h in heights])
     sub = cond.isel(height=idx)
     lidar_speed = sub["wind_speed"].values
+    both = np.isfinite(lidar_speed) & np.isfinite(ref) & (ref > 0)
+    ratio = float(np.median(lidar_speed[both] / ref[both])) if both.any() else float("nan")
+    lo, hi = RATIO_LIMITS
+    if check_ratio and np.isfinite(ratio) and not lo <= ratio <= hi:
+        read = ", ".join(f"{c!r} in {u}" for c, u in used.items() if c in columns.values())
+        raise InputError(
+            f"{reference}: the median lidar / reference wind speed ratio is {ratio:.3f} over "
+            f"{int(both.sum())} matched period-heights (lidar {source}), outside the plausible "
+            f"[{lo:g}, {hi:g}]; mast columns read as {read}. Is the mast in another unit (give "
+            f"--reference-units, e.g. km/h) or are these the wrong columns? --skip-ratio-check accepts "
+            f"the campaign as it is"
+        )
     ti = sub["turbulence_intensity"].values.copy()
     ti_source = {}
     for k, h in enumerate(heights):
@@ -225,12 +343,18 @@ def sta_field_campaign(
         "reference anemometer 10-minute mean wind speed (measured)", "m s-1", "wind_speed",
         coverage_content_type="physicalMeasurement",
         comment=f"mast CSV {Path(reference).name}, columns "
-                f"{json.dumps({f'{h:g}': columns[h] for h in heights})}, matched on interval start"))
+                f"{json.dumps({f'{h:g}': columns[h] for h in heights})} (read in "
+                f"{json.dumps({columns[h]: used[columns[h]] for h in heights})}, converted to m s-1), "
+                f"matched on interval start"))
     out.attrs.update({
         "reference_file": Path(reference).name,
         "reference_columns": json.dumps({f"{h:g}": columns[h] for h in heights}),
         "reference_std_columns": json.dumps({f"{h:g}": std[h] for h in sorted(std)}),
         "reference_timestamp": timestamp,
+        "reference_units_read": json.dumps(used),
+        "lidar_reference_median_ratio": ratio,
+        "lidar_reference_ratio_checked": f"{'yes' if check_ratio else 'no (--skip-ratio-check)'}: plausible "
+                                         f"range [{lo:g}, {hi:g}]",
         "reference_matched_periods": int(np.isfinite(ref).any(axis=1).sum()),
         "sta_out_of_range_set_missing": json.dumps(
             {**json.loads(cond.attrs["sta_out_of_range_set_missing"]), **{f"mast {k}": v for k, v in

@@ -47,6 +47,8 @@ import xarray as xr
 from lidarcal.conditions.kernels import shear_exponent, vertical_gradient
 from lidarcal.conditions.synthetic import conditions_dataset
 from lidarcal.errors import InputError
+from lidarcal.io import check_input_file
+from lidarcal.schema import declared_variables
 
 __all__ = ["StaFile", "read_sta", "read_sta_files", "sta_conditions", "DIALECTS", "PERIOD"]
 
@@ -76,6 +78,33 @@ _OLDER_INDEXED = re.compile(
 )
 _OLDER_ROLE = {"Vhm": "speed", "dVh": "dispersion", "Azim": "direction", "Avail.": "availability"}
 _FIRST_LINE = re.compile(r"^\s*(HeaderSize|HeaderLength)\s*=\s*(\d+)\s*$")
+#: Normalised header keys (:func:`_norm`) that may declare the statistics averaging period.
+_PERIOD_KEYS = ("averagingperiod", "averagingtime", "averageperiod", "averagetime", "statisticsperiod",
+                "statisticaverage", "averaging")
+#: Values that loggers write for "no data": reported as such, never read as a measurement.
+SENTINELS = (9999.0, -999.0, -9999.0, 999.0, 99999.0, -99999.0, 999999.0)
+_CONDITIONS_SPECS = declared_variables("conditions")
+#: Physical range of each raw column read (the conditions contract's ranges, schemas/conditions.yaml).
+RAW_RANGES = {
+    "speed": (tuple(_CONDITIONS_SPECS["wind_speed"]["range"]), "m/s"),
+    "dispersion": (tuple(_CONDITIONS_SPECS["wind_speed"]["range"]), "m/s"),
+    "direction": (tuple(_CONDITIONS_SPECS["wind_from_direction"]["range"]), "degree"),
+    "cnr": (tuple(_CONDITIONS_SPECS["cnr"]["range"]), "dB"),
+    "availability": ((0.0, 100.0), "%"),
+}
+
+
+def value_problem(value: float, role: str, lo: float, hi: float, unit: str) -> str:
+    """Why ``value`` (outside [lo, hi]) cannot be a ``role`` reading: sentinel, negative, swapped column."""
+    if value in SENTINELS:
+        return (f"{value:g} is a missing-data code (sentinel), not a measurement; expected {unit} in "
+                f"[{lo:g}, {hi:g}] or NaN")
+    if role in ("speed", "dispersion") and value < 0:
+        return f"negative wind speed {value:g} {unit}; expected {unit} in [{lo:g}, {hi:g}] or NaN"
+    hint = ""
+    if role in ("speed", "dispersion") and hi < value <= 360:
+        hint = " (it looks like a wind direction: are the column names swapped?)"
+    return f"expected {unit} in [{lo:g}, {hi:g}] or NaN; found {value:g}{hint}"
 
 
 @dataclass
@@ -118,6 +147,53 @@ class StaFile:
 def _norm(key: str) -> str:
     """Header key without units, spaces or case: ``ScanAngle (°)`` -> ``scanangle``."""
     return re.sub(r"\([^)]*\)", "", key).replace(" ", "").replace("\t", "").lower()
+
+
+def _declared_period(path: Path, header: dict, where: dict) -> None:
+    """Refuse a file whose header declares an averaging period other than 10 minutes."""
+    for key in _PERIOD_KEYS:
+        if key not in where:
+            continue
+        line, name = where[key]
+        text = header[name]
+        m = re.match(r"^\s*([0-9.]+)\s*([a-zA-Z]*)\s*$", text)
+        in_name = re.search(r"\(([^)]*)\)", name)
+        unit = (in_name.group(1).strip().lower() if in_name else "") or (m.group(2).lower() if m else "")
+        scale = {"s": 1, "sec": 1, "second": 1, "seconds": 1, "": 1, "min": 60, "mn": 60, "minute": 60,
+                 "minutes": 60, "m": 60, "h": 3600}.get(unit or "")
+        if not m or scale is None:
+            raise InputError(f"{path}: line {line} ({name!r}): expected an averaging period such as 600 s; "
+                             f"found {text!r}")
+        seconds = float(m.group(1)) * scale
+        if seconds != PERIOD / np.timedelta64(1, "s"):
+            raise InputError(
+                f"{path}: line {line} ({name}={text}): the file declares {seconds:g} s statistics; lidarcal "
+                f"reads 10-minute (600 s) statistics only"
+            )
+        return
+
+
+def check_spacing(path_of, end: np.ndarray, lines: np.ndarray) -> None:
+    """Refuse interval ends that are not whole 10-minute periods apart (overlapping or shifted periods).
+
+    ``end`` sorted or not; gaps of whole periods (missing statistics) are allowed.  ``path_of(k)``
+    names the file of row ``k``.
+    """
+    if end.size < 2:
+        return
+    order = np.argsort(end, kind="stable")
+    step = np.diff(end[order])
+    bad = (step % PERIOD != np.timedelta64(0, "ns")) | (step <= np.timedelta64(0, "ns"))
+    if bad.any():
+        k = int(np.flatnonzero(bad)[0])
+        a, b = int(order[k]), int(order[k + 1])
+        where_a = path_of(a)
+        raise InputError(
+            f"{path_of(b)}: line {lines[b]}, column 1: interval ending {pd.Timestamp(end[b])} is "
+            f"{step[k] / np.timedelta64(1, 's'):g} s after the one ending {pd.Timestamp(end[a])} "
+            f"({where_a}, line {lines[a]}); 10-minute statistics must be whole multiples of 600 s apart "
+            f"(overlapping or shifted periods are refused)"
+        )
 
 
 def _float(text: str, where: str, what: str) -> float:
@@ -311,19 +387,22 @@ def _numbers(path: Path, df: pd.DataFrame, j: int, name: str, first_line: int) -
     return values
 
 
-def read_sta(path: str | os.PathLike) -> StaFile:
+def read_sta(path: str | os.PathLike, *, allow_gaps: bool = False) -> StaFile:
     """Parse one WindCube ``.sta`` file (either dialect; see the module docstring).
+
+    ``allow_gaps``: rows cut short (fewer fields than the column names) become missing periods
+    with a warning naming them, instead of an error.
 
     Raises
     ------
     InputError
         Unknown dialect, header length pointing past the data, a height group missing,
-        unparsable numbers or timestamps, duplicated timestamps; the message names the
-        file, the line and the column.
+        unparsable numbers or timestamps, duplicated timestamps, statistics not 10 minutes
+        apart, truncated rows, sentinel values (9999, -999), negative speeds or values outside
+        the physical range (e.g. swapped columns); the message names the file, the line and
+        the column.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: file not found")
+    path = check_input_file(path, ".sta file")
     raw = path.read_bytes()
     text = raw.decode("latin-1")  # every byte is a Latin-1 character: decoding cannot fail
     lines = text.split("\n")
@@ -332,6 +411,7 @@ def read_sta(path: str | os.PathLike) -> StaFile:
         lines.pop()
     n, header, where = _parse_header(path, lines)
     alts, phi = _header_numbers(path, n, header, where)
+    _declared_period(path, header, where)
     col_line = n + 2
     names = lines[n + 1].split("\t")
     first = names[0].strip()
@@ -351,6 +431,8 @@ def read_sta(path: str | os.PathLike) -> StaFile:
     n_rows = len(lines) - (n + 2)
     if n_rows < 1:
         raise InputError(f"{path}: line {col_line}: no data rows after the column-name line")
+    needed = max(j for j, name in enumerate(names) if name.strip()) + 1  # a trailing empty column may go
+    truncated = []
     for k in range(n + 2, len(lines)):
         count = lines[k].count("\t") + 1
         if count > len(names):
@@ -358,6 +440,17 @@ def read_sta(path: str | os.PathLike) -> StaFile:
                 f"{path}: line {k + 1}, column {len(names) + 1}: {count} tab-separated fields; the "
                 f"column-name line (line {col_line}) names {len(names)}"
             )
+        if count < needed:
+            truncated.append((k + 1, count))
+    if truncated:
+        listed = ", ".join(f"line {ln} ({c} of {needed} fields)" for ln, c in truncated[:10])
+        more = f" and {len(truncated) - 10} more" if len(truncated) > 10 else ""
+        text = (f"{path}: {len(truncated)} truncated row(s), cut short before column {needed} "
+                f"({names[needed - 1]!r}): {listed}{more}")
+        if not allow_gaps:
+            raise InputError(f"{text}; repair or remove them, or pass --allow-gaps to read them as "
+                             "missing periods")
+        warnings.warn(f"{text}; read as missing periods (--allow-gaps)", UserWarning, stacklevel=2)
     # the table is parsed from the lines split above (decoded as Latin-1, CR stripped) so that
     # row r is exactly file line n + 3 + r, whatever stray carriage returns a line holds
     try:
@@ -388,18 +481,23 @@ def read_sta(path: str | os.PathLike) -> StaFile:
             f"{path}: line {row_lines[b]}, column 1: duplicated timestamp {stamps.iloc[b]!r} (also line "
             f"{row_lines[a]})"
         )
+    check_spacing(lambda k: path, end, row_lines)
+    cut = np.isin(row_lines, [ln for ln, _ in truncated])
     values = {}
     for role in ROLES:
         values[role] = np.column_stack([_numbers(path, df, j, names[j], first_line) for j in cols[role]])
-    avail = values["availability"]
-    bad = (avail < 0) | (avail > 100)
-    if bad.any():
-        r, c = np.argwhere(bad)[0]
-        j = cols["availability"][c]
-        raise InputError(
-            f"{path}: line {first_line + r}, column {j + 1} ({names[j]!r}): expected a percentage in "
-            f"[0, 100]; found {avail[r, c]:g}"
-        )
+        values[role][cut] = np.nan  # a row cut short: its last field may be cut mid-number
+        (lo, hi), unit = RAW_RANGES[role]
+        v = values[role]
+        bad = np.isfinite(v) & ((v < lo) | (v > hi))
+        if bad.any():
+            r, c = np.argwhere(bad)[0]
+            j = cols[role][c]
+            more = f" ({int(bad.sum())} such cell(s) in the file)" if bad.sum() > 1 else ""
+            raise InputError(
+                f"{path}: line {first_line + r}, column {j + 1} ({names[j]!r}): "
+                f"{value_problem(float(v[r, c]), role, lo, hi, unit)}{more}"
+            )
     return StaFile(
         path=path, dialect=dialect, header_size=n, header=header, header_lines=where, altitudes=alts,
         scan_angle=phi, end=end, lines=row_lines, values=values,
@@ -422,12 +520,12 @@ def _same(files: list[StaFile], what: str, key: str, get) -> None:
             )
 
 
-def read_sta_files(paths) -> list[StaFile]:
+def read_sta_files(paths, *, allow_gaps: bool = False) -> list[StaFile]:
     """Read several ``.sta`` files and check they can be joined along time (one lidar, one setup)."""
     paths = [Path(p) for p in paths]
     if not paths:
         raise InputError("no .sta file given")
-    files = [read_sta(p) for p in paths]
+    files = [read_sta(p, allow_gaps=allow_gaps) for p in paths]
     _same(files, "ID System (serial)", "idsystem", lambda f: f.serial)
     _same(files, "Altitudes", "altitudes", lambda f: f.altitudes.tolist())
     _same(files, "ScanAngle", "scanangle", lambda f: f.scan_angle)
@@ -441,6 +539,10 @@ def read_sta_files(paths) -> list[StaFile]:
                     f"{pd.Timestamp(t)}) also in {g.path}, line {line0}"
                 )
             seen[t] = (f, int(line))
+    if len(files) > 1:
+        owner = np.concatenate([np.full(f.end.size, k) for k, f in enumerate(files)])
+        check_spacing(lambda k: files[owner[k]].path, np.concatenate([f.end for f in files]),
+                      np.concatenate([f.lines for f in files]))
     return files
 
 
@@ -527,7 +629,8 @@ def _time_bounds(ds: xr.Dataset, end: np.ndarray) -> xr.Dataset:
     return ds
 
 
-def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True) -> xr.Dataset:
+def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
+                   allow_gaps: bool = False) -> xr.Dataset:
     """Read ``.sta`` files (one lidar) into a ``conditions`` Dataset (``docs/contracts.md``), not yet stamped.
 
     Parameters
@@ -538,6 +641,8 @@ def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True) 
         Data availability (%) a period needs at a height; below it every variable is NaN there.
     warn : bool
         Warn when derived values outside the contract's range are set missing.
+    allow_gaps : bool
+        Read rows cut short as missing periods (with a warning naming them) instead of refusing.
 
     Returns
     -------
@@ -547,7 +652,7 @@ def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True) 
     """
     if not 0 <= float(min_availability) <= 100:
         raise InputError(f"--min-availability: expected a percentage in [0, 100]; found {min_availability}")
-    files = read_sta_files(paths)
+    files = read_sta_files(paths, allow_gaps=allow_gaps)
     z, end, vals, low = _joined(files, min_availability)
     speed = vals["speed"]
     cos_phi = np.cos(np.radians(files[0].scan_angle))

@@ -265,13 +265,14 @@ def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagno
     )
 
 
-def corrected_model(diagnosis: xr.Dataset | str | os.PathLike, *, cube: xr.Dataset | None = None):
+def corrected_model(diagnosis: xr.Dataset | str | os.PathLike, *, cube: xr.Dataset | None = None,
+                    rwf: xr.Dataset | None = None):
     """Return the corrected :class:`~lidarcal.lidar.LidarModel` of a diagnosis artefact (or path).
 
     Any artefact with a ``lidarcal_lidar_model`` attribute works (a ``simulated_rtd`` too);
-    ``lidarcal simulate --model DIAGNOSIS.nc`` uses this.  The attribute records bench residuals
-    only by digest: ``cube`` (the bench cube the model was built from) restores them
-    (:meth:`~lidarcal.lidar.LidarModel.from_dict`).
+    ``lidarcal simulate --model DIAGNOSIS.nc`` uses this.  The attribute records the bench noise
+    table, the residuals and the RWF profile only by digest: ``cube`` and ``rwf`` (the bench cube
+    and RWF the model was built from) restore them (:meth:`~lidarcal.lidar.LidarModel.from_dict`).
     """
     ds = diagnosis if isinstance(diagnosis, xr.Dataset) else open_artefact(diagnosis, load=False, chunks={})
     text = ds.attrs.get("lidarcal_lidar_model")
@@ -281,5 +282,5 @@ def corrected_model(diagnosis: xr.Dataset | str | os.PathLike, *, cube: xr.Datas
     if not text:
         raise InputError(f"{os.fspath(name)}: global attribute 'lidarcal_lidar_model' is missing; expected "
                          f"the JSON of a LidarModel (a diagnosis or simulated_rtd artefact)")
-    return LidarModel.from_dict(text, cube=cube,
+    return LidarModel.from_dict(text, cube=cube, rwf=rwf,
                                 source=f"{os.fspath(name)}: global attribute 'lidarcal_lidar_model'")

@@ -47,7 +47,7 @@ from lidarcal.turbulence.kernels import SIGMA_RATIOS
 from lidarcal.units import convert_variable
 
 __all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "LOS_NOISE_MODELS", "flow_distortion_factor",
-           "direction_spread", "residuals_digest",
+           "direction_spread", "residuals_digest", "RwfProfileDigest", "rwf_profile_digest",
            "REFERENCE_TURBULENCE"]
 
 #: Conventions of ``LidarModel.reference_turbulence`` (``docs/validation.md``).
@@ -66,6 +66,26 @@ DEFAULT_RWF_NODES = 5
 #: CNR filter (dB) of a bench-calibrated lidar: WindCube-type profilers discard LOS estimates
 #: below about -23 dB by default.
 DEFAULT_CNR_THRESHOLD = -23.0
+
+
+@dataclasses.dataclass(frozen=True)
+class RwfProfileDigest:
+    """An RWF profile known only by digest (:attr:`LidarModel.rwf_profile` of an attribute-form record).
+
+    ``sha256`` is :func:`rwf_profile_digest` of the profile, ``count`` its number of points;
+    :meth:`LidarModel.with_rwf` restores the values from the RWF artefact the model was built from.
+    """
+
+    sha256: str
+    count: int
+
+
+def rwf_profile_digest(profile: Any) -> str:
+    """SHA-256 of an RWF profile: its offsets then its values, little-endian float64."""
+    import hashlib
+
+    values = np.ascontiguousarray(np.asarray(profile, dtype=float), dtype="<f8")
+    return hashlib.sha256(values.tobytes()).hexdigest()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -112,7 +132,9 @@ class LidarModel:
         object.__setattr__(self, "azimuths", tuplify(self.azimuths))
         object.__setattr__(self, "rwf_offsets", tuplify(self.rwf_offsets))
         object.__setattr__(self, "rwf_weights", tuplify(self.rwf_weights))
-        if self.rwf_profile is not None:
+        if isinstance(self.rwf_profile, Mapping):  # the attribute form: {"sha256": ..., "count": ...}
+            object.__setattr__(self, "rwf_profile", RwfProfileDigest(**self.rwf_profile))
+        elif self.rwf_profile is not None and not isinstance(self.rwf_profile, RwfProfileDigest):
             object.__setattr__(self, "rwf_profile", tuplify(self.rwf_profile))
         if isinstance(self.noise_table, Mapping):
             object.__setattr__(self, "noise_table", NoiseTable(**self.noise_table))
@@ -143,7 +165,8 @@ class LidarModel:
             problems.append(f"availability must be in (0, 1]; got {self.availability}")
         if self.cnr_threshold is not None and not np.isfinite(self.cnr_threshold):
             problems.append(f"cnr_threshold must be a finite CNR in dB or None; got {self.cnr_threshold}")
-        if self.noise_table is not None and len(self.noise_table.bias) != 4:
+        table = self.noise_table
+        if table is not None and table.bias is not None and len(table.bias) != 4:
             problems.append(f"noise_table must have 4 beams; has {len(self.noise_table.bias)}")
         if self.los_noise_model not in LOS_NOISE_MODELS:
             problems.append(f"los_noise_model must be one of {list(LOS_NOISE_MODELS)}; got "
@@ -155,7 +178,11 @@ class LidarModel:
         if self.reference_turbulence not in REFERENCE_TURBULENCE:
             problems.append(f"reference_turbulence must be one of {list(REFERENCE_TURBULENCE)}; got "
                             f"{self.reference_turbulence!r}")
-        if self.rwf_profile is not None:
+        if isinstance(self.rwf_profile, RwfProfileDigest):
+            if not (isinstance(self.rwf_profile.sha256, str) and len(self.rwf_profile.sha256) == 64):
+                problems.append(f"rwf_profile's sha256 must be 64 hexadecimal digits; got "
+                                f"{self.rwf_profile.sha256!r}")
+        elif self.rwf_profile is not None:
             prof = np.asarray(self.rwf_profile, dtype=float)
             if (prof.ndim != 2 or prof.shape[0] != 2 or prof.shape[1] < 8 or np.any(np.diff(prof[0]) <= 0)
                     or not np.all(np.isfinite(prof)) or prof[1].max() <= 0):
@@ -272,41 +299,58 @@ class LidarModel:
     def to_dict(self, *, residuals: bool = False) -> dict[str, Any]:
         """Return a JSON-safe dictionary (lists and floats only); inverse of :meth:`from_dict`.
 
-        By default this is the *attribute form* written into artefacts: a noise table's bench
-        residuals appear only as ``residuals_sha256`` and ``residuals_total`` (a few hundred
-        bytes instead of every measured value, tens of MB for a real bench), and
-        :meth:`from_dict` needs the bench cube to restore them.  ``residuals=True`` gives the
-        full form for in-process and worker transport (every value, so a worker resamples bit
-        for bit); it raises :class:`~lidarcal.errors.InputError` when the model must resample
-        residuals it knows only by digest.
+        By default this is the *attribute form* written into artefacts: bench data the model's
+        input artefacts already hold appear only by digest, a few hundred bytes instead of tens of
+        kB (so that every attribute reads as one short line of ``ncdump -h``).  A noise table keeps
+        its bin centres, ``table_sha256`` for its bias and std (the cube's ``los_bias`` and
+        ``los_std``) and ``residuals_sha256``/``residuals_total`` for its measured residuals; the
+        RWF profile is ``{"sha256": ..., "count": ...}`` (:class:`RwfProfileDigest`).
+        :meth:`from_dict` needs the bench cube and the RWF to restore them.  ``residuals=True``
+        gives the full form for in-process and worker transport (every value, so a worker draws
+        bit for bit); it raises :class:`~lidarcal.errors.InputError` when the model knows some of
+        them only by digest.
         """
         table = self.noise_table
-        if residuals and table is not None and table.needs_residuals and self.los_noise_model == "residuals":
-            raise InputError(table.missing_residuals_message())
+        if residuals:
+            if table is not None and table.needs_residuals and self.los_noise_model == "residuals":
+                raise InputError(table.missing_residuals_message())
+            if table is not None and table.needs_table:
+                raise InputError(table.missing_table_message())
+            if isinstance(self.rwf_profile, RwfProfileDigest):
+                raise InputError(self.missing_rwf_message())
         out = {}
         for f in dataclasses.fields(self):
             value = getattr(self, f.name)
             if isinstance(value, NoiseTable):
-                value = value if residuals else value.without_residuals()
+                value = value if residuals else value.attribute_form()
                 value = {g.name: listify(getattr(value, g.name)) for g in dataclasses.fields(value)}
-                if not residuals:
-                    del value["residual_count"], value["residuals"]
-                if value["residuals_sha256"] is None:  # a Gaussian table: recorded as before digests existed
+                for name in ("residual_count", "residuals", "bias", "std"):
+                    if value[name] is None:
+                        del value[name]
+                if value["residuals_sha256"] is None:  # a Gaussian table: no residuals to identify
                     del value["residuals_sha256"], value["residuals_total"]
+            elif f.name == "rwf_profile" and value is not None and not residuals:
+                if not isinstance(value, RwfProfileDigest):
+                    value = RwfProfileDigest(rwf_profile_digest(value), len(value[0]))
+                value = dataclasses.asdict(value)
+            elif isinstance(value, RwfProfileDigest):
+                value = dataclasses.asdict(value)
             out[f.name] = listify(value)
         return out
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any] | str, *, cube: xr.Dataset | None = None,
-                  source: str | None = None) -> LidarModel:
+                  rwf: xr.Dataset | None = None, source: str | None = None) -> LidarModel:
         """Rebuild a model from :meth:`to_dict` output (or its JSON text).
 
-        An attribute-form record of a model with bench residuals knows them only by digest:
-        without ``cube`` the model is rebuilt (its bias/std tables, its settings) but cannot
-        resample residuals until :meth:`with_residuals` restores them; with ``cube`` (the bench
-        cube the model was built from) they are restored and checked against the digest.
-        ``source`` names the record in error messages (e.g. ``"x.nc: global attribute
-        'lidarcal_lidar_model'"``).
+        An attribute-form record knows the bench noise table and residuals and the RWF profile
+        only by digest: without ``cube``/``rwf`` the model is rebuilt (its settings, its bin
+        centres, the digests) but refuses to draw or travel to a worker until
+        :meth:`with_residuals` / :meth:`with_rwf` restore them; with ``cube`` (the bench cube the
+        model was built from) and ``rwf`` (its RWF artefact) they are restored and checked against
+        the digests.  Records written before the digests existed (every value inline) are read
+        as they are.  ``source`` names the record in error messages (e.g. ``"x.nc: global
+        attribute 'lidarcal_lidar_model'"``).
         """
         if isinstance(data, str):
             data = json.loads(data)
@@ -325,31 +369,79 @@ class LidarModel:
         model = cls(**dict(data))
         if model.noise_table is not None and source:
             object.__setattr__(model.noise_table, "_origin", source)
+        if isinstance(model.rwf_profile, RwfProfileDigest) and source:
+            object.__setattr__(model.rwf_profile, "_origin", source)
         if cube is not None:
             model = model.with_residuals(cube, source=source)
+        if rwf is not None:
+            model = model.with_rwf(rwf, source=source)
         return model
 
     def with_residuals(self, cube: xr.Dataset, *, source: str | None = None) -> LidarModel:
-        """Restore a digest-only noise table's residuals from ``cube``'s ``los_residual``.
+        """Restore a digest-only noise table (bias, std, residuals) from the bench cube ``cube``.
 
-        The residuals are gathered exactly as :meth:`from_artefacts` gathers them (the model's
-        beams, empty bins from the nearest populated one) and must have the recorded SHA-256;
+        The values are gathered exactly as :meth:`from_artefacts` gathers them (the model's
+        beams, empty bins from the nearest populated one) and must have the recorded SHA-256s;
         otherwise :class:`~lidarcal.errors.InputError` names the record (``source``), the cube
         and both digests.  A model without such a table is returned unchanged.
         """
         table = self.noise_table
-        if table is None or not table.needs_residuals:
+        if table is None or not table.needs_values:
             return self
         origin = source or table._origin
-        count, values = cube_residuals(cube, self.azimuths)
-        found = residuals_digest(count, values)
-        if found != table.residuals_sha256:
-            raise InputError(
-                f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: its "
-                f"residuals ({values.size} values) have sha256 {found}; expected sha256 "
-                f"{table.residuals_sha256} ({table.residuals_total} values)")
-        restored = dataclasses.replace(table, residual_count=count, residuals=values)
+        restored = table
+        if table.needs_table:
+            built = noise_table_from_cube(cube, self.azimuths)
+            if built.cnr != table.cnr or built.velocity != table.velocity:
+                raise InputError(
+                    f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: "
+                    f"its bins are cnr {list(built.cnr)} dB, velocity {list(built.velocity)} m s-1; expected "
+                    f"cnr {list(table.cnr)} dB, velocity {list(table.velocity)} m s-1")
+            if built.table_sha256 != table.table_sha256:
+                raise InputError(
+                    f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: "
+                    f"its noise table (los_bias, los_std) has sha256 {built.table_sha256}; expected sha256 "
+                    f"{table.table_sha256}")
+            restored = dataclasses.replace(restored, bias=built.bias, std=built.std)
+        if table.needs_residuals:
+            count, values = cube_residuals(cube, self.azimuths)
+            found = residuals_digest(count, values)
+            if found != table.residuals_sha256:
+                raise InputError(
+                    f"{origin}: the bench cube {source_name(cube)} is not the one the model was built from: "
+                    f"its residuals ({values.size} values) have sha256 {found}; expected sha256 "
+                    f"{table.residuals_sha256} ({table.residuals_total} values)")
+            restored = dataclasses.replace(restored, residual_count=count, residuals=values)
+        object.__setattr__(restored, "_origin", table._origin)
         return dataclasses.replace(self, noise_table=restored)
+
+    def with_rwf(self, rwf: xr.Dataset, *, source: str | None = None) -> LidarModel:
+        """Restore an RWF profile known only by digest from the ``rwf`` artefact the model was built from.
+
+        The profile is computed exactly as :meth:`from_artefacts` computes it and must have the
+        recorded SHA-256; otherwise :class:`~lidarcal.errors.InputError` names the record, the RWF
+        file and both digests.  A model with its profile (or none) is returned unchanged.
+        """
+        pending = self.rwf_profile
+        if not isinstance(pending, RwfProfileDigest):
+            return self
+        _, _, profile = _rwf_nodes(rwf, len(self.rwf_offsets))
+        found = rwf_profile_digest(profile)
+        if found != pending.sha256:
+            origin = source or getattr(pending, "_origin", "lidar model")
+            raise InputError(
+                f"{origin}: the RWF {source_name(rwf)} is not the "
+                f"one the model was built from: its profile ({len(profile[0])} points) has sha256 {found}; "
+                f"expected sha256 {pending.sha256} ({pending.count} points)")
+        return dataclasses.replace(self, rwf_profile=profile)
+
+    def missing_rwf_message(self) -> str:
+        """Why a model whose RWF profile is known only by digest cannot simulate, and how to restore it."""
+        pending = self.rwf_profile
+        origin = getattr(pending, "_origin", "lidar model")
+        return (f"{origin} records the RWF profile only by digest: no RWF "
+                f"given; pass the RWF artefact the model was built from (--rwf), its profile has sha256 "
+                f"{pending.sha256} ({pending.count} points)")
 
     def to_json(self) -> str:
         """Compact JSON text of the attribute form of :meth:`to_dict` (``lidarcal_lidar_model``)."""

@@ -21,7 +21,7 @@ from lidarcal.io import source_name
 from lidarcal.units import convert_variable
 
 __all__ = ["NoiseTable", "LOS_NOISE_MODELS", "noise_table_from_cube", "cube_residuals", "residuals_digest",
-           "tuplify", "listify"]
+           "table_digest", "tuplify", "listify"]
 
 #: LOS noise models of a bench-calibrated lidar (:attr:`LidarModel.los_noise_model`).
 LOS_NOISE_MODELS = ("residuals", "gaussian")
@@ -66,16 +66,25 @@ class NoiseTable:
     only the digest (``residual_count`` and ``residuals`` ``None``, :attr:`needs_residuals`):
     :meth:`LidarModel.with_residuals` restores the values from the bench cube the model was
     built from, and until then :meth:`draw_residuals` refuses to draw.
+
+    ``table_sha256`` identifies ``bias`` and ``std`` the same way (:func:`table_digest`); it is
+    filled in from the values.  The attribute form of a table (:meth:`attribute_form`, what an
+    artefact records) keeps the bin centres and the digests only: the bias and std are the bench
+    cube's own ``los_bias``/``los_std`` (the cube is an input recorded by its SHA-256), so
+    recording them again would only repeat tens of kB of numbers.  Such a table
+    (:attr:`needs_table`) refuses :meth:`lookup` until
+    :meth:`LidarModel.with_residuals <lidarcal.lidar.LidarModel.with_residuals>` restores it from the cube.
     """
 
     cnr: tuple[float, ...]
     velocity: tuple[float, ...]
-    bias: tuple[tuple[tuple[float, ...], ...], ...]
-    std: tuple[tuple[tuple[float, ...], ...], ...]
+    bias: tuple[tuple[tuple[float, ...], ...], ...] | None = None
+    std: tuple[tuple[tuple[float, ...], ...], ...] | None = None
     residual_count: tuple[tuple[tuple[int, ...], ...], ...] | None = None
     residuals: tuple[float, ...] | None = None
     residuals_sha256: str | None = None
     residuals_total: int | None = None
+    table_sha256: str | None = None
 
     def __post_init__(self) -> None:
         for name in ("cnr", "velocity", "bias", "std", "residual_count"):
@@ -83,23 +92,38 @@ class NoiseTable:
         if self.residuals is not None:  # tens of thousands of values: one conversion, not per element
             values = np.atleast_1d(np.asarray(self.residuals, dtype=float))
             object.__setattr__(self, "residuals", tuple(values.tolist()))
-        bias, std = np.asarray(self.bias, float), np.asarray(self.std, float)
-        shape = (bias.shape[0], len(self.cnr), len(self.velocity)) if bias.ndim == 3 else None
-        if shape is None or bias.shape != shape or std.shape != shape:
-            raise InputError(f"noise table: bias and std must have shape (beam, {len(self.cnr)} CNR, "
-                             f"{len(self.velocity)} velocity); found {bias.shape} and {std.shape}")
-        if not (np.all(np.isfinite(bias)) and np.all(np.isfinite(std)) and np.all(std >= 0)):
-            raise InputError("noise table: bias and std must be finite and std >= 0 in every bin")
         for name in ("cnr", "velocity"):
             axis = np.asarray(getattr(self, name))
             if axis.size > 1 and np.any(np.diff(axis) <= 0):
                 raise InputError(f"noise table: {name} bin centres must be strictly increasing")
-        object.__setattr__(self, "_arrays", (np.asarray(self.cnr), np.asarray(self.velocity), bias, std))
+        shape = None
+        if self.bias is None and self.std is None:
+            if not _is_digest(self.table_sha256):
+                raise InputError(f"noise table: without bias and std values, table_sha256 must be 64 "
+                                 f"hexadecimal digits (the digest of the bench cube's table); found "
+                                 f"{self.table_sha256!r}")
+            object.__setattr__(self, "_arrays", None)
+        else:
+            bias, std = np.asarray(self.bias, float), np.asarray(self.std, float)
+            shape = (bias.shape[0], len(self.cnr), len(self.velocity)) if bias.ndim == 3 else None
+            if shape is None or bias.shape != shape or std.shape != shape:
+                raise InputError(f"noise table: bias and std must have shape (beam, {len(self.cnr)} CNR, "
+                                 f"{len(self.velocity)} velocity); found {bias.shape} and {std.shape}")
+            if not (np.all(np.isfinite(bias)) and np.all(np.isfinite(std)) and np.all(std >= 0)):
+                raise InputError("noise table: bias and std must be finite and std >= 0 in every bin")
+            digest = table_digest(bias, std)
+            if self.table_sha256 is not None and self.table_sha256 != digest:
+                raise InputError(f"noise table: bias and std do not match table_sha256: expected sha256 "
+                                 f"{self.table_sha256}, found sha256 {digest}")
+            object.__setattr__(self, "table_sha256", digest)
+            object.__setattr__(self, "_arrays", (np.asarray(self.cnr), np.asarray(self.velocity), bias, std))
         if (self.residual_count is None) != (self.residuals is None):
             raise InputError("noise table: residual_count and residuals go together; one of them is missing")
         if self.residuals is not None:
             count = np.asarray(self.residual_count)
             values = np.asarray(self.residuals, dtype=float)
+            if shape is None:
+                raise InputError("noise table: residuals need the bias and std values too")
             if count.shape != shape or count.dtype.kind not in "iu" or np.any(count < 1):
                 raise InputError(f"noise table: residual_count must hold whole numbers >= 1 with shape "
                                  f"{shape}; found shape {count.shape}")
@@ -130,6 +154,20 @@ class NoiseTable:
         object.__setattr__(self, "_origin", "noise table")
 
     @property
+    def needs_table(self) -> bool:
+        """True when the table knows its bias and std only by digest (an attribute-form record)."""
+        return self.bias is None
+
+    @property
+    def needs_values(self) -> bool:
+        """True when anything is known only by digest (:attr:`needs_table` or :attr:`needs_residuals`)."""
+        return self.needs_table or self.needs_residuals
+
+    def attribute_form(self) -> NoiseTable:
+        """Return what an artefact records: the bin centres and the digests, no bench values."""
+        return dataclasses.replace(self.without_residuals(), bias=None, std=None)
+
+    @property
     def has_residuals(self) -> bool:
         """True when the table carries measured residuals to resample."""
         return self.residuals is not None
@@ -147,9 +185,17 @@ class NoiseTable:
 
     def missing_residuals_message(self) -> str:
         """Why a digest-only table cannot draw, and how to restore it."""
+        if not self.needs_residuals:
+            return self.missing_table_message()
         return (f"{self._origin} records the bench residuals only by digest: no bench cube given; pass the "
                 f"cube the model was built from (--cube), its residuals have sha256 {self.residuals_sha256} "
                 f"({self.residuals_total} values); or use los_noise_model 'gaussian'")
+
+    def missing_table_message(self) -> str:
+        """Why a table known by digest cannot look up its bias and std, and how to restore it."""
+        return (f"{self._origin} records the bench noise table (los_bias, los_std) only by digest: no bench "
+                f"cube given; pass the cube the model was built from (--cube), its table has sha256 "
+                f"{self.table_sha256}")
 
     def draw_residuals(self, beam: np.ndarray, cnr: float, velocity: np.ndarray,
                        uniforms: np.ndarray) -> np.ndarray:
@@ -188,6 +234,8 @@ class NoiseTable:
 
     def lookup(self, beam: int, cnr: float, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bias and std (m s-1) for one beam at one CNR (dB) and many radial velocities."""
+        if self.needs_table:
+            raise InputError(self.missing_table_message())
         cnr_axis, vel_axis, bias, std = self._arrays
         if cnr_axis.size == 1:
             i0 = i1 = 0
@@ -260,6 +308,21 @@ def residuals_digest(count: Any, values: Any) -> str:
     h = hashlib.sha256(np.ascontiguousarray(count, dtype="<i8").tobytes())
     h.update(np.ascontiguousarray(values, dtype="<f8").tobytes())
     return h.hexdigest()
+
+
+def table_digest(bias: Any, std: Any) -> str:
+    """SHA-256 identifying a noise table's bias and std (:class:`NoiseTable`).
+
+    The hash of ``bias`` followed by ``std``, each as little-endian float64 in C order of
+    ``(beam, cnr, velocity)``.
+    """
+    h = hashlib.sha256(np.ascontiguousarray(bias, dtype="<f8").tobytes())
+    h.update(np.ascontiguousarray(std, dtype="<f8").tobytes())
+    return h.hexdigest()
+
+
+def _is_digest(value: Any) -> bool:
+    return isinstance(value, str) and len(value) == 64 and all(c in "0123456789abcdef" for c in value)
 
 
 def _cube_layout(cube: xr.Dataset, azimuths: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray, list[int],

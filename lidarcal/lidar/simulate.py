@@ -54,7 +54,7 @@ import numpy as np
 
 from lidarcal.errors import InputError
 from lidarcal.lidar.geometry import beam_geometry, period_points, wind_axes
-from lidarcal.lidar.model import LidarModel
+from lidarcal.lidar.model import LidarModel, RwfProfileDigest
 from lidarcal.lidar.quadrature import cnr_weights
 from lidarcal.lidar.spectral import REFERENCE_AMPLITUDES, cross_spectral_matrix, draw_coefficients, synthesise
 from lidarcal.lidar.wfr import reconstruct
@@ -159,6 +159,8 @@ def simulate_period(
     """
     if not isinstance(model, LidarModel):
         raise InputError(f"simulate_period: model must be a LidarModel; got {type(model).__name__}")
+    if isinstance(model.rwf_profile, RwfProfileDigest):  # an attribute-form record: never a silent default
+        raise InputError(model.missing_rwf_message())
     heights = np.atleast_1d(np.asarray(heights, dtype=float))
     if heights.ndim != 1 or np.any(~np.isfinite(heights)) or np.any(heights <= 0):
         raise InputError(f"simulate_period: argument 'heights' must be a 1-D array of finite heights > 0 m; "

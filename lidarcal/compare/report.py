@@ -1,0 +1,137 @@
+"""Offline HTML report of a ``comparison`` artefact: the paper's Figures 8 and 9 for one campaign.
+
+Two figures, drawn with holoviews/bokeh and written by :func:`lidarcal.htmlpage.offline_html`
+(BokehJS inline, nothing from the network):
+
+1. per environmental variable, the sensitivity slope against height, measured and simulated,
+   each with its 95 % interval (slope ± 1.96 standard errors); the heights of a disagreeing
+   cell are named in the panel title;
+2. per height, the combined standard uncertainty (% of the bin's mean reference speed) against
+   wind speed: the IEC field budget of the measured pair beside the Monte Carlo budget of the
+   simulated pair.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from lidarcal.htmlpage import offline_html, write_text
+
+__all__ = ["write_report", "slope_figure", "budget_figure"]
+
+#: Colours of the two sides (measured, simulated), the same in both figures.
+COLOURS = {"measured": "#1f77b4", "simulated": "#d62728"}
+Z95 = 1.959963984540054
+
+
+def _header(ds: xr.Dataset) -> str:
+    js = json.loads(ds.attrs["comparison_json"])
+    rows = "".join(
+        f"<tr><td>{html.escape(c['variable'])}</td><td>{c['height']:g}</td>"
+        f"<td>{c['measured_slope']:.3g} ± {c['measured_se']:.2g}</td>"
+        f"<td>{c['simulated_slope']:.3g} ± {c['simulated_se']:.2g}</td><td>{html.escape(c['units'])}</td>"
+        f"<td>{c['z']:+.2f}</td><td>{c['p_adjusted']:.3g}</td>"
+        f"<td>{'agree' if c['agree'] else '<b>disagree</b>'}</td></tr>"
+        for c in js["cells"]
+    )
+    nxt = f"<br><b>Next:</b> <code>{html.escape(js['next'])}</code>" if js["next"] else ""
+    return (
+        f"<h2>Verdict: {html.escape(js['verdict'])}</h2>"
+        f"<p>Simulated lidar: {html.escape(js['model'])}. "
+        f"Field: {html.escape(ds.attrs.get('field_source', ''))}."
+        f"<br>Cells agree when the Holm-adjusted p-value of equal slopes is at least alpha = {js['alpha']:g}."
+        f"{nxt}</p>"
+        f"<table class='numbers'><tr><th>variable</th><th>height (m)</th><th>measured slope</th>"
+        f"<th>simulated slope</th><th>units</th><th>z</th><th>Holm p</th><th></th></tr>{rows}</table>"
+    )
+
+
+def slope_figure(ds: xr.Dataset):
+    """Figure 1: slope vs height with 95 % intervals, measured vs simulated, one panel per variable."""
+    import holoviews as hv
+
+    panels = []
+    h = np.asarray(ds.height.values, dtype=float)
+    shift = 0.01 * (h.max() - h.min() if h.size > 1 else 10.0)  # side by side, not on top of each other
+    for v in map(str, ds.variable.values):
+        layers = []
+        units = ds[f"{v}_measured_slope"].attrs["units"]
+        for k, side in enumerate(("measured", "simulated")):
+            s = np.asarray(ds[f"{v}_{side}_slope"].values, float)
+            e = Z95 * np.asarray(ds[f"{v}_{side}_slope_stderr"].values, float)
+            x = h + (k - 0.5) * shift
+            ok = np.isfinite(s) & np.isfinite(e)
+            df = pd.DataFrame({"height": x[ok], "slope": s[ok], "err": e[ok]})
+            layers.append(hv.ErrorBars(df, "height", ["slope", "err"]).opts(color=COLOURS[side]))
+            layers.append(hv.Curve(df, "height", "slope", label=side).opts(color=COLOURS[side]))
+            layers.append(hv.Scatter(df, "height", "slope").opts(color=COLOURS[side], size=7))
+        bad = [f"{x:g}" for x, a in zip(h, ds["agree"].sel(variable=v).values, strict=True) if int(a) == 0]
+        title = v + (f": disagree at {', '.join(bad)} m" if bad else ": agree")
+        panels.append(
+            hv.Overlay(layers).opts(
+                title=title,
+                xlabel="height (m)",
+                ylabel=f"slope ({units})",
+                width=540,
+                height=320,
+                legend_position="right",
+                show_grid=True,
+            )
+        )
+    return panels
+
+
+def budget_figure(ds: xr.Dataset):
+    """Figure 2: relative combined uncertainty vs wind speed, IEC (measured) vs Monte Carlo, per height."""
+    import holoviews as hv
+
+    panels = []
+    ws = np.asarray(ds.wind_speed.values, dtype=float)
+    label = {"measured": "IEC field approach (measured)", "simulated": "Monte Carlo (simulated)"}
+    for h in ds.height.values:
+        layers = []
+        for side in ("measured", "simulated"):
+            u = np.asarray(ds[f"{side}_relative_uncertainty"].sel(height=h).values, float)
+            ok = np.isfinite(u)
+            df = pd.DataFrame({"wind_speed": ws[ok], "u": u[ok]})
+            layers.append(hv.Curve(df, "wind_speed", "u", label=label[side]).opts(color=COLOURS[side]))
+            layers.append(hv.Scatter(df, "wind_speed", "u").opts(color=COLOURS[side], size=6))
+        panels.append(
+            hv.Overlay(layers).opts(
+                title=f"Budget vs wind speed at {float(h):g} m",
+                xlabel="reference wind speed (m s-1)",
+                ylabel="combined standard uncertainty (%)",
+                width=460,
+                height=320,
+                legend_position="top_right",
+                show_grid=True,
+            )
+        )
+    return panels
+
+
+def write_report(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
+    """Write the self-contained HTML report (both figures) atomically."""
+    import holoviews as hv
+
+    hv.extension("bokeh", logo=False)
+    slopes = hv.render(hv.Layout(slope_figure(ds)).cols(2).opts(shared_axes=False), backend="bokeh")
+    budgets = hv.render(hv.Layout(budget_figure(ds)).cols(2).opts(shared_axes=False), backend="bokeh")
+    titles = {
+        "slopes": "Figure 1. Sensitivity slopes against height: measured and simulated (95 % intervals)",
+        "budgets": "Figure 2. Uncertainty budgets against wind speed: IEC field approach and Monte Carlo",
+    }
+    page = offline_html(
+        {"slopes": slopes, "budgets": budgets},
+        title=f"lidarcal compare: {ds.attrs.get('comparison_verdict', '')}",
+        header=_header(ds),
+        titles=titles,
+    )
+    return write_text(path, page, overwrite=overwrite)
