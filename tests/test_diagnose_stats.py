@@ -121,10 +121,42 @@ def test_fit_linear_clips_to_bounds_and_bic_penalises():
     J = g.uniform(0, 1, (100, 2))
     r = 3.0 * J + g.normal(0, 0.1, (100, 2))
     res = fit.fit_linear(r, J, np.ones((100, 2)), bounds=[(-1.0, 1.0)])
-    assert res.delta[0] == 1.0 and res.clipped
+    assert res.delta[0] == 1.0 and res.clipped and res.at_bound[0]
+    # the unconstrained fit is kept: what the data ask for, to be judged against the range
+    assert res.delta_free[0] == pytest.approx(3.0, abs=0.05) and res.rss_free < res.rss
     # a fit that explains nothing costs k ln(n_eff)
     assert fit.delta_bic(1.0, 1.0, 1, 100.0) == pytest.approx(np.log(100.0))
     assert fit.delta_bic(0.5, 1.0, 1, 100.0) == pytest.approx(100 * np.log(0.5) + np.log(100))
+
+
+def test_fit_linear_bounded_is_the_constrained_optimum():
+    # two correlated responses, the first pushed beyond its bound: holding it at the bound and
+    # refitting the other is the constrained optimum (clipping each on its own is not) — checked
+    # against a brute-force search of the weighted RSS on a fine grid of the box
+    g = rng(10)
+    n, m = 300, 2
+    J1 = g.uniform(0.5, 1.5, (n, m))
+    J2 = 0.7 * J1 + 0.3 * g.uniform(0.0, 1.0, (n, m))
+    w = g.uniform(0.5, 1.5, (n, m))
+    r = 1.6 * J1 - 0.4 * J2 + g.normal(0, 0.05, (n, m))
+    bounds = [(-1.0, 1.0), (-1.0, 1.0)]
+    res = fit.fit_linear(r, [J1, J2], w, bounds=bounds)
+    assert res.delta_free[0] > 1.0 and list(res.at_bound) == [True, False] and res.delta[0] == 1.0
+    a = np.linspace(-1, 1, 2001)[:, None]
+    b = np.linspace(-1, 1, 2001)[None, :]
+    # the weighted RSS on the grid, expanded in the sums of products (exact, no (grid x data) array)
+    S = {k: float(np.sum(w * x)) for k, x in {"rr": r * r, "r1": r * J1, "r2": r * J2, "11": J1 * J1,
+                                              "12": J1 * J2, "22": J2 * J2}.items()}
+    rss = (S["rr"] - 2 * a * S["r1"] - 2 * b * S["r2"] + a * a * S["11"] + 2 * a * b * S["12"]
+           + b * b * S["22"])
+    i, j = np.unravel_index(np.argmin(rss), rss.shape)
+    assert res.delta == pytest.approx([a[i, 0], b[0, j]], abs=0.002)
+    assert res.rss == pytest.approx(float(rss.min()), rel=1e-4)
+    clipped_each = np.clip(res.delta_free, -1.0, 1.0)
+    assert res.rss < float(np.sum(w * (r - clipped_each[0] * J1 - clipped_each[1] * J2) ** 2))
+    # a fit inside its bounds is untouched
+    inside = fit.fit_linear(r, [J1, J2], w, bounds=[(-5.0, 5.0), (-5.0, 5.0)])
+    assert not inside.clipped and np.array_equal(inside.delta, inside.delta_free)
 
 
 def test_noise_weights_follow_turbulence():

@@ -54,7 +54,7 @@ from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.errors import InputError
 from lidarcal.lidar.model import direction_spread, flow_distortion_factor
 
-__all__ = ["Parameter", "Effect", "EFFECTS", "CONDITION_VARIABLES", "get_effect"]
+__all__ = ["Parameter", "Effect", "EFFECTS", "CONDITION_VARIABLES", "get_effect", "schema_ranges"]
 
 #: The conditions variables of ``docs/contracts.md`` (the only legal drivers).
 CONDITION_VARIABLES = CONDITION_NAMES
@@ -74,7 +74,13 @@ class Parameter:
     units : str
         UDUNITS spelling (``m``, ``degree``, ``1``).
     bounds : tuple of float
-        Physically sensible range; fits are clipped to it.
+        The parameter's *physical range*, declared once here: the values the physics (or the
+        instrument's definition) allows.  Where physics gives the parameter a sign, the range
+        says so (a cup over-speeds in turbulence: its coefficient is ≥ 0).  The fitted values
+        in ``schemas/diagnosis.yaml`` carry the same range (``tests/test_diagnose.py`` checks
+        that they agree).  A fit at a bound within its uncertainty is named at the bound; one
+        that wants to go beyond it by more than its uncertainty is out of range
+        (``docs/diagnose.md``).
     model_field : str
         The ``LidarModel`` field this parameter sets (absolute value, not an increment).
     step : float
@@ -85,6 +91,9 @@ class Parameter:
     grid : tuple of float, optional
         Candidate values of a non-linear parameter (see module docstring); ``None`` for a
         parameter fitted by linearisation.
+    basis : str
+        Why the physical range is what it is (quoted in the diagnosis note when a fit reaches a
+        bound or wants to go beyond it).
     """
 
     name: str
@@ -94,6 +103,19 @@ class Parameter:
     step: float
     long_name: str
     grid: tuple[float, ...] | None = None
+    basis: str = ""
+
+    @property
+    def sign(self) -> int:
+        """+1 (−1) when the physical range admits only non-negative (non-positive) values, else 0."""
+        lo, hi = self.bounds
+        return 1 if lo >= 0.0 else (-1 if hi <= 0.0 else 0)
+
+    def describe_range(self) -> str:
+        """Return the physical range in words, e.g. ``"[0, 0.5] (a cup over-speeds in turbulence ...)"``."""
+        lo, hi = self.bounds
+        unit = "" if self.units == "1" else f" {self.units}"
+        return f"[{lo:g}, {hi:g}]{unit}" + (f" ({self.basis})" if self.basis else "")
 
 
 def _hybrid_shortcut(records: Records, conditions: Records, nominal: Mapping[str, float],
@@ -146,6 +168,9 @@ class Effect:
     signature: str
     shortcut: Callable[[Records, Records, Mapping[str, float], Mapping[str, float]],
                        dict[str, np.ndarray]] | None = field(default=None, compare=False)
+    #: Model-form standard uncertainty of the response, as a share of the fitted change, when it is
+    #: known to be larger than the diagnosis' ``model_uncertainty`` (``None``: that one applies).
+    model_form: float | None = None
 
     @property
     def n_parameters(self) -> int:
@@ -177,7 +202,8 @@ class Effect:
             lo, hi = p.bounds
             if not lo <= value <= hi:
                 raise InputError(f"effect {self.id!r}: parameter {p.name!r} = {value:g} {p.units} "
-                                 f"is outside its bounds [{lo:g}, {hi:g}]")
+                                 f"is outside its bounds [{lo:g}, {hi:g}]"
+                                 + (f", its physical range ({p.basis})" if p.basis else ""))
             changes[p.model_field] = value
         return dataclasses.replace(model, **changes) if changes else model
 
@@ -231,7 +257,8 @@ EFFECTS: dict[str, Effect] = {
         description="Every range gate sits `offset` metres further out along its beam than nominal "
                     "(a zero-distance Zd error); the measurement height moves up by offset·cos φ.",
         parameters=(Parameter("offset", "m", (-30.0, 30.0), "zero_distance_offset", 4.0,
-                              "range-gate offset along the beam (positive away from the lidar)"),),
+                              "range-gate offset along the beam (positive away from the lidar)",
+                              basis="either sign; +-30 m bounds a plausible zero-distance error"),),
         drivers=("wind_shear_exponent",),
         signature=f"relative bias ≈ +α·offset·cos φ / h ({_CONE}): grows with shear, falls with height",
     ),
@@ -240,7 +267,9 @@ EFFECTS: dict[str, Effect] = {
         description="The oblique beams' true cone angle is nominal + `offset` degrees while the "
                     "reconstruction uses the nominal angle.",
         parameters=(Parameter("offset", "degree", (-3.0, 3.0), "beam_angle_offset", 0.5,
-                              "true minus nominal cone angle of the oblique beams"),),
+                              "true minus nominal cone angle of the oblique beams",
+                              basis="either sign; +-3 degree bounds a plausible prism or mounting "
+                                    "error"),),
         drivers=("wind_shear_exponent",),
         signature=f"relative bias ≈ +cot φ·δφ − α·tan φ·δφ ({_CONE}, δφ in rad): nearly constant",
     ),
@@ -249,7 +278,9 @@ EFFECTS: dict[str, Effect] = {
         description="The range-weighting function is CNR-weighted as in Eq. 2 "
                     "(`scale` = 1 is Eq. 2 as written, 0 is no weighting).",
         parameters=(Parameter("scale", "1", (0.0, 5.0), "cnr_weighting_scale", 1.0,
-                              "multiplier of the CNR gradient in the Eq. 2 weighting"),),
+                              "multiplier of the CNR gradient in the Eq. 2 weighting",
+                              basis="0 is no weighting; a negative scale would weight the RWF "
+                                    "against the CNR"),),
         drivers=("wind_shear_exponent", "cnr_gradient"),
         signature="relative bias ≈ α·cos φ·σ_r²·(ln10/20)·scale·g / h: sign follows shear × CNR gradient",
     ),
@@ -258,16 +289,26 @@ EFFECTS: dict[str, Effect] = {
         description="The firmware's hybrid weight p (V = p·V_scalar + (1−p)·V_vector) differs from "
                     "the nominal one.",
         parameters=(Parameter("p", "1", (0.0, 1.0), "hybrid_weight", -1.0 / 6.0,
-                              "weight of the scalar-averaged speed in the hybrid reconstruction"),),
+                              "weight of the scalar-averaged speed in the hybrid reconstruction",
+                              basis="a weight: 0 is pure vector, 1 pure scalar averaging, both "
+                                    "legitimate firmware settings"),),
         drivers=("turbulence_intensity",),
         signature="relative bias ≈ (p − p₀)·(V_scalar − V_vector)/V_ref, growing with TI²",
         shortcut=_hybrid_shortcut,
+        # V_scalar − V_vector is a second-order statistic of the reconstructed wind (the variance
+        # of its lateral part, beam-to-beam decorrelation included): it depends on the turbulence
+        # model's spectra and coherence.  On the independent simulator (tests/independent_campaign.py,
+        # p = 0 and p = 1 against a nominal 0.5, 150-300 periods) the fitted change came out
+        # 10-58 % off its true size, against 3-15 % for the other effects
+        model_form=0.25,
     ),
     "reference_overspeeding": Effect(
         id="reference_overspeeding",
         description="The reference cup over-reads in proportion to turbulence intensity.",
-        parameters=(Parameter("coefficient", "1", (-0.5, 0.5), "reference_overspeeding", 0.05,
-                              "relative over-reading of the reference per unit turbulence intensity"),),
+        parameters=(Parameter("coefficient", "1", (0.0, 0.5), "reference_overspeeding", 0.05,
+                              "relative over-reading of the reference per unit turbulence intensity",
+                              basis="a cup over-speeds in turbulence (it speeds up faster than it "
+                                    "slows down), it never under-reads: coefficient >= 0"),),
         drivers=("turbulence_intensity",),
         signature="relative bias ≈ −coefficient·TI",
         shortcut=_overspeeding_shortcut,
@@ -277,7 +318,8 @@ EFFECTS: dict[str, Effect] = {
         description="The reference cup's calibration factor is off by a constant fraction: it reads "
                     "(1 + gain) × the true speed.",
         parameters=(Parameter("gain", "1", (-0.2, 0.2), "reference_gain", 0.01,
-                              "relative error of the reference's calibration factor"),),
+                              "relative error of the reference's calibration factor",
+                              basis="either sign; +-20 % bounds a plausible calibration error"),),
         drivers=(),
         signature="relative bias ≈ −gain/(1 + gain): constant over heights and conditions",
         shortcut=_ratio_shortcut(_gain_factor),
@@ -291,11 +333,15 @@ EFFECTS: dict[str, Effect] = {
         parameters=(
             Parameter("centre", "degree", (0.0, 360.0), "reference_flow_distortion_centre", 10.0,
                       "direction (from) at the centre of the shadowed sector",
-                      grid=tuple(float(c) for c in range(0, 360, 10))),
+                      grid=tuple(float(c) for c in range(0, 360, 10)),
+                      basis="a direction: the whole compass"),
             Parameter("width", "degree", (0.0, 180.0), "reference_flow_distortion_width", 10.0,
-                      "full width of the shadowed sector", grid=(20.0, 40.0, 60.0, 90.0, 120.0)),
+                      "full width of the shadowed sector", grid=(20.0, 40.0, 60.0, 90.0, 120.0),
+                      basis="a mast shadows at most half the compass"),
             Parameter("deficit", "1", (-0.5, 0.5), "reference_flow_distortion_deficit", 0.02,
-                      "relative under-reading of the reference inside the sector"),
+                      "relative under-reading of the reference inside the sector",
+                      basis="either sign: a mast's wake slows the flow (> 0), the flow around "
+                            "its sides speeds up (< 0)"),
         ),
         drivers=("wind_from_direction",),
         signature="relative bias ≈ +deficit/(1 − deficit) inside the sector centre ± width/2, 0 outside",
@@ -310,3 +356,13 @@ def get_effect(effect_id: str) -> Effect:
         return EFFECTS[effect_id]
     except KeyError:
         raise InputError(f"unknown effect {effect_id!r}; catalogue ids: {', '.join(EFFECTS)}") from None
+
+
+def schema_ranges() -> dict[str, list[float]]:
+    """``range`` of every ``fit_<effect>_<parameter>`` variable of ``schemas/diagnosis.yaml``.
+
+    The physical ranges are declared once, in the catalogue; the schema repeats them and
+    ``tests/test_diagnose.py`` checks that it agrees with this mapping.
+    """
+    return {f"fit_{e.id}_{p.name}": [float(p.bounds[0]), float(p.bounds[1])]
+            for e in EFFECTS.values() for p in e.parameters}

@@ -140,24 +140,79 @@ def design_effect(r: np.ndarray, w: np.ndarray) -> float:
 
 @dataclass
 class FitResult:
-    """Outcome of a weighted least-squares fit of the residual on the response(s)."""
+    """Outcome of a weighted least-squares fit of the residual on the response(s).
 
-    delta: np.ndarray       # fitted θ − θ₀ per parameter
+    ``delta``/``rss`` are the fit *inside* the bounds (the constrained optimum: parameters that
+    leave their range are held at the bound they cross and the others refitted);
+    ``delta_free``/``stderr_free``/``rss_free`` the unconstrained fit — what the data ask for,
+    which a caller compares with the bounds (``docs/diagnose.md``: a fit at a bound within its
+    uncertainty is an answer, one beyond it by more is out of range).
+    """
+
+    delta: np.ndarray       # fitted θ − θ₀ per parameter, inside the bounds
     stderr: np.ndarray      # cluster-robust standard error per parameter
     rss: float              # weighted residual sum of squares with the fit
     rss0: float             # ... without it (the `none` model)
     n_obs: int
     n_clusters: int
-    clipped: bool
+    clipped: bool           # some parameter is held at a bound (``at_bound``)
+    delta_free: np.ndarray | None = None   # unconstrained θ − θ₀
+    stderr_free: np.ndarray | None = None  # its cluster-robust standard error
+    rss_free: float = float("nan")         # weighted RSS of the unconstrained fit
+    at_bound: np.ndarray | None = None     # per parameter: held at a bound
+
+    def __post_init__(self):
+        if self.delta_free is None:
+            self.delta_free = np.array(self.delta, dtype=float)
+        if self.stderr_free is None:
+            self.stderr_free = np.array(self.stderr, dtype=float)
+        if not np.isfinite(self.rss_free):
+            self.rss_free = self.rss
+        if self.at_bound is None:
+            self.at_bound = np.zeros(np.size(self.delta), dtype=bool)
+
+
+def _bounded_solve(A: np.ndarray, b: np.ndarray, lo: np.ndarray,
+                   hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Minimise δᵀAδ − 2bᵀδ within lo ≤ δ ≤ hi (A positive definite, a handful of parameters).
+
+    An active-set loop: solve for the free parameters, hold the one furthest outside its range at
+    the bound it crosses, repeat; a held parameter whose gradient points back inside is released.
+    Exact for one parameter (the clip); for several it is the constrained optimum, where clipping
+    each parameter on its own is not.  Returns (δ, held-at-bound mask).
+    """
+    k = b.size
+    held = np.zeros(k, dtype=bool)
+    delta = np.zeros(k)
+    for _ in range(4 * k + 4):
+        delta = np.where(held, np.clip(delta, lo, hi), 0.0)
+        free = ~held
+        if free.any():
+            rhs = b[free] - A[np.ix_(free, held)] @ delta[held]
+            delta[free] = np.linalg.solve(A[np.ix_(free, free)], rhs)
+        over = np.maximum(lo - delta, delta - hi)
+        over[held] = -np.inf
+        if free.any() and np.max(over) > 0:
+            j = int(np.argmax(over))
+            held[j] = True
+            delta[j] = np.clip(delta[j], lo[j], hi[j])
+            continue
+        # release a held parameter whose optimum moves back inside its range
+        grad = b - A @ delta  # descent direction of the objective (up to a factor 2)
+        release = held & (((delta <= lo) & (grad > 0)) | ((delta >= hi) & (grad < 0)))
+        if not release.any():
+            break
+        held[int(np.flatnonzero(release)[0])] = False
+    return delta, held
 
 
 def fit_linear(r: np.ndarray, J: np.ndarray | list[np.ndarray], w: np.ndarray,
                bounds: list[tuple[float, float]] | None = None) -> FitResult:
     """Fit ``r ≈ Σₖ δₖ·Jₖ`` by weighted least squares (periods × heights arrays).
 
-    ``bounds`` are limits on δ (θ bounds minus θ₀); a fit outside them is clipped (for one
-    parameter the clipped value is the constrained optimum).  Observations with zero weight
-    or a non-finite value are ignored.
+    ``bounds`` are limits on δ (θ bounds minus θ₀): the fit is then the constrained optimum (see
+    :func:`_bounded_solve`), and the unconstrained one is kept in ``delta_free`` with its
+    standard error.  Observations with zero weight or a non-finite value are ignored.
     """
     Js = [J] if isinstance(J, np.ndarray) else list(J)
     ok = (w > 0) & np.isfinite(r)
@@ -173,25 +228,30 @@ def fit_linear(r: np.ndarray, J: np.ndarray | list[np.ndarray], w: np.ndarray,
         k = X.shape[1]
         return FitResult(np.zeros(k), np.full(k, np.inf), rss0, rss0, int(y.size),
                          int(np.unique(rows).size), False)
-    delta = np.linalg.solve(A, X.T @ (ww * y))
-    clipped = False
+    b = X.T @ (ww * y)
+    free = np.linalg.solve(A, b)
+    delta, held = free, np.zeros(free.size, dtype=bool)
     if bounds is not None:
-        lo = np.array([b[0] for b in bounds])
-        hi = np.array([b[1] for b in bounds])
-        c = np.clip(delta, lo, hi)
-        clipped = bool(np.any(c != delta))
-        delta = c
-    e = y - X @ delta
-    rss = float(np.sum(ww * e**2))
-    # cluster-robust (periods) sandwich covariance, with the small-sample factor G/(G-1)
-    score = X * (ww * e)[:, None]
+        lo = np.array([bd[0] for bd in bounds], dtype=float)
+        hi = np.array([bd[1] for bd in bounds], dtype=float)
+        if np.any((free < lo) | (free > hi)):
+            delta, held = _bounded_solve(A, b, lo, hi)
     _, inv = np.unique(rows, return_inverse=True)
     G = int(inv.max()) + 1
-    S = np.zeros((G, X.shape[1]))
-    np.add.at(S, inv, score)
     Ainv = np.linalg.inv(A)
-    cov = Ainv @ (S.T @ S) @ Ainv * (G / max(G - 1, 1))
-    return FitResult(delta, np.sqrt(np.diag(cov)), rss, rss0, int(y.size), G, clipped)
+
+    def sandwich(d: np.ndarray) -> tuple[float, np.ndarray]:
+        # cluster-robust (periods) sandwich covariance, with the small-sample factor G/(G-1)
+        e = y - X @ d
+        S = np.zeros((G, X.shape[1]))
+        np.add.at(S, inv, X * (ww * e)[:, None])
+        cov = Ainv @ (S.T @ S) @ Ainv * (G / max(G - 1, 1))
+        return float(np.sum(ww * e**2)), np.sqrt(np.diag(cov))
+
+    rss_free, se_free = sandwich(free)
+    rss, se = sandwich(delta) if held.any() else (rss_free, se_free)
+    return FitResult(delta, se, rss, rss0, int(y.size), G, bool(held.any()), delta_free=free,
+                     stderr_free=se_free, rss_free=rss_free, at_bound=held)
 
 
 def delta_bic(rss: float, rss0: float, n_params: int, n_eff: float) -> float:
