@@ -29,6 +29,7 @@ from lidarcal.cli.options import (
     add_overwrite_option,
     add_parallel_options,
     add_progress_option,
+    add_reference_turbulence_option,
     add_seed_option,
     admin_from_args,
     positive_int,
@@ -68,6 +69,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="Eqs. 6-7 as printed (reproduces Table 4, default) or as propagated through the "
                    "10-minute average (docs/noise_terms.md)")
     add_los_noise_option(p)
+    add_reference_turbulence_option(p)
     p.add_argument("--min-samples", type=positive_int("--min-samples"), default=DEFAULT_MIN_SAMPLES,
                    metavar="N", help="fewest periods a sensitivity bin needs to enter the regression "
                    "(default %(default)s; docs/sensitivity.md); lower it for short runs")
@@ -91,6 +93,7 @@ def run(args: argparse.Namespace) -> int:
         periods=None if args.periods == 0 else args.periods, base_seed=args.seed,
         workers=args.workers, scheduler=args.scheduler, fft_size=args.fft_size, chunk=args.chunk,
         min_samples=args.min_samples, los_noise_model=args.los_noise,
+        reference_turbulence=args.reference_turbulence,
         terms={} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms},
     )
     result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args),
