@@ -126,6 +126,8 @@ class CalibrationConfig:
     min_samples: int | None = None  # former name of min_periods
     #: LOS error model (``LidarModel.los_noise_model``); None: residuals when the cube has them
     los_noise_model: str | None = None
+    #: ``LidarModel.reference_turbulence``; None: the model's default (``"pinned_u"``)
+    reference_turbulence: str | None = None
     terms: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -356,6 +358,8 @@ def calibrate(
 
     # 4. Monte Carlo simulation
     model = LidarModel.from_artefacts(cube=cube, rwf=rwf, los_noise_model=cfg.los_noise_model)
+    if cfg.reference_turbulence:
+        model = model.replace(reference_turbulence=cfg.reference_turbulence)
     # finished chunks are kept here until the simulation completes, so a killed run re-started
     # with --overwrite resumes instead of starting again (chunk files are keyed by their inputs)
     workdir = outdir / CHUNK_DIR

@@ -46,7 +46,8 @@ CANONICAL_FORM = (
 #: their root and each variable carries its own digests.  Certificates sealed in the first form
 #: (the whole record in ``lidarcal_integrity``) verify as before.
 CANONICAL_FORM_2 = (
-    CANONICAL_FORM + ", " + "lidarcal_integrity_attributes and every variable's lidarcal_sha256 "
+    CANONICAL_FORM + ", " + "lidarcal_integrity_attributes and every variable's lidarcal_sha256 and "
+    "lidarcal_bounds_sha256 (a bounds variable's digests, on its parent) "
     "(the stored digests, which only locate a change); root: sha256(json(sorted {dimensions: {name: "
     "length}, variables: {name: {data, attributes}}, global_attributes: {name: digest}})); each "
     "variable's lidarcal_sha256 is 'data <hex> attributes <hex>', lidarcal_integrity_attributes "
@@ -55,6 +56,9 @@ CANONICAL_FORM_2 = (
 SEAL_FORMAT = 2
 #: Per-variable digests (second form), and the global attributes' digest prefixes.
 VARIABLE_DIGEST_ATTR = "lidarcal_sha256"
+#: A bounds variable's digests sit on its parent (CF 7.1: bounds carry no attributes of their own).
+BOUNDS_DIGEST_ATTR = "lidarcal_bounds_sha256"
+_DIGEST_ATTRS = (VARIABLE_DIGEST_ATTR, BOUNDS_DIGEST_ATTR)
 ATTRIBUTE_DIGESTS_ATTR = "lidarcal_integrity_attributes"
 _PREFIX = 12
 
@@ -111,7 +115,7 @@ def integrity_record(path: str | os.PathLike) -> dict[str, Any]:
             raise InputError(f"{path}: has netCDF groups; a lidarcal certificate is flat")
         variables = {
             name: {"data": _data_digest(var),
-                   "attributes": _attrs_digest(var, [n for n in var.ncattrs() if n != VARIABLE_DIGEST_ATTR])}
+                   "attributes": _attrs_digest(var, [n for n in var.ncattrs() if n not in _DIGEST_ATTRS])}
             for name, var in nc.variables.items()
         }
         unsealed = (INTEGRITY_ATTR, SIGNATURE_ATTR, ATTRIBUTE_DIGESTS_ATTR)
@@ -132,15 +136,25 @@ def seal_root(record: Mapping[str, Any]) -> str:
     return _sha(json.dumps(body, sort_keys=True, ensure_ascii=False).encode("utf-8"))
 
 
+def _bounds_parents(nc) -> dict[str, str]:
+    """Map each bounds variable of an open netCDF file to the variable whose ``bounds`` names it."""
+    return {str(var.getncattr("bounds")): name for name, var in nc.variables.items()
+            if "bounds" in var.ncattrs() and str(var.getncattr("bounds")) in nc.variables}
+
+
 def _seal(path: str | os.PathLike) -> str:
     """Seal the file at ``path`` in the second form and return the text of its ``lidarcal_integrity``."""
     import netCDF4
 
     record = integrity_record(path)
     with netCDF4.Dataset(path, "a") as nc:
+        parents = _bounds_parents(nc)
         for name, digests in record["variables"].items():
             text = f"data {digests['data']} attributes {digests['attributes']}"
-            nc[name].setncattr(VARIABLE_DIGEST_ATTR, text)
+            if name in parents:
+                nc[parents[name]].setncattr(BOUNDS_DIGEST_ATTR, text)
+            else:
+                nc[name].setncattr(VARIABLE_DIGEST_ATTR, text)
         nc.setncattr(ATTRIBUTE_DIGESTS_ATTR, "; ".join(
             f"{name} {digest[:_PREFIX]}" for name, digest in sorted(record["global_attributes"].items())))
     return json.dumps({"format": SEAL_FORMAT, "algorithm": "sha256", "canonical_form": CANONICAL_FORM_2,
@@ -264,8 +278,11 @@ def _changes_against_root(path: Path, expected: Mapping[str, Any], found: Mappin
         return []
     exp_vars: dict[str, Any] = {}
     with netCDF4.Dataset(path, "r") as nc:
+        parents = _bounds_parents(nc)
         for name, var in nc.variables.items():
-            text = str(var.getncattr(VARIABLE_DIGEST_ATTR)) if VARIABLE_DIGEST_ATTR in var.ncattrs() else ""
+            holder, attr = ((nc[parents[name]], BOUNDS_DIGEST_ATTR) if name in parents
+                            else (var, VARIABLE_DIGEST_ATTR))
+            text = str(holder.getncattr(attr)) if attr in holder.ncattrs() else ""
             parts = text.split()
             if len(parts) == 4 and parts[0] == "data" and parts[2] == "attributes":
                 exp_vars[name] = {"data": parts[1], "attributes": parts[3]}

@@ -143,6 +143,12 @@ def test_write_seal_verify_and_tamper(artefact_files, tmp_path):
     assert "variable 'cube_los_bias': attributes altered" in problems
     assert "global attribute 'lidar_serial' altered" in problems
     assert len(problems) == 3, problems  # the cube's units are not part of the certificate schema
+    # a bounds variable (whose digests sit on its parent, CF 7.1) is named too
+    with netCDF4.Dataset(path, "a") as nc:
+        assert "lidarcal_sha256" not in nc["budget_wind_speed_bounds"].ncattrs()
+        b = nc["budget_wind_speed_bounds"]
+        b[0, 0] = b[0, 0] + 0.1
+    assert "variable 'budget_wind_speed_bounds': values altered" in verify_certificate(path).problems
 
 
 def test_verify_cli_exit_codes(artefact_files, tmp_path, capsys):

@@ -35,6 +35,7 @@ from lidarcal.cli.options import (
     add_overwrite_option,
     add_parallel_options,
     add_progress_option,
+    add_reference_turbulence_option,
     add_seed_option,
     admin_from_args,
     positive_int,
@@ -74,6 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="Eqs. 6-7 as printed (reproduces Table 4, default) or as propagated through the "
                    "10-minute average (docs/noise_terms.md)")
     add_los_noise_option(p)
+    add_reference_turbulence_option(p)
     add_certification_options(p)  # --min-periods also sets the sensitivities' bins (one rule)
     p.add_argument("--min-samples", dest="min_periods", type=positive_int("--min-samples"),
                    help=argparse.SUPPRESS)  # the former name of --min-periods
@@ -100,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         min_periods=args.min_periods, certified_range=tuple(args.certified_range),
         significant_digits=args.significant_digits, max_replicas=args.max_replicas,
         los_noise_model=args.los_noise,
+        reference_turbulence=args.reference_turbulence,
         terms={} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms},
     )
     result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args),

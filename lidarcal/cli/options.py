@@ -25,6 +25,7 @@ import numpy as np
 
 from lidarcal.admin import load_admin, merge_admin
 from lidarcal.campaign import DEFAULT_BASE_SEED
+from lidarcal.lidar.model import REFERENCE_TURBULENCE
 from lidarcal.provenance import USER_ATTRIBUTES
 from lidarcal.units import ureg
 
@@ -40,6 +41,7 @@ __all__ = [
     "add_parallel_options",
     "add_lidar_options",
     "add_los_noise_option",
+    "add_reference_turbulence_option",
     "add_progress_option",
     "add_seed_option",
     "add_heights_option",
@@ -182,6 +184,21 @@ def add_los_noise_option(parser: argparse.ArgumentParser | argparse._ArgumentGro
                         help="LOS error of the bench-calibrated lidar: resample each bench bin's measured "
                         "residuals, bad estimates included, or draw N(los_bias, los_std) after the outlier "
                         "rule (default: residuals when the cube has them; docs/contracts.md)")
+
+
+def add_reference_turbulence_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
+    """``--reference-turbulence pinned_u|pinned_uvw|free`` (``LidarModel.reference_turbulence``).
+
+    Unset (``None``) keeps the model's own value (the default ``pinned_u`` for a new model, the
+    recorded one for ``--model``).
+    """
+    parser.add_argument("--reference-turbulence", choices=REFERENCE_TURBULENCE, default=None,
+                        help="what the virtual reference's turbulence is conditioned on: pinned_u (its "
+                        "realised sigma_u is the period's TI*U, the rest Gaussian through the RWF; the "
+                        "default), pinned_uvw (the engine's convention before this option: sigma_u and "
+                        "sigma_v pinned, fixed amplitudes; reproduces earlier results), free (a "
+                        "Gaussian process) or inferred_level (sigma_u pinned, the field's level unknown "
+                        "given it); docs/validation.md")
 
 
 def add_progress_option(parser: argparse.ArgumentParser) -> None:

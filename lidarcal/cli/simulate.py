@@ -34,6 +34,7 @@ from lidarcal.cli.options import (
     add_output_options,
     add_parallel_options,
     add_progress_option,
+    add_reference_turbulence_option,
     add_seed_option,
     nonnegative_int,
     positive,
@@ -60,6 +61,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     lidar = add_lidar_options(p, default="the ideal lidar, or the conditions' lidar_* attributes")
     add_los_noise_option(lidar)
+    add_reference_turbulence_option(lidar)
     p.add_argument("--model", metavar="FILE.nc", help="use the LidarModel in FILE's lidarcal_lidar_model "
                    "attribute, e.g. a diagnosis with its fitted effect added; the attribute records bench "
                    "data by digest: --cube and --rwf then give the cube and RWF the model was built from)")
@@ -121,6 +123,8 @@ def run(args: argparse.Namespace) -> int:
         inputs.update({k: v for k, v in (("cube", args.cube), ("rwf", args.rwf)) if v})
     else:
         model = LidarModel.from_attrs(cond, los_noise_model=args.los_noise)
+    if args.reference_turbulence:
+        model = model.replace(reference_turbulence=args.reference_turbulence)
     base_seed = args.seed
     ds = simulate_campaign(
         conditions,

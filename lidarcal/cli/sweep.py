@@ -20,6 +20,7 @@ from lidarcal.cli.options import (
     add_output_options,
     add_parallel_options,
     add_progress_option,
+    add_reference_turbulence_option,
     add_seed_option,
     positive_int,
     simulation_options,
@@ -68,7 +69,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_heights_option(p, default=(100.0,), help="heights, m (default 100)")
     p.add_argument("--repeats", type=positive_int("--repeats"), default=1, metavar="N",
                    help="Monte Carlo replicates per grid point (default 1)")
-    add_los_noise_option(add_lidar_options(p, default="the ideal Gaussian lidar"))
+    lidar = add_lidar_options(p, default="the ideal Gaussian lidar")
+    add_los_noise_option(lidar)
+    add_reference_turbulence_option(lidar)
     add_seed_option(p)
     add_parallel_options(p)
     add_progress_option(p)
@@ -92,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
     cube = open_artefact(args.cube, "bench_cube") if args.cube else None
     rwf = open_artefact(args.rwf, "rwf") if args.rwf else None
     model = LidarModel.from_artefacts(cube=cube, rwf=rwf, los_noise_model=args.los_noise)
+    if args.reference_turbulence:
+        model = model.replace(reference_turbulence=args.reference_turbulence)
     inputs = {k: v for k, v in (("cube", args.cube), ("rwf", args.rwf)) if v}
     call = command_line(args)
     ds, records = sweep(

@@ -47,7 +47,13 @@ from lidarcal.turbulence.kernels import SIGMA_RATIOS
 from lidarcal.units import convert_variable
 
 __all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "LOS_NOISE_MODELS", "flow_distortion_factor",
-           "direction_spread", "residuals_digest", "RwfProfileDigest", "rwf_profile_digest"]
+           "direction_spread", "residuals_digest", "RwfProfileDigest", "rwf_profile_digest",
+           "REFERENCE_TURBULENCE"]
+
+#: Conventions of ``LidarModel.reference_turbulence`` (``docs/validation.md``).
+REFERENCE_TURBULENCE = ("pinned_u", "pinned_uvw", "free", "inferred_level")
+#: Records written before ``reference_turbulence`` existed carried ``turbulence_amplitudes``.
+_LEGACY_AMPLITUDES = {"deterministic": "pinned_uvw", "rayleigh": "free"}
 
 #: Readings of Eq. 5's p: the average it multiplies (see :func:`lidarcal.lidar.wfr.hybrid_speed`).
 HYBRID_CONVENTIONS = ("scalar", "vector")
@@ -105,9 +111,13 @@ class LidarModel:
     reference_flow_distortion_centre: float = 0.0  #: centre of the mast-shadow sector (degree, from)
     reference_flow_distortion_width: float = 0.0  #: full width of that sector (degree; 0 = no shadow)
     reference_flow_distortion_deficit: float = 0.0  #: the reference under-reads by this fraction inside it
-    #: turbulence Fourier amplitudes: ``"deterministic"`` (PyConTurb: fixed magnitudes, random phases;
-    #: the reference's realised 10-min TI equals the period's) or ``"rayleigh"`` (Gaussian process)
-    turbulence_amplitudes: str = "deterministic"
+    #: what the virtual reference's turbulence is conditioned on (``docs/validation.md``):
+    #: ``"pinned_u"`` its realised 10-min σ_u is the period's TI·U (the measured value), everything
+    #: else follows PyConTurb's point-level convention through the continuous RWF (Gaussian LOS
+    #: coefficients); ``"pinned_uvw"`` the engine before this field existed (σ_u and σ_v pinned, six
+    #: fixed-amplitude signals; records without this field mean it); ``"free"`` a Gaussian process;
+    #: ``"inferred_level"`` σ_u pinned as well, but the field's level is unknown given it (scales with it)
+    reference_turbulence: str = "pinned_u"
     #: LOS error of a bench-calibrated lidar: ``"residuals"`` resamples the bench bin's measured
     #: residuals (bad estimates included), ``"gaussian"`` draws N(los_bias, los_std) (MAD-trimmed);
     #: :meth:`from_artefacts` picks ``"residuals"`` when the cube has them.  The ideal lidar is
@@ -165,9 +175,9 @@ class LidarModel:
                 self.noise_table.has_residuals or self.noise_table.needs_residuals)):
             problems.append("los_noise_model 'residuals' needs a bench noise table with measured residuals "
                             "(a bench cube with 'los_residual'); use 'gaussian'")
-        if self.turbulence_amplitudes not in ("deterministic", "rayleigh"):
-            problems.append(f"turbulence_amplitudes must be 'deterministic' or 'rayleigh'; got "
-                            f"{self.turbulence_amplitudes!r}")
+        if self.reference_turbulence not in REFERENCE_TURBULENCE:
+            problems.append(f"reference_turbulence must be one of {list(REFERENCE_TURBULENCE)}; got "
+                            f"{self.reference_turbulence!r}")
         if isinstance(self.rwf_profile, RwfProfileDigest):
             if not (isinstance(self.rwf_profile.sha256, str) and len(self.rwf_profile.sha256) == 64):
                 problems.append(f"rwf_profile's sha256 must be 64 hexadecimal digits; got "
@@ -344,6 +354,13 @@ class LidarModel:
         """
         if isinstance(data, str):
             data = json.loads(data)
+        data = dict(data)
+        if "reference_turbulence" not in data:  # a record from before the field: its engine's convention
+            legacy = data.pop("turbulence_amplitudes", "deterministic")
+            if legacy not in _LEGACY_AMPLITUDES:
+                raise InputError(f"LidarModel.from_dict: turbulence_amplitudes must be one of "
+                                 f"{list(_LEGACY_AMPLITUDES)}; got {legacy!r}")
+            data["reference_turbulence"] = _LEGACY_AMPLITUDES[legacy]
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = set(data) - known
         if unknown:

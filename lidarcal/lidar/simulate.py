@@ -18,8 +18,10 @@ from north):
   coherence as PyConTurb, Taylor's frozen turbulence along the wind) enters only through the
   six signals the period needs: the four LOS values filtered by the *continuous* RWF and the
   reference's u and v, drawn from their exact 6 x 6 cross-spectral matrix per frequency
-  (:mod:`lidarcal.lidar.spectral`), with PyConTurb's deterministic amplitudes and random phases by
-  default (``LidarModel.turbulence_amplitudes``).  One independent draw per height
+  (:mod:`lidarcal.lidar.spectral`).  By default (``LidarModel.reference_turbulence = "pinned_u"``)
+  the reference comes first and its u has fixed amplitudes (its realised σ_u is the period's
+  measured TI·U), and everything else has Gaussian Fourier coefficients given it (PyConTurb's
+  point-level convention seen through the continuous RWF).  One independent draw per height
   (cross-height coherence is not modelled; every per-height statistic is exact).
 * **Sampling.** LOS ``k`` (time ``k · beam_period``) belongs to beam ``k mod 4``: 150 samples
   per beam per 10 minutes at 1 s per LOS; the vertical beam is ignored.
@@ -54,7 +56,7 @@ from lidarcal.errors import InputError
 from lidarcal.lidar.geometry import beam_geometry, period_points, wind_axes
 from lidarcal.lidar.model import LidarModel, RwfProfileDigest
 from lidarcal.lidar.quadrature import cnr_weights
-from lidarcal.lidar.spectral import cross_spectral_matrix, draw_coefficients, synthesise
+from lidarcal.lidar.spectral import REFERENCE_AMPLITUDES, cross_spectral_matrix, draw_coefficients, synthesise
 from lidarcal.lidar.wfr import reconstruct
 from lidarcal.turbulence.kernels import sigma_components
 
@@ -85,7 +87,8 @@ def _simulate_height(model: LidarModel, height: float, U: float, direction: floa
     sigma = sigma_components(ti, U)
     if np.any(sigma > 0):  # turbulence: (ref_u, ref_v, LOS_0..3) from their cross-spectral matrix
         C = cross_spectral_matrix(model, height, U, direction, sigma, gradient, duration)
-        coef = draw_coefficients(C, np.random.default_rng(turb_ss), model.turbulence_amplitudes, n_times)
+        coef = draw_coefficients(C, np.random.default_rng(turb_ss),
+                                 REFERENCE_AMPLITUDES[model.reference_turbulence], n_times)
         turb = synthesise(coef, n_times)  # (6, n_times)
     else:
         turb = np.zeros((6, n_times))
