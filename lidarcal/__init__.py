@@ -23,7 +23,7 @@ The main entry points are available from the top level, imported on first use so
 
     import lidarcal
 
-    result = lidarcal.calibrate("run1", lidarcal.CalibrationConfig(periods=144, min_samples=3))
+    result = lidarcal.calibrate("run1", lidarcal.CalibrationConfig(periods=144, min_periods=3))
     result.datasets["budget"].sel(height=120).relative_uncertainty
     lidarcal.verify(result.paths["certificate"]).ok
 

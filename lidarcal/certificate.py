@@ -44,6 +44,7 @@ from lidarcal.admin import (
     certificate_attributes,
     default_method_reference,
 )
+from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import jsonable, read_json_attr, stamp
@@ -81,6 +82,9 @@ __all__ = [
     "open_certificate",
     "result_table",
     "headline_range",
+    "headline_sentence",
+    "certified_rule",
+    "not_settled",
     "HEADLINE_WIND_SPEEDS",
     "VerificationReport",
     "INTEGRITY_ATTR",
@@ -267,9 +271,10 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
 
 # ------------------------------------------------------------------ result table
 
-#: Wind speeds (bin centres, m/s) the headline expanded uncertainty is quoted over: the range
-#: of the paper's Table 4, from the 4 m/s cut-in that wind sensors are calibrated from.
-HEADLINE_WIND_SPEEDS = (4.0, 16.0)
+#: Wind speeds (bin centres, m/s) certified by default (the range of the paper's Table 4, from the
+#: 4 m/s cut-in that wind sensors are calibrated from); the rule itself is
+#: :func:`lidarcal.analysis.budget.certified_bins`, recorded in the budget's ``bin_flag``.
+HEADLINE_WIND_SPEEDS = DEFAULT_CERTIFIED_RANGE
 
 
 def _budget_of(obj: xr.Dataset) -> xr.Dataset:
@@ -284,25 +289,72 @@ def _budget_of(obj: xr.Dataset) -> xr.Dataset:
     return obj
 
 
-def _headline_mask(budget: xr.Dataset, speeds: tuple[float, float]) -> xr.DataArray:
-    lo, hi = speeds
-    inside = (budget["wind_speed"] >= lo) & (budget["wind_speed"] <= hi)
-    return (budget["bin_flag"] == 0) & inside & np.isfinite(budget["relative_expanded_uncertainty"])
+def _certified_value(budget: xr.Dataset) -> int:
+    """Return the ``bin_flag`` value meaning ``certified`` (the budget declares its own meanings)."""
+    names = {m: v for v, m in _flag_names(budget["bin_flag"]).items()}
+    if "certified" not in names:
+        raise InputError(f"{source_name(budget)}: the budget's bin_flag has no meaning 'certified' (found "
+                         f"{budget['bin_flag'].attrs.get('flag_meanings')!r}); it predates the certification "
+                         "rule: recompute it with lidarcal budget")
+    return names["certified"]
 
 
-def headline_range(obj: xr.Dataset, *, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS
+def _headline_mask(budget: xr.Dataset) -> xr.DataArray:
+    certified = budget["bin_flag"] == _certified_value(budget)
+    return certified & np.isfinite(budget["relative_expanded_uncertainty"])
+
+
+def certified_rule(obj: xr.Dataset) -> str:
+    """Return the budget's certification rule in words, e.g. ``centres 4 to 16 m/s, >= 10 periods``."""
+    budget = _budget_of(obj)
+    lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
+    return f"centres {lo:g} to {hi:g} m/s, >= {int(budget.attrs.get('min_periods', 0))} periods"
+
+
+def not_settled(obj: xr.Dataset) -> list[tuple[float, float]]:
+    """(height m, bin centre m/s) of the certified values the Monte Carlo did not settle."""
+    budget = _budget_of(obj)
+    if "numerical_flag" not in budget:
+        return []
+    flag = budget["numerical_flag"].transpose("height", "wind_speed").values
+    return [(float(budget["height"].values[i]), float(budget["wind_speed"].values[j]))
+            for i, j in zip(*np.nonzero(flag == 1), strict=True)]
+
+
+def headline_range(obj: xr.Dataset, *, wind_speeds: tuple[float, float] | None = None
                    ) -> tuple[float, float] | None:
     """Smallest and largest k = 2 relative expanded uncertainty (%) quoted on the certificate.
 
-    Only bins that are not flagged (``bin_flag`` ok: at least ``min_samples`` periods) and
-    whose centre lies in ``wind_speeds`` (m/s, inclusive) count.  ``obj`` is a certificate or
-    an ``uncertainty_budget``; None when no bin qualifies.
+    Only certified bins count (``bin_flag`` ``certified``: centre in the certified range and
+    enough distinct periods; :func:`lidarcal.analysis.budget.certified_bins`); ``wind_speeds``
+    (m/s, inclusive) may narrow them further.  ``obj`` is a certificate or an
+    ``uncertainty_budget``; None when no bin qualifies.
     """
     budget = _budget_of(obj)
-    rel = budget["relative_expanded_uncertainty"].where(_headline_mask(budget, wind_speeds))
+    mask = _headline_mask(budget)
+    if wind_speeds is not None:
+        mask = mask & (budget["wind_speed"] >= wind_speeds[0]) & (budget["wind_speed"] <= wind_speeds[1])
+    rel = budget["relative_expanded_uncertainty"].where(mask)
     if not bool(np.isfinite(rel).any()):
         return None
     return float(rel.min()), float(rel.max())
+
+
+def headline_sentence(obj: xr.Dataset) -> str | None:
+    """Return the certificate's headline: the certified range and any values that did not settle."""
+    budget = _budget_of(obj)
+    rng = headline_range(budget)
+    if rng is None:
+        return None
+    text = (f"{rng[0]:.2f} % to {rng[1]:.2f} % (k = {float(budget.attrs.get('coverage_factor', 2)):g}; "
+            f"certified bins: {certified_rule(budget)}; lidarcal table lists every bin)")
+    missed = not_settled(budget)
+    if missed:
+        text += (f"; {len(missed)} certified value(s) did not settle to "
+                 f"{int(budget.attrs['monte_carlo_significant_digits'])} significant digits within "
+                 f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas "
+                 "(monte_carlo_not_settled)")
+    return text
 
 
 def _flag_names(var: xr.DataArray) -> dict[int, str]:
@@ -332,16 +384,27 @@ def _significant_sensitivities(cert: xr.Dataset) -> dict[float, str]:
     return {z: "; ".join(v) for z, v in out.items()}
 
 
-def result_table(cert: xr.Dataset, *, contributors: int = 3,
-                 wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS, allow_invalid: bool = False):
+def _reason(flag: str, periods: int, budget: xr.Dataset) -> str:
+    """Why a bin is not certified, in words ("" when it is)."""
+    lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
+    return {"certified": "",
+            "too_few_periods": f"{periods} periods (fewer than {int(budget.attrs.get('min_periods', 0))})",
+            "empty": "no period",
+            "outside_certified_range": f"centre outside {lo:g} to {hi:g} m/s"}.get(flag, flag)
+
+
+def result_table(cert: xr.Dataset, *, contributors: int = 3, allow_invalid: bool = False):
     """IEC-style result table of a certificate: one row per height and wind-speed bin.
 
-    Columns: ``height_m``, ``wind_speed_m_s`` (bin centre) and its bounds, ``sample_count``,
-    ``bin_flag`` (the budget's flag meaning: ``ok``, ``thin``, ``empty``), ``in_headline``
-    (counted in :func:`headline_range`), the k = 2 expanded uncertainty in m/s and in % of
-    the bin's mean reference wind speed, ``main_contributors`` (the largest ``contributors``
-    standard-uncertainty contributions, in %) and ``significant_sensitivities`` (per height,
-    Eqs. 12-13).  Numbers are the certificate's own values, not rounded.
+    Columns: ``height_m``, ``wind_speed_m_s`` (bin centre) and its bounds, ``sample_count``
+    (Monte Carlo trials), ``period_count`` (distinct 10-minute periods), ``bin_flag`` (the
+    budget's flag meaning: ``certified``, ``too_few_periods``, ``empty``,
+    ``outside_certified_range``), ``certified`` (counted in :func:`headline_range`),
+    ``not_certified_reason``, the k = 2 expanded uncertainty in m/s and in % of the bin's mean
+    reference wind speed, ``numerical_tolerance_pct`` (the Monte Carlo's tolerance on that %,
+    JCGM 101 7.9) and ``numerically_settled``, ``main_contributors`` (the largest
+    ``contributors`` standard-uncertainty contributions, in %) and ``significant_sensitivities``
+    (per height, Eqs. 12-13).  Numbers are the certificate's own values, not rounded.
 
     A certificate read from a file has its seal checked first (:func:`require_valid_seal`):
     an altered one raises :class:`~lidarcal.errors.SealError` unless ``allow_invalid`` (the
@@ -360,7 +423,7 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3,
     k = float(budget.attrs.get("coverage_factor", 2.0))
     flags = _flag_names(budget["bin_flag"])
     # rows run over (height, wind speed): index by those names, whatever the stored order
-    headline = _headline_mask(budget, wind_speeds).transpose("height", "wind_speed")
+    headline = _headline_mask(budget).transpose("height", "wind_speed")
     budget = budget.transpose("height", "wind_speed", ...)
     sens = _significant_sensitivities(cert) if "lidarcal_components" in cert.attrs else {}
     names = [str(c) for c in budget["contributor"].values]
@@ -372,24 +435,34 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3,
             order = [n for n in np.argsort(-np.nan_to_num(rel_c, nan=-np.inf)) if np.isfinite(rel_c[n])]
             main = "; ".join(f"{names[n]} {rel_c[n]:.2f} %" for n in order[:contributors])
             flag = int(budget["bin_flag"].values[i, j])
+            periods = int(budget["period_count"].values[i, j]) if "period_count" in budget else -1
+            tol = (float(budget["numerical_tolerance"].values[i, j]) if "numerical_tolerance" in budget
+                   else np.nan)
+            nflag = int(budget["numerical_flag"].values[i, j]) if "numerical_flag" in budget else 2
             rows.append({
                 "height_m": float(z),
                 "wind_speed_m_s": float(u),
                 "wind_speed_min_m_s": float(bounds[j, 0]) if bounds is not None else np.nan,
                 "wind_speed_max_m_s": float(bounds[j, 1]) if bounds is not None else np.nan,
                 "sample_count": int(budget["sample_count"].values[i, j]),
+                "period_count": periods,
                 "bin_flag": flags.get(flag, str(flag)),
-                "in_headline": bool(headline.values[i, j]),
+                "certified": bool(headline.values[i, j]),
+                "not_certified_reason": _reason(flags.get(flag, str(flag)), periods, budget),
                 f"expanded_uncertainty_k{k:g}_m_s": float(budget["expanded_uncertainty"].values[i, j]),
                 f"expanded_uncertainty_k{k:g}_pct": float(
                     budget["relative_expanded_uncertainty"].values[i, j]),
+                "numerical_tolerance_pct": tol,
+                "numerically_settled": {0: "yes", 1: "no"}.get(nflag, ""),
                 "main_contributors": main,
                 "significant_sensitivities": sens.get(float(z), ""),
             })
     table = pd.DataFrame(rows)
     table.attrs["coverage_factor"] = k
-    table.attrs["headline_wind_speeds_m_s"] = tuple(wind_speeds)
-    table.attrs["headline_range_pct"] = headline_range(budget, wind_speeds=wind_speeds)
+    table.attrs["certified_rule"] = certified_rule(budget)
+    table.attrs["headline_range_pct"] = headline_range(budget)
+    table.attrs["not_settled"] = not_settled(budget)
+    table.attrs["significant_digits"] = budget.attrs.get("monte_carlo_significant_digits")
     return table
 
 
@@ -724,12 +797,14 @@ def make_certificate(
         "lidarcal_provenance_chain": json.dumps(jsonable(pointers, strict=True), sort_keys=True),
         "budget_approach": str(budget.attrs.get("approach", "unknown")),
     }
-    if (rng := headline_range(budget)) is not None:
-        lo, hi = HEADLINE_WIND_SPEEDS
-        cert.attrs["expanded_uncertainty_headline"] = (
-            f"{rng[0]:.2f} % to {rng[1]:.2f} % (k = {float(budget.attrs.get('coverage_factor', 2)):g}; "
-            f"bins flagged ok with centres {lo:g} to {hi:g} m/s; lidarcal table lists every bin)"
-        )
+    if (headline := headline_sentence(budget)) is not None:
+        cert.attrs["expanded_uncertainty_headline"] = headline
+    for key in ("monte_carlo_replicas", "monte_carlo_trials", "monte_carlo_significant_digits"):
+        if key in budget.attrs:
+            cert.attrs[key] = int(budget.attrs[key])
+    if "numerical_flag" in budget:
+        missed = not_settled(budget)
+        cert.attrs["monte_carlo_not_settled"] = "; ".join(f"{z:g} m {u:g} m/s" for z, u in missed) or "none"
     if serial:
         cert.attrs["lidar_serial"] = serial
     if records is not None:

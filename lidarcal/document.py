@@ -26,7 +26,14 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component, headline_range
+from lidarcal.certificate import (
+    HEADLINE_WIND_SPEEDS,
+    certified_rule,
+    components,
+    extract_component,
+    headline_range,
+    not_settled,
+)
 from lidarcal.io import atomic_path, check_writable
 from lidarcal.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
 
@@ -205,13 +212,21 @@ def headline_sentence(budget: xr.Dataset, wind_speeds: tuple[float, float] = HEA
     k = float(budget.attrs.get("coverage_factor", 2.0))
     lo, hi = wind_speeds
     where = f"bins flagged ok with centres {lo:g} to {hi:g} m/s"
+    if "certified" in str(budget["bin_flag"].attrs.get("flag_meanings", "")).split():
+        where, wind_speeds = f"certified bins ({certified_rule(budget)})", None  # the budget's own rule
     rng = headline_range(budget, wind_speeds=wind_speeds)
     if rng is None:
         return f"Relative expanded uncertainty (k = {k:g}): no {where}, nothing is certified."
-    return (
+    text = (
         f"Relative expanded uncertainty (k = {k:g}) of the lidar's horizontal wind speed, {where}: "
         f"{rng[0]:.2f} % to {rng[1]:.2f} %."
     )
+    missed = not_settled(budget)
+    if missed:  # JCGM 101 7.9: the Monte Carlo stopped at --max-replicas before these settled
+        text += (f" {len(missed)} certified value(s) did not settle to "
+                 f"{int(budget.attrs['monte_carlo_significant_digits'])} significant digits within "
+                 f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas.")
+    return text
 
 
 def certified_grid(

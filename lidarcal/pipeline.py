@@ -18,7 +18,7 @@ One line per finished stage is logged at INFO level on the ``lidarcal.pipeline``
 command line prints it on stderr).  :func:`calibrate` returns a :class:`CalibrationResult`
 holding the path and the (re-read) dataset of every artefact::
 
-    result = calibrate("run1", CalibrationConfig(periods=144, min_samples=3))
+    result = calibrate("run1", CalibrationConfig(periods=144, min_periods=3))
     result.datasets["budget"].sel(height=120).relative_uncertainty
 """
 
@@ -39,13 +39,19 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.admin import demonstration_reasons, issuer_problem
-from lidarcal.analysis.budget import budget
-from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES, sensitivity
+from lidarcal.analysis.budget import (
+    DEFAULT_CERTIFIED_RANGE,
+    DEFAULT_MIN_PERIODS,
+    DEFAULT_SIGNIFICANT_DIGITS,
+    budget,
+)
+from lidarcal.analysis.sensitivity import sensitivity
 from lidarcal.analysis.sweep import analyse_sweep
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.bench.formats import read_control_log
 from lidarcal.bench.ingest import ingest
 from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
+from lidarcal.campaign.adaptive import DEFAULT_MAX_REPLICAS, adaptive_replicas
 from lidarcal.certificate import make_certificate, write_certificate
 from lidarcal.cf import canonical_order
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
@@ -93,8 +99,11 @@ class CalibrationConfig:
 
     Paths left as ``None`` use the embedded sample data.  ``periods`` limits the number of
     10-minute periods taken from the start of the conditions record (``None`` = all).
-    ``min_samples`` is the fewest periods a sensitivity bin needs to enter the regression; a
-    short run (a few hundred periods) may need fewer than the default.
+    ``min_periods`` is the fewest distinct periods a certified wind-speed bin holds (its centre
+    in ``certified_range``, m/s) and a sensitivity bin needs to enter the regression: one rule
+    (docs/certificate.md); a short run (a few hundred periods) may need fewer than the default.
+    ``significant_digits`` and ``max_replicas`` drive the adaptive Monte Carlo (JCGM 101 7.9,
+    :mod:`lidarcal.campaign.adaptive`).  ``min_samples`` is the former name of ``min_periods``.
     """
 
     bench_rtd: str | None = None
@@ -110,17 +119,27 @@ class CalibrationConfig:
     workers: int | None = None
     scheduler: str | None = None
     fft_size: int = 64
-    min_samples: int = DEFAULT_MIN_SAMPLES
+    min_periods: int = DEFAULT_MIN_PERIODS
+    certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE
+    significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS
+    max_replicas: int = DEFAULT_MAX_REPLICAS
+    min_samples: int | None = None  # former name of min_periods
     #: LOS error model (``LidarModel.los_noise_model``); None: residuals when the cube has them
     los_noise_model: str | None = None
     #: ``LidarModel.reference_turbulence``; None: the model's default (``"pinned_u"``)
     reference_turbulence: str | None = None
     terms: dict[str, Any] = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        if self.min_samples is not None:  # one count for the sensitivities and the certified bins
+            self.min_periods, self.min_samples = int(self.min_samples), None
+
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe form, for provenance."""
         out = asdict(self)
+        out.pop("min_samples")
         out["heights"] = list(self.heights)
+        out["certified_range"] = list(self.certified_range)
         return out
 
 
@@ -353,13 +372,22 @@ def calibrate(
     )
     if cube.attrs.get("lidar_serial"):
         records.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
+    # 4b. replicas until every certified value settles (JCGM 101 7.9): the budget needs the terms
+    terms = _terms_per_height(records, cfg.terms)
+    rule = dict(min_periods=cfg.min_periods, certified_range=tuple(cfg.certified_range),
+                significant_digits=cfg.significant_digits)
+    records, _ = adaptive_replicas(
+        records, paths["conditions"], model, terms=terms, max_replicas=cfg.max_replicas,
+        base_seed=cfg.base_seed, chunk=cfg.chunk, scheduler=cfg.scheduler, workers=cfg.workers,
+        workdir=workdir, progress=progress, **rule)
     write_artefact(records, paths["simulated"], overwrite=overwrite)
     shutil.rmtree(workdir)
     records = open_artefact(paths["simulated"], "simulated_rtd")
-    done("simulated", "simulated records")
+    replicas = 1 + (int(records["trial_replica"].max()) if "trial_replica" in records else 0)
+    done("simulated", f"simulated records ({replicas} Monte Carlo replica(s), "
+         f"{records.sizes.get('trial', 0)} further trials)")
 
     # 5. Table 4 terms, sensitivities, budget
-    terms = _terms_per_height(records, cfg.terms)
     write_artefact(terms, paths["terms"], overwrite=overwrite)
     terms = open_artefact(paths["terms"], "uncertainty_terms")
     done("terms", "uncertainty terms not modelled by Monte Carlo (Table 4)")
@@ -367,7 +395,7 @@ def calibrate(
     for var in SENSITIVITY_VARIABLES:
         key = f"sensitivity_{var}"
         try:
-            ds = sensitivity(records, var, min_samples=cfg.min_samples,
+            ds = sensitivity(records, var, min_samples=cfg.min_periods,
                              call=f"lidarcal calibrate (sensitivity {var})")
         except InputError as exc:
             # a short run, or a site where the variable hardly varies, leaves too few full bins
@@ -380,7 +408,7 @@ def calibrate(
         write_artefact(ds, paths[key], overwrite=overwrite)
         sens[var] = open_artefact(paths[key], "sensitivity")
         done(key, f"sensitivity to {var}")
-    bud = budget(records, terms=terms, call="lidarcal calibrate (budget)")
+    bud = budget(records, terms=terms, call="lidarcal calibrate (budget)", **rule)
     write_artefact(bud, paths["budget"], overwrite=overwrite)
     bud = open_artefact(paths["budget"], "uncertainty_budget")
     done("budget", "uncertainty budget (Monte Carlo approach)")

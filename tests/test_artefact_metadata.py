@@ -34,8 +34,8 @@ DOCUMENTED = {"dB", "standard_name", "time coverage", "vertical coverage"}
 @pytest.fixture(scope="module")
 def run_dir(tmp_path_factory):
     out = tmp_path_factory.mktemp("meta") / "run"
-    code = main(["calibrate", "--periods", "48", "--min-samples", "3", "--heights", "60", "120",
-                 "--workers", "1",
+    code = main(["calibrate", "--periods", "48", "--min-periods", "3", "--heights", "60", "120",
+                 "--workers", "1", "--max-replicas", "4",
                  "--no-progress",
                  "-o", str(out), *CONTACT, *SITE, *USER])
     assert code == 0

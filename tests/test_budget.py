@@ -50,7 +50,7 @@ def linear_terms():
 
 
 def test_monte_carlo_budget_matches_hand_computation():
-    b = budget(tiny_records(), terms=linear_terms())
+    b = budget(tiny_records(), terms=linear_terms(), min_periods=3)
     assert b.wind_speed.values.tolist() == [8.0, 8.5, 9.0, 9.5]
     np.testing.assert_allclose(b.wind_speed_bounds.values[0], [7.75, 8.25])
     assert b.contributor.values.tolist() == [
@@ -91,7 +91,23 @@ def test_monte_carlo_budget_matches_hand_computation():
     # 8.5 bin: empty
     bin85 = b.sel(height=120, wind_speed=8.5)
     assert int(bin85.sample_count) == 0 and int(bin85.bin_flag) == 2
-    assert b.bin_flag.attrs["flag_meanings"] == "ok thin empty"
+    assert b.bin_flag.attrs["flag_meanings"] == "certified too_few_periods empty outside_certified_range"
+    # one record per period: trials are periods; no replica, so no certified value is settled
+    assert (b.period_count == b.sample_count).all()
+    assert int(bin8.numerical_flag) == 1 and np.isnan(float(bin8.numerical_tolerance))
+    assert b.attrs["monte_carlo_replicas"] == 1 and b.attrs["monte_carlo_trials"] == int(b.sample_count.sum())
+
+
+def test_certified_rule_is_range_and_distinct_periods():
+    """The default rule: centre in 4-16 m/s and >= 10 distinct periods; the others say why not."""
+    b = budget(tiny_records(), terms=linear_terms())  # 4 periods at most: nothing certified by default
+    assert not (b.bin_flag == 0).any()
+    assert int(b.bin_flag.sel(height=120, wind_speed=8)) == 1  # too_few_periods
+    b = budget(tiny_records(), terms=linear_terms(), min_periods=2, certified_range=(8.4, 9.6))
+    flags = b.bin_flag.sel(height=120).values.tolist()
+    assert flags == [3, 2, 1, 0]  # 8: outside the range, 8.5: empty, 9: one period, 9.5: certified
+    with pytest.raises(InputError, match="min_periods must be >= 2"):
+        budget(tiny_records(), terms=linear_terms(), min_periods=1)
 
 
 def test_iec_budget_matches_hand_computation():

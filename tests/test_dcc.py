@@ -265,6 +265,6 @@ def test_numerical_tolerance_and_monte_carlo_figures_when_the_budget_has_them():
     values = np.array(q.findtext(".//si:valueXMLList", namespaces=NS).split(), float)
     np.testing.assert_array_equal(values, tol.sel(height=z).values[keep])
     mc = _texts(tree, "//dcc:metaData[@refType='lidarcal_monteCarlo']//dcc:content")
-    assert mc == ["Monte Carlo: replicas 4, trials 8000"]
+    assert mc == ["Monte Carlo: replicas 4, trials 8000, significant digits 2"]  # the budget states N
     if os.environ.get("LIDARCAL_DCC_XSD"):
         assert validate_dcc(tree, os.environ["LIDARCAL_DCC_XSD"]) == []

@@ -36,7 +36,8 @@ def small_run(tmp_path_factory):
     level = logger.level
     logger.setLevel(logging.INFO)
     try:
-        cfg = CalibrationConfig(periods=48, heights=(60.0, 120.0), workers=1, chunk=16, min_samples=3)
+        cfg = CalibrationConfig(periods=48, heights=(60.0, 120.0), workers=1, chunk=16, min_periods=3,
+                                max_replicas=3)
         result = calibrate(out, cfg)
     finally:
         logger.removeHandler(handler)
@@ -69,10 +70,14 @@ def test_calibrate_records_its_configuration_and_chain(small_run):
     out, _, _ = small_run
     cert = xr.open_dataset(out / "certificate.nc")
     sim = xr.open_dataset(out / "simulated.nc")
-    assert sim.sizes == {"time": 48, "height": 2}
+    assert dict(sim.sizes, trial=0) == {"time": 48, "height": 2, "trial": 0}  # + the replicas' trials
+    assert set(np.unique(sim.trial_replica.values)) == {1, 2}  # max_replicas=3: replicas 1 and 2
     np.testing.assert_array_equal(sim.height.values, [60.0, 120.0])
     config = json.loads(cert.attrs["lidarcal_config"])
     assert config["periods"] == 48 and config["heights"] == [60.0, 120.0]
+    assert config["min_periods"] == 3 and config["max_replicas"] == 3 and config["significant_digits"] == 2
+    assert cert.attrs["monte_carlo_replicas"] == 3 and cert.attrs["monte_carlo_significant_digits"] == 2
+    assert "budget_numerical_tolerance" in cert and "budget_period_count" in cert
     assert config["base_seed"] == 20240101
     roles = {r["role"] for r in json.loads(sim.attrs["lidarcal_inputs"])}
     assert {"conditions", "cube", "rwf"} <= roles
@@ -96,8 +101,8 @@ def test_calibrate_refuses_existing_outputs_before_any_work(small_run):
 
 def test_cli_calibrate_runs_from_any_directory(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the sample data is found from the package, not the cwd
-    code = main(["calibrate", "--periods", "48", "--min-samples", "3", "--heights", "80", "100",
-                 "--workers", "1",
+    code = main(["calibrate", "--periods", "48", "--min-periods", "3", "--heights", "80", "100",
+                 "--workers", "1", "--max-replicas", "1",
                  "--no-progress"])
     assert code == 0
     assert (tmp_path / "lidarcal-output" / "certificate.nc").exists()
@@ -107,7 +112,7 @@ def test_cli_calibrate_runs_from_any_directory(tmp_path, capsys, monkeypatch):
     assert captured.err.count("lidarcal calibrate: [") >= len(OUTPUT_NAMES)
     assert "lidarcal calibrate: [" not in captured.out
     # exists: refused
-    assert main(["calibrate", "--periods", "48", "--min-samples", "3", "--heights", "80", "100"]) == 2
+    assert main(["calibrate", "--periods", "48", "--min-periods", "3", "--heights", "80", "100"]) == 2
     assert "file exists" in capsys.readouterr().err
 
 
@@ -131,6 +136,11 @@ def test_sample_lidar_reproduces_the_papers_findings(tmp_path):
     assert np.all(np.abs(slope) < 5.0)
     budget = xr.open_dataset(tmp_path / "budget.nc")
     ok = budget.bin_flag == 0
+    # issue 16 section 3: no certified bin holds fewer than 10 distinct periods, and all lie in 4-16 m/s
+    assert int(budget.period_count.where(ok).min()) >= 10
+    assert float(budget.wind_speed.where(ok.any("height")).min()) >= 4.0
+    assert float(budget.wind_speed.where(ok.any("height")).max()) <= 16.0
+    assert budget.attrs["monte_carlo_significant_digits"] == 2 and budget.attrs["monte_carlo_replicas"] >= 4
     rel = budget.relative_uncertainty.where(ok & (budget.sample_count >= 20)).sel(wind_speed=slice(4, 16))
     # resampled bench residuals bring bad estimates into periods at -23...-18 dB (10 % of the 200-m
     # periods, 0.1-2 % at the other heights, there mostly above -20 dB where under 1 % of estimates
@@ -159,7 +169,8 @@ def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
     ref_dir, _, _ = small_run
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "lidarcal", "calibrate", "-o", str(out), "--periods", "48",
-           "--min-samples", "3", "--heights", "60", "120", "--workers", "1", "--chunk", "16", "--no-progress"]
+           "--min-periods", "3", "--heights", "60", "120", "--workers", "1", "--chunk", "16", "--no-progress",
+           "--max-replicas", "3"]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     chunks = out / ".simulation-chunks"
     deadline = time.monotonic() + 120
@@ -182,12 +193,15 @@ def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
         c.kill()
     assert not survivors, [c.pid for c in survivors]
     assert not (out / "certificate.nc").exists()  # killed before the end
-    assert main(["calibrate", "-o", str(out), "--periods", "48", "--min-samples", "3", "--heights", "60",
-                 "120", "--workers", "1", "--chunk", "16", "--no-progress", "--overwrite"]) == 0
+    assert main(["calibrate", "-o", str(out), "--periods", "48", "--min-periods", "3", "--heights", "60",
+                 "120", "--workers", "1", "--chunk", "16", "--no-progress", "--overwrite", "--max-replicas",
+                 "3"]) == 0
     assert not chunks.exists()  # scratch removed once the simulation is written
     resumed = xr.open_dataset(out / "simulated.nc")
     reference = xr.open_dataset(ref_dir / "simulated.nc")
-    for name in ("lidar_wind_speed", "reference_wind_speed", "lidar_wind_speed_scalar"):
+    assert resumed.sizes["trial"] > 0  # the replicas of the unsettled bins, resumed too
+    for name in ("lidar_wind_speed", "reference_wind_speed", "lidar_wind_speed_scalar", "trial_replica",
+                 "trial_period_key", "trial_height", "trial_lidar_wind_speed", "trial_reference_wind_speed"):
         np.testing.assert_array_equal(resumed[name].values, reference[name].values)  # bit-identical
 
 
@@ -204,4 +218,5 @@ def test_calibrate_returns_the_datasets_it_wrote(small_run):
     assert budget.attrs["lidarcal_artefact"] == "uncertainty_budget"
     np.testing.assert_array_equal(budget.relative_uncertainty.values,
                                   xr.open_dataset(out / "budget.nc").relative_uncertainty.values)
-    assert result.datasets["simulated"].sizes == {"time": 48, "height": 2}
+    sim = result.datasets["simulated"]
+    assert (sim.sizes["time"], sim.sizes["height"]) == (48, 2)

@@ -98,8 +98,8 @@ def _glyphs(plot, glyph_type):
 def test_budget_plot_shows_every_height_and_marks_thin_bins(inputs):
     from bokeh.models import GlyphRenderer, Line, Scatter, Select
 
-    # the factory fills every bin with 10-39 periods: min_samples=20 leaves thin bins with a finite U
-    b = budget(inputs["records"], min_samples=20)
+    # the factory fills every bin with 10-39 periods: min_periods=20 leaves bins not certified with a finite U
+    b = budget(inputs["records"], min_periods=20)
     figs = report_figures(budget=b)
     assert list(figs) == ["budget", "budget_contributors"]
     page = figs["budget"].bokeh()
@@ -128,7 +128,7 @@ def test_budget_plot_shows_every_height_and_marks_thin_bins(inputs):
         thin = [r for r in mine if isinstance(r.glyph, Scatter) and r.glyph.marker == "x"]
         assert len(thin) == 1
         finite = np.isfinite(b.relative_expanded_uncertainty.sel(height=h).values)
-        expect_x = b.wind_speed.values[(flag == 1) & finite]
+        expect_x = b.wind_speed.values[(flag == 1) & finite]  # too few periods
         np.testing.assert_array_equal(thin[0].data_source.data["x"], expect_x)
         thin_seen += len(expect_x)
     assert thin_seen > 0  # the factory's records do leave thin bins, so the marker is exercised

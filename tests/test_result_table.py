@@ -21,8 +21,9 @@ def cert_path(tmp_path_factory):
     """A sealed certificate whose budget has one thin bin and one slow bin carrying large values.
 
     The records span about 2-14 m/s.  A budget written by other code may keep a value in a
-    flagged bin, so the 8 m/s bin at 120 m is flagged thin with a finite 50 %, and the ok bin
-    at 2 m/s and 80 m gets 40 %: the headline must leave both out.
+    flagged bin, so the 8 m/s bin at 120 m is flagged too_few_periods with a finite 50 %, and the
+    well-filled bin at 2 m/s and 80 m (outside the certified range) gets 40 %: the headline must
+    leave both out.
     """
     d = tmp_path_factory.mktemp("table")
     records = make_records(n=500, heights=(80.0, 120.0), lidar_serial=SERIAL, shear_slope=(8.0, 0.0))
@@ -34,7 +35,8 @@ def cert_path(tmp_path_factory):
     bud["bin_flag"][{"height": 1, "wind_speed": j8}] = 1
     rel[{"height": 1, "wind_speed": j8}] = 50.0
     j2 = int(np.argmin(abs(bud["wind_speed"].values - 2.0)))
-    assert bud["bin_flag"].isel(height=0, wind_speed=j2) == 0 and bud["wind_speed"].values[j2] == 2.0
+    assert bud["bin_flag"].isel(height=0, wind_speed=j2) == 3 and bud["wind_speed"].values[j2] == 2.0
+    assert bud["period_count"].isel(height=0, wind_speed=j2) >= 10  # not certified only by its speed
     rel[{"height": 0, "wind_speed": j2}] = 40.0
     sens = [sensitivity(records, v) for v in ("wind_shear_exponent", "turbulence_intensity")]
     terms = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS)
@@ -45,13 +47,14 @@ def cert_path(tmp_path_factory):
 
 
 def _brute_headline(bud):
-    """Loop over every bin: flag ok, centre in [4, 16] m/s, finite value."""
+    """Loop over every bin: >= 10 periods, centre in [4, 16] m/s, finite value, not planted thin."""
     vals = []
     bud = bud.transpose("height", "wind_speed", ...)  # the loops index (height, wind speed)
     for i in range(bud.sizes["height"]):
         for j, u in enumerate(bud["wind_speed"].values):
             v = float(bud["relative_expanded_uncertainty"].values[i, j])
-            if int(bud["bin_flag"].values[i, j]) == 0 and 4.0 <= u <= 16.0 and np.isfinite(v):
+            planted = int(bud["bin_flag"].values[i, j]) == 1 and bud["period_count"].values[i, j] >= 10
+            if bud["period_count"].values[i, j] >= 10 and 4.0 <= u <= 16.0 and np.isfinite(v) and not planted:
                 vals.append(v)
     return min(vals), max(vals)
 
@@ -72,8 +75,11 @@ def test_table_numbers_are_the_certificate_values(cert_path):
             np.testing.assert_array_equal(row["expanded_uncertainty_k2_pct"],
                                           cert["budget_relative_expanded_uncertainty"].values[i, j])
             assert row["sample_count"] == cert["budget_sample_count"].values[i, j]
+            assert row["period_count"] == cert["budget_period_count"].values[i, j]
             flag = int(cert["budget_bin_flag"].values[i, j])
-            assert row["bin_flag"] == ["ok", "thin", "empty"][flag]
+            meanings = ["certified", "too_few_periods", "empty", "outside_certified_range"]
+            assert row["bin_flag"] == meanings[flag]
+            assert row["certified"] == (flag == 0) and (row["not_certified_reason"] == "") == (flag == 0)
     # the contributors: the largest relative contributions of one well-filled bin, by name
     i, j = 0, int(np.argmax(cert["budget_sample_count"].values[0]))
     rc = cert["budget_relative_contribution"].values[i, j]
@@ -90,11 +96,12 @@ def test_headline_leaves_out_flagged_and_out_of_range_bins(cert_path):
     lo, hi = headline_range(cert)
     assert (lo, hi) == _brute_headline(bud)
     assert hi < 40.0  # neither the planted thin bin (50 %) nor the 2 m/s bin (40 %)
-    # without the range restriction the 2 m/s bin would be the maximum; the thin one never
-    assert headline_range(cert, wind_speeds=(0.0, 100.0))[1] == 40.0
     table = result_table(cert)
-    assert not table.loc[table["bin_flag"] != "ok", "in_headline"].any()
-    inside = table[table["in_headline"]]
+    assert not table.loc[table["bin_flag"] != "certified", "certified"].any()
+    reasons = table.set_index(["height_m", "wind_speed_m_s"])["not_certified_reason"]
+    assert reasons.loc[(80.0, 2.0)] == "centre outside 4 to 16 m/s"
+    assert reasons.loc[(120.0, 8.0)].endswith("periods (fewer than 10)")
+    inside = table[table["certified"]]
     pct = inside["expanded_uncertainty_k2_pct"]
     assert (pct.min(), pct.max()) == (lo, hi)
     assert cert.attrs["expanded_uncertainty_headline"].startswith(f"{lo:.2f} % to {hi:.2f} %")
@@ -126,7 +133,7 @@ def test_table_cli_formats(cert_path, tmp_path, capsys, fmt):
         back = pd.read_csv(out)
         assert len(back) == len(result_table(xr.open_dataset(cert_path)))
         # CSV keeps pandas' shortest round-trip repr of the float64: equal to the last bit
-        assert back["expanded_uncertainty_k2_pct"].where(back["in_headline"]).max() == hi
+        assert back["expanded_uncertainty_k2_pct"].where(back["certified"]).max() == hi
     else:
         assert f"{lo:.2f} % to {hi:.2f} %" in text and "Significant sensitivities" in text
     assert main(["table", str(cert_path), "-o", str(out)]) == 2  # never replaced silently

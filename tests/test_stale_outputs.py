@@ -77,8 +77,8 @@ def test_calibrate_writes_the_certificate_last(inputs, tmp_path, monkeypatch):
                         lambda *a, **k: (order.append("certificate"), real_cert(*a, **k))[1])
     monkeypatch.setattr(lidarcal.pipeline, "write_report",
                         lambda *a, **k: (order.append("report"), real_report(*a, **k))[1])
-    cfg = CalibrationConfig(periods=24, heights=(60.0, 120.0), workers=1, chunk=24, min_samples=3,
-                            scheduler="synchronous")
+    cfg = CalibrationConfig(periods=24, heights=(60.0, 120.0), workers=1, chunk=24, min_periods=3,
+                            scheduler="synchronous", max_replicas=1)
     calibrate(tmp_path / "run", cfg)
     assert order == ["report", "certificate"]
 

@@ -18,13 +18,29 @@ contributors are, for the two approaches of Figure 9:
 
 They are combined in quadrature into ``uncertainty`` (m s-1); ``relative_uncertainty`` (%)
 is relative to the bin's mean reference wind speed Ū; ``expanded_uncertainty`` is
-k × ``uncertainty`` (k = 2 by default).  Bins with fewer than ``min_samples`` periods are
-flagged in ``bin_flag`` (not dropped); σ_diff needs two periods, so single-period bins have a
-NaN combined uncertainty.
+k × ``uncertainty`` (k = 2 by default).
+
+**What is certified** — one rule, :func:`certified_bins`, used by the budget, the certificate,
+``lidarcal table``, the report and the headline: a bin is certified when its centre lies in the
+certified wind-speed range (:data:`DEFAULT_CERTIFIED_RANGE`, 4 to 16 m s-1) and it holds at
+least ``min_periods`` distinct 10-minute periods of the conditions record
+(:data:`DEFAULT_MIN_PERIODS` = 10).  ``bin_flag`` says which bins are (``certified``) and why
+the others are not (``too_few_periods``, ``empty``, ``outside_certified_range``); no bin is
+dropped.
+
+**Monte Carlo replicas** (JCGM 101 §7.9) — ``simulated_rtd`` records may carry further trials
+of the same periods with independent seed streams (variables ``trial_*`` on a ``trial`` dim,
+written by :mod:`lidarcal.campaign.adaptive`).  Every trial enters the bin statistics:
+``sample_count`` counts trials, ``period_count`` distinct periods.  Each replica's own estimate
+of a certified bin's relative expanded uncertainty gives the numerical tolerance of the value,
+``numerical_tolerance`` = the smallest ½·10^ℓ at least 2·s/√h (s: standard deviation of the h
+replica estimates, JCGM 101 §7.9.4), and ``numerical_flag`` says whether it settled to
+``significant_digits`` significant digits (:func:`numerical_state`).
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -34,12 +50,15 @@ import xarray as xr
 from lidarcal.analysis import kernels
 from lidarcal.analysis._records import checked, select_heights, source_name
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
+from lidarcal.binning import bin_index
 from lidarcal.cf import Param, declared_attrs, with_bounds
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.provenance import stamp
 from lidarcal.units import Q_, convert_values, to_magnitude
 
-__all__ = ["budget", "CONTRIBUTORS", "DEFAULT_MIN_SAMPLES", "TERMS_TOTAL_NAMES"]
+__all__ = ["budget", "certified_bins", "numerical_state", "tolerance_exponent", "CONTRIBUTORS",
+           "DEFAULT_CERTIFIED_RANGE", "DEFAULT_MIN_PERIODS", "DEFAULT_SIGNIFICANT_DIGITS", "FLAG_MEANINGS",
+           "TERMS_TOTAL_NAMES", "TRIAL_VARIABLES"]
 
 #: Contributors of each approach, in the order of the ``contributor`` dimension.
 CONTRIBUTORS = {
@@ -59,8 +78,19 @@ _CONTRIBUTOR_NAMES = {
     "flow_inhomogeneity": "flow inhomogeneity across the lidar measurement volume",
 }
 
-#: Bins with fewer periods are flagged ``thin`` (IEC practice: at least 3 per bin).
-DEFAULT_MIN_SAMPLES = 3
+#: Certified wind-speed range: bin centres (m s-1, inclusive) a certified bin may have.
+DEFAULT_CERTIFIED_RANGE = (4.0, 16.0)
+#: Fewest distinct 10-minute periods of the conditions record in a certified bin.
+DEFAULT_MIN_PERIODS = 10
+#: Significant digits the Monte Carlo settles every certified value to (JCGM 101 §7.9).
+DEFAULT_SIGNIFICANT_DIGITS = 2
+#: ``bin_flag`` meanings, in the order of its values 0, 1, 2, 3.
+FLAG_MEANINGS = ("certified", "too_few_periods", "empty", "outside_certified_range")
+#: ``numerical_flag`` meanings (values 0, 1, 2).
+NUMERICAL_FLAG_MEANINGS = ("settled", "not_settled", "not_certified")
+#: Variables (dim ``trial``) of the further Monte Carlo replicas in ``simulated_rtd`` records.
+TRIAL_VARIABLES = ("trial_replica", "trial_period_key", "trial_height", "trial_lidar_wind_speed",
+                   "trial_reference_wind_speed")
 
 #: Names under which an ``uncertainty_terms`` artefact may store the Table 4 total (m s-1).
 TERMS_TOTAL_NAMES = ("total", "total_uncertainty", "combined_uncertainty", "uncertainty")
@@ -136,12 +166,73 @@ def _terms_total(
     return np.asarray(arr, dtype=float), origin
 
 
+def certified_bins(centres: np.ndarray, period_count: np.ndarray, *,
+                   certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE,
+                   min_periods: int = DEFAULT_MIN_PERIODS) -> np.ndarray:
+    """Return the ``bin_flag`` of every bin (int8, ``(..., bin)``): the one rule for what is certified.
+
+    0 ``certified`` (centre in ``certified_range`` m s-1, inclusive, and at least ``min_periods``
+    distinct periods), 1 ``too_few_periods``, 2 ``empty`` (no period), 3
+    ``outside_certified_range`` (a non-empty bin whose centre is outside the range).
+
+    >>> certified_bins(np.array([2.0, 8.0, 8.5, 9.0]), np.array([50, 12, 9, 0])).tolist()
+    [3, 0, 1, 2]
+    """
+    lo, hi = (float(v) for v in certified_range)
+    centres = np.asarray(centres, dtype=float)
+    n = np.asarray(period_count)
+    inside = (centres >= lo - 1e-9) & (centres <= hi + 1e-9)
+    flag = np.where(n >= int(min_periods), 0, 1)
+    flag = np.where(inside, flag, 3)
+    return np.where(n > 0, flag, 2).astype(np.int8)
+
+
+def tolerance_exponent(spread: np.ndarray) -> np.ndarray:
+    """Smallest integer ℓ with ½·10^ℓ ≥ ``spread`` (= 2 s/√h); NaN where ``spread`` is NaN.
+
+    >>> tolerance_exponent(np.array([0.04, 0.05, 0.051, 0.3])).tolist()
+    [-1.0, -1.0, 0.0, 0.0]
+    """
+    spread = np.asarray(spread, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ell = np.ceil(np.log10(2.0 * spread) - 1e-12)
+    return np.where(spread > 0, ell, np.where(spread == 0, -np.inf, np.nan))
+
+
+def numerical_state(value: np.ndarray, estimates: np.ndarray, certified: np.ndarray,
+                    significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Numerical tolerance of each value from its replica estimates (JCGM 101 §7.9.4).
+
+    ``estimates`` (..., replica) holds every replica's own estimate of ``value`` (...) (NaN where
+    a replica did not estimate it).  With h ≥ 2 estimates and s their standard deviation, the
+    value reached the tolerance δ = ½·10^ℓ, ℓ the smallest integer with δ ≥ 2 s/√h; it has
+    settled to ``significant_digits`` digits when δ ≤ ½·10^(e − N + 1), e the decimal exponent of
+    ``value`` (JCGM 101 §7.9.2).  Returns (tolerance, flag, h): flag 0 ``settled``, 1
+    ``not_settled``, 2 ``not_certified`` (``certified`` False: not assessed).
+    """
+    est = np.asarray(estimates, dtype=float)
+    h = np.isfinite(est).sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN cells: NaN, no warning
+        s = np.nanstd(est, axis=-1, ddof=1)
+        spread = np.where(h >= 2, 2.0 * s / np.sqrt(np.maximum(h, 1)), np.nan)
+        ell = tolerance_exponent(spread)
+        tol = np.where(np.isfinite(ell) | (ell == -np.inf), 0.5 * 10.0 ** ell, np.nan)
+        v = np.abs(np.asarray(value, dtype=float))
+        target = np.floor(np.log10(np.where(v > 0, v, np.nan))) - int(significant_digits) + 1
+    settled = np.isfinite(tol) & np.isfinite(target) & (ell <= target)
+    flag = np.where(np.asarray(certified, dtype=bool), np.where(settled, 0, 1), 2).astype(np.int8)
+    return tol, flag, h
+
+
 #: Declared CF attributes of every output variable (applied by :func:`_assemble`).  Templates:
-#: ``{k}`` the coverage factor as text, ``{min_samples}``; ``Param("k")`` the factor as a number.
+#: ``{k}`` the coverage factor as text, ``{min_periods}``, ``{lo}``, ``{hi}``, ``{digits}``;
+#: ``Param("k")`` the factor as a number.
 OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
     "uncertainty": dict(
         long_name="combined standard uncertainty of the lidar wind speed (quadrature sum of contributors)",
-        units="m s-1", ancillary_variables="sample_count bin_flag",
+        units="m s-1", ancillary_variables="sample_count period_count bin_flag",
         standard_name="wind_speed standard_error"),
     "relative_uncertainty": dict(
         long_name="combined standard uncertainty relative to the bin mean reference wind speed", units="%"),
@@ -149,7 +240,18 @@ OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
                                  coverage_factor=Param("coverage_factor")),
     "relative_expanded_uncertainty": dict(
         long_name="expanded uncertainty (k = {k}) relative to the bin mean reference wind speed", units="%",
-        coverage_factor=Param("coverage_factor")),
+        coverage_factor=Param("coverage_factor"), ancillary_variables="numerical_tolerance numerical_flag"),
+    "numerical_tolerance": dict(
+        long_name="numerical tolerance of the relative expanded uncertainty reached by the Monte Carlo "
+                  "(JCGM 101 7.9.4: smallest 1/2 10^l at least 2 s / sqrt(h), s the standard deviation of "
+                  "the h replica estimates)", units="%", coverage_content_type="qualityInformation",
+        comment="NaN where fewer than two replicas estimated the value"),
+    "numerical_flag": dict(
+        long_name="relative expanded uncertainty settled to {digits} significant digits by the Monte Carlo",
+        units="1", coverage_content_type="qualityInformation",
+        flag_values=np.array([0, 1, 2], dtype=np.int8), flag_meanings=" ".join(NUMERICAL_FLAG_MEANINGS),
+        comment="settled: numerical_tolerance <= 1/2 10^l for {digits} significant digits (JCGM 101 7.9.2); "
+                "only certified bins are assessed"),
     # CF standard-name modifiers (Appendix C): each contribution is a standard uncertainty of
     # the wind speed; relative and expanded uncertainties have no CF name (docs/certificate.md)
     "contribution": dict(long_name="standard uncertainty contribution", units="m s-1",
@@ -157,9 +259,11 @@ OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
     "relative_contribution": dict(
         long_name="standard uncertainty contribution relative to the bin mean reference wind speed",
         units="%"),
-    "sample_count": dict(long_name="number of 10-minute periods in bin", units="1",
-                         coverage_content_type="auxiliaryInformation",
+    "sample_count": dict(long_name="number of Monte Carlo trials (10-minute records, all replicas) in bin",
+                         units="1", coverage_content_type="auxiliaryInformation",
                          standard_name="wind_speed number_of_observations"),
+    "period_count": dict(long_name="number of distinct 10-minute periods of the conditions record in bin",
+                         units="1", coverage_content_type="auxiliaryInformation"),
     "mean_reference_wind_speed": dict(long_name="mean reference wind speed in bin", units="m s-1",
                                       standard_name="wind_speed"),
     "mean_lidar_wind_speed": dict(long_name="mean lidar wind speed in bin", units="m s-1",
@@ -167,9 +271,13 @@ OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
     "mean_difference": dict(long_name="mean lidar minus reference wind speed", units="m s-1"),
     "std_difference": dict(long_name="standard deviation of lidar minus reference wind speed (ddof=1)",
                            units="m s-1"),
-    "bin_flag": dict(long_name="bin sample flag", units="1", coverage_content_type="qualityInformation",
-                     flag_values=np.array([0, 1, 2], dtype=np.int8), flag_meanings="ok thin empty",
-                     comment="thin: fewer than {min_samples} periods; empty: no period"),
+    "bin_flag": dict(long_name="bin certification flag", units="1",
+                     coverage_content_type="qualityInformation",
+                     flag_values=np.array([0, 1, 2, 3], dtype=np.int8), flag_meanings=" ".join(FLAG_MEANINGS),
+                     comment="certified: centre in {lo:g} to {hi:g} m s-1 and at least {min_periods} "
+                             "distinct "
+                             "periods; too_few_periods: fewer than {min_periods} periods; empty: no period; "
+                             "outside_certified_range: centre outside {lo:g} to {hi:g} m s-1"),
     "wind_speed": dict(long_name="centre of reference wind speed bin", units="m s-1",
                        standard_name="wind_speed", coverage_content_type="coordinate"),
 }
@@ -184,7 +292,9 @@ def budget(
     terms: xr.Dataset | None = None,
     approach: str = "monte_carlo",
     bin_width: Any = "0.5 m s-1",
-    min_samples: int = DEFAULT_MIN_SAMPLES,
+    min_periods: int = DEFAULT_MIN_PERIODS,
+    certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE,
+    significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS,
     heights: Iterable[float] | None = None,
     coverage_factor: float = 2.0,
     reference_uncertainty: Any = None,
@@ -195,6 +305,7 @@ def budget(
     noise_terms: str = "printed",
     source: str | None = None,
     call: str | None = None,
+    min_samples: int | None = None,
 ) -> xr.Dataset:
     """Uncertainty budget per height and reference wind-speed bin.
 
@@ -212,8 +323,13 @@ def budget(
     approach : {"monte_carlo", "iec"}
     bin_width : quantity or str
         Wind-speed bin width (default 0.5 m s-1).
-    min_samples : int
-        Bins with fewer periods are flagged ``thin`` (default 3).
+    min_periods : int
+        Fewest distinct 10-minute periods a certified bin holds (default 10; :func:`certified_bins`).
+    certified_range : (float, float)
+        Bin centres (m s-1, inclusive) a certified bin may have (default 4 to 16).
+    significant_digits : int
+        Digits the Monte Carlo must settle every certified value to (``numerical_flag``;
+        default 2).  Needs records with replicas (``trial_*`` variables) to be assessed.
     heights : sequence of float, optional
         Heights (m) to include; a height not in the records is an error.
     coverage_factor : float
@@ -225,6 +341,8 @@ def budget(
         bin's mean reference wind speed.
     source, call : str, optional
         File name for messages and the command recorded in ``history``.
+    min_samples : int, optional
+        The former name of ``min_periods`` (given, it replaces it).
 
     Returns
     -------
@@ -234,8 +352,14 @@ def budget(
     source = source or source_name(records)
     if approach not in CONTRIBUTORS:
         raise InputError(f"approach must be one of {sorted(CONTRIBUTORS)}; got {approach!r}")
-    if int(min_samples) < 1:
-        raise InputError(f"min_samples must be >= 1; got {min_samples}")
+    if min_samples is not None:
+        min_periods = int(min_samples)
+    if int(min_periods) < 2:
+        raise InputError(f"min_periods must be >= 2 (a standard deviation needs two periods); "
+                         f"got {min_periods}")
+    certified_range = _certified_range(certified_range)
+    if int(significant_digits) < 1:
+        raise InputError(f"significant_digits must be >= 1; got {significant_digits}")
     width = float(to_magnitude(bin_width, "m s-1", name="bin_width"))
     if not width > 0:
         raise InputError(f"bin_width must be positive; got {bin_width!r}")
@@ -243,13 +367,16 @@ def budget(
     records = select_heights(records, heights, source=source)
     edges, binned = _binned(records, width, source)
     centres = 0.5 * (edges[:-1] + edges[1:])
-    config: dict[str, Any] = {"approach": approach, "bin_width_m_s-1": width, "min_samples": int(min_samples),
+    config: dict[str, Any] = {"approach": approach, "bin_width_m_s-1": width, "min_periods": int(min_periods),
+                              "certified_range_m_s-1": list(certified_range),
+                              "significant_digits": int(significant_digits),
                               "coverage_factor": k, "binned_by": "reference_wind_speed",
                               "relative_to": "mean reference wind speed in the bin"}
     if approach == "monte_carlo":
         vref, config["virtual_reference_terms"] = _terms_total(
             terms, centres, np.asarray(records["height"].values, dtype=float), noise_terms)
         parts = _monte_carlo_parts(binned, vref)
+        binned["estimates"] = _replica_estimates(binned, vref, k)
     else:
         u_abs, rel = _iec_inputs(terms, reference_uncertainty, dict(zip(_IEC_FRACTIONS, (
             reference_relative_uncertainty, mounting, separation, flow_inhomogeneity), strict=True)))
@@ -257,13 +384,37 @@ def budget(
         parts = _iec_parts(binned, u_abs, rel)
     contribution = np.stack([np.broadcast_to(parts[c], binned["n"].shape) for c in CONTRIBUTORS[approach]],
                             axis=-1)
-    return _assemble(records, terms, approach, edges, binned, contribution, int(min_samples), k, config, call)
+    rule = {"min_periods": int(min_periods), "certified_range": certified_range,
+            "significant_digits": int(significant_digits)}
+    return _assemble(records, terms, approach, edges, binned, contribution, rule, k, config, call)
 
 
-def _binned(records: xr.Dataset, width: float, source: str) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Bin edges centred on multiples of ``width`` and the per-(height, bin) statistics."""
+def _certified_range(value: Any) -> tuple[float, float]:
+    def speed(v: Any) -> float:  # bare numbers are m s-1 here (the range is documented in m s-1)
+        return float(v) if isinstance(v, int | float | np.number) else float(
+            to_magnitude(v, "m s-1", name="certified_range"))
+
+    try:
+        lo, hi = (speed(v) for v in value)
+    except (TypeError, ValueError):
+        raise InputError(f"certified_range must be two wind speeds (m s-1), low and high; "
+                         f"got {value!r}") from None
+    if not 0 <= lo <= hi:
+        raise InputError(f"certified_range must satisfy 0 <= low <= high; got {lo:g} to {hi:g} m s-1")
+    return lo, hi
+
+
+def _binned(records: xr.Dataset, width: float, source: str) -> tuple[np.ndarray, dict[str, Any]]:
+    """Bin edges centred on multiples of ``width`` and the per-(height, bin) statistics.
+
+    Without replicas (no ``trial_*`` variables) the records are binned lazily (Dask-friendly);
+    with them every trial of every replica enters the statistics, and each replica's own
+    statistics are kept for its estimates (:func:`_replica_estimates`).
+    """
     lidar = checked(records, "lidar_wind_speed", source=source)
     ref = checked(records, "reference_wind_speed", source=source)
+    if "trial_replica" in records.variables:
+        return _binned_replicas(records, lidar, ref, width, source)
     ok = np.isfinite(lidar) & np.isfinite(ref)
     diff = (lidar - ref).where(ok)
     refv = ref.where(ok)
@@ -288,8 +439,113 @@ def _binned(records: xr.Dataset, width: float, source: str) -> tuple[np.ndarray,
     n, mean_diff, std_diff, mean_ref, mean_lidar = (np.asarray(o.compute().values) for o in outs)
     with np.errstate(invalid="ignore", divide="ignore"):
         statistical = std_diff / np.sqrt(n)
+    # one record per period and height: the trials are the periods
     return edges, {"n": n, "mean_difference": mean_diff, "std_difference": std_diff,
-                   "mean_reference": mean_ref, "mean_lidar": mean_lidar, "statistical": statistical}
+                   "mean_reference": mean_ref, "mean_lidar": mean_lidar, "statistical": statistical,
+                   "period_count": n, "replicas": [{"n": n, "mean_difference": mean_diff,
+                                                     "std_difference": std_diff, "mean_reference": mean_ref,
+                                                     "targeted": n > 0}]}
+
+
+def _trial_arrays(records: xr.Dataset, heights: np.ndarray, source: str) -> dict[str, np.ndarray]:
+    """Return the ``trial_*`` variables as arrays, each trial's height as an index into ``heights``."""
+    missing = [n for n in TRIAL_VARIABLES if n not in records.variables]
+    if missing:
+        raise MissingVariableError(f"{source}: replica trials need the variables {list(TRIAL_VARIABLES)}; "
+                                   f"missing {missing}")
+    out = {}
+    for name in ("trial_lidar_wind_speed", "trial_reference_wind_speed"):
+        var = records[name]
+        out[name] = convert_values(np.asarray(var.values, dtype=float), var.attrs.get("units"), "m s-1",
+                                   where=f"{source}: variable {name!r}")
+    th = convert_values(np.asarray(records["trial_height"].values, dtype=float),
+                        records["trial_height"].attrs.get("units"), "m",
+                        where=f"{source}: variable 'trial_height'")
+    hidx = np.full(th.shape, -1)
+    for i, z in enumerate(heights):
+        hidx[np.abs(th - z) < 1e-3] = i
+    out["height_index"] = hidx
+    out["replica"] = np.asarray(records["trial_replica"].values, dtype=np.int64)
+    out["period_key"] = np.asarray(records["trial_period_key"].values, dtype=np.int64)
+    return out
+
+
+def _binned_replicas(records: xr.Dataset, lidar: xr.DataArray, ref: xr.DataArray, width: float,
+                     source: str) -> tuple[np.ndarray, dict[str, Any]]:
+    """:func:`_binned` over replica 0 (the (time, height) records) and every further trial."""
+    heights = np.asarray(records["height"].values, dtype=float)
+    lid0, ref0 = np.asarray(lidar.values), np.asarray(ref.values)  # (time, height)
+    if "period_key" not in records.variables:
+        raise MissingVariableError(f"{source}: replica trials need the variable 'period_key' of replica 0")
+    key0 = np.asarray(records["period_key"].values, dtype=np.int64)
+    tr = _trial_arrays(records, heights, source)
+    t_ok = (tr["height_index"] >= 0) & np.isfinite(tr["trial_lidar_wind_speed"]) & np.isfinite(
+        tr["trial_reference_wind_speed"])
+    ok0 = np.isfinite(lid0) & np.isfinite(ref0)
+    allref = np.concatenate([ref0[ok0], tr["trial_reference_wind_speed"][t_ok]])
+    if not allref.size:
+        raise InputError(f"{source}: no period has both lidar_wind_speed and reference_wind_speed; "
+                         "nothing to put in a budget")
+    edges = kernels.centred_edges(float(allref.min()), float(allref.max()), width)
+    nh, nb = len(heights), len(edges) - 1
+    replicas = sorted({0, *(int(r) for r in np.unique(tr["replica"]))})
+    shape = (nh, nb)
+    pooled = {k: np.full(shape, np.nan) for k in ("mean_difference", "std_difference", "mean_reference",
+                                                  "mean_lidar")}
+    pooled["n"] = np.zeros(shape, dtype=np.int64)
+    pooled["period_count"] = np.zeros(shape, dtype=np.int64)
+    per = [{"n": np.zeros(shape, dtype=np.int64), "mean_difference": np.full(shape, np.nan),
+            "std_difference": np.full(shape, np.nan), "mean_reference": np.full(shape, np.nan),
+            "targeted": np.zeros(shape, dtype=bool)} for _ in replicas]
+    pos = {r: j for j, r in enumerate(replicas)}
+    for i in range(nh):
+        sel = t_ok & (tr["height_index"] == i)
+        x = np.concatenate([ref0[ok0[:, i], i], tr["trial_reference_wind_speed"][sel]])
+        lid = np.concatenate([lid0[ok0[:, i], i], tr["trial_lidar_wind_speed"][sel]])
+        keys = np.concatenate([key0[ok0[:, i]], tr["period_key"][sel]])
+        rep = np.concatenate([np.zeros(int(ok0[:, i].sum()), dtype=np.int64), tr["replica"][sel]])
+        n, md, sd, mref = kernels.bin_statistics(x, lid - x, edges)
+        _, mlid, _, _ = kernels.bin_statistics(x, lid, edges)
+        pooled["n"][i], pooled["mean_difference"][i], pooled["std_difference"][i] = n, md, sd
+        pooled["mean_reference"][i], pooled["mean_lidar"][i] = mref, mlid
+        b = bin_index(x, edges)
+        pairs = np.unique(np.stack([b[b >= 0], keys[b >= 0]]), axis=1)
+        pooled["period_count"][i] = np.bincount(pairs[0], minlength=nb)
+        # the replica-0 bin of every period with a reference value: the cells a replica targets
+        has_ref0 = np.isfinite(ref0[:, i])
+        b0 = bin_index(ref0[has_ref0, i], edges)
+        k0 = key0[has_ref0]
+        for r in replicas:
+            mine = rep == r
+            rn, rmd, rsd, rmref = kernels.bin_statistics(x[mine], (lid - x)[mine], edges)
+            d = per[pos[r]]
+            d["n"][i], d["mean_difference"][i] = rn, rmd
+            d["std_difference"][i], d["mean_reference"][i] = rsd, rmref
+            if r == 0:
+                d["targeted"][i] = rn > 0
+                continue
+            # replica r estimates a cell only if it re-simulated every period replica 0 put in it
+            done = np.isin(k0, tr["period_key"][(tr["replica"] == r) & (tr["height_index"] == i)])
+            missed = np.bincount(b0[(b0 >= 0) & ~done], minlength=nb)
+            present = np.bincount(b0[b0 >= 0], minlength=nb)
+            d["targeted"][i] = (present > 0) & (missed == 0) & (rn > 0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pooled["statistical"] = pooled["std_difference"] / np.sqrt(pooled["n"])
+    pooled["replicas"] = per
+    return edges, pooled
+
+
+def _replica_estimates(binned: Mapping[str, Any], vref: np.ndarray, k: float) -> np.ndarray:
+    """Each replica's own relative expanded uncertainty (%) per (height, bin, replica); NaN where none."""
+    out = []
+    for d in binned["replicas"]:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            parts = _monte_carlo_parts({**d, "statistical": d["std_difference"] / np.sqrt(d["n"])}, vref)
+            combined = kernels.quadrature(*(np.broadcast_to(parts[c], d["n"].shape)
+                                            for c in CONTRIBUTORS["monte_carlo"]))
+            value = k * combined * 100.0 / d["mean_reference"]
+        out.append(np.where(d["targeted"], value, np.nan))
+    return np.stack(out, axis=-1)
 
 
 def _monte_carlo_parts(binned: Mapping[str, np.ndarray], vref: np.ndarray) -> dict[str, np.ndarray]:
@@ -324,7 +580,7 @@ def _iec_parts(binned: Mapping[str, np.ndarray], u_abs: float,
 
 
 def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edges: np.ndarray,
-              binned: Mapping[str, np.ndarray], contribution: np.ndarray, min_samples: int, k: float,
+              binned: Mapping[str, Any], contribution: np.ndarray, rule: Mapping[str, Any], k: float,
               config: dict[str, Any], call: str | None) -> xr.Dataset:
     """Build the ``uncertainty_budget`` artefact with the attributes of :data:`OUTPUT_ATTRS`, stamped."""
     n, names = binned["n"], CONTRIBUTORS[approach]
@@ -337,13 +593,28 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edge
         "expanded_uncertainty": (hw, k * combined), "relative_expanded_uncertainty": (hw, k * combined * pct),
         "contribution": (hwc, contribution), "relative_contribution": (hwc, contribution * pct[..., None]),
         "sample_count": (hw, n.astype(np.int32)),
+        "period_count": (hw, np.asarray(binned["period_count"]).astype(np.int32)),
         "mean_reference_wind_speed": (hw, binned["mean_reference"]),
         "mean_lidar_wind_speed": (hw, binned["mean_lidar"]),
         "mean_difference": (hw, binned["mean_difference"]),
         "std_difference": (hw, binned["std_difference"]),
-        "bin_flag": (hw, np.where(n >= min_samples, 0, np.where(n > 0, 1, 2)).astype(np.int8)),
+        "bin_flag": (hw, certified_bins(0.5 * (edges[:-1] + edges[1:]), binned["period_count"],
+                                        certified_range=rule["certified_range"],
+                                        min_periods=rule["min_periods"])),
     }
-    context = {"k": f"{k:g}", "coverage_factor": k, "min_samples": min_samples}
+    mc: dict[str, Any] = {}
+    if "estimates" in binned:  # the Monte Carlo approach: how far its own numbers have settled
+        tol, nflag, h = numerical_state(values["relative_expanded_uncertainty"][1], binned["estimates"],
+                                        values["bin_flag"][1] == 0, rule["significant_digits"])
+        values["numerical_tolerance"] = (hw, tol)
+        values["numerical_flag"] = (hw, nflag)
+        mc = {"monte_carlo_replicas": int(binned["estimates"].shape[-1]), "monte_carlo_trials": int(n.sum()),
+              "monte_carlo_significant_digits": int(rule["significant_digits"]),
+              "monte_carlo_settled": int((nflag == 0).sum()),
+              "monte_carlo_not_settled": int((nflag == 1).sum())}
+    lo, hi = rule["certified_range"]
+    context = {"k": f"{k:g}", "coverage_factor": k, "min_periods": rule["min_periods"], "lo": lo, "hi": hi,
+               "digits": rule["significant_digits"]}
     ds = xr.Dataset(
         {name: (dims, data, declared_attrs(OUTPUT_ATTRS, name, **context))
          for name, (dims, data) in values.items()},
@@ -358,8 +629,9 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edge
     )
     ds["height"].attrs = dict(records["height"].attrs)
     ds = with_bounds(ds, "wind_speed", edges)
-    ds.attrs = {"approach": approach, "coverage_factor": k, "min_samples": min_samples,
-                "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown"))}
+    ds.attrs = {"approach": approach, "coverage_factor": k, "min_periods": rule["min_periods"],
+                "certified_range_m_s": np.array([lo, hi]),
+                "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")), **mc}
     serial = records.attrs.get("lidar_serial") or records.attrs.get("lidar_serial_number")  # .sta: _number
     if serial:
         ds.attrs["lidar_serial"] = serial

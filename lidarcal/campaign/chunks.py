@@ -54,9 +54,16 @@ def period_keys(times: np.ndarray) -> np.ndarray:
     return t.astype("datetime64[s]").astype(np.int64)
 
 
-def seed_entropy(base_seed: int, key: int) -> tuple[int, int]:
-    """``(base_seed, key)`` as SeedSequence entropy (non-negative: times before 1970 wrap modulo 2**64)."""
-    return int(base_seed), int(key) % 2**64
+def seed_entropy(base_seed: int, key: int, replica: int = 0) -> tuple[int, ...]:
+    """``(base_seed, key)`` as SeedSequence entropy (non-negative: times before 1970 wrap modulo 2**64).
+
+    Monte Carlo replica ``replica`` >= 1 of the period (JCGM 101 7.9, docs/seeds.md) draws from
+    ``(base_seed, replica, key)``; replica 0 keeps ``(base_seed, key)``, the streams of a run
+    without replicas.
+    """
+    if int(replica) == 0:
+        return int(base_seed), int(key) % 2**64
+    return int(base_seed), int(replica), int(key) % 2**64
 
 
 def chunk_key(
@@ -69,11 +76,13 @@ def chunk_key(
     duration: float,
     los_periods: tuple[int, ...],
     keys: np.ndarray | None = None,
+    extra: dict | None = None,
 ) -> str:
     """SHA-256 naming a chunk's result: same key ⇔ same inputs ⇔ same numbers.
 
     ``keys`` are the chunk's period seed keys (:func:`period_keys`); the conditions checksum
-    with the chunk bounds fixes its input values.
+    with the chunk bounds fixes its input values.  ``extra`` (a replica's number and the cells it
+    simulates) enters the key only when given, so replica 0 keeps its keys.
     """
     los = [int(i) for i in los_periods if start <= i < stop]
     text = json.dumps(
@@ -88,6 +97,7 @@ def chunk_key(
             "duration": float(duration),
             "los": los,
             "period_keys": [int(k) for k in (keys if keys is not None else [])],
+            **(extra or {}),
         },
         sort_keys=True,
     )
@@ -180,7 +190,7 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
                 model,
                 heights=heights[cols],
                 **{name: np.asarray(task[name][i, cols], dtype=float) for name in INPUTS},
-                seed=seed_entropy(task["base_seed"], task["period_key"][i]),
+                seed=seed_entropy(task["base_seed"], task["period_key"][i], task.get("replica", 0)),
                 duration=float(task["duration"]),
                 return_los=want_los,
             )

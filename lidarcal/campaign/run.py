@@ -35,6 +35,7 @@ import functools
 import logging
 import os
 import time
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -57,14 +58,15 @@ from lidarcal.campaign.chunks import (
 from lidarcal.campaign.los import los_variables
 from lidarcal.campaign.workers import BLAS_ENV, PARENT_PID_ENV, init_pool_worker, quiet_orphaned_gathers
 from lidarcal.cf import height_coord, time_coord, var_attrs
-from lidarcal.conditions import CONDITION_VARIABLES, load_conditions
+from lidarcal.conditions import CONDITION_VARIABLES, SkippedPeriodsWarning, load_conditions
 from lidarcal.errors import ComputeError, InputError
 from lidarcal.io import source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 from lidarcal.provenance import stamp
 
-__all__ = ["simulate_campaign", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV", "WORKER_CONFIG",
+__all__ = ["simulate_campaign", "simulate_replicas", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV",
+           "WORKER_CONFIG",
            "WORKER_TIMEOUT"]
 
 log = logging.getLogger(__name__)
@@ -236,6 +238,7 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
     quiet_orphaned_gathers()  # no AllExit traceback after our own message when workers die
     _log_dashboard(client)
     _check_workers(client, address, worker_timeout)
+    tasks = _share_model(client, tasks)
     futures = {client.submit(run_chunk, payload, key=name, pure=False): name for name, payload in tasks}
     bar = _bar(len(tasks), progress)
     finished = False
@@ -296,6 +299,23 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
             with contextlib.suppress(Exception):
                 client.cancel(list(futures), force=True)
         quiet.setLevel(level)
+
+
+def _share_model(client, tasks: list[tuple[str, dict]]) -> list[tuple[str, dict]]:
+    """Send the model the tasks share (bench residuals: megabytes) to the workers once, not per task.
+
+    Without this every submitted task carries its own serialised copy, so the client's memory
+    grows with the number of tasks in flight (chunks times Monte Carlo replicas).
+    """
+    shared = tasks[0][1].get("model") if tasks else None
+    if shared is None or any(payload.get("model") is not shared for _, payload in tasks):
+        return tasks
+    try:
+        [remote] = client.scatter([shared], broadcast=True, hash=False)
+    except Exception as exc:  # comm closed, timeout: the scheduler is unreachable
+        address = str(getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler")
+        raise _scheduler_gone(address, exc) from None
+    return [(name, {**payload, "model": remote}) for name, payload in tasks]
 
 
 def _bar(total: int, enabled: bool):
@@ -462,6 +482,90 @@ def simulate_campaign(
     ds = _assemble(camp.cond, camp.hidx, out, camp.valid, los_data, camp.keys, base_seed)
     return _describe(ds, camp, model, base_seed=base_seed, chunk=chunk, duration=duration,
                      scheduler=scheduler, workers=workers, call=call, inputs=inputs)
+
+
+def simulate_replicas(
+    conditions: str | os.PathLike | xr.Dataset,
+    model,
+    cells: np.ndarray,
+    replicas: Sequence[int],
+    *,
+    heights: Sequence[float] | None = None,
+    base_seed: int = DEFAULT_BASE_SEED,
+    chunk: int = 64,
+    scheduler: Any = None,
+    workers: int | None = None,
+    workdir: str | os.PathLike | None = None,
+    progress: bool = False,
+    duration: float = 600.0,
+    connect_timeout: float = 5.0,
+    worker_timeout: float = WORKER_TIMEOUT,
+) -> dict[int, dict[str, np.ndarray]]:
+    """Monte Carlo replicas (>= 1) of the (period, height) ``cells`` of a campaign (JCGM 101 7.9).
+
+    Replica ``r`` re-simulates the cells marked in ``cells`` ((time, height) bool over the
+    simulated heights) with the seed entropy ``(base_seed, r, period_key)`` (docs/seeds.md), as
+    Dask tasks of ``chunk`` selected periods, one set of tasks per replica, all submitted
+    together.  Like :func:`simulate_campaign` the result does not depend on the chunk size, the
+    workers or the scheduler, and with ``workdir`` finished chunks are kept (in
+    ``workdir/replica-<r>``) so an interrupted run resumes.
+
+    Returns
+    -------
+    dict
+        Per replica: ``period`` (index into the conditions), ``height`` (m), the
+        :data:`~lidarcal.campaign.chunks.OUTPUTS` of every simulated cell (1-D, in period then height
+        order).
+    """
+    with warnings.catch_warnings():  # replica 0 has reported the periods it skips
+        warnings.simplefilter("ignore", SkippedPeriodsWarning)
+        camp = _prepare(conditions, model, heights, chunk, ())
+    cells = np.asarray(cells, dtype=bool)
+    if cells.shape != camp.valid.shape:
+        raise InputError(f"cells has shape {cells.shape}; expected {camp.valid.shape} (time, height)")
+    if any(int(r) < 1 for r in replicas):
+        raise InputError(f"replicas are numbered from 1 (replica 0 is simulate_campaign); "
+                         f"got {list(replicas)}")
+    chunk = int(chunk)
+    todo = camp.valid & cells
+    sel = np.flatnonzero(todo.any(axis=1))
+    model_dict, transport = model.to_dict(), model.to_dict(residuals=True)
+    results: dict[tuple[int, int], dict] = {}
+    tasks: list[tuple[str, dict]] = []
+    bounds: dict[str, tuple[int, int]] = {}
+    for r in (int(r) for r in replicas):
+        where = None if workdir is None else os.path.join(os.fspath(workdir), f"replica-{r:04d}")
+        if where is not None:
+            os.makedirs(where, exist_ok=True)
+        for a in range(0, sel.size, chunk):
+            idx = sel[a:a + chunk]
+            extra = {"replica": r, "periods": idx.tolist(), "cells": todo[idx].astype(int).tolist()}
+            key = chunk_key(camp.checksum, model_dict, base_seed, a, a + idx.size, camp.z, duration, (),
+                            keys=camp.keys[idx], extra=extra)
+            if where is not None:
+                cached = load_chunk(chunk_path(where, a, a + idx.size, key), key, idx.size, camp.z.size)
+                if cached is not None:
+                    results[(r, a)] = cached
+                    continue
+            name = f"lidarcal-replica-{r}-{key[:16]}-{a}"
+            bounds[name] = (r, a)
+            tasks.append((name, {
+                "model": transport, "heights": camp.z, **{k: v[idx] for k, v in camp.arrays.items()},
+                "valid": todo[idx], "period_index": idx, "period_key": camp.keys[idx],
+                "los": np.zeros(idx.size, dtype=bool), "base_seed": int(base_seed), "replica": r,
+                "duration": float(duration), "workdir": where, "key": key, "start": a, "stop": a + idx.size,
+            }))
+    for name, result in _execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
+        results[bounds[name]] = result
+    out: dict[int, dict[str, np.ndarray]] = {}
+    rows, cols = np.nonzero(todo[sel])
+    for r in (int(r) for r in replicas):
+        parts = [results[(r, a)] for a in range(0, sel.size, chunk)]
+        full = {name: (np.concatenate([p[name] for p in parts], axis=0) if parts
+                       else np.empty((0, camp.z.size))) for name in OUTPUTS}
+        out[r] = {"period": sel[rows], "height": camp.z[cols],
+                  **{name: full[name][rows, cols] for name in OUTPUTS}}
+    return out
 
 
 @dataclass(frozen=True)

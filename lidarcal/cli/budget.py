@@ -12,9 +12,15 @@ import argparse
 
 import numpy as np
 
-from lidarcal.analysis.budget import DEFAULT_MIN_SAMPLES, budget
+from lidarcal.analysis.budget import budget
 from lidarcal.cli import command_line
-from lidarcal.cli.options import add_output_options, positive, positive_int, positive_quantity
+from lidarcal.cli.options import (
+    add_certification_options,
+    add_monte_carlo_options,
+    add_output_options,
+    positive,
+    positive_quantity,
+)
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
 
@@ -35,12 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "or as propagated through the 10-minute average (docs/noise_terms.md)")
     p.add_argument("--bin-width", type=positive_quantity("--bin-width", "m s-1"), default="0.5 m s-1",
                    help="wind speed bin width (default '0.5 m s-1')")
-    p.add_argument(
-        "--min-samples",
-        type=positive_int("--min-samples"),
-        default=DEFAULT_MIN_SAMPLES,
-        help=f"bins with fewer periods are flagged thin (default {DEFAULT_MIN_SAMPLES})",
-    )
+    add_certification_options(p)
+    add_monte_carlo_options(p, replicas=False)
     p.add_argument(
         "--height", type=positive("--height"), action="append", metavar="M",
         help="height to include (repeatable)",
@@ -90,7 +92,9 @@ def run(args: argparse.Namespace) -> int:
         terms=terms,
         approach=args.approach,
         bin_width=args.bin_width,
-        min_samples=args.min_samples,
+        min_periods=args.min_periods,
+        certified_range=tuple(args.certified_range),
+        significant_digits=args.significant_digits,
         heights=args.height,
         coverage_factor=args.coverage_factor,
         noise_terms=args.noise_terms,
@@ -103,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
         f"{args.output}: {args.approach} budget, {ds.sizes['height']} height(s) x "
         f"{ds.sizes['wind_speed']} wind speed bins"
     )
+    lo, hi = ds.attrs["certified_range_m_s"]
     for h in ds.height.values:
         sub = ds.sel(height=h)
         rel = sub.relative_uncertainty.values
@@ -111,8 +116,16 @@ def run(args: argparse.Namespace) -> int:
             print(
                 f"  {h:g} m: relative standard uncertainty "
                 f"{np.nanmin(rel[ok]):.2f}-{np.nanmax(rel[ok]):.2f} % "
-                f"over {int(ok.sum())} bins with >= {ds.attrs['min_samples']} periods"
+                f"over {int(ok.sum())} certified bins (centres {lo:g}-{hi:g} m/s, "
+                f">= {ds.attrs['min_periods']} periods)"
             )
         else:
-            print(f"  {h:g} m: no bin with >= {ds.attrs['min_samples']} periods")
+            print(f"  {h:g} m: no certified bin (centres {lo:g}-{hi:g} m/s, "
+                  f">= {ds.attrs['min_periods']} periods)")
+    if "numerical_flag" in ds:
+        bad = int((ds.numerical_flag == 1).sum())
+        print(f"  Monte Carlo: {ds.attrs['monte_carlo_replicas']} replica(s), "
+              f"{ds.attrs['monte_carlo_trials']} "
+              f"trials; {bad} certified value(s) not settled to {ds.attrs['monte_carlo_significant_digits']} "
+              "significant digits")
     return 0

@@ -13,6 +13,11 @@ Examples::
 
 A run that is killed during the simulation keeps its finished chunks in
 OUTDIR/.simulation-chunks; run the same command again with --overwrite to resume.
+
+The Monte Carlo states its own accuracy (JCGM 101 7.9): replicas of the periods of the certified
+bins that have not settled are simulated with independent seeds until every certified value is
+stable to --significant-digits (default 2), or --max-replicas is reached; the certificate then
+says which values did not settle.
 """
 
 from __future__ import annotations
@@ -20,12 +25,13 @@ from __future__ import annotations
 import argparse
 
 from lidarcal.admin import status_line
-from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES
 from lidarcal.cli.options import (
     add_admin_options,
+    add_certification_options,
     add_contact_options,
     add_heights_option,
     add_los_noise_option,
+    add_monte_carlo_options,
     add_overwrite_option,
     add_parallel_options,
     add_progress_option,
@@ -70,9 +76,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "10-minute average (docs/noise_terms.md)")
     add_los_noise_option(p)
     add_reference_turbulence_option(p)
-    p.add_argument("--min-samples", type=positive_int("--min-samples"), default=DEFAULT_MIN_SAMPLES,
-                   metavar="N", help="fewest periods a sensitivity bin needs to enter the regression "
-                   "(default %(default)s; docs/sensitivity.md); lower it for short runs")
+    add_certification_options(p)  # --min-periods also sets the sensitivities' bins (one rule)
+    p.add_argument("--min-samples", dest="min_periods", type=positive_int("--min-samples"),
+                   help=argparse.SUPPRESS)  # the former name of --min-periods
+    add_monte_carlo_options(p)
     add_seed_option(p)
     add_parallel_options(p, workdir=False)  # chunks are cached in OUTDIR/.simulation-chunks
     add_overwrite_option(p)
@@ -92,7 +99,9 @@ def run(args: argparse.Namespace) -> int:
         pulse_file=args.pulse_file, conditions=args.conditions, heights=tuple(args.heights),
         periods=None if args.periods == 0 else args.periods, base_seed=args.seed,
         workers=args.workers, scheduler=args.scheduler, fft_size=args.fft_size, chunk=args.chunk,
-        min_samples=args.min_samples, los_noise_model=args.los_noise,
+        min_periods=args.min_periods, certified_range=tuple(args.certified_range),
+        significant_digits=args.significant_digits, max_replicas=args.max_replicas,
+        los_noise_model=args.los_noise,
         reference_turbulence=args.reference_turbulence,
         terms={} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms},
     )

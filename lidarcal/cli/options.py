@@ -361,3 +361,42 @@ def simulation_options(args: argparse.Namespace) -> dict[str, Any]:
     if getattr(args, "workdir", None) is not None:
         opts["workdir"] = args.workdir
     return opts
+
+
+def add_certification_options(parser: argparse.ArgumentParser) -> None:
+    """``--certified-range LO HI`` and ``--min-periods N``: the one rule for certified bins."""
+    from lidarcal.analysis.budget import (  # deferred: light CLI start
+        DEFAULT_CERTIFIED_RANGE,
+        DEFAULT_MIN_PERIODS,
+    )
+
+    g = parser.add_argument_group("what is certified (docs/certificate.md)")
+    g.add_argument("--certified-range", type=nonnegative("--certified-range"), nargs=2, metavar=("LO", "HI"),
+                   default=list(DEFAULT_CERTIFIED_RANGE),
+                   help="bin centres (m/s) a certified bin may have (default %(default)s)")
+    g.add_argument("--min-periods", type=number("--min-periods", lo=2, integer=True),
+                   default=DEFAULT_MIN_PERIODS, metavar="N",
+                   help="fewest distinct 10-minute periods of the conditions in a certified bin "
+                   "(default %(default)s; replicas add trials, not periods)")
+
+
+def add_monte_carlo_options(parser: argparse.ArgumentParser, *, replicas: bool = True,
+                            max_replicas: int | None = None) -> None:
+    """``--significant-digits N`` and (if ``replicas``) ``--max-replicas M`` (JCGM 101 7.9, docs/seeds.md).
+
+    ``max_replicas`` is the default of ``--max-replicas`` (None: the calibration's default).
+    """
+    from lidarcal.analysis.budget import DEFAULT_SIGNIFICANT_DIGITS  # deferred: light CLI start
+
+    g = parser.add_argument_group("numerical accuracy of the Monte Carlo (JCGM 101 7.9)")
+    g.add_argument("--significant-digits", type=positive_int("--significant-digits"),
+                   default=DEFAULT_SIGNIFICANT_DIGITS, metavar="N",
+                   help="significant digits every certified value must settle to (default %(default)s)")
+    if replicas:
+        from lidarcal.campaign.adaptive import DEFAULT_MAX_REPLICAS  # deferred: light CLI start
+
+        default = DEFAULT_MAX_REPLICAS if max_replicas is None else int(max_replicas)
+        g.add_argument("--max-replicas", type=positive_int("--max-replicas"), default=default,
+                       metavar="M", help="most replicas (re-simulations of the unsettled bins' periods, "
+                       "replica 0 included) before the run stops unsettled (default %(default)s; 1: no "
+                       "replica)")

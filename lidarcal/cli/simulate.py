@@ -9,6 +9,12 @@ Examples::
 
 Without ``--cube``/``--rwf`` the ideal lidar of ``docs/contracts.md`` is used, configured by the
 conditions file's ``lidar_*`` global attributes when present.
+
+With ``--max-replicas M`` (> 1) the periods of the certified bins whose relative expanded
+uncertainty has not settled to ``--significant-digits`` are simulated again with independent
+seeds (JCGM 101 7.9; docs/certificate.md), judged with the Table 4 terms ``lidarcal budget``
+uses without ``--terms``; the trials are stored beside replica 0 (``trial_*`` variables) and
+``lidarcal budget`` uses them all.
 """
 
 from __future__ import annotations
@@ -20,9 +26,11 @@ from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.run import WORKER_TIMEOUT
 from lidarcal.cli import command_line
 from lidarcal.cli.options import (
+    add_certification_options,
     add_heights_option,
     add_lidar_options,
     add_los_noise_option,
+    add_monte_carlo_options,
     add_output_options,
     add_parallel_options,
     add_progress_option,
@@ -88,6 +96,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="dask.distributed: seconds to wait while no worker is connected (none joined, or all "
         "lost) before stopping with exit status 2 (default %(default)g)",
     )
+    add_certification_options(p)
+    add_monte_carlo_options(p, max_replicas=1)
     add_progress_option(p)
     add_output_options(p, "SIM.nc")
     p.set_defaults(handler=run)
@@ -129,6 +139,16 @@ def run(args: argparse.Namespace) -> int:
         inputs=inputs,
         call=command_line(args),
     )
+    if args.max_replicas > 1:
+        from lidarcal.campaign.adaptive import adaptive_replicas  # deferred: only with replicas
+
+        ds, bud = adaptive_replicas(
+            ds, conditions, model, significant_digits=args.significant_digits, max_replicas=args.max_replicas,
+            min_periods=args.min_periods, certified_range=tuple(args.certified_range), base_seed=base_seed,
+            duration=args.duration, **simulation_options(args))
+        print(f"Monte Carlo: {bud.attrs['monte_carlo_replicas']} replica(s), {ds.sizes.get('trial', 0)} "
+              f"further trials; {int((bud.numerical_flag == 1).sum())} certified value(s) not settled to "
+              f"{args.significant_digits} significant digits")
     if not args.model and args.cube and cube.attrs.get("lidar_serial"):  # records of the cube's lidar
         ds.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
     write_artefact(ds, args.output, overwrite=args.overwrite)

@@ -1,11 +1,12 @@
 """``lidarcal table CERT.nc [--format csv|md|html] [-o FILE]``: the certificate's result table.
 
 One row per height and wind-speed bin: the k = 2 expanded uncertainty in m/s and in % of the
-bin's mean reference wind speed, the largest standard-uncertainty contributors, the number of
-10-minute periods in the bin and the bin's flag (``ok``, ``thin``: fewer periods than the
-budget's ``min_samples``, ``empty``), then the sensitivities that are significant by Eq. 12
-or Eq. 13 at that height.  The headline range quoted above the table covers only bins that
-are ``ok`` with a centre from 4 to 16 m/s (``--wind-speeds``); ``in_headline`` marks them.
+bin's mean reference wind speed with the Monte Carlo's numerical tolerance beside it (JCGM 101
+7.9), the largest standard-uncertainty contributors, the number of Monte Carlo trials and of
+distinct 10-minute periods in the bin and whether the bin is certified (centre in the
+certified range, by default 4 to 16 m/s, and at least ``min_periods`` periods, by default 10)
+or why not, then the sensitivities that are significant by Eq. 12 or Eq. 13 at that height.
+The headline range quoted above the table covers the certified bins only.
 CSV (the default) carries every column with the certificate's unrounded values; Markdown and
 HTML round for reading and list the sensitivities once per height.  Without ``-o`` the table
 goes to stdout.
@@ -24,7 +25,7 @@ import sys
 from pathlib import Path
 
 from lidarcal.admin import status_line
-from lidarcal.certificate import HEADLINE_WIND_SPEEDS, result_table
+from lidarcal.certificate import result_table
 from lidarcal.cli.options import add_overwrite_option
 from lidarcal.io import atomic_path, check_writable, open_artefact
 from lidarcal.seal import invalid_seal_banner, require_valid_seal
@@ -41,9 +42,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--format", choices=FORMATS,
                    help="output format (default: from the -o suffix, else csv)")
     p.add_argument("-o", "--output", metavar="FILE", help="write here instead of stdout")
-    p.add_argument("--wind-speeds", type=float, nargs=2, metavar=("MIN", "MAX"),
-                   default=list(HEADLINE_WIND_SPEEDS),
-                   help="bin centres (m/s) the headline range covers (default %(default)s)")
     p.add_argument("--contributors", type=int, default=3, metavar="N",
                    help="contributors listed per bin, largest first (default %(default)s)")
     p.add_argument("--allow-invalid", action="store_true",
@@ -54,13 +52,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _headline(table) -> str:
-    lo, hi = table.attrs["headline_wind_speeds_m_s"]
     rng = table.attrs["headline_range_pct"]
     k = table.attrs["coverage_factor"]
-    where = f"bins flagged ok with centres {lo:g} to {hi:g} m/s"
+    where = f"certified bins ({table.attrs['certified_rule']})"
     if rng is None:
         return f"Expanded uncertainty (k = {k:g}): no {where}"
-    return f"Expanded uncertainty (k = {k:g}), {where}: {rng[0]:.2f} % to {rng[1]:.2f} %"
+    text = f"Expanded uncertainty (k = {k:g}), {where}: {rng[0]:.2f} % to {rng[1]:.2f} %"
+    missed = table.attrs.get("not_settled") or []
+    if missed:
+        text += (f"; {len(missed)} certified value(s) not settled to {table.attrs['significant_digits']} "
+                 "significant digits by the Monte Carlo (numerically settled: no)")
+    return text
 
 
 def _rounded(table):
@@ -69,11 +71,15 @@ def _rounded(table):
     return out.rename(columns={
         "height_m": "height (m)",
         "wind_speed_m_s": "wind speed (m/s)",
-        "sample_count": "periods",
+        "sample_count": "trials",
+        "period_count": "periods",
         "bin_flag": "flag",
-        "in_headline": "in headline",
+        "certified": "certified",
+        "not_certified_reason": "not certified because",
         f"expanded_uncertainty_k{k:g}_m_s": f"U (k = {k:g}) (m/s)",
         f"expanded_uncertainty_k{k:g}_pct": f"U (k = {k:g}) (%)",
+        "numerical_tolerance_pct": "± numerical tolerance (%)",
+        "numerically_settled": "settled",
         "main_contributors": "main contributors (standard uncertainty, %)",
     }).round({f"U (k = {k:g}) (m/s)": 3, f"U (k = {k:g}) (%)": 2})
 
@@ -138,8 +144,7 @@ def run(args: argparse.Namespace) -> int:
     banner = invalid_seal_banner(seal) if seal is not None and not seal.ok else None
     if banner:
         print(f"lidarcal table: {banner}", file=sys.stderr)
-    table = result_table(cert, contributors=args.contributors, wind_speeds=tuple(args.wind_speeds),
-                         allow_invalid=True)  # checked just above
+    table = result_table(cert, contributors=args.contributors, allow_invalid=True)  # checked just above
     table.attrs["title"] = cert.attrs.get("title", "calibration certificate")
     table.attrs["status"] = status_line(cert.attrs)
     text = render(table, fmt, banner=banner)

@@ -1,0 +1,166 @@
+"""Adaptive Monte Carlo (JCGM 101 7.9, issue 16 section 2): replicas, seeds, invariance, resume, agreement."""
+
+import numpy as np
+import pytest
+
+from lidarcal.analysis.budget import numerical_state, tolerance_exponent
+from lidarcal.campaign import run as campaign_run
+from lidarcal.campaign import simulate_campaign
+from lidarcal.campaign.adaptive import _batches, adaptive_replicas
+from lidarcal.campaign.chunks import OUTPUTS, period_keys, seed_entropy
+from lidarcal.campaign.run import simulate_replicas
+from lidarcal.conditions import synthetic_conditions
+from lidarcal.conditions.variables import CONDITION_NAMES
+from lidarcal.lidar import LidarModel, simulate_period
+
+DURATION = 120.0  # s per period: a fifth of the work of a 10-minute period, same code paths
+
+
+@pytest.fixture(scope="module")
+def model():
+    return LidarModel.ideal()
+
+
+@pytest.fixture(scope="module")
+def cond():
+    return synthetic_conditions(10, (40, 120), seed=11)
+
+
+@pytest.fixture(scope="module")
+def cells(cond):
+    """Some (period, height) cells: every other period at 40 m, periods 3-7 at 120 m."""
+    mask = np.zeros((cond.sizes["time"], cond.sizes["height"]), dtype=bool)
+    mask[::2, 0] = True
+    mask[3:8, 1] = True
+    return mask
+
+
+def _same(a, b):
+    assert sorted(a) == sorted(b)
+    for r in a:
+        for name in ("period", "height", *OUTPUTS):
+            np.testing.assert_array_equal(a[r][name], b[r][name], err_msg=f"replica {r} {name}")
+
+
+def test_replica_seeds_are_independent_streams_and_replica_0_keeps_todays():
+    assert seed_entropy(7, 123) == seed_entropy(7, 123, 0) == (7, 123)  # the streams before replicas
+    assert seed_entropy(7, 123, 2) == (7, 2, 123)
+    assert seed_entropy(7, -1, 1) == (7, 1, 2**64 - 1)
+    assert _batches(30) == [[1, 2, 3], [4, 5, 6, 7], list(range(8, 16)), list(range(16, 24)),
+                            list(range(24, 30))]
+    assert _batches(1) == [] and _batches(3) == [[1, 2]]
+
+
+def test_a_replica_trial_is_the_engine_run_with_its_own_seed(cond, model, cells):
+    """Independent reference: each trial equals simulate_period called directly with (base, r, key)."""
+    out = simulate_replicas(cond, model, cells, [1, 3], scheduler="synchronous", chunk=4, duration=DURATION,
+                            base_seed=99)
+    keys = period_keys(cond["time"].values)
+    heights = cond["height"].values
+    for r in (1, 3):
+        assert out[r]["period"].size == cells.sum()
+        for t in (0, out[r]["period"].size - 1):
+            p, z = int(out[r]["period"][t]), float(out[r]["height"][t])
+            h = int(np.flatnonzero(heights == z)[0])
+            assert cells[p, h]
+            inputs = {n: [float(cond[n].values[p, h])] for n in CONDITION_NAMES}
+            direct = simulate_period(model, heights=[z], **inputs, seed=(99, r, int(keys[p])),
+                                     duration=DURATION)
+            assert out[r]["lidar_wind_speed"][t] == direct["lidar_wind_speed"][0]
+            assert out[r]["reference_wind_speed"][t] == direct["reference_wind_speed"][0]
+    assert not np.array_equal(out[1]["lidar_wind_speed"], out[3]["lidar_wind_speed"])
+    # replica 0 is the campaign itself: (base, key) as before replicas existed
+    zero = simulate_campaign(cond, model, scheduler="synchronous", duration=DURATION, base_seed=99)
+    inputs = {n: [float(cond[n].values[0, 0])] for n in CONDITION_NAMES}
+    direct = simulate_period(model, heights=[40.0], **inputs, seed=(99, int(keys[0])), duration=DURATION)
+    assert zero["lidar_wind_speed"].values[0, 0] == direct["lidar_wind_speed"][0]
+
+
+def test_replicas_resume_from_the_workdir_bit_identical(cond, model, cells, tmp_path, monkeypatch):
+    work = tmp_path / "work"
+    first = simulate_replicas(cond, model, cells, [1, 2], scheduler="synchronous", chunk=3, workdir=work,
+                              duration=DURATION)
+    files = sorted(work.glob("replica-*/chunk-*.npz"))
+    assert len(files) == 2 * 3  # 8 selected periods in chunks of 3, per replica
+    monkeypatch.setattr(campaign_run, "run_chunk", lambda task: pytest.fail("recomputed a finished chunk"))
+    _same(simulate_replicas(cond, model, cells, [1, 2], scheduler="synchronous", chunk=3, workdir=work,
+                            duration=DURATION), first)
+    monkeypatch.undo()
+    files[1].unlink()  # interrupted before this chunk was written: it is simulated again, the same
+    files[4].write_bytes(b"torn")
+    _same(simulate_replicas(cond, model, cells, [1, 2], scheduler="synchronous", chunk=3, workdir=work,
+                            duration=DURATION), first)
+
+
+@pytest.mark.slow
+def test_replicas_do_not_depend_on_workers_scheduler_or_chunk(cond, model, cells):
+    one = simulate_replicas(cond, model, cells, [1, 2], scheduler="processes", workers=1, chunk=5,
+                            duration=DURATION)
+    two = simulate_replicas(cond, model, cells, [1, 2], scheduler="processes", workers=2, chunk=2,
+                            duration=DURATION)
+    _same(one, two)
+    _same(one, simulate_replicas(cond, model, cells, [1, 2], scheduler="synchronous", chunk=100,
+                                 duration=DURATION))
+
+
+def test_numerical_tolerance_follows_jcgm_101():
+    """δ = 1/2 10^l >= 2 s / sqrt(h); settled when δ is at most half a unit of the N-th digit."""
+    assert tolerance_exponent(np.array([0.0499, 0.05, 0.0501])).tolist() == [-1.0, -1.0, 0.0]
+    # four estimates of a 1.5 % value: s = std, 2 s / 2 = s
+    est = np.array([[1.50, 1.52, 1.48, 1.50], [1.50, 1.70, 1.30, 1.50], [1.5, np.nan, np.nan, np.nan]])
+    s = np.std(est[0], ddof=1)
+    tol, flag, h = numerical_state(np.array([1.5, 1.5, 1.5]), est, np.array([True, True, True]), 2)
+    assert s <= 0.05 and tol[0] == 0.05 and flag[0] == 0  # 2 s / sqrt(4) = 0.016: settled to 1.5
+    assert tol[1] == 0.5 and flag[1] == 1  # 2 s / 2 = 0.16: only the first digit
+    assert np.isnan(tol[2]) and flag[2] == 1 and h.tolist() == [4, 4, 1]
+    assert numerical_state(np.array([1.5]), est[:1], np.array([False]), 2)[1][0] == 2  # not certified
+
+
+@pytest.mark.slow
+def test_two_seeds_agree_on_every_certified_value_within_their_tolerances(model):
+    """JCGM 101 7.9 end to end: two calibrations with different seeds, each stating its tolerances."""
+    cond = synthetic_conditions(90, (80, 120), seed=3)
+    results = []
+    for seed in (1, 2):
+        zero = simulate_campaign(cond, model, heights=[120.0], base_seed=seed, duration=DURATION,
+                                 scheduler="synchronous")
+        records, bud = adaptive_replicas(zero, cond, model, base_seed=seed, max_replicas=8, duration=DURATION,
+                                         scheduler="synchronous")
+        # replicas never touch replica 0
+        for name in ("lidar_wind_speed", "reference_wind_speed"):
+            np.testing.assert_array_equal(records[name].values, zero[name].values)
+        assert bud.attrs["monte_carlo_replicas"] >= 4 and records.sizes["trial"] > 0
+        assert bud.attrs["monte_carlo_trials"] == int(bud.sample_count.sum())
+        results.append(bud)
+    a, b = results
+    both = (a.bin_flag == 0) & (b.bin_flag == 0)
+    assert int(both.sum()) >= 3
+    va, vb = a.relative_expanded_uncertainty.where(both), b.relative_expanded_uncertainty.where(both)
+    ta, tb = a.numerical_tolerance.where(both), b.numerical_tolerance.where(both)
+    assert bool(np.isfinite(ta).sum() == both.sum()) and bool(np.isfinite(tb).sum() == both.sum())
+    gap = abs(va - vb)
+    assert bool((gap <= ta + tb).where(both, True).all()), (gap.values, ta.values, tb.values)
+
+
+def test_simulate_with_replicas_then_budget_on_the_command_line(tmp_path, capsys):
+    """``simulate --max-replicas`` stores the trials; ``budget`` pools them and states the tolerance."""
+    from lidarcal.cli import main
+    from lidarcal.io import open_artefact
+
+    cond_path = tmp_path / "c.nc"
+    synthetic_conditions(30, (80, 120), seed=4).to_netcdf(cond_path)
+    sim, bud = tmp_path / "sim.nc", tmp_path / "b.nc"
+    assert main(["simulate", "--conditions", str(cond_path), "--heights", "120", "--duration", "120",
+                 "--scheduler", "synchronous", "--max-replicas", "4", "--min-periods", "3",
+                 "-o", str(sim)]) == 0
+    assert "Monte Carlo: 4 replica(s)" in capsys.readouterr().out
+    assert main(["budget", str(sim), "--min-periods", "3", "-o", str(bud)]) == 0
+    b = open_artefact(bud, "uncertainty_budget")
+    records = open_artefact(sim, "simulated_rtd")
+    assert b.attrs["monte_carlo_replicas"] == 4 and set(np.unique(records.trial_replica.values)) == {1, 2, 3}
+    certified = b.bin_flag == 0
+    assert int(certified.sum()) >= 1 and bool(np.isfinite(b.numerical_tolerance.where(certified)).sum())
+    assert int(b.sample_count.sum()) == int(np.isfinite(records.lidar_wind_speed).sum()) + int(
+        (np.isfinite(records.trial_lidar_wind_speed) & np.isfinite(records.trial_reference_wind_speed)).sum())
+    assert bool((b.period_count <= b.sample_count).all())
+    assert bool((b.period_count.where(certified, 99) >= 3).all())
