@@ -35,6 +35,7 @@ import functools
 import logging
 import os
 import time
+import uuid
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -302,20 +303,31 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
 
 
 def _share_model(client, tasks: list[tuple[str, dict]]) -> list[tuple[str, dict]]:
-    """Send the model the tasks share (bench residuals: megabytes) to the workers once, not per task.
+    """Send the model the tasks share (bench residuals: megabytes) to the cluster once, not per task.
 
     Without this every submitted task carries its own serialised copy, so the client's memory
-    grows with the number of tasks in flight (chunks times Monte Carlo replicas).
+    grows with the number of tasks in flight (chunks times Monte Carlo replicas).  The model is
+    the result of one task rather than scattered data: if every worker holding it dies, the
+    scheduler computes it again on the next worker that joins (scattered data would be lost,
+    and with it every chunk that needs it).
     """
     shared = tasks[0][1].get("model") if tasks else None
     if shared is None or any(payload.get("model") is not shared for _, payload in tasks):
         return tasks
     try:
-        [remote] = client.scatter([shared], broadcast=True, hash=False)
+        with warnings.catch_warnings():  # "large object in task graph": sent once, on purpose
+            warnings.simplefilter("ignore", UserWarning)
+            remote = client.submit(_shared_model, shared, pure=False,
+                                   key=f"lidarcal-model-{uuid.uuid4().hex}")
     except Exception as exc:  # comm closed, timeout: the scheduler is unreachable
         address = str(getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler")
         raise _scheduler_gone(address, exc) from None
     return [(name, {**payload, "model": remote}) for name, payload in tasks]
+
+
+def _shared_model(model):
+    """Return ``model``: the task whose result the chunks share (:func:`_share_model`)."""
+    return model
 
 
 def _bar(total: int, enabled: bool):
