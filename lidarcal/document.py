@@ -831,10 +831,9 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None, seal: str | None
         va="top",
     )
     y -= 0.018
-    fig.text(
-        0.07, y, textwrap.fill(headline_sentence(budget), 105), fontsize=_FONT + 0.5, va="top", weight="bold"
-    )
-    y -= 0.03
+    headline = textwrap.fill(headline_sentence(budget), 105)
+    fig.text(0.07, y, headline, fontsize=_FONT + 0.5, va="top", weight="bold")
+    y -= (headline.count("\n") + 1) * (_FONT + 0.5) * 1.25 / 72 / A4[1] + 0.006  # however many lines it takes
     g = certified_grid(budget)
     tol = "; ± its numerical tolerance (Monte Carlo)" if g["tolerance"] is not None else ""
     fig.text(
