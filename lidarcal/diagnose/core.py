@@ -542,11 +542,13 @@ def _select(problem: _Problem, fits: list[CandidateFit], bic_threshold: float, t
         pick = ok[0]
 
         def indistinct(a: _Trial, b: _Trial, rss_cur: float = rss_cur) -> bool:
-            # within tie_threshold BIC units, or fitting worse by less than a model-form error of the
-            # explained part would cost (the catalogue's responses are models: a response wrong by
+            # within tie_threshold BIC units, or b fitting worse than a by less than an error of b's
+            # own response model would cost (the catalogue's responses are models: a response wrong by
             # model_uncertainty of itself adds about that share squared of the explained sum of squares;
-            # at 95 %, (1.96 u)² of it) — e.g. a hybrid weight and a TI-proportional cup over-speeding
-            u = problem.form_share(a.cand.effect, b.cand.effect)
+            # at 95 %, (1.96 u)² of it) — e.g. a hybrid weight and a TI-proportional cup over-speeding.
+            # b's share, not a's: an imprecise response of the pick does not make every other effect
+            # plausible, an imprecise response of the runner-up can hide that it is the right one
+            u = problem.form_share(b.cand.effect)
             slack = (1.96 * u) ** 2 * max(rss_cur - a.res.rss_free, 0.0)
             return b.dbic - a.dbic < tie_threshold or b.res.rss_free - a.res.rss_free <= slack
 
