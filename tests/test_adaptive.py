@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lidarcal.analysis.budget import numerical_state, tolerance_exponent
-from lidarcal.campaign import run as campaign_run
+from lidarcal.campaign import scheduler as campaign_scheduler
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.adaptive import _batches, adaptive_replicas
 from lidarcal.campaign.chunks import OUTPUTS, period_keys, seed_entropy
@@ -82,7 +82,8 @@ def test_replicas_resume_from_the_workdir_bit_identical(cond, model, cells, tmp_
                               duration=DURATION)
     files = sorted(work.glob("replica-*/chunk-*.npz"))
     assert len(files) == 2 * 3  # 8 selected periods in chunks of 3, per replica
-    monkeypatch.setattr(campaign_run, "run_chunk", lambda task: pytest.fail("recomputed a finished chunk"))
+    monkeypatch.setattr(campaign_scheduler, "run_chunk",
+                        lambda task: pytest.fail("recomputed a finished chunk"))
     _same(simulate_replicas(cond, model, cells, [1, 2], scheduler="synchronous", chunk=3, workdir=work,
                             duration=DURATION), first)
     monkeypatch.undo()

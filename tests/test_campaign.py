@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 
 from lidarcal.campaign import BLAS_ENV, simulate_campaign
-from lidarcal.campaign import run as campaign_run
+from lidarcal.campaign import scheduler as campaign_scheduler
 from lidarcal.compliance import check_compliance
 from lidarcal.conditions import SkippedPeriodsWarning, synthetic_conditions
 from lidarcal.errors import InputError
@@ -160,7 +160,8 @@ def test_workdir_resume_reuses_finished_chunks(cond, model, reference, tmp_path,
     ]
     assert_same_results(first, reference)
     # a rerun must not simulate anything: make any attempt fail loudly
-    monkeypatch.setattr(campaign_run, "run_chunk", lambda task: pytest.fail("recomputed a cached chunk"))
+    monkeypatch.setattr(campaign_scheduler, "run_chunk",
+                        lambda task: pytest.fail("recomputed a cached chunk"))
     again = simulate_campaign(cond, model, scheduler="synchronous", chunk=5, workdir=work)
     assert_same_results(again, reference)
     monkeypatch.undo()

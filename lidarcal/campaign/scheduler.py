@@ -1,0 +1,346 @@
+"""Where a campaign's chunks run: local pools, a ``distributed.LocalCluster`` or a running scheduler.
+
+:func:`execute` runs ``(name, payload)`` chunk tasks of :func:`lidarcal.campaign.chunks.run_chunk`
+on the scheduler :func:`lidarcal.campaign.run.simulate_campaign` was given and yields each
+finished chunk.  It holds what the execution needs and nothing about the campaign itself:
+starting a cluster (:func:`local_cluster`, with :data:`WORKER_CONFIG`), one BLAS thread in the
+workers, connecting to a scheduler, the version probe of its workers, the polling that turns a
+lost worker or scheduler into one :class:`~lidarcal.errors.ComputeError`, and sharing the model
+the tasks have in common.  The seeds, the chunking and the artefact are :mod:`lidarcal.campaign.run`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import logging
+import os
+import time
+import uuid
+import warnings
+from collections.abc import Iterator
+from typing import Any
+
+from lidarcal import __version__
+from lidarcal.campaign.chunks import run_chunk
+from lidarcal.campaign.workers import BLAS_ENV, PARENT_PID_ENV, init_pool_worker, quiet_orphaned_gathers
+from lidarcal.errors import ComputeError, InputError
+
+__all__ = ["execute", "local_cluster", "WORKER_CONFIG", "WORKER_PRELOAD", "WORKER_TIMEOUT"]
+
+log = logging.getLogger(__name__)
+
+#: Dask configuration for the worker processes lidarcal starts itself.  distributed sets
+#: ``MALLOC_TRIM_THRESHOLD_=65536`` in every nanny-spawned worker; any value of it switches off
+#: glibc's adaptive mmap threshold, so the engine's temporaries are mapped and unmapped on every
+#: call and a period costs 1.5x the CPU (measured: 40-45 against 27 ms; docs/performance.md).
+WORKER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}
+#: LocalCluster workers import campaign.workers at start: they end with the lidarcal process.
+WORKER_PRELOAD = {"distributed.worker.preload": ["lidarcal.campaign.workers"]}
+
+
+def local_cluster(n_workers: int, **kwargs):
+    """Start a ``distributed.LocalCluster`` of single-threaded worker processes set up for the engine.
+
+    One BLAS thread per worker (:data:`BLAS_ENV`) and glibc's default allocator behaviour
+    (:data:`WORKER_CONFIG`); ``kwargs`` go to ``LocalCluster`` (e.g. ``dashboard_address``).
+    """
+    import dask
+    from distributed import LocalCluster
+
+    # workers die with this process (campaign.workers: preloaded, told our pid)
+    env = {**BLAS_ENV, PARENT_PID_ENV: str(os.getpid())}
+    kwargs = {"threads_per_worker": 1, "processes": True, "env": env, **kwargs}
+    with _blas_env(), dask.config.set({**WORKER_CONFIG, **WORKER_PRELOAD}):
+        return LocalCluster(n_workers=n_workers, **kwargs)
+
+
+@contextlib.contextmanager
+def _blas_env() -> Iterator[None]:
+    """Set one BLAS thread in the environment inherited by spawned worker processes."""
+    old = {k: os.environ.get(k) for k in BLAS_ENV}
+    os.environ.update(BLAS_ENV)
+    try:
+        yield
+    finally:
+        for k, v in old.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _connect(address: str, timeout: float):
+    from distributed import Client
+
+    try:
+        return Client(address, timeout=timeout, set_as_default=False)
+    except (OSError, TimeoutError, ValueError) as exc:
+        raise InputError(
+            f"cannot reach the dask scheduler at {address!r} within {timeout:g} s "
+            f"({type(exc).__name__}: {exc}); is `dask scheduler` running there?"
+        ) from None
+
+
+#: Seconds a distributed run waits while no worker is connected (none yet, or all lost) before
+#: it fails with :class:`~lidarcal.errors.ComputeError`.
+WORKER_TIMEOUT = 60.0
+_POLL = 0.25  # s between checks of the workers while waiting for results
+
+# Run on every worker before any task: defined from source, so cloudpickle ships it by value and
+# it runs (and reports) on a worker where lidarcal cannot even be imported.
+_PROBE_SOURCE = """
+def lidarcal_version_probe():
+    try:
+        import lidarcal
+    except BaseException as exc:
+        return "no importable lidarcal ({}: {})".format(type(exc).__name__, exc)
+    return "lidarcal " + str(getattr(lidarcal, "__version__", "of unknown version"))
+"""
+
+
+def _version_probe():
+    namespace: dict[str, Any] = {}
+    exec(compile(_PROBE_SOURCE, "<lidarcal worker probe>", "exec"), namespace)
+    return namespace["lidarcal_version_probe"]
+
+
+def _scheduler_gone(address: str, exc: BaseException) -> ComputeError:
+    return ComputeError(
+        f"lost the dask scheduler at {address} ({type(exc).__name__}: {exc}); the run stopped. "
+        "Restart the scheduler and workers and run again (with --workdir, finished chunks are kept)"
+    )
+
+
+def _n_workers(client, address: str) -> int:
+    try:
+        return len(client.scheduler_info(n_workers=-1)["workers"])
+    except Exception as exc:  # comm closed, timeout, cancelled: the scheduler is unreachable
+        raise _scheduler_gone(address, exc) from None
+
+
+def _check_workers(client, address: str, worker_timeout: float) -> None:
+    """Wait for a worker, then check that every worker runs this lidarcal (before any task)."""
+    try:
+        client.wait_for_workers(1, timeout=worker_timeout)
+    except TimeoutError:
+        raise ComputeError(
+            f"no dask worker joined the scheduler at {address} within {worker_timeout:g} s; "
+            f"start one with `dask worker {address}`"
+        ) from None
+    except Exception as exc:
+        raise _scheduler_gone(address, exc) from None
+    try:
+        found = client.run(_version_probe(), on_error="return")
+    except Exception as exc:
+        raise _scheduler_gone(address, exc) from None
+    expected = f"lidarcal {__version__}"
+    bad = {w: v if isinstance(v, str) else f"a failed probe ({type(v).__name__}: {v})"
+           for w, v in found.items() if v != expected}
+    if bad:
+        raise ComputeError(
+            f"dask workers at {address} cannot run this calculation (client: {expected}): "
+            + "; ".join(f"worker {w} has {v}" for w, v in sorted(bad.items()))
+            + f"; install lidarcal {__version__} in every worker's environment"
+        )
+
+
+def _close_quietly(client, timeout: float) -> None:
+    """Close our own client; if the scheduler is gone, without distributed's reconnect tracebacks."""
+    loggers = [logging.getLogger(name) for name in ("distributed", "distributed.client")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL)
+    try:
+        with contextlib.suppress(Exception):
+            client.close(timeout=timeout)
+    finally:
+        for lg, level in zip(loggers, levels, strict=True):
+            lg.setLevel(level)
+
+
+def _log_dashboard(client) -> None:
+    with contextlib.suppress(Exception):
+        if "dashboard" in client.scheduler_info(n_workers=0).get("services", {}):
+            log.info("dask dashboard: %s", client.dashboard_link)
+
+
+def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
+                     worker_timeout: float = WORKER_TIMEOUT) -> Iterator[tuple[str, dict]]:
+    """Run ``tasks`` on a ``distributed.Client``; fail within ``worker_timeout`` s if no worker is left.
+
+    Before submitting: wait for a worker and check every worker's lidarcal version.  While
+    waiting: poll the scheduler's worker list; a scheduler that stops answering, or no worker
+    for ``worker_timeout`` s, ends the run with :class:`~lidarcal.errors.ComputeError`.
+    """
+    from distributed import as_completed
+    from distributed.scheduler import KilledWorker
+
+    address = str(getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler")
+    quiet_orphaned_gathers()  # no AllExit traceback after our own message when workers die
+    _log_dashboard(client)
+    _check_workers(client, address, worker_timeout)
+    tasks = _share_model(client, tasks)
+    futures = {client.submit(run_chunk, payload, key=name, pure=False): name for name, payload in tasks}
+    bar = _bar(len(tasks), progress)
+    finished = False
+    # a lost scheduler is reported once, by the ComputeError below, not by the client's own
+    # reconnect logging (an ERROR with a traceback)
+    quiet = logging.getLogger("distributed.client")
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)
+    try:
+        with client.as_current():  # as_completed looks up the current client
+            completed = as_completed(futures)
+        alone_since = None
+        while not completed.is_empty():
+            batch = completed.next_batch(block=False)
+            if not batch:
+                now = time.monotonic()
+                if _n_workers(client, address):
+                    alone_since = None
+                elif alone_since is None:
+                    alone_since = now
+                elif now - alone_since > worker_timeout:
+                    raise ComputeError(
+                        f"every dask worker of the scheduler at {address} is gone and none joined for "
+                        f"{worker_timeout:g} s; {completed.count()} of {len(tasks)} chunks unfinished. Start "
+                        f"workers (`dask worker {address}`) and run again (with --workdir, finished chunks "
+                        "are kept)"
+                    )
+                time.sleep(_POLL)
+                continue
+            for fut in batch:
+                name = futures[fut]
+                if fut.status == "error":
+                    exc = fut.exception()
+                    if isinstance(exc, KilledWorker):
+                        raise ComputeError(
+                            f"chunk {name} was running on dask workers that died each time it was tried "
+                            f"({exc}); out of memory, or killed?"
+                        ) from None
+                    fut.result()  # the task's own error: a LidarcalError, else a bug (traceback)
+                if fut.status == "cancelled":  # the scheduler forgot it: it went away
+                    raise _scheduler_gone(address, RuntimeError(f"chunk {name} was cancelled"))
+                if fut.status != "finished":  # lost with its worker: the scheduler computes it again
+                    completed.add(fut)
+                    continue
+                try:
+                    result = fut.result(timeout=worker_timeout)
+                except Exception:  # its worker died before the result was fetched
+                    _n_workers(client, address)  # a ComputeError if the scheduler is gone
+                    completed.add(fut)  # else computed again
+                    continue
+                fut.release()
+                bar.update(1)
+                yield name, result
+        finished = True
+    finally:
+        bar.close()
+        if not finished:
+            with contextlib.suppress(Exception):
+                client.cancel(list(futures), force=True)
+        quiet.setLevel(level)
+
+
+def _share_model(client, tasks: list[tuple[str, dict]]) -> list[tuple[str, dict]]:
+    """Send the model the tasks share (bench residuals: megabytes) to the cluster once, not per task.
+
+    Without this every submitted task carries its own serialised copy, so the client's memory
+    grows with the number of tasks in flight (chunks times Monte Carlo replicas).  The model is
+    the result of one task rather than scattered data: if every worker holding it dies, the
+    scheduler computes it again on the next worker that joins (scattered data would be lost,
+    and with it every chunk that needs it).
+    """
+    shared = tasks[0][1].get("model") if tasks else None
+    if shared is None or any(payload.get("model") is not shared for _, payload in tasks):
+        return tasks
+    try:
+        with warnings.catch_warnings():  # "large object in task graph": sent once, on purpose
+            warnings.simplefilter("ignore", UserWarning)
+            remote = client.submit(_shared_model, shared, pure=False,
+                                   key=f"lidarcal-model-{uuid.uuid4().hex}")
+    except Exception as exc:  # comm closed, timeout: the scheduler is unreachable
+        address = str(getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler")
+        raise _scheduler_gone(address, exc) from None
+    return [(name, {**payload, "model": remote}) for name, payload in tasks]
+
+
+def _shared_model(model):
+    """Return ``model``: the task whose result the chunks share (:func:`_share_model`)."""
+    return model
+
+
+def _bar(total: int, enabled: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, unit="chunk", desc="simulate", disable=not enabled, dynamic_ncols=True)
+
+
+def _run_local(
+    tasks: list[tuple[str, dict]], scheduler: str, workers: int | None, progress: bool
+) -> Iterator[tuple[str, dict]]:
+    import dask
+
+    delayed = [dask.delayed(run_chunk, pure=False)(payload, dask_key_name=name) for name, payload in tasks]
+    kw: dict[str, Any] = {"scheduler": scheduler}
+    if scheduler in ("processes", "threads") and workers:
+        kw["num_workers"] = int(workers)
+    callbacks = []
+    if progress:
+        from tqdm.dask import TqdmCallback
+
+        callbacks.append(TqdmCallback(desc="simulate", unit="chunk", dynamic_ncols=True))
+    with _blas_env(), contextlib.ExitStack() as stack:
+        for cb in callbacks:
+            stack.enter_context(cb)
+        if scheduler == "processes":  # pool workers die with this process (campaign.workers)
+            stack.enter_context(dask.config.set({
+                "multiprocessing.context": "spawn",
+                "multiprocessing.initializer": functools.partial(init_pool_worker, os.getpid()),
+            }))
+        results = dask.compute(*delayed, **kw)
+    yield from zip((name for name, _ in tasks), results, strict=True)
+
+
+def execute(tasks, scheduler, workers, progress, connect_timeout,
+            worker_timeout=WORKER_TIMEOUT) -> Iterator[tuple[str, dict]]:
+    """Run the ``(name, payload)`` chunk tasks on ``scheduler`` and yield ``(name, result)`` as each finishes.
+
+    ``scheduler`` is a dask scheduler name, ``"local"``, an address or a ``distributed.Client``
+    (see :mod:`lidarcal.campaign.run`); faults end with one :class:`~lidarcal.errors.ComputeError`.
+    """
+    if not tasks:
+        return
+    if scheduler is None:
+        scheduler = "processes"
+    if hasattr(scheduler, "submit"):  # a distributed.Client
+        yield from _run_distributed(scheduler, tasks, progress, worker_timeout)
+        return
+    if not isinstance(scheduler, str):
+        raise InputError(
+            f"scheduler must be None, a name, an address or a distributed.Client; got {scheduler!r}"
+        )
+    if "://" in scheduler:
+        client = _connect(scheduler, connect_timeout)
+        try:
+            yield from _run_distributed(client, tasks, progress, worker_timeout)
+        finally:
+            _close_quietly(client, connect_timeout)
+        return
+    if scheduler == "local":
+        from distributed import Client
+
+        n = int(workers or os.cpu_count() or 1)
+        with (
+            local_cluster(n, dashboard_address=None) as cluster,
+            Client(cluster, set_as_default=False) as client,
+        ):
+            yield from _run_distributed(client, tasks, progress, worker_timeout)
+        return
+    if scheduler not in ("processes", "threads", "synchronous", "sync", "single-threaded"):
+        raise InputError(
+            f"unknown scheduler {scheduler!r}; use 'processes', 'threads', 'synchronous', 'local', "
+            f"an address such as 'tcp://127.0.0.1:8786', or a distributed.Client"
+        )
+    yield from _run_local(tasks, scheduler, workers, progress)
