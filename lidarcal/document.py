@@ -50,6 +50,9 @@ __all__ = [
     "STYLE",
     "headline_sentence",
     "write_document",
+    "fmt",
+    "units_suffix",
+    "VARIABLE_NAMES",
 ]
 
 A4 = (8.27, 11.69)  # inches, portrait
@@ -67,7 +70,7 @@ _COLORS = [
     "#bcbd22",
     "#17becf",
 ]
-_VARIABLES = {
+VARIABLE_NAMES = {  # readable names of the environmental variables
     "wind_shear_exponent": "wind shear exponent",
     "turbulence_intensity": "turbulence intensity",
     "cnr_gradient": "CNR gradient",
@@ -75,13 +78,14 @@ _VARIABLES = {
 }
 
 
-def _fmt(value: Any, digits: int = 3) -> str:
+def fmt(value: Any, digits: int = 3) -> str:
+    """``value`` with ``digits`` significant digits (``-1.93``, ``0.000123``, ``1230``, ``3.09e-16``)."""
     try:
         x = float(value)
     except (TypeError, ValueError):
         return str(value)
     if not np.isfinite(x):
-        return "–"
+        return "–" if np.isnan(x) else str(x)
     if x == int(x) and abs(x) < 10**digits:
         return f"{int(x):d}"
     if abs(x) < 1e-4 or abs(x) >= 1e6:
@@ -89,7 +93,8 @@ def _fmt(value: Any, digits: int = 3) -> str:
     return np.format_float_positional(x, precision=digits, unique=False, fractional=False, trim="-")
 
 
-def _units(da: xr.DataArray) -> str:
+def units_suffix(da: xr.DataArray) -> str:
+    """`` (unit)`` for a label, nothing for a dimensionless variable."""
     u = da.attrs.get("units", "")
     return f" ({u})" if u and u != "1" else ""
 
@@ -335,10 +340,10 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = HEAD
     for j, h in enumerate(g["height"]):
         c = _COLORS[j % len(_COLORS)]
         top.plot(
-            ws, np.where(cert[:, j], val[:, j], np.nan), "-o", color=c, ms=3, lw=1.5, label=f"{_fmt(h)} m"
+            ws, np.where(cert[:, j], val[:, j], np.nan), "-o", color=c, ms=3, lw=1.5, label=f"{fmt(h)} m"
         )
         apart = ~cert[:, j] & np.isfinite(val[:, j])
-        bottom.plot(ws[apart], val[apart, j], "x" if True else "o", color=c, ms=4, label=f"{_fmt(h)} m")
+        bottom.plot(ws[apart], val[apart, j], "x" if True else "o", color=c, ms=4, label=f"{fmt(h)} m")
     certified_values = val[cert]
     ymax = float(certified_values.max()) * 1.15 if certified_values.size else 1.0
     top.set_xlim(wind_speeds[0] - step / 2, wind_speeds[1] + step / 2)
@@ -347,7 +352,7 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = HEAD
         top,
         f"Relative expanded uncertainty (k = {k:g}), certified bins "
         f"({wind_speeds[0]:g} to {wind_speeds[1]:g} m/s, enough periods)",
-        f"reference wind speed bin{_units(budget.wind_speed)}",
+        f"reference wind speed bin{units_suffix(budget.wind_speed)}",
         f"U, k = {k:g} (%)",
     )
     top.legend(
@@ -359,7 +364,7 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = HEAD
     _small(
         bottom,
         "Not certified: bins outside that range or with too few periods (own scale)",
-        f"reference wind speed bin{_units(budget.wind_speed)}",
+        f"reference wind speed bin{units_suffix(budget.wind_speed)}",
         f"U, k = {k:g} (%)",
     )
 
@@ -396,7 +401,7 @@ def draw_contributors(
                 capstyle="butt",
             )
         ax.set_xlim(wind_speeds[0] - step, wind_speeds[1] + step)
-        _small(ax, f"{_fmt(h)} m", f"wind speed bin{_units(budget.wind_speed)}", "u (%)")
+        _small(ax, f"{fmt(h)} m", f"wind speed bin{units_suffix(budget.wind_speed)}", "u (%)")
     for ax in axes[len(heights) :]:
         ax.set_visible(False)
     axes[0].legend(fontsize=_FONT - 1, ncol=min(len(names), 4), loc="lower left", bbox_to_anchor=(0, 1.25))
@@ -450,7 +455,7 @@ def confidence_band(
 def draw_sensitivity(fig, ds: xr.Dataset) -> None:
     """Bin means (± s.e.), the regression and its 95 % band, one panel per height."""
     var = str(ds.attrs.get("environmental_variable", "variable"))
-    readable = _VARIABLES.get(var, var.replace("_", " "))
+    readable = VARIABLE_NAMES.get(var, var.replace("_", " "))
     units = ds["slope"].attrs.get("units", "")
     heights = np.atleast_1d(ds.height.values)
     axes = _axes(fig, int(np.ceil(len(heights) / 2)), 2, top=0.9, bottom=0.06, hspace=0.7)
@@ -468,10 +473,10 @@ def draw_sensitivity(fig, ds: xr.Dataset) -> None:
         se = float(one["slope_standard_error"]) if "slope_standard_error" in one else np.nan
         _small(
             ax,
-            f"{_fmt(h)} m: m = {_fmt(float(one['slope']))} ± {_fmt(se)} {units}, "
-            f"R = {_fmt(float(one['correlation']), 2)}",
-            f"{readable}{_units(ds['bin'])}",
-            f"lidar − ref.{_units(ds['mean_difference'])}",
+            f"{fmt(h)} m: m = {fmt(float(one['slope']))} ± {fmt(se)} {units}, "
+            f"R = {fmt(float(one['correlation']), 2)}",
+            f"{readable}{units_suffix(ds['bin'])}",
+            f"lidar − ref.{units_suffix(ds['mean_difference'])}",
         )
     for ax in axes[len(heights) :]:
         ax.set_visible(False)
@@ -493,7 +498,7 @@ def draw_significance(fig, sens: Iterable[xr.Dataset]) -> None:
             "-o",
             ms=3,
             color=_COLORS[i % 10],
-            label=_VARIABLES.get(var, var.replace("_", " ")),
+            label=VARIABLE_NAMES.get(var, var.replace("_", " ")),
         )
     for s in (0.5, -0.5):
         ax.axhline(s, color="grey", ls="--", lw=0.8)
@@ -575,14 +580,15 @@ def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | Non
                 ax.axhline(y, color="black", lw=0.8, ls=":")
         label = f"LOS {one}"
         if "los_azimuth" in cube.coords and str(one).upper() != "V":
-            label += f" (azimuth {_fmt(cube.los_azimuth.sel(los=one).item())}°)"
-        _small(ax, label, f"programmed radial velocity{_units(cube.velocity)}", f"CNR{_units(cube.cnr)}")
+            label += f" (azimuth {fmt(cube.los_azimuth.sel(los=one).item())}°)"
+        _small(ax, label, f"programmed radial velocity{units_suffix(cube.velocity)}",
+               f"CNR{units_suffix(cube.cnr)}")
     for ax in axes[len(los) :]:
         ax.set_visible(False)
     if mesh is not None:
         cax = fig.add_axes([0.89, 0.3, 0.02, 0.4])
         fig.colorbar(mesh, cax=cax, extend="both").set_label(
-            f"{name.replace('_', ' ')}{_units(da)}", fontsize=_FONT
+            f"{name.replace('_', ' ')}{units_suffix(da)}", fontsize=_FONT
         )
     what = (
         "mean LOS velocity error (measured − programmed)"
@@ -590,8 +596,8 @@ def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | Non
         else "standard deviation of the measured LOS velocity"
     )
     scale = (
-        f"colour scale: 99th percentile of the CNR bins the simulation draws from ({_fmt(drawn[0])} to "
-        f"{_fmt(drawn[1])} dB, dotted lines)"
+        f"colour scale: 99th percentile of the CNR bins the simulation draws from ({fmt(drawn[0])} to "
+        f"{fmt(drawn[1])} dB, dotted lines)"
         if drawn
         else "colour scale: 99th percentile of all bins"
     )
@@ -617,14 +623,14 @@ def draw_rwf(fig, rwf: xr.Dataset) -> None:
     a.legend(fontsize=_FONT - 1, loc="upper left", bbox_to_anchor=(1.01, 1))
     _small(
         a,
-        f"Pulse, apodization and RWF (normalised), Zd = {_fmt(zd)} m",
+        f"Pulse, apodization and RWF (normalised), Zd = {fmt(zd)} m",
         "range offset from gate centre (m)",
         "normalised amplitude",
     )
     g = rwf["cnr_gradient"].values
     pick = sorted(set(np.linspace(0, len(g) - 1, min(5, len(g))).round().astype(int).tolist()))
     for i in pick:
-        b.plot(x, rwf["rwf"].isel(cnr_gradient=i).values[sl], label=f"{_fmt(g[i])} dB/m")
+        b.plot(x, rwf["rwf"].isel(cnr_gradient=i).values[sl], label=f"{fmt(g[i])} dB/m")
     b.legend(
         fontsize=_FONT - 1,
         loc="upper left",
@@ -636,7 +642,7 @@ def draw_rwf(fig, rwf: xr.Dataset) -> None:
         b,
         "RWF for several CNR gradients (Eq. 2)",
         "range offset from gate centre (m)",
-        f"RWF{_units(rwf['rwf'])}",
+        f"RWF{units_suffix(rwf['rwf'])}",
     )
 
 
@@ -745,13 +751,13 @@ def _grid_table(
     line = size * 1.4 / 72 / A4[1]
     fig.text(x0, y, "wind speed\nbin (m/s)", fontsize=size, va="top", weight="bold", linespacing=1.1)
     for c, h in zip(cols, heights, strict=True):
-        fig.text(c, y, f"{_fmt(h)} m", fontsize=size, va="top", ha="right", weight="bold")
+        fig.text(c, y, f"{fmt(h)} m", fontsize=size, va="top", ha="right", weight="bold")
     y -= 2.3 * line
     fig.add_artist(_rule(y + 0.4 * line))
     # one text per column and colour (not per cell): hundreds of text artists are what costs
     rows = list(rows)
     style = dict(fontsize=size, va="top", linespacing=1.4)
-    fig.text(x0 + 0.02, y, "\n".join(_fmt(ws[i]) for i in rows), **style)
+    fig.text(x0 + 0.02, y, "\n".join(fmt(ws[i]) for i in rows), **style)
     for j, c in enumerate(cols):
         black, grey = [], []
         for i in rows:

@@ -50,6 +50,7 @@ from lidarcal.document import (
     A4,
     NOT_STATED,
     STYLE,
+    VARIABLE_NAMES,
     certificate_facts,
     certificate_id,
     certified_grid,
@@ -58,7 +59,9 @@ from lidarcal.document import (
     draw,
     drawn_cnr_range,
     figure_names,
+    fmt,
     headline_sentence,
+    units_suffix,
     write_document,
 )
 from lidarcal.errors import InputError
@@ -72,34 +75,6 @@ _PNG_DPI = 150  # static figures: at least 150 dpi, written into the PNG's pHYs 
 _THIN = "#d62728"  # marker colour of thin bins (fewer periods than min_samples)
 _COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
            "#17becf", "#000000"]
-_VARIABLES = {  # readable names of the environmental variables
-    "wind_shear_exponent": "wind shear exponent",
-    "turbulence_intensity": "turbulence intensity",
-    "cnr_gradient": "CNR gradient",
-    "cnr": "CNR",
-}
-
-
-def fmt(value: Any, digits: int = 3) -> str:
-    """``value`` with ``digits`` significant digits (``-1.93``, ``0.000123``, ``1230``, ``3.09e-16``)."""
-    try:
-        x = float(value)
-    except (TypeError, ValueError):
-        return str(value)
-    if not np.isfinite(x):
-        return "–" if np.isnan(x) else str(x)
-    if x == int(x) and abs(x) < 10**digits:
-        return f"{int(x):d}"
-    if abs(x) < 1e-4 or abs(x) >= 1e6:
-        return f"{x:.{digits - 1}e}"
-    return np.format_float_positional(x, precision=digits, unique=False, fractional=False, trim="-")
-
-
-def _units(da: xr.DataArray) -> str:
-    u = da.attrs.get("units", "")
-    return f" ({u})" if u and u != "1" else ""
-
-
 def _table(header: list[str], rows: list[list[str]], caption: str) -> str:
     head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
     body = "\n".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
@@ -176,7 +151,7 @@ def _by_name(p: Any) -> dict[str, list]:
 def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
     """Plot U (k = 2) per height on the certified range (menu: all heights or one) and the contributors."""
     k = float(budget.attrs.get("coverage_factor", 2.0))
-    xl = f"reference wind speed bin{_units(budget.wind_speed)}"
+    xl = f"reference wind speed bin{units_suffix(budget.wind_speed)}"
     rel = budget["relative_expanded_uncertainty"]
     flag = budget["bin_flag"]
     ws = budget.wind_speed.values
@@ -257,9 +232,9 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
 
 def _sensitivity_figure(ds: xr.Dataset) -> Figure:
     var = str(ds.attrs.get("environmental_variable", "variable"))
-    readable = _VARIABLES.get(var, var.replace("_", " "))
-    xl = f"{readable}{_units(ds['bin'])}"
-    yl = f"mean lidar − reference difference{_units(ds['mean_difference'])}"
+    readable = VARIABLE_NAMES.get(var, var.replace("_", " "))
+    xl = f"{readable}{units_suffix(ds['bin'])}"
+    yl = f"mean lidar − reference difference{units_suffix(ds['mean_difference'])}"
     units = ds["slope"].attrs.get("units", "")
     rows, titles, layers = [], {}, []
     for h in ds.height.values:
@@ -355,7 +330,7 @@ def _sensitivity_plots(sens: Iterable[xr.Dataset]) -> dict[str, Figure]:
                 y = np.atleast_1d(ds["slope_times_std"].values)
                 values.append(y)
                 h = np.atleast_1d(ds.height.values)
-                name = _VARIABLES.get(var, var.replace("_", " "))
+                name = VARIABLE_NAMES.get(var, var.replace("_", " "))
                 p.line(h, y, color=_COLORS[i % 10], line_width=2, legend_label=name)
                 p.scatter(h, y, color=_COLORS[i % 10], size=7, legend_label=name)
             for s in (0.5, -0.5):
@@ -395,7 +370,7 @@ def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) 
             continue
         da = cube[name].transpose("los", "cnr", "velocity")
         clim = cube_colour_limits(da, drawn_cnr, symmetric)
-        label = f"{name.replace('_', ' ')}{_units(da)}"
+        label = f"{name.replace('_', ' ')}{units_suffix(da)}"
 
         def build(da=da, clim=clim, label=label, palette=palette) -> Any:
             from bokeh.layouts import gridplot
@@ -410,8 +385,8 @@ def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) 
             dc = float(np.median(np.diff(c))) if c.size > 1 else 1.0
             plots = []
             for los in da.los.values:
-                p = _plot(_los_label(cube, los), f"programmed radial velocity{_units(cube.velocity)}",
-                          f"CNR{_units(cube.cnr)}", width=360, height=280)
+                p = _plot(_los_label(cube, los), f"programmed radial velocity{units_suffix(cube.velocity)}",
+                          f"CNR{units_suffix(cube.cnr)}", width=360, height=280)
                 p.image(image=[da.sel(los=los).values], x=v.min() - dv / 2, y=c.min() - dc / 2,
                         dw=float(np.ptp(v)) + dv, dh=float(np.ptp(c)) + dc, color_mapper=mapper)
                 plots.append(p)
@@ -454,7 +429,7 @@ def _rwf_plots(rwf: xr.Dataset) -> dict[str, Figure]:
         return p
 
     def gradients() -> Any:
-        p = _plot("RWF for several CNR gradients (Eq. 2)", xl, f"RWF{_units(rwf['rwf'])}")
+        p = _plot("RWF for several CNR gradients (Eq. 2)", xl, f"RWF{units_suffix(rwf['rwf'])}")
         for k, i in enumerate(pick):
             p.line(x, rwf["rwf"].isel(cnr_gradient=i).values[sl], color=_COLORS[k % 10], line_width=2,
                    legend_label=f"{fmt(g[i])} dB/m")
