@@ -18,14 +18,29 @@ A variable is declared once.  A schema that carries variables declared in anothe
         keep: [units, range]      # spec keys copied (default: all)
         set: {dims: ["{name}"]}   # keys set on every copy; "{name}" is replaced in strings
 
-``long_name`` and ``standard_name`` in a spec are metadata, not checks; keeping
-``standard_name`` in an include turns it into a required ``standard_name`` attribute.  A spec
-the including schema writes itself under the same name is merged over the copy (its keys win).
+A spec holds checks (``dims``, ``units``, ``convertible``, ``allow_nan``, ``range``,
+``required``, ``attributes``) and the output metadata lidarcal writes on the variable: every
+other key (``long_name``, ``standard_name``, ``comment``, ``coverage_content_type``,
+``flag_values``, ``ancillary_variables`` ...) is an attribute to write, not a check, and so are
+``units`` and the checked ``attributes``.  :func:`output_attrs` turns a spec into the attributes
+of a variable being written; it is the only place an artefact's variables get their long names,
+units and comments, so a new output variable is one YAML entry.  Strings may be templates
+filled from the writer's context (``"sensitivity slope m of the difference to {xname}"``); a
+value that is one placeholder alone (``"{coverage_factor}"``) takes the context value as it is.
+A variable name may be a template too (``"sensitivity_{variable}"``): it stands for every
+variable whose name matches, the matched parts join the context, and the validator checks each
+match (none is required).  A template in ``units`` or in a checked attribute is not checked.
+
+Keeping ``standard_name`` in an include turns it into a required ``standard_name`` attribute;
+other metadata is not copied by an include.  A spec the including schema writes itself under the
+same name is merged over the copy (its keys win).
 """
 
 from __future__ import annotations
 
 import functools
+import re
+import string
 from typing import Any
 
 import numpy as np
@@ -36,7 +51,8 @@ from lidarcal.data import packaged_dir
 from lidarcal.errors import InputError, ValidationError
 from lidarcal.units import LOG_UNITS, _parse
 
-__all__ = ["load_schema", "declared_variables", "list_kinds", "validate_dataset", "COMMON_ATTRIBUTES"]
+__all__ = ["load_schema", "declared_variables", "list_kinds", "validate_dataset", "output_attrs",
+           "with_output_attrs", "COMMON_ATTRIBUTES"]
 
 #: Global attributes every artefact written by lidarcal must carry.
 COMMON_ATTRIBUTES = (
@@ -58,8 +74,10 @@ def list_kinds() -> list[str]:
 
 #: Keys an ``include`` entry may have.
 _INCLUDE_KEYS = {"from", "into", "only", "name", "keep", "set"}
-#: Spec keys that describe a variable without being checked.
-_METADATA_KEYS = ("long_name", "standard_name")
+#: Spec keys that are checks (``units`` and ``attributes`` are also written); any other key is metadata.
+_CHECK_KEYS = frozenset({"dims", "units", "convertible", "allow_nan", "range", "required", "attributes"})
+#: Attributes :func:`output_attrs` writes first, in this order (the rest follow as declared).
+_LEADING_ATTRS = ("long_name", "units", "coverage_content_type", "standard_name")
 
 
 @functools.cache
@@ -111,8 +129,7 @@ def _included(entry: dict[str, Any], where: str) -> tuple[str, dict[str, dict[st
     for name in only:
         spec = {k: v for k, v in source[name].items() if keep is None or k in keep}
         std = spec.pop("standard_name", None) if keep is not None else None
-        for key in _METADATA_KEYS:
-            spec.pop(key, None)
+        spec = {k: v for k, v in spec.items() if k in _CHECK_KEYS}
         if std is not None:
             spec["attributes"] = {**spec.get("attributes", {}), "standard_name": std}
         spec.update(_substitute(entry.get("set") or {}, name))
@@ -124,8 +141,8 @@ def _included(entry: dict[str, Any], where: str) -> tuple[str, dict[str, dict[st
 def load_schema(kind: str) -> dict[str, Any]:
     """Load the schema of artefact ``kind`` with its ``include`` entries resolved.
 
-    Specs carry only checks: ``long_name`` / ``standard_name`` metadata are in
-    :func:`declared_variables`.
+    Specs carry only checks: the metadata keys are in :func:`declared_variables` and written by
+    :func:`output_attrs`.
     """
     raw = _read_schema(kind)
     schema = {k: v for k, v in raw.items() if k != "include"}
@@ -135,7 +152,7 @@ def load_schema(kind: str) -> dict[str, Any]:
         sections[into].update(specs)
     for section in sections:
         for name, spec in (raw.get(section) or {}).items():
-            own = {k: v for k, v in (spec or {}).items() if k not in _METADATA_KEYS}
+            own = {k: v for k, v in (spec or {}).items() if k in _CHECK_KEYS}
             sections[section][name] = {**sections[section].get(name, {}), **own}
         if section not in raw and not sections[section]:
             raise InputError(f"schema {kind}.yaml: missing top-level key {section!r}")
@@ -143,10 +160,98 @@ def load_schema(kind: str) -> dict[str, Any]:
     return schema
 
 
+def _is_template(value: Any) -> bool:
+    """Tell whether ``value`` is a string with a ``{placeholder}`` (filled from context, not checked)."""
+    return isinstance(value, str) and any(field for _, field, _, _ in string.Formatter().parse(value))
+
+
+@functools.cache
+def _name_pattern(template: str) -> re.Pattern:
+    """Regex for a templated variable name: ``{x}`` becomes the named group ``x``."""
+    parts = []
+    for literal, field, _, _ in string.Formatter().parse(template):
+        parts.append(re.escape(literal))
+        if field:
+            parts.append(f"(?P<{field}>.+)")
+    return re.compile("".join(parts))
+
+
+def _spec_for(kind: str, name: str) -> tuple[dict[str, Any], dict[str, str]]:
+    """Return the spec ``kind`` writes itself for ``name`` and the parts a name template matched.
+
+    An exact entry wins over a name template.
+    """
+    raw = _read_schema(kind)
+    sections = [raw.get("coordinates") or {}, raw.get("variables") or {}]
+    for section in sections:
+        if name in section:
+            return dict(section[name] or {}), {}
+    for section in sections:
+        for key, spec in section.items():
+            if _is_template(key) and (match := _name_pattern(key).fullmatch(name)):
+                return dict(spec or {}), match.groupdict()
+    raise InputError(f"schema {kind}.yaml declares no variable {name!r} (nor a name template matching "
+                     f"it); declare it there with its long_name and units")
+
+
+def _fill(value: Any, context: dict[str, Any], where: str) -> Any:
+    if isinstance(value, str) and _is_template(value):
+        fields = [f for _, f, _, _ in string.Formatter().parse(value) if f]
+        missing = [f for f in fields if f not in context]
+        if missing:
+            raise KeyError(f"{where}: the template {value!r} needs {missing}; the writer gave "
+                           f"{sorted(context)}")
+        if value == "{" + fields[0] + "}" and len(fields) == 1:
+            return context[fields[0]]  # the context value as it is (a number stays a number)
+        return value.format_map(context)
+    if isinstance(value, list):
+        return [_fill(v, context, where) for v in value]
+    return value
+
+
+def output_attrs(kind: str, name: str, **context: Any) -> dict[str, Any]:
+    """Return the attributes of output variable ``name`` of artefact ``kind``, from its schema.
+
+    Every key of the variable's spec that is not a check, plus ``units`` and the checked
+    ``attributes``, with templates filled from ``context`` (and from the parts of a templated
+    name).  ``coverage_content_type`` defaults to ``modelResult``; ``flag_values`` become an
+    ``int8`` array.  Order: long_name, units, coverage_content_type, standard_name, then the rest
+    as declared.  A template that fills to ``""`` (no standard name, no comment) is left out.
+    """
+    spec, parts = _spec_for(kind, name)
+    context = {**parts, **context}
+    declared = {k: v for k, v in spec.items() if k not in _CHECK_KEYS or k == "units"}
+    declared.update(spec.get("attributes") or {})
+    declared.setdefault("coverage_content_type", "modelResult")
+    where = f"schema {kind}.yaml, variable {name!r}"
+    filled = {key: _fill(value, context, where) for key, value in declared.items()}
+    if "flag_values" in filled:
+        filled["flag_values"] = np.asarray(filled["flag_values"], dtype=np.int8)
+    for key in [k for k, v in declared.items() if _is_template(v) and filled[k] == ""]:
+        del filled[key]  # a template that fills to nothing is left out
+    return {**{k: filled.pop(k) for k in _LEADING_ATTRS if k in filled}, **filled}
+
+
+def with_output_attrs(ds: xr.Dataset, kind: str, **context: Any) -> xr.Dataset:
+    """``ds`` with the schema's attributes (:func:`output_attrs`) on every variable ``kind`` declares.
+
+    Attributes already on a variable and not declared are kept; declared ones are set.  Variables
+    the schema does not declare (included ones, bounds) are left as they are.
+    """
+    out = ds.copy(deep=False)
+    for name in list(out.variables):
+        try:
+            attrs = output_attrs(kind, str(name), **context)
+        except InputError:
+            continue
+        out.variables[name].attrs = {**out.variables[name].attrs, **attrs}
+    return out
+
+
 def _unit_ok(found: str | None, spec: dict) -> str | None:
     """Return a problem description, or None when ``found`` satisfies ``spec``."""
     expected = spec.get("units")
-    if expected is None:
+    if expected is None or _is_template(expected):
         return None
     if found is None:
         return f"has no 'units' attribute; expected {expected!r}"
@@ -188,8 +293,10 @@ def _check_variable(ds: xr.Dataset, name: str, spec: dict, role: str, problems: 
     if msg:
         problems.append(f"{role} {name!r} {msg}")
     for attr, value in spec.get("attributes", {}).items():
-        if var.attrs.get(attr) != value:
-            found = var.attrs.get(attr)
+        found = var.attrs.get(attr)
+        if _is_template(value) or (isinstance(found, np.ndarray) and np.array_equal(found, value)):
+            continue
+        if found != value:
             problems.append(f"{role} {name!r} attribute {attr!r} is {found!r}; expected {value!r}")
     kind = var.dtype.kind
     if kind not in "fiu":
@@ -235,10 +342,14 @@ def validate_dataset(
         for dim in schema["dims"]:
             if dim not in ds.dims:
                 problems.append(f"dimension {dim!r} is missing; found {sorted(map(str, ds.dims))}")
-        for name, spec in (schema.get("coordinates") or {}).items():
-            _check_variable(ds, name, spec or {}, "coordinate", problems, stackable)
-        for name, spec in (schema.get("variables") or {}).items():
-            _check_variable(ds, name, spec or {}, "variable", problems, stackable)
+        for section, role in (("coordinates", "coordinate"), ("variables", "variable")):
+            for name, spec in (schema.get(section) or {}).items():
+                if not _is_template(name):
+                    _check_variable(ds, name, spec or {}, role, problems, stackable)
+                    continue
+                for found in sorted(map(str, ds.variables)):  # a name template checks every match
+                    if _name_pattern(name).fullmatch(found):
+                        _check_variable(ds, found, spec or {}, role, problems, stackable)
         attrs = list(schema.get("attributes") or [])
         if schema.get("provenance", True):
             attrs = [*COMMON_ATTRIBUTES, *attrs]

@@ -8,6 +8,7 @@ takes its tables from :mod:`lidarcal.conditions.variables`.  These tests fail wh
 from __future__ import annotations
 
 import ast
+import functools
 import re
 from pathlib import Path
 
@@ -189,3 +190,47 @@ def test_lidar_defaults_and_seed_are_declared_once():
     assert sorted(f for f, _ in _literals(28.0)) == ["analysis/terms.py", "lidar/model.py"]
     # 2/3 is written only in the model (as 2.0 / 3.0): no other literal 0.666...
     assert _literals(2.0 / 3.0) == []
+
+
+def test_output_attrs_fill_templates_from_the_writers_context(tmp_path, monkeypatch):
+    """Output metadata comes from the schema: templates, raw values, name templates, checks."""
+    import numpy as np
+    import xarray as xr
+
+    from lidarcal import schema
+
+    (tmp_path / "toy.yaml").write_text(
+        "kind: toy\ndescription: a toy\ndims: [height]\n"
+        "coordinates:\n  height: {dims: [height], units: m}\n"
+        "variables:\n"
+        "  slope:\n    dims: [height]\n    long_name: 'slope to {xname}'\n    units: '{slope_units}'\n"
+        "    comment: '{note}'\n    coverage_factor: '{k}'\n"
+        "  flag: {dims: [height], units: '1', flag_values: [0, 1], attributes: {flag_meanings: no yes}}\n"
+        "  'sensitivity_{variable}': {dims: [height], units: '%', long_name: 'sensitivity to {variable}'}\n"
+        "attributes: []\nprovenance: false\n")
+    monkeypatch.setattr(schema, "_schema_dir", lambda: tmp_path)
+    for cached in (schema._read_schema, schema.load_schema):
+        cached.cache_clear()
+    monkeypatch.setattr(schema, "_read_schema", functools.cache(schema._read_schema.__wrapped__))
+    monkeypatch.setattr(schema, "load_schema", functools.cache(schema.load_schema.__wrapped__))
+    attrs = schema.output_attrs("toy", "slope", xname="wind speed", slope_units="% (m s-1)-1", note="", k=2.0)
+    assert attrs == {"long_name": "slope to wind speed", "units": "% (m s-1)-1",
+                     "coverage_content_type": "modelResult", "coverage_factor": 2.0}  # empty comment left out
+    assert list(attrs)[:3] == ["long_name", "units", "coverage_content_type"]
+    flag = schema.output_attrs("toy", "flag")
+    assert flag["flag_values"].dtype == np.int8 and flag["flag_meanings"] == "no yes"
+    assert schema.output_attrs("toy", "sensitivity_cnr")["long_name"] == "sensitivity to cnr"
+    with pytest.raises(KeyError, match=r"needs \['xname'"):
+        schema.output_attrs("toy", "slope", slope_units="1", note="", k=1)
+    with pytest.raises(InputError, match="declares no variable 'nope'"):
+        schema.output_attrs("toy", "nope")
+    # the validator checks every variable a name template matches, and not a templated unit
+    ds = xr.Dataset({"slope": ("height", [1.0], {"units": "anything"}),
+                     "flag": ("height", np.array([1], np.int8), flag),
+                     "sensitivity_cnr": ("height", [1.0], {"units": "m"})},
+                    coords={"height": ("height", [40.0], {"units": "m"})})
+    problems = schema.validate_dataset(ds, "toy")
+    assert problems == ["variable 'sensitivity_cnr' has units 'm'; expected '%'"]
+    filled = schema.with_output_attrs(ds.drop_vars("slope"), "toy")
+    assert filled["sensitivity_cnr"].attrs["units"] == "%"
+    assert filled["sensitivity_cnr"].attrs["long_name"] == "sensitivity to cnr"

@@ -51,9 +51,10 @@ from scipy import stats
 
 from lidarcal.analysis import kernels
 from lidarcal.analysis._records import STANDARD_NAMES, checked, select_heights, source_name
-from lidarcal.cf import declared_attrs, with_bounds
+from lidarcal.cf import with_bounds
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
+from lidarcal.schema import output_attrs
 from lidarcal.units import LOG_UNITS, to_magnitude
 
 __all__ = ["sensitivity", "sensitivities", "compare_slopes", "DEFAULT_BIN_WIDTHS", "DEFAULT_MIN_SAMPLES"]
@@ -135,60 +136,7 @@ def _range(reference_range) -> tuple[float, float]:
     return max(conv[0], 0.0), conv[1]
 
 
-#: Declared CF attributes of every output variable (applied by :func:`_assemble`).  Templates:
-#: ``{xname}`` the variable with spaces, ``{units}`` its units, ``{standard_name}`` its CF name
-#: (may be empty), ``{diff_units}`` % or m s-1, ``{slope_units}``, ``{mean_comment}``.
-_FLAG = dict(flag_values=np.array([0, 1], dtype=np.int8), flag_meanings="not_significant significant",
-             coverage_content_type="qualityInformation")
-OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
-    "mean_difference": dict(
-        long_name="mean {relative}lidar minus reference wind speed difference in bin", units="{diff_units}",
-        ancillary_variables="sample_count bin_flag", comment="{mean_comment}"),
-    "std_difference": dict(
-        long_name="standard deviation of the lidar minus reference difference in bin (ddof=1)",
-        units="{diff_units}"),
-    "sample_count": dict(long_name="number of 10-minute periods in bin", units="1",
-                         coverage_content_type="auxiliaryInformation"),
-    "variable_mean": dict(long_name="mean {xname} of the periods in bin", units="{units}",
-                          standard_name="{standard_name}"),
-    "bin_flag": dict(long_name="bin usage flag", units="1", coverage_content_type="qualityInformation",
-                     flag_values=np.array([0, 1, 2], dtype=np.int8),
-                     flag_meanings="used too_few_samples empty"),
-    "slope": dict(long_name="sensitivity slope m of the difference to {xname}", units="{slope_units}",
-                  comment="weighted least squares of bin means on the bins' mean {xname}, weights n/s2"),
-    "slope_standard_error": dict(
-        long_name="standard error of the slope", units="{slope_units}",
-        comment="sqrt(max(1, reduced chi-square) / sum(w (x - xw)^2)), weights w = n/s2 of the bin means"),
-    "slope_ci_low": dict(long_name="lower limit of the 95 % confidence interval of the slope",
-                         units="{slope_units}",
-                         comment="slope - t(0.975, bins_used - 2) * slope_standard_error"),
-    "slope_ci_high": dict(long_name="upper limit of the 95 % confidence interval of the slope",
-                          units="{slope_units}",
-                          comment="slope + t(0.975, bins_used - 2) * slope_standard_error"),
-    "reduced_chi_square": dict(
-        long_name="reduced chi-square of the bin means about the weighted line", units="1",
-        comment="above 1: the bin means scatter more than their standard errors; the slope's "
-                "standard error is inflated by its square root"),
-    "regression_weight": dict(long_name="weight n/s2 of the bin mean in the regression (0 if not used)",
-                              units="1", comment="numerically in ({diff_units})-2: n / std_difference**2",
-                              coverage_content_type="auxiliaryInformation"),
-    "intercept": dict(long_name="intercept of the sensitivity regression", units="{diff_units}"),
-    "correlation": dict(long_name="correlation coefficient R of the sensitivity regression", units="1"),
-    "variable_std": dict(long_name="standard deviation of {xname} over the periods used (ddof=1)",
-                         units="{units}"),
-    "periods_used": dict(long_name="number of periods in the bins used", units="1",
-                         coverage_content_type="auxiliaryInformation"),
-    "bins_used": dict(long_name="number of bins used in the regression", units="1",
-                      coverage_content_type="auxiliaryInformation"),
-    "slope_times_std": dict(long_name="Eq. 12 statistic m * std", units="{diff_units}"),
-    "slope_times_std_times_r": dict(long_name="Eq. 13 statistic m * std * R", units="{diff_units}"),
-    "significant_eq12": dict(long_name=f"|m * std| > {THRESHOLD_EQ12} % (Eq. 12)", units="1", **_FLAG),
-    "significant_eq13": dict(long_name=f"|m * std * R| > {THRESHOLD_EQ13} % (Eq. 13)", units="1", **_FLAG),
-    "significant": dict(long_name="sensitivity significant by Eq. 12 or Eq. 13", units="1", **_FLAG),
-    "bin": dict(long_name="centre of {xname} bin", units="{units}", standard_name="{standard_name}",
-                coverage_content_type="coordinate"),
-}
-#: Comment added to the Eq. 12-13 statistics of an absolute (m s-1) difference.
+#: Comment on the Eq. 12-13 statistics of an absolute (m s-1) difference.
 _ABSOLUTE_COMMENT = "the thresholds of Eqs. 12-13 are in %; they do not apply here"
 
 
@@ -367,23 +315,22 @@ def _fit(records: xr.Dataset, x: xr.DataArray, diff: xr.DataArray, edges: np.nda
 
 def _assemble(records: xr.Dataset, variable: str, units: str, relative: bool, edges: np.ndarray,
               fit: Mapping[str, np.ndarray], config: dict[str, Any], call: str | None) -> xr.Dataset:
-    """Build the ``sensitivity`` artefact: ``fit`` with the attributes of :data:`OUTPUT_ATTRS`, stamped."""
+    """Build the ``sensitivity`` artefact: ``fit`` with the attributes of its schema, stamped."""
     xname = variable.replace("_", " ")
     diff_units = "%" if relative else "m s-1"
     context = dict(
         xname=xname, units=units, standard_name=STANDARD_NAMES.get(variable) or "", diff_units=diff_units,
         slope_units=_per_unit(diff_units, units), relative="relative " if relative else "",
-        mean_comment="relative to each period's reference wind speed, then averaged" if relative else "")
+        mean_comment="relative to each period's reference wind speed, then averaged" if relative else "",
+        statistic_comment="" if relative else _ABSOLUTE_COMMENT, threshold_eq12=THRESHOLD_EQ12,
+        threshold_eq13=THRESHOLD_EQ13)
     centres = 0.5 * (edges[:-1] + edges[1:])
     ds = xr.Dataset(
         {name: (("height", "bin") if np.ndim(values) == 2 else ("height",), values,
-                declared_attrs(OUTPUT_ATTRS, name, **context)) for name, values in fit.items()},
+                output_attrs("sensitivity", name, **context)) for name, values in fit.items()},
         coords={"height": records["height"].variable.copy(),
-                "bin": ("bin", centres, declared_attrs(OUTPUT_ATTRS, "bin", **context))},
+                "bin": ("bin", centres, output_attrs("sensitivity", "bin", **context))},
     )
-    if not relative:
-        for name in ("slope_times_std", "slope_times_std_times_r"):
-            ds[name].attrs["comment"] = _ABSOLUTE_COMMENT
     ds["height"].attrs = dict(records["height"].attrs)
     ds = with_bounds(ds, "bin", edges)
     ds.attrs = {
