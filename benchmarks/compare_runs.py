@@ -6,6 +6,11 @@ stored), hashes each variable's values with its dtype and shape, and prints ever
 that differs or is missing; variables only NEW_DIR has are listed, not compared.  Exit status
 1 when anything differs.  Used to show that a change to attributes (issue 18: short attributes)
 left a default run's numbers bit-identical.
+
+``--attrs`` also compares every variable's attributes and the global attributes, except those
+that change from run to run by design (creation dates, ids, history, digests and signatures,
+the provenance of the inputs' paths): a refactor that moves where metadata is declared (issue
+17) shows here that the files it writes say the same.
 """
 
 import hashlib
@@ -26,8 +31,24 @@ def digest(values: np.ndarray) -> str:
     return h.hexdigest()
 
 
-def main(old: str, new: str) -> int:
-    """Print the differences; return 1 if any value differs or a variable is missing."""
+#: Attributes that differ between two runs of the same inputs by design (not compared).
+VOLATILE = ("date_created", "date_modified", "date_issued", "date_metadata_modified", "history", "id", "uuid",
+            "lidarcal_integrity", "lidarcal_sha256", "lidarcal_bounds_sha256", "lidarcal_signature",
+            "lidarcal_inputs", "lidarcal_software", "lidarcal_elapsed_seconds", "source_path", "path")
+
+
+def _plain(value):
+    return np.asarray(value).tolist() if isinstance(value, np.ndarray | np.generic) else value
+
+
+def _attr_differences(where: str, a: dict, b: dict) -> list[str]:
+    keys = [k for k in dict.fromkeys([*a, *b]) if k not in VOLATILE]
+    return [f"{where}: attribute {k!r}: {_plain(a.get(k))!r} -> {_plain(b.get(k))!r}" for k in keys
+            if _plain(a.get(k)) != _plain(b.get(k))]
+
+
+def main(old: str, new: str, attrs: bool = False) -> int:
+    """Print the differences; return 1 if any value (or, with ``attrs``, attribute) differs."""
     bad = compared = 0
     for path in sorted(Path(old).glob("*.nc")):
         other = Path(new) / path.name
@@ -49,11 +70,22 @@ def main(old: str, new: str) -> int:
                 elif digest(a[name][...]) != digest(b[name][...]):
                     print(f"{path.name}: {name} differs")
                     bad += 1
+                elif attrs:
+                    found = _attr_differences(f"{path.name}: {name}", a[name].__dict__, b[name].__dict__)
+                    for line in found:
+                        print(line)
+                    bad += bool(found)
+            if attrs:
+                found = _attr_differences(f"{path.name} (global)", a.__dict__, b.__dict__)
+                for line in found:
+                    print(line)
+                bad += bool(found)
     print(f"{compared} variables compared, {bad} differ or are missing")
     return 1 if bad else 0
 
 
 if __name__ == "__main__":
-    if len(sys.argv) != 3:
+    args = [a for a in sys.argv[1:] if a != "--attrs"]
+    if len(args) != 2:
         sys.exit(__doc__)
-    sys.exit(main(sys.argv[1], sys.argv[2]))
+    sys.exit(main(*args, attrs="--attrs" in sys.argv[1:]))
