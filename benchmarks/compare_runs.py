@@ -34,17 +34,29 @@ def digest(values: np.ndarray) -> str:
 #: Attributes that differ between two runs of the same inputs by design (not compared).
 VOLATILE = ("date_created", "date_modified", "date_issued", "date_metadata_modified", "history", "id", "uuid",
             "lidarcal_integrity", "lidarcal_sha256", "lidarcal_bounds_sha256", "lidarcal_signature",
-            "lidarcal_inputs", "lidarcal_software", "lidarcal_elapsed_seconds", "source_path", "path")
+            "lidarcal_inputs", "lidarcal_software", "lidarcal_elapsed_seconds", "source_path", "path",
+            "lidarcal_source_sha256", "lidarcal_components", "lidarcal_provenance_chain",
+            "lidarcal_integrity_attributes", "simulation_date", "certificate_id")
 
 
 def _plain(value):
     return np.asarray(value).tolist() if isinstance(value, np.ndarray | np.generic) else value
 
 
+def _same(x, y) -> bool:
+    """Equal values, NaN equal to NaN (a float ``_FillValue`` is NaN)."""
+    if isinstance(x, str) or isinstance(y, str) or x is None or y is None:
+        return x == y
+    x, y = np.asarray(x), np.asarray(y)
+    if x.dtype.kind in "fc" or y.dtype.kind in "fc":
+        return x.shape == y.shape and np.array_equal(x, y, equal_nan=True)
+    return x.shape == y.shape and np.array_equal(x, y)
+
+
 def _attr_differences(where: str, a: dict, b: dict) -> list[str]:
     keys = [k for k in dict.fromkeys([*a, *b]) if k not in VOLATILE]
     return [f"{where}: attribute {k!r}: {_plain(a.get(k))!r} -> {_plain(b.get(k))!r}" for k in keys
-            if _plain(a.get(k)) != _plain(b.get(k))]
+            if not _same(a.get(k), b.get(k))]
 
 
 def main(old: str, new: str, attrs: bool = False) -> int:
