@@ -22,16 +22,13 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.sensitivity import _per_unit
-from lidarcal.cf import height_coord, var_attrs, with_bounds
+from lidarcal.cf import height_coord, with_bounds
 from lidarcal.compare.core import CORRECTION, Comparison
 from lidarcal.conditions.variables import CANONICAL_UNITS
 from lidarcal.provenance import stamp
+from lidarcal.schema import output_attrs
 
 __all__ = ["to_dataset", "summary", "slope_units"]
-
-_SIDES = {"measured": "field records", "simulated": "virtual lidar in the campaign's conditions"}
-_FLAG = {"flag_values": np.array([0, 1], dtype=np.int8), "flag_meanings": "not_significant significant"}
-
 
 def slope_units(variable: str) -> str:
     """Units of a sensitivity slope of the relative difference (%) against ``variable``."""
@@ -54,120 +51,33 @@ def to_dataset(
     variables = list(result["settings"]["variables"])
     heights = result["field"].height.values
     vh = ("variable", "height")
-    ds = xr.Dataset(
-        coords={
-            "variable": (
-                "variable",
-                np.array(variables, dtype=object),
-                {"long_name": "environmental variable of the sensitivity"},
-            ),
-            "height": height_coord(heights),
-        }
-    )
+    ds = xr.Dataset(coords={
+        "variable": ("variable", np.array(variables, dtype=object), output_attrs("comparison", "variable")),
+        "height": height_coord(heights),
+    })
+
+    def put(name: str, dims, values, **context) -> None:
+        ds[name] = (dims, values, output_attrs("comparison", name, **context))
+
     for i, v in enumerate(variables):
-        units, label = slope_units(v), v.replace("_", " ")
+        label = v.replace("_", " ")
         for side in ("measured", "simulated"):
-            ds[f"{v}_{side}_slope"] = (
-                "height",
-                cells[f"{side}_slope"][i],
-                var_attrs(
-                    f"sensitivity slope of the relative lidar minus reference difference to {label}, "
-                    f"{_SIDES[side]}",
-                    units,
-                    comment="IEC 61400-50-2 binning, weighted least squares of bin means",
-                ),
-            )
-            ds[f"{v}_{side}_slope_stderr"] = (
-                "height",
-                cells[f"{side}_slope_standard_error"][i],
-                var_attrs(f"standard error of the {side} slope against {label}", units),
-            )
-        ds[f"{v}_slope_difference"] = (
-            "height",
-            cells["difference"][i],
-            var_attrs(f"measured minus simulated slope against {label}", units),
-        )
-        ds[f"{v}_slope_difference_stderr"] = (
-            "height",
-            cells["stderr"][i],
-            var_attrs(
-                f"combined standard error of the slope difference against {label}",
-                units,
-                comment="sqrt(measured_stderr**2 + simulated_stderr**2): the two sides are independent",
-            ),
-        )
+            put(f"{v}_{side}_slope", "height", cells[f"{side}_slope"][i], label=label)
+            put(f"{v}_{side}_slope_stderr", "height", cells[f"{side}_slope_standard_error"][i], label=label)
+        put(f"{v}_slope_difference", "height", cells["difference"][i], label=label)
+        put(f"{v}_slope_difference_stderr", "height", cells["stderr"][i], label=label)
     for side in ("measured", "simulated"):
-        ds[f"{side}_bins_used"] = (
-            vh,
-            np.nan_to_num(cells[f"{side}_bins_used"]).astype(np.int32),
-            var_attrs(f"bins in the {side} regression", "1", coverage_content_type="auxiliaryInformation"),
-        )
-        ds[f"{side}_correlation"] = (
-            vh,
-            cells[f"{side}_correlation"],
-            var_attrs(f"correlation coefficient R of the {side} regression", "1"),
-        )
-        ds[f"{side}_slope_times_std"] = (
-            vh,
-            cells[f"{side}_slope_times_std"],
-            var_attrs(f"Eq. 12 statistic m * std, {_SIDES[side]}", "%"),
-        )
-        ds[f"{side}_slope_times_std_times_r"] = (
-            vh,
-            cells[f"{side}_slope_times_std_times_r"],
-            var_attrs(f"Eq. 13 statistic m * std * R, {_SIDES[side]}", "%"),
-        )
-        for eq, thr in (("eq12", "|m * std| > 0.5 %"), ("eq13", "|m * std * R| > 0.1 %")):
-            flag = cells[f"{side}_significant_{eq}"]
-            ds[f"{side}_significant_{eq}"] = (
-                vh,
-                np.nan_to_num(flag).astype(np.int8),
-                var_attrs(
-                    f"{thr} ({eq.replace('eq', 'Eq. ')}), {side}",
-                    "1",
-                    coverage_content_type="qualityInformation",
-                    **_FLAG,
-                ),
-            )
-    ds["slope_z"] = (
-        vh,
-        cells["z"],
-        var_attrs(
-            "slope difference over its combined standard error",
-            "1",
-            coverage_content_type="qualityInformation",
-        ),
-    )
-    ds["slope_p_value"] = (
-        vh,
-        cells["p_value"],
-        var_attrs(
-            "two-sided p-value of equal measured and simulated slopes (normal z-test)",
-            "1",
-            coverage_content_type="qualityInformation",
-        ),
-    )
-    ds["slope_p_adjusted"] = (
-        vh,
-        cells["p_adjusted"],
-        var_attrs(
-            "Holm-adjusted p-value over every tested cell (height x variable)",
-            "1",
-            coverage_content_type="qualityInformation",
-        ),
-    )
-    ds["agree"] = (
-        vh,
-        cells["agree"].astype(np.int8),
-        var_attrs(
-            "measured and simulated slopes agree at the family-wise alpha",
-            "1",
-            coverage_content_type="qualityInformation",
-            flag_values=np.array([0, 1, 2], dtype=np.int8),
-            flag_meanings="disagree agree not_tested",
-            comment="not_tested: fewer than three bins with enough periods on one side",
-        ),
-    )
+        put(f"{side}_bins_used", vh, np.nan_to_num(cells[f"{side}_bins_used"]).astype(np.int32))
+        put(f"{side}_correlation", vh, cells[f"{side}_correlation"])
+        put(f"{side}_slope_times_std", vh, cells[f"{side}_slope_times_std"])
+        put(f"{side}_slope_times_std_times_r", vh, cells[f"{side}_slope_times_std_times_r"])
+        for eq in ("eq12", "eq13"):
+            flag = np.nan_to_num(cells[f"{side}_significant_{eq}"]).astype(np.int8)
+            put(f"{side}_significant_{eq}", vh, flag)
+    put("slope_z", vh, cells["z"])
+    put("slope_p_value", vh, cells["p_value"])
+    put("slope_p_adjusted", vh, cells["p_adjusted"])
+    put("agree", vh, cells["agree"].astype(np.int8))
     ds = _budgets(ds, result["budget"])
     js = summary_object(ds, result)
     settings = result["settings"]
@@ -209,65 +119,22 @@ def _budgets(ds: xr.Dataset, budgets: Mapping[str, xr.Dataset]) -> xr.Dataset:
     width = float(np.median(np.diff(np.asarray(budgets["measured"]["wind_speed_bounds"].values[0]))))
     edges = np.append(centres - width / 2, centres[-1] + width / 2)
     hw = ("height", "wind_speed")
-    out = ds.assign_coords(
-        wind_speed=(
-            "wind_speed",
-            centres,
-            {
-                "long_name": "centre of reference wind speed bin",
-                "units": "m s-1",
-                "standard_name": "wind_speed",
-                "coverage_content_type": "coordinate",
-            },
-        )
-    )
+    out = ds.assign_coords(wind_speed=("wind_speed", centres, output_attrs("comparison", "wind_speed")))
     out = with_bounds(out, "wind_speed", edges)
-    label = {
-        "measured": "IEC field approach, measured pair",
-        "simulated": "Monte Carlo approach, simulated pair",
-    }
     for side, b in (("measured", meas), ("simulated", sim)):
-        out = out.assign_coords(
-            {
-                f"{side}_contributor": (
-                    f"{side}_contributor",
-                    np.array(b["contributor"].values, dtype=object),
-                    {"long_name": f"uncertainty contributor, {label[side]}"},
-                )
-            }
-        )
-        out[f"{side}_uncertainty"] = (
-            hw,
-            b["uncertainty"].values,
-            var_attrs(f"combined standard uncertainty, {label[side]}", "m s-1", "wind_speed standard_error"),
-        )
-        out[f"{side}_relative_uncertainty"] = (
-            hw,
-            b["relative_uncertainty"].values,
-            var_attrs(
-                f"combined standard uncertainty relative to the bin mean reference wind speed, {label[side]}",
-                "%",
-            ),
-        )
-        out[f"{side}_contribution"] = (
-            ("height", "wind_speed", f"{side}_contributor"),
-            b["contribution"].transpose("height", "wind_speed", "contributor").values,
-            var_attrs(
-                f"standard uncertainty contribution, {label[side]}", "m s-1", "wind_speed standard_error"
-            ),
-        )
-        out[f"{side}_sample_count"] = (
-            hw,
-            np.nan_to_num(b["sample_count"].values).astype(np.int32),
-            var_attrs(
-                f"periods in the bin, {label[side]}", "1", coverage_content_type="auxiliaryInformation"
-            ),
-        )
-        out[f"{side}_mean_reference_wind_speed"] = (
-            hw,
-            b["mean_reference_wind_speed"].values,
-            var_attrs(f"mean reference wind speed in the bin, {label[side]}", "m s-1", "wind_speed"),
-        )
+        dim = f"{side}_contributor"
+        out = out.assign_coords({dim: (dim, np.array(b["contributor"].values, dtype=object),
+                                       output_attrs("comparison", dim))})
+        contribution = b["contribution"].transpose("height", "wind_speed", "contributor").values
+        values = {
+            f"{side}_uncertainty": (hw, b["uncertainty"].values),
+            f"{side}_relative_uncertainty": (hw, b["relative_uncertainty"].values),
+            f"{side}_contribution": (("height", "wind_speed", dim), contribution),
+            f"{side}_sample_count": (hw, np.nan_to_num(b["sample_count"].values).astype(np.int32)),
+            f"{side}_mean_reference_wind_speed": (hw, b["mean_reference_wind_speed"].values),
+        }
+        for name, (dims, data) in values.items():
+            out[name] = (dims, data, output_attrs("comparison", name))
     out.attrs["budget_approaches"] = "measured: iec; simulated: monte_carlo"
     return out
 

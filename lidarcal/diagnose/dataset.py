@@ -22,23 +22,18 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.sensitivity import sensitivity
-from lidarcal.cf import height_coord, var_attrs
-from lidarcal.conditions.variables import CONDITIONS
+from lidarcal.cf import height_coord
+from lidarcal.conditions.variables import CONDITION_NAMES, CONDITIONS
 from lidarcal.diagnose.core import DiagnosisResult
-from lidarcal.diagnose.effects import CONDITION_VARIABLES, EFFECTS
+from lidarcal.diagnose.effects import EFFECTS
 from lidarcal.diagnose.stats import GAP_METRIC
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.provenance import stamp
+from lidarcal.schema import output_attrs
 
-__all__ = ["summary", "to_dataset", "corrected_model", "records_dataset", "sensitivity_statistics",
-           "UNITS"]
-
-#: Canonical units of the conditions variables (docs/contracts.md).
-UNITS = {name: v.units for name, v in CONDITIONS.items()}
-_STANDARD = {name: v.standard_name for name, v in CONDITIONS.items() if v.standard_name}
-
+__all__ = ["summary", "to_dataset", "corrected_model", "records_dataset", "sensitivity_statistics"]
 
 def _num(x: float) -> float | None:
     x = float(x)
@@ -107,11 +102,11 @@ def records_dataset(result: DiagnosisResult, which: str) -> xr.Dataset:
     ref = np.where(result.valid, ref, np.nan)
     dims = ("time", "height")
     ds = xr.Dataset(coords={"time": result.times, "height": height_coord(result.heights)})
-    ds["lidar_wind_speed"] = (dims, ref * (1.0 + d), var_attrs("lidar wind speed", "m s-1", "wind_speed"))
-    ds["reference_wind_speed"] = (dims, ref, var_attrs("reference wind speed", "m s-1", "wind_speed"))
-    for name in CONDITION_VARIABLES:
+    ds["lidar_wind_speed"] = (dims, ref * (1.0 + d), output_attrs("field_campaign", "lidar_wind_speed"))
+    ds["reference_wind_speed"] = (dims, ref, output_attrs("field_campaign", "reference_wind_speed"))
+    for name in CONDITION_NAMES:
         ds[name] = (dims, np.where(result.valid, result.conditions[name], np.nan),
-                    var_attrs(name.replace("_", " "), UNITS[name], _STANDARD.get(name)))
+                    output_attrs("conditions", name))
     ds.attrs["lidarcal_artefact"] = "field_campaign" if which == "measured" else "simulated_rtd"
     return ds
 
@@ -122,11 +117,11 @@ def sensitivity_statistics(result: DiagnosisResult) -> dict[str, np.ndarray]:
     Computed by :func:`lidarcal.analysis.sensitivity` on the diagnosis' own quantile bins.
     """
     out = {}
-    nv, nh = len(CONDITION_VARIABLES), len(result.heights)
+    nv, nh = len(CONDITION_NAMES), len(result.heights)
     for which in ("measured", "before", "after"):
         recs = records_dataset(result, which)
         vals = np.full((nv, nh), np.nan)
-        for i, name in enumerate(CONDITION_VARIABLES):
+        for i, name in enumerate(CONDITION_NAMES):
             edges = result.binned_before.edges[i]
             edges = edges[np.isfinite(edges)]
             try:
@@ -142,103 +137,71 @@ def sensitivity_statistics(result: DiagnosisResult) -> dict[str, np.ndarray]:
 def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagnose(field)",
                inputs: dict | None = None, input_datasets: dict | None = None,
                with_sensitivity: bool = True) -> xr.Dataset:
-    """Build the ``diagnosis`` artefact (stamped with provenance)."""
+    """Build the ``diagnosis`` artefact (stamped with provenance); attributes from its schema."""
     b0, b1 = result.binned_before, result.binned_after
-    nv, nb = b0.count.shape[:2]
-    vbh = ("variable", "bin", "height")
-    vh = ("variable", "height")
+    nb = b0.count.shape[1]
+    vbh, vh = ("variable", "bin", "height"), ("variable", "height")
     pct = 100.0
     valid_r0 = np.where(result.valid, result.d_measured - result.d_before, np.nan)
     valid_r1 = np.where(result.valid, result.d_measured - result.d_after, np.nan)
     ds = xr.Dataset(coords={
         "height": height_coord(result.heights),
-        "variable": ("variable", list(b0.variables), {"long_name": "environmental variable binned by"}),
-        "bin": ("bin", np.arange(nb, dtype=np.int32), {"long_name": "quantile bin index", "units": "1"}),
+        "variable": ("variable", list(b0.variables), output_attrs("diagnosis", "variable")),
+        "bin": ("bin", np.arange(nb, dtype=np.int32), output_attrs("diagnosis", "bin")),
         "candidate": ("candidate", ["none"] + [c.effect.id for c in result.candidates],
-                      {"long_name": "catalogue effect tried"}),
+                      output_attrs("diagnosis", "candidate")),
     })
-    ds["gap_before"] = ("height", result.gap_before[1], var_attrs(
-        "gap between field and nominal model", "%", comment=GAP_METRIC))
-    ds["gap_after"] = ("height", result.gap_after[1], var_attrs(
-        "gap between field and corrected model", "%", comment=GAP_METRIC))
-    ds["gap_before_overall"] = ((), result.gap_before[0], var_attrs("overall gap, nominal model", "%"))
-    ds["gap_after_overall"] = ((), result.gap_after[0], var_attrs("overall gap, corrected model", "%"))
-    ds["gap_noise_floor"] = ((), result.gap_before[2], var_attrs(
-        "rms standard error of the bin means: the gap expected from Monte Carlo and sampling noise alone",
-        "%"))
-    ds["mean_residual_before"] = ("height", pct * np.nanmean(valid_r0, axis=0), var_attrs(
-        "mean residual (field minus nominal model relative difference)", "%"))
-    ds["mean_residual_after"] = ("height", pct * np.nanmean(valid_r1, axis=0), var_attrs(
-        "mean residual (field minus corrected model relative difference)", "%"))
-    ds["usable_periods"] = ("height", result.valid.sum(axis=0).astype(np.int32), var_attrs(
-        "number of periods used", "1", coverage_content_type="auxiliaryInformation"))
-    ds["binned_residual_before"] = (vbh, pct * b0.mean, var_attrs(
-        "bin mean of residual (field minus nominal model relative difference)", "%",
-        ancillary_variables="binned_residual_before_stderr bin_count"))
-    ds["binned_residual_before_stderr"] = (vbh, pct * b0.se, var_attrs(
-        "standard error of the bin mean residual, nominal model", "%"))
-    ds["binned_residual_after"] = (vbh, pct * b1.mean, var_attrs(
-        "bin mean of residual (field minus corrected model relative difference)", "%"))
-    ds["binned_residual_after_stderr"] = (vbh, pct * b1.se, var_attrs(
-        "standard error of the bin mean residual, corrected model", "%"))
-    ds["bin_count"] = (vbh, b0.count.astype(np.int32), var_attrs(
-        "number of periods in bin", "1", coverage_content_type="auxiliaryInformation"))
+
+    def put(name: str, dims, values, **context) -> None:
+        ds[name] = (dims, values, output_attrs("diagnosis", name, gap_metric=GAP_METRIC, **context))
+
+    put("gap_before", "height", result.gap_before[1])
+    put("gap_after", "height", result.gap_after[1])
+    put("gap_before_overall", (), result.gap_before[0])
+    put("gap_after_overall", (), result.gap_after[0])
+    put("gap_noise_floor", (), result.gap_before[2])
+    put("mean_residual_before", "height", pct * np.nanmean(valid_r0, axis=0))
+    put("mean_residual_after", "height", pct * np.nanmean(valid_r1, axis=0))
+    put("usable_periods", "height", result.valid.sum(axis=0).astype(np.int32))
+    put("binned_residual_before", vbh, pct * b0.mean)
+    put("binned_residual_before_stderr", vbh, pct * b0.se)
+    put("binned_residual_after", vbh, pct * b1.mean)
+    put("binned_residual_after_stderr", vbh, pct * b1.se)
+    put("bin_count", vbh, b0.count.astype(np.int32))
     for i, name in enumerate(b0.variables):
         e = b0.edges[i]
-        lower = np.full(nb, np.nan)
-        upper = np.full(nb, np.nan)
+        lower, upper = np.full(nb, np.nan), np.full(nb, np.nan)
         k = int(np.isfinite(e).sum()) - 1
         lower[:k], upper[:k] = e[:k], e[1:k + 1]
-        label = name.replace("_", " ")
-        ds[f"{name}_bin_lower"] = ("bin", lower, var_attrs(f"lower limit of {label} bin", UNITS[name],
-                                                           _STANDARD.get(name)))
-        ds[f"{name}_bin_upper"] = ("bin", upper, var_attrs(f"upper limit of {label} bin", UNITS[name],
-                                                           _STANDARD.get(name)))
-        ds[f"{name}_bin_mean"] = (("bin", "height"), b0.center[i], var_attrs(
-            f"mean {label} of the periods in bin", UNITS[name], _STANDARD.get(name)))
-    ds["disagreement_chi2"] = (vh, result.tests["chi2"], var_attrs(
-        "chi-square of bin-mean residual scores (all bin means zero)", "1",
-        coverage_content_type="qualityInformation"))
-    ds["disagreement_dof"] = (vh, result.tests["dof"].astype(np.int32), var_attrs(
-        "degrees of freedom (populated bins) of the chi-square", "1",
-        coverage_content_type="qualityInformation"))
-    ds["disagreement_p_adjusted"] = (vh, result.tests["p_adjusted"], var_attrs(
-        "Holm-adjusted p-value of the disagreement test", "1", coverage_content_type="qualityInformation"))
-    ds["mean_residual_p_adjusted"] = ("height", result.tests["mean_p_adjusted"], var_attrs(
-        "Holm-adjusted p-value of the t-test that the mean residual is zero", "1",
-        coverage_content_type="qualityInformation"))
-    scores = [0.0] + [c.delta_bic for c in result.candidates]
-    explained = [0.0] + [c.explained for c in result.candidates]
-    ds["candidate_score"] = ("candidate", np.asarray(scores, float), var_attrs(
-        "BIC of the fitted candidate minus BIC of none (lower is better)", "1",
-        comment="BIC = n_eff ln(RSS/n) + k ln(n_eff), RSS weighted; n_eff = n / design effect"))
-    ds["candidate_explained_fraction"] = ("candidate", np.asarray(explained, float), var_attrs(
-        "fraction of the weighted residual sum of squares explained by the candidate", "1"))
+        var = CONDITIONS[name]
+        about = dict(label=name.replace("_", " "), units=var.units, standard_name=var.standard_name or "")
+        put(f"{name}_bin_lower", "bin", lower, **about)
+        put(f"{name}_bin_upper", "bin", upper, **about)
+        put(f"{name}_bin_mean", ("bin", "height"), b0.center[i], **about)
+    put("disagreement_chi2", vh, result.tests["chi2"])
+    put("disagreement_dof", vh, result.tests["dof"].astype(np.int32))
+    put("disagreement_p_adjusted", vh, result.tests["p_adjusted"])
+    put("mean_residual_p_adjusted", "height", result.tests["mean_p_adjusted"])
+    put("candidate_score", "candidate", np.asarray([0.0] + [c.delta_bic for c in result.candidates], float))
+    put("candidate_explained_fraction", "candidate",
+        np.asarray([0.0] + [c.explained for c in result.candidates], float))
     rank = {c.effect.id: i + 1 for i, c in enumerate(result.selected)}
-    ds["candidate_selected"] = ("candidate", np.asarray(
-        [0] + [rank.get(c.effect.id, 0) for c in result.candidates], np.int32), var_attrs(
-        "order in which the candidate was added by forward selection (0: not named)", "1"))
+    put("candidate_selected", "candidate",
+        np.asarray([0] + [rank.get(c.effect.id, 0) for c in result.candidates], np.int32))
     for c in result.candidates:
         for p in c.effect.parameters:
-            base = f"fit_{c.effect.id}_{p.name}"
-            ds[base] = ((), c.estimate[p.name], var_attrs(f"fitted {p.long_name} ({c.effect.id})", p.units))
-            ds[f"{base}_stderr"] = ((), c.stderr[p.name], var_attrs(
-                f"block-bootstrap standard error of fitted {p.long_name} ({c.effect.id})", p.units))
-            ds[f"{base}_nominal"] = ((), c.nominal[p.name], var_attrs(
-                f"nominal {p.long_name} ({c.effect.id})", p.units))
+            base, about = f"fit_{c.effect.id}_{p.name}", dict(effect=c.effect.id, parameter=p.long_name)
             lo, hi = c.interval.get(p.name, (np.nan, np.nan))
-            ds[f"{base}_lower"] = ((), lo, var_attrs(
-                f"lower limit of the 95 % block-bootstrap interval of fitted {p.long_name} ({c.effect.id})",
-                p.units))
-            ds[f"{base}_upper"] = ((), hi, var_attrs(
-                f"upper limit of the 95 % block-bootstrap interval of fitted {p.long_name} ({c.effect.id})",
-                p.units))
+            put(base, (), c.estimate[p.name], **about)
+            put(f"{base}_stderr", (), c.stderr[p.name], **about)
+            put(f"{base}_nominal", (), c.nominal[p.name], **about)
+            put(f"{base}_lower", (), lo, **about)
+            put(f"{base}_upper", (), hi, **about)
     if with_sensitivity:
         sens = sensitivity_statistics(result)
-        for key, label in (("measured", "field records"), ("before", "nominal model"),
-                           ("after", "corrected model")):
-            ds[f"sensitivity_{key}"] = (vh, sens[key], var_attrs(
-                f"sensitivity statistic m*std (Eq. 12) of the relative difference, {label}", "%"))
+        for key, side in (("measured", "field records"), ("before", "nominal model"),
+                          ("after", "corrected model")):
+            put(f"sensitivity_{key}", vh, sens[key], side=side)
     js = summary(result)
     ds.attrs = {
         "diagnosis_effect": result.effect_id,

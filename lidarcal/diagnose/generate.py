@@ -25,12 +25,13 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.campaign import simulate_campaign
-from lidarcal.cf import var_attrs
 from lidarcal.conditions import synthetic_conditions
-from lidarcal.diagnose.effects import CONDITION_VARIABLES, get_effect
+from lidarcal.conditions.variables import CONDITION_NAMES, FIELD_NAMES
+from lidarcal.diagnose.effects import get_effect
 from lidarcal.errors import InputError
 from lidarcal.lidar import LidarModel
 from lidarcal.provenance import stamp
+from lidarcal.schema import output_attrs
 
 __all__ = ["GENERATOR_SEED", "REALISTIC_STRENGTHS", "DIAGNOSIS_CNR_MODEL", "hidden_effect_conditions",
            "generate_field_campaign"]
@@ -124,16 +125,12 @@ def generate_field_campaign(
     nominal = model if model is not None else LidarModel.ideal()
     truth = eff.apply(nominal, params)
     sim = simulate_campaign(conditions, truth, base_seed=int(base_seed), **dict(simulate_options or {}))
-    out = sim[list(CONDITION_VARIABLES)].copy()
+    out = sim[list(CONDITION_NAMES)].copy()
     simulated = (sim["simulated"].values == 1 if "simulated" in sim
                  else np.ones(out.wind_speed.shape, bool))
-    for name, label in (("lidar_wind_speed", "lidar 10-minute horizontal wind speed (hybrid reconstruction)"),
-                        ("reference_wind_speed", "reference anemometer 10-minute mean wind speed")):
-        values = np.where(simulated, sim[name].values, np.nan)
-        out[name] = (sim[name].dims, values, var_attrs(
-            label, "m s-1", "wind_speed", coverage_content_type="modelResult",
-            comment="synthetic measurement: lidarcal virtual lidar with a hidden effect "
-                    "(lidarcal_hidden_effect)"))
+    for name in FIELD_NAMES:  # the measured pair, declared in schemas/field_campaign.yaml
+        out[name] = (sim[name].dims, np.where(simulated, sim[name].values, np.nan),
+                     output_attrs("field_campaign", name))
     fwhm = _rwf_fwhm(nominal)
     out.attrs = {
         "lidar_cone_angle": float(nominal.cone_angle),
