@@ -12,9 +12,12 @@ import xarray as xr
 
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.cli import main
-from lidarcal.diagnose import EFFECTS, diagnose
-from lidarcal.diagnose.effects import CONDITION_VARIABLES
+from lidarcal.conditions.variables import CANONICAL_UNITS, CONDITION_NAMES
+from lidarcal.diagnose import EFFECTS, diagnose, fit, stats
+from lidarcal.diagnose.candidates import bootstrap, fitted, joint_fit
 from lidarcal.diagnose.generate import REALISTIC_STRENGTHS
+from lidarcal.diagnose.problem import DEFAULT_MODEL_UNCERTAINTY, CandidateFit, Problem
+from lidarcal.diagnose.selection import DEFAULT_MIN_SHARE, conclude, range_notes, select
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.lidar import LidarModel, simulate_period
 from lidarcal.units import _parse
@@ -38,7 +41,7 @@ def test_every_catalogue_entry_is_complete():
              "reference_flow_distortion": ["centre", "width", "deficit"]}
     for key, eff in EFFECTS.items():
         assert eff.id == key and eff.description and eff.signature
-        assert set(eff.drivers) <= set(CONDITION_VARIABLES)
+        assert set(eff.drivers) <= set(CONDITION_NAMES)
         assert key in REALISTIC_STRENGTHS
         if key == "none":
             assert eff.parameters == () and eff.apply(model, {}) is model
@@ -251,7 +254,7 @@ def test_simulate_reuses_the_corrected_model(zd_run, capsys):
     js = json.loads(stdout)
     sim, cond = d / "sim.nc", d / "conditions.nc"
     with xr.open_dataset(field) as f:  # the field file's conditions as a plain conditions input
-        c = f[list(CONDITION_VARIABLES)].load()
+        c = f[list(CONDITION_NAMES)].load()
     c.attrs = {}
     c.to_netcdf(cond)
     assert main(["simulate", "--conditions", str(cond), "--model", str(diag), "--scheduler", "synchronous",
@@ -324,9 +327,7 @@ def test_nominal_model_from_rwf_artefact_and_field_attributes():
 
 
 def _selection_problem(r_fn, n=400, m=3, seed=0):
-    """A synthetic _Problem (no engine): six conditions, 10 periods a day, unit weights."""
-    from lidarcal.diagnose import core, stats
-
+    """A synthetic Problem (no engine): six conditions, 10 periods a day, unit weights."""
     g = np.random.default_rng(np.random.SeedSequence([seed, 77]))
     h = np.array([40.0, 80.0, 160.0])[:m]
     cond = {"wind_speed": g.uniform(4, 16, (n, m)), "wind_from_direction": g.uniform(0, 360, (n, m)),
@@ -340,68 +341,62 @@ def _selection_problem(r_fn, n=400, m=3, seed=0):
     r = r_fn(J, cond) + g.normal(0, 0.01, (n, m))
     valid = np.ones((n, m), bool)
     times = np.datetime64("2024-01-01") + (np.arange(n) // 10) * np.timedelta64(1, "D")
-    clusters, _ = core.fit.day_clusters(times)
-    problem = core._Problem(None, None, {}, cond, r, np.zeros((n, m)), valid, r, clusters,
-                            weights=np.ones((n, m)), n_eff=float(n * m), n_boot=300, seed=1)
+    clusters, _ = fit.day_clusters(times)
+    problem = Problem(None, None, {}, cond, r, np.zeros((n, m)), valid, r, clusters,
+                      weights=np.ones((n, m)), n_eff=float(n * m), n_boot=300, seed=1)
     problem.groups = stats.bin_groups(cond, valid, 6)
     fits = []
     for eid, Jk in J.items():
         name = EFFECTS[eid].parameters[0].name
-        fits.append(core.CandidateFit(EFFECTS[eid], {name: 0.0}, {name: 0.0}, {name: np.nan}, np.nan, 0.0, {},
-                                      response=[Jk]))
+        fits.append(CandidateFit(EFFECTS[eid], {name: 0.0}, {name: 0.0}, {name: np.nan}, np.nan, 0.0, {},
+                                 response=[Jk]))
     return problem, fits
 
 
 def test_forward_selection_names_two_effects_in_order_with_honest_intervals():
-    from lidarcal.diagnose import core
-
     # a 4 m Zd error (~0.4 % at 40 m) and an over-speeding cup (0.08 x TI: ~1.2 %) under 1 % noise
     problem, fits = _selection_problem(lambda J, c: 4.0 * J["zero_distance_offset"]
                                        + 0.08 * J["reference_overspeeding"])
-    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
+    chosen, steps = select(problem, fits, 6.0, 2.0, 0.1, DEFAULT_MIN_SHARE)
     assert [c.effect.id for c in chosen] == ["reference_overspeeding", "zero_distance_offset"]
-    core._bootstrap(problem, chosen)
+    bootstrap(problem, chosen)
     for c, truth in zip(chosen, (0.08, 4.0), strict=True):
         name = c.effect.parameters[0].name
         lo, hi = c.interval[name]
         assert lo < truth < hi, (c.effect.id, c.estimate, c.interval)
         # the 95 % interval is about +-2 bootstrap standard errors
         assert (hi - lo) == pytest.approx(2 * 1.96 * c.stderr[name], rel=0.3)
-    answer, note = core._answer(chosen, steps, True, 1.0, 0.1)
+    answer, note = conclude(chosen, steps, True, 1.0, 0.1)
     assert answer == "reference_overspeeding" and "zero_distance_offset" in note
 
 
 def test_forward_selection_reports_a_tie_and_ignores_what_is_below_tolerance():
-    from lidarcal.diagnose import core
-
     # a constant -0.5 % (a 0.5 % reference gain) is a beam-angle offset just as well: a tie
     problem, fits = _selection_problem(lambda J, c: 0.005 * J["reference_gain"])
-    chosen, _ = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
+    chosen, _ = select(problem, fits, 6.0, 2.0, 0.1, DEFAULT_MIN_SHARE)
     assert len(chosen) == 1 and chosen[0].effect.id in ("reference_gain", "beam_angle_offset")
     assert chosen[0].tied == [({"reference_gain", "beam_angle_offset"} - {chosen[0].effect.id}).pop()]
     # 0.3 x TI over-speeding is significant with 12,000 observations, but changes (L-R)/R by only
     # ~0.05 % rms (TI 0.05-0.25): below the 0.1 % tolerance, so nothing is named
     problem, fits = _selection_problem(lambda J, c: 0.003 * J["reference_overspeeding"], n=4000)
-    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
+    chosen, steps = select(problem, fits, 6.0, 2.0, 0.1, DEFAULT_MIN_SHARE)
     assert chosen == [] and "tolerance" in steps[-1]
-    answer, note = core._answer(chosen, steps, True, 0.05, 0.1)
+    answer, note = conclude(chosen, steps, True, 0.05, 0.1)
     assert answer == "none" and "below the tolerance" in note
     # the same with a 0.01 % tolerance: named
-    chosen, _ = core._select(problem, fits, 6.0, 2.0, 0.01, 0.1)
+    chosen, _ = select(problem, fits, 6.0, 2.0, 0.01, 0.1)
     assert [c.effect.id for c in chosen] == ["reference_overspeeding"]
 
 
 def test_unexplained_residual_is_located_in_its_direction_sector():
-    from lidarcal.diagnose import core, stats
-
     # the lidar over-reads by 1 % for winds from 280-320 degree: no candidate has that shape
     problem, fits = _selection_problem(
         lambda J, c: 0.01 * ((c["wind_from_direction"] >= 280) & (c["wind_from_direction"] < 320)), n=600)
-    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
+    chosen, steps = select(problem, fits, 6.0, 2.0, 0.1, DEFAULT_MIN_SHARE)
     gap = stats.joint_gap(problem.r, problem.groups)[0]
-    answer, note = core._answer(chosen, steps, True, gap, 0.1)
+    answer, note = conclude(chosen, steps, True, gap, 0.1)
     assert answer == "unexplained", (chosen, steps)
-    where = stats.locate(problem.r, problem.groups, problem.conditions, core.UNITS, alpha=0.01)
+    where = stats.locate(problem.r, problem.groups, problem.conditions, CANONICAL_UNITS, alpha=0.01)
     assert where[0]["variable"] == "wind_from_direction" and where[0]["units"] == "degree"
     # 30-degree sectors: the located range covers the 280-320 sector to within one sector
     lo, hi = where[0]["range"]
@@ -412,16 +407,12 @@ def test_unexplained_residual_is_located_in_its_direction_sector():
 
 def _hybrid_fit(J, nominal=0.5):
     """A hybrid-weight candidate with response ``J`` per unit p about a nominal weight (synthetic)."""
-    from lidarcal.diagnose import core
-
-    return core.CandidateFit(EFFECTS["hybrid_weight"], {"p": nominal}, {"p": nominal}, {"p": np.nan}, np.nan,
-                             0.0, {}, response=[J])
+    return CandidateFit(EFFECTS["hybrid_weight"], {"p": nominal}, {"p": nominal}, {"p": np.nan}, np.nan,
+                        0.0, {}, response=[J])
 
 
 @pytest.mark.parametrize("p_true,bound", [(1.02, 1.0), (-0.02, 0.0)])
 def test_a_fit_at_the_edge_of_its_range_is_named_at_the_bound(p_true, bound):
-    from lidarcal.diagnose import core
-
     # firmware with pure scalar (p = 1) or pure vector (p = 0) averaging against a nominal 0.5; the data
     # ask for 0.02 beyond the bound, well within the fit's uncertainty: the answer is the hybrid weight
     # at the bound (interval truncated there), never a cup that under-reads in turbulence
@@ -429,31 +420,29 @@ def test_a_fit_at_the_edge_of_its_range_is_named_at_the_bound(p_true, bound):
         return (p_true - 0.5) * c["turbulence_intensity"] ** 2
 
     problem, fits = _selection_problem(r_fn)
-    problem.model_uncertainty = core.DEFAULT_MODEL_UNCERTAINTY  # as diagnose() sets it
+    problem.model_uncertainty = DEFAULT_MODEL_UNCERTAINTY  # as diagnose() sets it
     fits = [f for f in fits if f.effect.id != "zero_distance_offset"]
     hybrid = _hybrid_fit(problem.conditions["turbulence_intensity"] ** 2)
-    chosen, steps = core._select(problem, fits + [hybrid], 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
+    chosen, steps = select(problem, fits + [hybrid], 6.0, 2.0, 0.1, DEFAULT_MIN_SHARE)
     assert chosen[0] is hybrid and hybrid.estimate["p"] == bound, steps
     assert all(c.effect.id != "reference_overspeeding" or c.estimate["coefficient"] >= 0 for c in chosen)
-    core._bootstrap(problem, chosen)
+    bootstrap(problem, chosen)
     lo, hi = hybrid.interval["p"]
     assert 0.0 <= lo <= hi <= 1.0 and bound in (lo, hi) and hi - lo > 0.01  # truncated at the bound
-    notes = core._range_notes(problem, chosen)
+    notes = range_notes(problem, chosen)
     side = "upper" if bound == 1.0 else "lower"
     assert len(notes) == 1 and f"hybrid_weight p = {bound:g} at the {side} bound" in notes[0], notes
     assert "truncated at the bound" in notes[0] and "a weight" in notes[0]  # the range's basis is quoted
 
 
 def test_an_under_reading_cup_is_out_of_range_and_the_note_says_so():
-    from lidarcal.diagnose import core
-
     # the lidar reads +8 % x TI high: a cup that *under*-reads in turbulence (coefficient -0.08), which
     # physics excludes.  It scores best, is refused with the reason in the note; the constant look-alikes
     # leave the TI trend (~0.2 % more gap than the cup would), so the runner-up is tied with it, not
     # silently named.  (At -0.03 the trend left is 0.07 % < tolerance: the constant is named alone.)
     problem, fits = _selection_problem(lambda J, c: -0.08 * J["reference_overspeeding"])
-    problem.model_uncertainty = core.DEFAULT_MODEL_UNCERTAINTY
-    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
+    problem.model_uncertainty = DEFAULT_MODEL_UNCERTAINTY
+    chosen, steps = select(problem, fits, 6.0, 2.0, 0.1, DEFAULT_MIN_SHARE)
     assert chosen and chosen[0].effect.id != "reference_overspeeding"
     assert "reference_overspeeding" in chosen[0].tied, (chosen[0].tied, steps)
     note = "; ".join(steps)
@@ -466,18 +455,16 @@ def test_an_under_reading_cup_is_out_of_range_and_the_note_says_so():
 
 
 def test_a_refused_best_candidate_gives_way_to_a_runner_up_that_explains_the_gap_comparably():
-    from lidarcal.diagnose import core
-
     # the same under-reading cup, and a candidate in range whose response is TI-proportional too (a
     # hybrid weight whose response is, here, TI itself, with 1 % scatter): it explains the gap as well,
     # so it is named alone — and the note still says why the better-scoring cup was refused
     problem, fits = _selection_problem(lambda J, c: -0.03 * J["reference_overspeeding"])
-    problem.model_uncertainty = core.DEFAULT_MODEL_UNCERTAINTY
+    problem.model_uncertainty = DEFAULT_MODEL_UNCERTAINTY
     g = np.random.default_rng(5)
     ti = problem.conditions["turbulence_intensity"]
     hybrid = _hybrid_fit(ti * (1 + 0.01 * g.normal(size=ti.shape)))
     cup = [f for f in fits if f.effect.id == "reference_overspeeding"]
-    chosen, steps = core._select(problem, cup + [hybrid], 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
+    chosen, steps = select(problem, cup + [hybrid], 6.0, 2.0, 0.1, DEFAULT_MIN_SHARE)
     assert [c.effect.id for c in chosen] == ["hybrid_weight"] and chosen[0].tied == [], steps
     assert 0.5 < chosen[0].estimate["p"] < 1.0
     assert "reference_overspeeding scores better" in steps[0] and "beyond its physical range" in steps[0]
@@ -485,8 +472,6 @@ def test_a_refused_best_candidate_gives_way_to_a_runner_up_that_explains_the_gap
 
 
 def test_an_effect_that_takes_the_gap_below_the_tolerance_is_material():
-    from lidarcal.diagnose import core
-
     # issue 19's knife edge, made on purpose: an over-speeding cup (~1.1 %), a 0.56 m Zd error (near the
     # tolerance) and a small lidar error in one direction sector that no candidate has (it leaves
     # ~0.04 %).  Given the cup the Zd error removes only ~0.098 % of the gap in quadrature (< 0.1 %), but
@@ -501,19 +486,19 @@ def test_an_effect_that_takes_the_gap_below_the_tolerance_is_material():
     fits = [f for f in fits if f.effect.id in ("reference_overspeeding", "zero_distance_offset")]
     # the scenario is the knife edge: check it on the gap metric itself
     cup = [f for f in fits if f.effect.id == "reference_overspeeding"]
-    core._joint_fit(problem, cup)
-    g_wo = np.sqrt(problem.gap2(problem.r - core._fitted(cup)))
-    core._joint_fit(problem, fits)
-    g_all = np.sqrt(problem.gap2(problem.r - core._fitted(fits)))
+    joint_fit(problem, cup)
+    g_wo = np.sqrt(problem.gap2(problem.r - fitted(cup)))
+    joint_fit(problem, fits)
+    g_all = np.sqrt(problem.gap2(problem.r - fitted(fits)))
     assert g_all < 0.1 < g_wo < 0.12 and np.sqrt(g_wo**2 - g_all**2) < 0.1, (g_wo, g_all)
-    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
+    chosen, steps = select(problem, fits, 6.0, 2.0, 0.1, DEFAULT_MIN_SHARE)
     assert [c.effect.id for c in chosen] == ["reference_overspeeding", "zero_distance_offset"], steps
     assert any("zero_distance_offset kept" in s and "closes a material gap" in s for s in steps), steps
     # a second effect that leaves the gap below the tolerance either way is still not material
     problem, fits = _selection_problem(lambda J, c: 0.08 * J["reference_overspeeding"]
                                        + 0.15 * J["zero_distance_offset"], n=2000)
     fits = [f for f in fits if f.effect.id in ("reference_overspeeding", "zero_distance_offset")]
-    chosen, steps = core._select(problem, fits, 6.0, 2.0, 0.1, core.DEFAULT_MIN_SHARE)
+    chosen, steps = select(problem, fits, 6.0, 2.0, 0.1, DEFAULT_MIN_SHARE)
     assert [c.effect.id for c in chosen] == ["reference_overspeeding"], steps
 
 

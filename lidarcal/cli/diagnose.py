@@ -30,11 +30,13 @@ from lidarcal.cli.options import (
     simulation_options,
 )
 from lidarcal.conditions import load_conditions
-from lidarcal.diagnose.core import DEFAULT_BOOTSTRAP, DEFAULT_MODEL_UNCERTAINTY, DEFAULT_TOLERANCE, diagnose
+from lidarcal.diagnose.core import diagnose
 from lidarcal.diagnose.dataset import summary, to_dataset
 from lidarcal.diagnose.effects import EFFECTS
 from lidarcal.diagnose.generate import GENERATOR_SEED, generate_field_campaign, hidden_effect_conditions
+from lidarcal.diagnose.problem import DEFAULT_BOOTSTRAP, DEFAULT_MODEL_UNCERTAINTY
 from lidarcal.diagnose.report import write_report
+from lidarcal.diagnose.selection import DEFAULT_TOLERANCE
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 

@@ -104,7 +104,3 @@ def _check_reachable(model, heights: np.ndarray, source: str) -> None:
     if problems:
         raise InputError(f"{source}: variable 'height': heights the lidar cannot measure with this RWF and "
                          f"geometry: " + "; ".join(problems))
-
-
-# -- simulation -------------------------------------------------------------------------------
-

@@ -1,0 +1,349 @@
+"""Name effects: forward selection, pruning, refinement, and the answer with its note.
+
+:func:`select` adds the candidate that lowers the BIC most while it is strong and material,
+:func:`adequate` keeps the named effects only if together they explain the disagreement,
+:func:`refine` re-simulates at the estimates and corrects them, :func:`range_notes` and
+:func:`answer` say what was found (``docs/diagnose.md``).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lidarcal.diagnose import fit
+from lidarcal.diagnose.candidates import (
+    bootstrap,
+    columns,
+    contribution,
+    fitted,
+    grid_scan,
+    joint_fit,
+    range_verdict,
+)
+from lidarcal.diagnose.problem import CandidateFit, Problem, records_difference
+
+__all__ = ["select", "adequate", "refine", "range_notes", "conclude", "DEFAULT_TOLERANCE",
+           "DEFAULT_MIN_SHARE"]
+
+log = logging.getLogger("lidarcal.diagnose")
+
+#: Practical tolerance (%): a tenth of the ~1 % standard uncertainty of a lidar calibration
+#: (docs/diagnose.md); smaller changes of (L−R)/R are not worth naming.
+DEFAULT_TOLERANCE = 0.1
+#: Share of the systematic residual (the gap metric's square) an added effect must explain.  0 by
+#: default: the share is reported, but it does not gate, because it is not additive when effects
+#: overlap with opposite signs (removing a mast shadow that offsets an over-speeding cup's
+#: negative bias widens the gap the cup leaves in every other bin).
+DEFAULT_MIN_SHARE = 0.0
+
+
+@dataclass
+class _Trial:
+    """One candidate fitted together with the effects already named (a step of forward selection)."""
+
+    cand: CandidateFit
+    dbic: float                 # ΔBIC against the current model, unconstrained fit
+    res: fit.FitResult
+    contribution: float         # rms change of (L−R)/R at the estimate (inside the range), %
+    share: float
+    g2: float                   # gap² left at the estimates (inside the range)
+    g2_free: float              # gap² left at the unconstrained fit
+    estimates: dict[str, tuple[dict, dict, dict, dict]]
+    beyond: list[str]           # parameters beyond their physical range by more than their uncertainty
+    reasons: list[str] = field(default_factory=list)  # why it may not be added (empty: it may)
+
+    @property
+    def id(self) -> str:
+        return self.cand.effect.id
+
+
+def _snapshot(cands: Sequence[CandidateFit]) -> dict[str, tuple[dict, dict, dict, dict]]:
+    return {x.effect.id: (dict(x.estimate), dict(x.stderr), dict(x.free), dict(x.free_se)) for x in cands}
+
+
+def _restore(cands: Sequence[CandidateFit], snap: Mapping[str, tuple[dict, dict, dict, dict]]) -> None:
+    for x in cands:
+        x.estimate, x.stderr, x.free, x.free_se = (dict(v) for v in snap[x.effect.id])
+
+
+def range_notes(problem: Problem, chosen: Sequence[CandidateFit]) -> list[str]:
+    """Note lines for named parameters at a bound of their physical range (or, after refining, beyond it).
+
+    Judged with the final (bootstrap + model-form) uncertainties; a parameter the data push beyond
+    its range by more than that is held at the bound, and the note says so.
+    """
+    if not chosen:
+        return []
+    beyond, at_bound = range_verdict(problem, chosen, {c.effect.id: c.stderr for c in chosen})
+    held = "held at the bound, so the named value is not what the data ask for"
+    return at_bound + [f"{line}; {held}" for line in beyond]
+
+
+def _try(problem: Problem, chosen: list[CandidateFit], c: CandidateFit, rss_cur: float, g0: float,
+         g_cur: float, bic_threshold: float, tolerance: float, min_share: float) -> _Trial | None:
+    """Fit ``c`` together with ``chosen`` and say why it may not be added (None: collinear with them).
+
+    The estimates of ``chosen`` and ``c`` are restored afterwards; the trial keeps its own.
+    """
+    tol2 = tolerance**2
+    if c.effect.grid_parameters and chosen:  # re-scan the grid on what is left
+        scan = grid_scan(problem, c.effect, chosen)
+        c.estimate, c.response, c.interval = scan.estimate, scan.response, scan.interval
+        c.stderr = scan.stderr
+    trial = chosen + [c]
+    saved = _snapshot(trial)
+    clipped = c.clipped
+    res = joint_fit(problem, trial)
+    if not np.all(np.isfinite(res.stderr)):  # collinear with what is chosen: nothing to add
+        _restore(trial, saved)
+        c.clipped = clipped
+        return None
+    dbic = fit.delta_bic(res.rss_free, rss_cur, c.effect.n_parameters, problem.n_eff)
+    g2 = problem.gap2(problem.r - np.where(problem.valid, fitted(trial), 0.0))
+    g2_free = problem.gap2(problem.r - np.where(problem.valid, fitted(trial, free=True), 0.0))
+    share = (g_cur - g2) / g0 if g0 > 0 else 0.0
+    beyond, _ = range_verdict(problem, trial)
+    t = _Trial(c, dbic, res, contribution(problem, c), share, g2, g2_free, _snapshot(trial), beyond)
+    if dbic > -bic_threshold:
+        t.reasons.append(f"ΔBIC {dbic:.1f} > -{bic_threshold:g}")
+    crosses = g_cur > tol2 >= g2
+    if t.contribution < tolerance and not crosses and not beyond:
+        small = f"changes (L-R)/R by only {t.contribution:.3f} % < tolerance {tolerance:g} %"
+        t.reasons.append(small + (f" and leaves a gap of {np.sqrt(g2):.3f} % (above the tolerance)"
+                                  if g2 > tol2 else ""))
+    t.reasons += beyond
+    if min_share > 0 and share < min_share:
+        t.reasons.append(f"explains {100 * share:.0f} % < {100 * min_share:.0f} % of the systematic "
+                         "residual")
+    _restore(trial, saved)
+    c.clipped = clipped
+    return t
+
+
+def _indistinct(problem: Problem, a: _Trial, b: _Trial, rss_cur: float, tie_threshold: float) -> bool:
+    """Tell whether ``b`` cannot be told from ``a`` (``rss_cur``: the weighted RSS before either).
+
+    Within ``tie_threshold`` BIC units, or ``b`` fitting worse than ``a`` by less than an error of
+    b's own response model would cost (the catalogue's responses are models: a response wrong by
+    model_uncertainty of itself adds about that share squared of the explained sum of squares; at
+    95 %, (1.96 u)² of it) — e.g. a hybrid weight and a TI-proportional cup over-speeding.  b's
+    share, not a's: an imprecise response of the pick does not make every other effect plausible,
+    an imprecise response of the runner-up can hide that it is the right one.
+    """
+    u = problem.form_share(b.cand.effect)
+    slack = (1.96 * u) ** 2 * max(rss_cur - a.res.rss_free, 0.0)
+    return b.dbic - a.dbic < tie_threshold or b.res.rss_free - a.res.rss_free <= slack
+
+
+def select(problem: Problem, fits: list[CandidateFit], bic_threshold: float, tie_threshold: float,
+            tolerance: float, min_share: float) -> tuple[list[CandidateFit], list[str]]:
+    """Forward selection: add the effect that lowers the BIC most while it is strong and material.
+
+    At each step every remaining candidate is fitted together with those already chosen (the
+    score is the unconstrained fit: what the data ask for).  It may be added when
+
+    - its ΔBIC against the current model is ≤ −``bic_threshold`` (strong);
+    - it is material: its fitted change of (L − R)/R is at least ``tolerance`` % rms, or its
+      addition takes the gap from above the tolerance to below it (the diagnosis's own
+      definition of a material gap);
+    - no parameter of the joint fit wants to leave its physical range by more than its
+      uncertainty (a fit at a bound within its uncertainty is an answer, held at the bound);
+    - it removes at least ``min_share`` of the initial systematic residual (when asked).
+
+    The best-scoring candidate is never silently replaced: when it may not be added the step
+    says why, and a runner-up that may is added alone only if it explains the gap comparably —
+    it cannot be told from the refused one (below) or leaves less than the tolerance more gap
+    (in quadrature) than the refused one's unconstrained fit would; otherwise the two are
+    ``tied``.  Candidates within ``tie_threshold`` of the one added that qualify too, or fitting
+    worse by less than a model-form error would cost, are recorded as tied with it.
+    Returns the chosen effects (most important first) and one line per step for the note.
+    """
+    chosen: list[CandidateFit] = []
+    steps: list[str] = []
+    rss_cur = float(np.sum(np.where(problem.valid, problem.weights * np.nan_to_num(problem.r) ** 2, 0.0)))
+    g0 = problem.gap2(problem.r)
+    g_cur = g0
+    while True:
+        tried = (_try(problem, chosen, c, rss_cur, g0, g_cur, bic_threshold, tolerance, min_share)
+                 for c in fits if c not in chosen)
+        trials = [t for t in tried if t is not None]
+        if not trials:
+            break
+        trials.sort(key=lambda t: t.dbic)
+        ok = [t for t in trials if not t.reasons]
+        if not ok:
+            steps.append(f"next best {trials[0].id} not added ({'; '.join(trials[0].reasons)})")
+            break
+        pick = ok[0]
+
+        # the better-scoring candidates that may not be added: say why; the best-scoring one is tied
+        # with the pick unless the pick explains the gap comparably
+        forced = []
+        for t in trials[:trials.index(pick)]:
+            extra = float(np.sqrt(max(pick.g2 - t.g2_free, 0.0)))
+            line = (f"{t.id} scores better (ΔBIC {t.dbic:.1f} against {pick.dbic:.1f} for {pick.id}) but is "
+                    f"not added ({'; '.join(t.reasons)})")
+            if t is not trials[0]:
+                steps.append(line)
+            elif _indistinct(problem, t, pick, rss_cur, tie_threshold) or extra < tolerance:
+                steps.append(f"{line}; {pick.id} explains the gap comparably (it leaves {extra:.3f} % more, "
+                             f"in quadrature, < tolerance {tolerance:g} %)")
+            else:
+                forced.append(t.id)
+                steps.append(f"{line}; {pick.id} explains the gap less well (it leaves {extra:.3f} % more, "
+                             f"in quadrature, >= tolerance {tolerance:g} %): the two are tied")
+        best = pick.cand
+        _restore(chosen + [best], pick.estimates)
+        best.clipped = pick.res.clipped
+        best.tied = forced + [t.id for t in ok[1:] if _indistinct(problem, pick, t, rss_cur, tie_threshold)]
+        best.contribution, best.share = pick.contribution, pick.share
+        chosen.append(best)
+        steps.append(f"{best.effect.id}: ΔBIC {pick.dbic:.1f}, changes (L-R)/R by {pick.contribution:.3f} % "
+                     f"rms, explains {100 * pick.share:.0f} % of the systematic residual"
+                     + (f" and takes the gap from {np.sqrt(g_cur):.3f} % to {np.sqrt(pick.g2):.3f} %, below "
+                        f"the tolerance" if pick.contribution < tolerance else "")
+                     + (f"; cannot be told apart from {', '.join(best.tied)}" if best.tied else ""))
+        rss_cur, g_cur = pick.res.rss, pick.g2
+    if chosen:
+        joint_fit(problem, chosen)  # the trials after the last step moved the estimates
+    return _prune(problem, chosen, steps, tolerance)
+
+
+def _prune(problem: Problem, chosen: list[CandidateFit], steps: list[str],
+           tolerance: float) -> tuple[list[CandidateFit], list[str]]:
+    """Drop named effects that explain no material part of the systematic residual given the others.
+
+    With several effects named, each must be material given the others: remove at least the
+    tolerance (in quadrature) from the gap the others leave, ``sqrt(gap(others)² − gap(all)²) ≥
+    tolerance``, **or** take the gap from above the tolerance (the others alone) to at most the
+    tolerance (all together) — by the diagnosis's own definition a gap above the tolerance is
+    material, so the effect that closes it is too.  An effect that is strong by ΔBIC and changes
+    (L − R)/R by more than the tolerance but leaves every bin mean as it was only fits the
+    model-form mismatch between the catalogue's responses and the data (e.g. a hybrid weight
+    added to a beam-angle offset).  The weakest effect that is not material is dropped and the
+    test repeated.
+    """
+    tol2 = tolerance**2
+    kept_lines: dict[str, str] = {}
+    while len(chosen) > 1:
+        kept_lines = {}
+        g_all = problem.gap2(problem.r - np.where(problem.valid, fitted(chosen), 0.0))
+        unique, material = [], []
+        for c in chosen:
+            others = [x for x in chosen if x is not c]
+            joint_fit(problem, others)
+            g_wo = problem.gap2(problem.r - np.where(problem.valid, fitted(others), 0.0))
+            u = float(np.sqrt(max(g_wo - g_all, 0.0)))
+            closes = g_wo > tol2 >= g_all
+            unique.append(u)
+            material.append(u >= tolerance or closes)
+            if closes and u < tolerance:
+                kept_lines[c.effect.id] = (
+                    f"{c.effect.id} kept: given the others it removes only {u:.3f} % of the gap (in "
+                    f"quadrature), but without it the gap is {np.sqrt(g_wo):.3f} % > tolerance "
+                    f"{tolerance:g} % and with it {np.sqrt(g_all):.3f} % <= tolerance: it closes a "
+                    f"material gap")
+        joint_fit(problem, chosen)
+        weak = [k for k in range(len(chosen)) if not material[k]]
+        if not weak:
+            break
+        k = min(weak, key=lambda j: unique[j])
+        steps.append(f"{chosen[k].effect.id} dropped: given the others it removes only {unique[k]:.3f} % "
+                     f"of the gap (in quadrature) < tolerance {tolerance:g} % and does not take the gap "
+                     f"below the tolerance")
+        chosen = chosen[:k] + chosen[k + 1:]
+        joint_fit(problem, chosen)
+    if len(chosen) > 1:
+        steps += list(kept_lines.values())
+    return chosen, steps
+
+
+def refine(problem: Problem, chosen: list[CandidateFit]) -> tuple[Any, dict[str, np.ndarray]]:
+    """Re-simulate at the estimates and correct them; return (corrected model, its records).
+
+    One effect with one parameter: the response is re-measured on the secant [θ₀, θ̂] and the
+    parameter refitted (exact for a response linear in θ, much better than the probe otherwise).
+    Several: one Gauss–Newton step with the probe responses on the residual left at the
+    estimates.  Either way the model is simulated once more if the estimate moved by more than
+    half a standard error.  Uncertainties then come from the block bootstrap of the last fit.
+    """
+    label = " + ".join(c.effect.id for c in chosen)
+    model1, rec1 = problem.records_with(chosen, f"{label} at estimate")
+    before = [dict(c.estimate) for c in chosen]
+    if len(chosen) == 1 and chosen[0].effect.n_parameters == 1:
+        c = chosen[0]
+        name = c.effect.parameters[0].name
+        h = c.estimate[name] - c.nominal[name]
+        if abs(h) > 1e-12:
+            c.response = [problem.smooth(c.effect, (records_difference(rec1) - problem.d0) / h)]
+            res = joint_fit(problem, [c])
+            c.delta_bic = fit.delta_bic(res.rss_free, res.rss0, 1, problem.n_eff)
+            c.explained = 1.0 - res.rss_free / res.rss0 if res.rss0 > 0 else 0.0
+            c.refined = True
+        bootstrap(problem, [c])
+    else:
+        r1 = np.where(problem.valid, problem.d_measured - records_difference(rec1), np.nan)
+        res = fit.fit_linear(r1, columns(chosen)[0], problem.weights)
+        k = 0
+        for c in chosen:
+            for p in c.effect.linear_parameters:
+                lo, hi = p.bounds
+                step = float(res.delta[k])
+                c.free[p.name] = c.estimate[p.name] + step  # the linear model's unconstrained optimum
+                c.estimate[p.name] = float(np.clip(c.estimate[p.name] + step, lo, hi))
+                k += 1
+            c.refined = True
+        bootstrap(problem, chosen, r=np.where(problem.valid, problem.r, np.nan))
+    moved = any(abs(c.estimate[p.name] - b[p.name]) > 0.5 * c.stderr[p.name]
+                for c, b in zip(chosen, before, strict=True) for p in c.effect.linear_parameters)
+    for c in chosen:
+        c.contribution = contribution(problem, c)
+        log.info(f"refined {c.effect.id}: " + ", ".join(
+            f"{k} = {v:.4g} ± {c.stderr[k]:.2g} (95 % {c.interval[k][0]:.4g} to {c.interval[k][1]:.4g})"
+            for k, v in c.estimate.items()))
+    if moved:  # the estimate moved: simulate where it landed
+        model1, rec1 = problem.records_with(chosen, f"{label} at refined estimate")
+    else:  # the records stay those simulated half a standard error away; the model takes the estimate
+        for c in chosen:
+            model1 = c.effect.apply(model1, c.estimate)
+    return model1, rec1
+
+
+def adequate(problem: Problem, chosen: list[CandidateFit], steps: list[str], gap: float,
+              tolerance: float) -> tuple[list[CandidateFit], list[str]]:
+    """Keep the named effects only if together they explain the disagreement.
+
+    A correct explanation removes most of the systematic residual: if the gap left by the named
+    effects (linearised) is above the tolerance *and* above half the gap before, they only
+    absorb part of something the catalogue does not hold (a lidar error in one direction sector
+    fitted as a constant or a TI-proportional bias), and the answer is ``unexplained``.
+    """
+    if not chosen:
+        return chosen, steps
+    left = np.sqrt(problem.gap2(problem.r - np.where(problem.valid, fitted(chosen), 0.0)))
+    if left > tolerance and left > 0.5 * gap:
+        ids = ", ".join(c.effect.id for c in chosen)
+        return [], steps + [f"the effects that qualified ({ids}) leave a gap of {left:.3f} % of {gap:.3f} % "
+                            f"(more than half, above the tolerance): they do not explain the disagreement"]
+    return chosen, steps
+
+
+def conclude(chosen: list[CandidateFit], steps: list[str], significant: bool, gap: float,
+            tolerance: float) -> tuple[str, str]:
+    """Return the answer (first effect, ``none`` or ``unexplained``) and its one-paragraph note."""
+    if not significant:
+        return "none", ("no significant disagreement between measurement and nominal model in any height or "
+                        "environmental bin (Holm-corrected)")
+    if chosen:
+        return chosen[0].effect.id, "; ".join(steps)
+    if not gap > tolerance:
+        return "none", (f"the disagreement is significant but below the tolerance: gap {gap:.3f} % <= "
+                        f"{tolerance:g} %" + (f"; {steps[-1]}" if steps else ""))
+    return "unexplained", (f"the disagreement is significant and material (gap {gap:.3f} % > tolerance "
+                           f"{tolerance:g} %) but no catalogue effect explains it"
+                           + (f"; {steps[-1]}" if steps else "") + "; drivers lists where the residual lies")
