@@ -44,7 +44,7 @@ def bin_index(x: np.ndarray, edges: np.ndarray) -> np.ndarray:
 
 def group_statistics(
     values: np.ndarray, labels: np.ndarray, n_groups: int, *, ddof: int = 1,
-    means_of: tuple[np.ndarray, ...] = (),
+    means_of: tuple[np.ndarray, ...] = (), standard_error: bool = False,
 ) -> tuple[np.ndarray, ...]:
     """Count, mean and standard deviation of ``values`` per integer label, over the last axis.
 
@@ -61,12 +61,16 @@ def group_statistics(
     means_of : tuple of arrays like ``values``
         Further arrays whose per-group means over the same counted pairs are returned too
         (e.g. the binning variable itself, for bin centres).
+    standard_error : bool
+        Return the standard error of the mean, ``sqrt(ss / (count - ddof) / count)`` with ``ss``
+        the sum of squared deviations, in place of the standard deviation.
 
     Returns
     -------
     count : int64 array (..., n_groups)
     mean, std : float arrays (..., n_groups)
-        NaN where a group is empty (``std`` also where ``count <= ddof``).
+        NaN where a group is empty (``std`` also where ``count <= ddof``); ``std`` is the
+        standard error of the mean with ``standard_error``.
     *means : float arrays (..., n_groups), one per ``means_of``
 
     >>> c, m, s = group_statistics(np.array([1.0, 3.0, 5.0, np.nan]), np.array([0, 0, 1, 1]), 2)
@@ -86,7 +90,8 @@ def group_statistics(
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = np.bincount(flat, weights=v2[ok], minlength=size) / count
         dev = v2[ok] - mean[flat]  # two-pass: deviations from the group mean
-        std = np.sqrt(np.bincount(flat, weights=dev * dev, minlength=size) / (count - ddof))
+        spread = np.bincount(flat, weights=dev * dev, minlength=size) / (count - ddof)
+        std = np.sqrt(spread / count if standard_error else spread)
         extra = [np.bincount(flat, weights=np.broadcast_to(np.asarray(a, dtype=float), values.shape)
                              .reshape(nrow, -1)[ok], minlength=size) / count for a in means_of]
     std = np.where(count > ddof, std, np.nan)

@@ -88,6 +88,17 @@ def test_negative_labels_are_no_group():
     assert m[0] == 1.5 and np.isnan(m[1]) and np.isnan(s[1])
 
 
+def test_standard_error_of_the_mean_instead_of_the_std():
+    y, lab = np.array([1.0, 3.0, 8.0, 5.0, 9.0]), np.array([0, 0, 1, 1, 1])
+    c, m, se = group_statistics(y, lab, 2, standard_error=True)
+    std = group_statistics(y, lab, 2)[2]
+    want = [np.std([1.0, 3.0], ddof=1) / np.sqrt(2), np.std([8.0, 5.0, 9.0], ddof=1) / np.sqrt(3)]
+    np.testing.assert_allclose(se, want, rtol=1e-15)
+    np.testing.assert_allclose(se, std / np.sqrt(c), rtol=1e-15)
+    one = group_statistics(np.array([1.0]), np.array([0]), 1, standard_error=True)
+    assert np.isnan(one[2][0])  # no spread from one value
+
+
 finite = st.floats(-1e3, 1e3, allow_nan=False, allow_infinity=False)
 maybe_nan = st.one_of(finite, st.just(math.nan))
 

@@ -393,7 +393,7 @@ def test_unexplained_residual_is_located_in_its_direction_sector():
     problem, fits = _selection_problem(
         lambda J, c: 0.01 * ((c["wind_from_direction"] >= 280) & (c["wind_from_direction"] < 320)), n=600)
     chosen, steps = select(problem, fits, 6.0, 2.0, 0.1, DEFAULT_MIN_SHARE)
-    gap = stats.joint_gap(problem.r, problem.groups)[0]
+    gap = stats.gap(problem.r, problem.groups)[0]
     answer, note = conclude(chosen, steps, True, gap, 0.1)
     assert answer == "unexplained", (chosen, steps)
     where = stats.locate(problem.r, problem.groups, problem.conditions, CANONICAL_UNITS, alpha=0.01)

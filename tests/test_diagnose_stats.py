@@ -30,16 +30,19 @@ def test_relative_difference_masks_bad_reference():
     assert d[0] == pytest.approx(0.05) and np.isnan(d[1]) and np.isnan(d[2])
 
 
-def test_binned_means_against_direct_computation():
+def test_binned_residuals_against_direct_computation():
     g = rng(1)
-    x, r = g.uniform(0, 1, 200), g.normal(0, 1, 200)
-    edges = stats.bin_edges(x, 4)
-    count, mean, se, xm = stats.binned_means(r, x, edges)
-    assert count.sum() == 200  # every finite value lands in one bin, the maximum included
-    sel = (x >= edges[1]) & (x < edges[2])
-    assert mean[1] == pytest.approx(r[sel].mean())
-    assert se[1] == pytest.approx(r[sel].std(ddof=1) / np.sqrt(sel.sum()))
-    assert xm[1] == pytest.approx(x[sel].mean())
+    x, r = g.uniform(0, 1, (200, 2)), g.normal(0, 1, (200, 2))
+    binned = stats.bin_residuals(r, {"wind_speed": x}, n_bins=4)
+    edges = binned.edges[0]
+    assert np.array_equal(edges, stats.bin_edges(x, 4))  # quantiles pooled over heights
+    assert binned.count[0].sum() == 400  # every finite value lands in one bin, the maximum included
+    for j in range(2):  # each height binned on its own
+        sel = (x[:, j] >= edges[1]) & (x[:, j] < edges[2])
+        assert binned.count[0, 1, j] == sel.sum()
+        assert binned.mean[0, 1, j] == pytest.approx(r[sel, j].mean())
+        assert binned.se[0, 1, j] == pytest.approx(r[sel, j].std(ddof=1) / np.sqrt(sel.sum()))
+        assert binned.center[0, 1, j] == pytest.approx(x[sel, j].mean())
 
 
 def test_no_false_alarm_rate_above_alpha_on_null_residuals():
@@ -73,12 +76,13 @@ def test_gap_of_a_constant_bias_and_its_noise_floor():
     n, m = 600, 2
     drv = drivers_for(g, n, m)
     r = 0.02 + g.normal(0, 0.01, (n, m))
-    binned = stats.bin_residuals(r, drv, n_bins=5)
-    overall, per_height, floor = stats.gap(binned)
-    # every bin mean is 2 % +- 0.01/sqrt(120) = 0.09 %: rms within 0.3 % (3 sigma) of 2 %
+    overall, per_height, floor = stats.gap(r, stats.bin_groups(drv, np.ones((n, m), bool), 5))
+    # every bin mean is 2 % +- 0.01/sqrt(120) = 0.09 %: the noise-corrected rms is within 0.3 % of 2 %
     assert overall == pytest.approx(2.0, abs=0.3)
     assert per_height.shape == (2,) and np.allclose(per_height, 2.0, atol=0.3)
     assert floor == pytest.approx(100 * 0.01 / np.sqrt(120), rel=0.15)  # se of a 120-period bin
+    # bins with fewer than min_bin_count periods do not count: none has all n
+    assert np.isnan(stats.gap(r, stats.bin_groups(drv, np.ones((n, m), bool), 5), min_bin_count=n + 1)[0])
 
 
 def test_smooth_response_recovers_a_quadratic_in_the_drivers():
@@ -204,7 +208,7 @@ def test_day_clusters_fall_back_to_blocks_on_a_short_record():
     assert np.bincount(lab).tolist() == [10] * 20
 
 
-def test_joint_gap_removes_the_noise_and_sees_a_product_of_drivers():
+def test_gap_removes_the_noise_and_sees_a_product_of_drivers():
     g = rng(11)
     n, m = 2000, 2
     drv = drivers_for(g, n, m)
@@ -216,13 +220,13 @@ def test_joint_gap_removes_the_noise_and_sees_a_product_of_drivers():
     # noise-corrected gap is √max(mean(m² − se²), 0), whose mean term scatters by ~√(2/K)·se² over
     # K ≈ 90 bins (fewer independent ones: the groups share periods), so √ of it is ~0.4 floor at
     # 1 sigma; 0.7 floor is ~3 sigma
-    gap0, _, floor = stats.joint_gap(noise, groups)
+    gap0, _, floor = stats.gap(noise, groups)
     assert gap0 < 0.7 * floor
     # an effect in the product of (centred) shear and CNR gradient: invisible in 1-D bins of either
     prod = (drv["wind_shear_exponent"] - 0.175) * drv["cnr_gradient"]
     r = noise + 0.5 * prod / prod.std()
-    one_d = stats.joint_gap(r, stats.bin_groups({k: drv[k] for k in ("wind_shear_exponent", "cnr_gradient")},
+    one_d = stats.gap(r, stats.bin_groups({k: drv[k] for k in ("wind_shear_exponent", "cnr_gradient")},
                                                  valid, 6))[0]
     joint = stats.group_p_values(r, groups, names=("wind_shear_exponent x cnr_gradient",))
     assert np.all(joint < 1e-6)  # the joint bins see it at every height
-    assert stats.joint_gap(r, groups)[0] > 2 * one_d  # and the gap metric grows with them
+    assert stats.gap(r, groups)[0] > 2 * one_d  # and the gap metric grows with them

@@ -181,7 +181,7 @@ def diagnose(
                                       [e.drivers[:2] for e in effects if len(e.drivers) >= 2])
     # 2. where do they disagree?
     edges, drivers, binned0, tests, significant = _disagreement(problem, n_bins, min_bin_count, alpha)
-    gap0 = stats.joint_gap(problem.r, problem.groups, min_bin_count)
+    gap0 = stats.gap(problem.r, problem.groups, min_bin_count)
     log.info(f"gap before: {gap0[0]:.3f} % (noise floor {gap0[2]:.3f} %, tolerance {tolerance:g} %)")
     # 3-4. fit every candidate, add effects while strong and material, refine them
     fits = fit_candidates(problem, effects)
@@ -197,7 +197,7 @@ def diagnose(
     d_after = records_difference(after)
     r1 = np.where(problem.valid, problem.d_measured - d_after, np.nan)
     binned1 = stats.bin_residuals(r1, drivers, n_bins, edges)
-    gap1 = stats.joint_gap(r1, problem.groups, min_bin_count)
+    gap1 = stats.gap(r1, problem.groups, min_bin_count)
     where = [] if answer == "none" else stats.locate(problem.r, problem.groups, problem.conditions,
                                                       CANONICAL_UNITS, min_bin_count, alpha=alpha)
     log.info(f"answer: {answer}; gap after: {gap1[0]:.3f} % ({simulate.runs} campaign simulations)")

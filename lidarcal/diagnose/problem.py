@@ -145,5 +145,5 @@ class Problem:
 
     def gap2(self, r: np.ndarray) -> float:
         """Square of the gap metric (%²) of a residual."""
-        g = stats.joint_gap(r, self.groups)[0]
+        g = stats.gap(r, self.groups)[0]
         return g * g if np.isfinite(g) else 0.0

@@ -19,14 +19,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats as _st
+import scipy.stats
 
-from lidarcal.binning import binned_statistics
+from lidarcal.binning import bin_index, binned_statistics, group_statistics
 
 __all__ = [
-    "relative_difference", "bin_edges", "binned_means", "BinnedResiduals", "bin_residuals",
-    "holm", "disagreement_tests", "gap", "GAP_METRIC", "BinGroups", "bin_groups", "joint_gap",
-    "locate", "group_p_values",
+    "relative_difference", "bin_edges", "BinnedResiduals", "bin_residuals", "holm", "disagreement_tests",
+    "GAP_METRIC", "BinGroups", "bin_groups", "gap", "locate", "group_p_values",
 ]
 
 #: The definition of the gap reported by ``diagnose`` (``gap_metric`` in ``docs/diagnose.md``).
@@ -65,18 +64,6 @@ def bin_edges(x: np.ndarray, n_bins: int) -> np.ndarray:
     return edges
 
 
-def binned_means(r: np.ndarray, x: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, ...]:
-    """Per bin of ``x`` (1-D arrays): count, mean of ``r``, its standard error, mean of ``x``.
-
-    Bins, missing values and the (two-pass) variance are those of :mod:`lidarcal.binning`; the
-    last bin includes ``edges[-1]``, the largest value when ``edges`` are quantiles of ``x``.
-    """
-    count, mean, std, xmean = binned_statistics(x, r, edges)
-    with np.errstate(invalid="ignore"):
-        se = std / np.sqrt(count)
-    return count.astype(float), mean, se, xmean
-
-
 @dataclass
 class BinnedResiduals:
     """Binned residuals: arrays ``(n_variables, n_bins, n_heights)``; edges ``(n_variables, n_bins+1)``."""
@@ -106,9 +93,9 @@ def bin_residuals(r: np.ndarray, drivers: dict[str, np.ndarray], n_bins: int = 6
         e = edges[name] if edges is not None else bin_edges(drivers[name], n_bins)
         nb = e.size - 1
         all_edges[i, : e.size] = e
-        for j in range(n_h):
-            c, m, s, xm = binned_means(r[:, j], drivers[name][:, j], e)
-            count[i, :nb, j], mean[i, :nb, j], se[i, :nb, j], center[i, :nb, j] = c, m, s, xm
+        n, m, std, xm = binned_statistics(drivers[name].T, r.T, e)  # (heights, bins)
+        with np.errstate(invalid="ignore"):
+            count[i, :nb], mean[i, :nb], se[i, :nb], center[i, :nb] = n.T, m.T, (std / np.sqrt(n)).T, xm.T
     return BinnedResiduals(names, all_edges, count, mean, se, center)
 
 
@@ -132,7 +119,8 @@ def holm(p: np.ndarray) -> np.ndarray:
 
 def _t_to_z(t: np.ndarray, n: np.ndarray) -> np.ndarray:
     """Equivalent standard-normal score of a t statistic with n − 1 degrees of freedom."""
-    return np.clip(_st.norm.isf(_st.t.sf(np.abs(t), np.maximum(n - 1, 1))) * np.sign(t), -40, 40)
+    p = scipy.stats.t.sf(np.abs(t), np.maximum(n - 1, 1))
+    return np.clip(scipy.stats.norm.isf(p) * np.sign(t), -40, 40)
 
 
 def disagreement_tests(binned: BinnedResiduals, min_bin_count: int = 10,
@@ -151,7 +139,7 @@ def disagreement_tests(binned: BinnedResiduals, min_bin_count: int = 10,
         z = np.where(ok, _t_to_z(binned.mean / binned.se, n), np.nan)
     chi2 = np.nansum(np.where(ok, z**2, 0.0), axis=1)
     dof = ok.sum(axis=1)
-    p = np.where(dof > 0, _st.chi2.sf(chi2, np.maximum(dof, 1)), np.nan)
+    p = np.where(dof > 0, scipy.stats.chi2.sf(chi2, np.maximum(dof, 1)), np.nan)
     out = {"chi2": chi2, "dof": dof, "p_value": p, "z": z}
     if residual is None:
         out["p_adjusted"] = holm(p)
@@ -160,27 +148,11 @@ def disagreement_tests(binned: BinnedResiduals, min_bin_count: int = 10,
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.nanmean(residual, axis=0) / (np.nanstd(residual, axis=0, ddof=1) / np.sqrt(cnt))
         mz = np.where(cnt >= min_bin_count, _t_to_z(t, cnt), np.nan)
-    mp = np.where(np.isfinite(mz), 2.0 * _st.norm.sf(np.abs(mz)), np.nan)
+    mp = np.where(np.isfinite(mz), 2.0 * scipy.stats.norm.sf(np.abs(mz)), np.nan)
     adj = holm(np.concatenate([p.ravel(), mp]))
     out.update(p_adjusted=adj[: p.size].reshape(p.shape), mean_z=mz, mean_p_value=mp,
                mean_p_adjusted=adj[p.size:])
     return out
-
-
-def gap(binned: BinnedResiduals, min_bin_count: int = 10) -> tuple[float, np.ndarray, float]:
-    """Return the gap (see :data:`GAP_METRIC`) in %: overall, per height, and its noise floor.
-
-    The noise floor is the rms of the bins' standard errors: the gap a perfect model would
-    show on average with this many periods.
-    """
-    ok = (binned.count >= min_bin_count) & np.isfinite(binned.mean)
-    sq = np.where(ok, binned.mean**2, 0.0)
-    se2 = np.where(ok, binned.se**2, 0.0)
-    with np.errstate(invalid="ignore"):
-        per_height = 100.0 * np.sqrt(sq.sum(axis=(0, 1)) / ok.sum(axis=(0, 1)))
-        overall = 100.0 * float(np.sqrt(sq.sum() / ok.sum())) if ok.any() else float("nan")
-        floor = 100.0 * float(np.sqrt(se2.sum() / ok.sum())) if ok.any() else float("nan")
-    return overall, per_height, floor
 
 
 @dataclass
@@ -199,8 +171,7 @@ class BinGroups:
 
 def _quantile_labels(x: np.ndarray, valid: np.ndarray, n_bins: int) -> tuple[np.ndarray, int]:
     edges = bin_edges(x[valid], n_bins)
-    lab = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)
-    return np.where(valid & np.isfinite(x), lab, -1), edges.size - 1
+    return np.where(valid, bin_index(x, edges), -1), edges.size - 1
 
 
 def bin_groups(conditions: dict[str, np.ndarray], valid: np.ndarray, n_bins: int,
@@ -229,23 +200,16 @@ def bin_groups(conditions: dict[str, np.ndarray], valid: np.ndarray, n_bins: int
     return BinGroups(tuple(names), tuple(labels), tuple(sizes))
 
 
-def _group_stats(r: np.ndarray, lab: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per (bin, height): count, mean and standard error of ``r`` (two-pass variance)."""
-    n_h = r.shape[1]
-    count, mean, se = (np.zeros((k, n_h)) for _ in range(3))
-    for j in range(n_h):
-        ok = (lab[:, j] >= 0) & np.isfinite(r[:, j])
-        idx, y = lab[ok, j], r[ok, j]
-        c = np.bincount(idx, minlength=k).astype(float)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            m = np.bincount(idx, weights=y, minlength=k) / c
-            ss = np.bincount(idx, weights=(y - m[idx]) ** 2, minlength=k)
-            s = np.sqrt(ss / np.maximum(c - 1, 1) / c)
-        count[:, j], mean[:, j], se[:, j] = c, m, s
-    return count, mean, se
+def _group_stats(r: np.ndarray, lab: np.ndarray, k: int) -> tuple[np.ndarray, ...]:
+    """Per (bin, height): count, mean and standard error of ``r`` by the labels ``lab`` (periods × heights).
+
+    :func:`lidarcal.binning.group_statistics` bins each height (a row of ``r.T``).
+    """
+    stats_by_height = group_statistics(r.T, lab.T, k, standard_error=True)
+    return tuple(np.ascontiguousarray(a.T, dtype=float) for a in stats_by_height)
 
 
-def joint_gap(r: np.ndarray, groups: BinGroups, min_bin_count: int = 10) -> tuple[float, np.ndarray, float]:
+def gap(r: np.ndarray, groups: BinGroups, min_bin_count: int = 10) -> tuple[float, np.ndarray, float]:
     """Return the gap of :data:`GAP_METRIC` in %: overall, per height, and its noise floor.
 
     Over every bin (of every group, at every height) with at least ``min_bin_count`` periods:
@@ -296,7 +260,7 @@ def locate(r: np.ndarray, groups: BinGroups, conditions: dict[str, np.ndarray], 
         dof = int(ok.sum())
         if dof == 0:
             continue
-        p = float(_st.chi2.logsf(chi2, dof))  # log: a strong driver's p underflows to 0
+        p = float(scipy.stats.chi2.logsf(chi2, dof))  # log: a strong driver's p underflows to 0
         b = int(np.argmax(np.abs(zc)))
         sign = np.sign(zc[b])
         lo = hi = b
@@ -335,5 +299,5 @@ def group_p_values(r: np.ndarray, groups: BinGroups, min_bin_count: int = 10,
         with np.errstate(invalid="ignore", divide="ignore"):
             z = np.where(ok, _t_to_z(m / s, c), 0.0)
         dof = ok.sum(axis=0)
-        out.append(np.where(dof > 0, _st.chi2.sf((z**2).sum(axis=0), np.maximum(dof, 1)), np.nan))
+        out.append(np.where(dof > 0, scipy.stats.chi2.sf((z**2).sum(axis=0), np.maximum(dof, 1)), np.nan))
     return np.array(out).reshape(len(out), r.shape[1])
