@@ -250,28 +250,8 @@ def compare(
         The files behind ``field``/``cube``/``rwf``/``diagnosis``: recorded with their checksums,
         and used to write the ``lidarcal diagnose`` command of ``next``.
     """
-    bad = [v for v in variables if v not in VARIABLES]
-    if bad or not variables:
-        raise InputError(f"argument 'variables': expected some of {list(VARIABLES)}; found {list(variables)}")
-    if regression not in REGRESSIONS:
-        raise InputError(
-            f"argument 'regression': expected one of {sorted(REGRESSIONS)}; found {regression!r}"
-        )
-    if not 0.0 < float(alpha) < 1.0:
-        raise InputError(f"argument 'alpha': expected a probability in (0, 1); found {alpha!r}")
-    if int(min_samples) < 2:
-        raise InputError(f"argument 'min_samples': expected at least 2 (a bin's spread); found {min_samples}")
-    u_ref = float(
-        to_magnitude(reference_uncertainty, "m s-1", name="reference_uncertainty")
-        if not isinstance(reference_uncertainty, int | float)
-        else reference_uncertainty
-    )
-    if not (np.isfinite(u_ref) and u_ref >= 0):
-        raise InputError(
-            f"argument 'reference_uncertainty': expected >= 0 m s-1; found {reference_uncertainty!r}"
-        )
-    lo, hi = (float(x) for x in reference_range)
-    variables = list(dict.fromkeys(variables))
+    variables, u_ref, (lo, hi) = _checked(variables, regression, alpha, min_samples, reference_uncertainty,
+                                          reference_range)
 
     # 1. the campaign and the lidar to simulate
     ds, usable, source = _load(field, int(min_samples))
@@ -301,27 +281,9 @@ def compare(
     log.info(f"{int(keep.sum())} period-heights with the measured reference in ({lo:g}, {hi:g}] m s-1")
 
     # 3. sensitivities on the same bins, and the cell tests
-    sens: dict[str, dict[str, xr.Dataset | None]] = {"measured": {}, "simulated": {}}
-    opts = {
-        "min_samples": int(min_samples),
-        "regression": regression,
-        "reference_range": None,
-        "source": source,
-    }
-    for v in variables:
-        width = (bin_widths or {}).get(v)
-        try:
-            sm = sensitivity(measured, v, bin_width=width, **opts)
-        except InputError as exc:  # no height with two populated bins: no slope, the cells are untested
-            log.warning(f"{v}: no measured slope ({exc})")
-            sens["measured"][v] = sens["simulated"][v] = None
-            continue
-        sens["measured"][v] = sm
-        try:
-            sens["simulated"][v] = sensitivity(simulated, v, bins=_edges(sm), **opts)
-        except InputError as exc:
-            log.warning(f"{v}: no simulated slope ({exc})")
-            sens["simulated"][v] = None
+    opts = {"min_samples": int(min_samples), "regression": regression, "reference_range": None,
+            "source": source}
+    sens = _sensitivities(measured, simulated, variables, bin_widths, opts)
     cells = _cells(sens, variables, ds.sizes["height"], float(alpha))
 
     # 4. the budgets (Figure 9)
@@ -331,26 +293,7 @@ def compare(
         "simulated": budget(simulated, approach="monte_carlo", terms=terms, **common),
     }
 
-    tested = np.isfinite(cells["p_adjusted"])
-    if not tested.any():
-        raise InputError(
-            f"{source}: no (height, variable) has three bins with at least {min_samples} periods on both "
-            f"sides, so no slope can be compared (variables {variables}, measured reference in "
-            f"({lo:g}, {hi:g}] m s-1); supply more periods or lower min_samples (--min-samples)"
-        )
-    if not tested.all():
-        skipped = [
-            f"{v} at {h:g} m"
-            for i, v in enumerate(variables)
-            for j, h in enumerate(ds.height.values)
-            if not tested[i, j]
-        ]
-        log.warning(f"not tested (fewer than three bins of {min_samples} periods): {', '.join(skipped)}")
-    disagree = int((cells["agree"] == 0).sum())
-    verdict = "disagree" if disagree else "agree"
-    log.info(
-        f"verdict: {verdict} ({disagree} of {int(tested.sum())} cells disagree at alpha {alpha:g}, Holm)"
-    )
+    verdict = _verdict(cells, variables, ds.height.values, source, int(min_samples), float(alpha), (lo, hi))
     settings = {
         "base_seed": int(base_seed),
         "alpha": float(alpha),
@@ -381,6 +324,86 @@ def compare(
         keep=keep,
         next=None if verdict == "agree" else diagnose_command(source, inputs, int(base_seed)),
     )
+
+
+def _checked(variables: Sequence[str], regression: str, alpha: float, min_samples: int,
+             reference_uncertainty: Any, reference_range: tuple[float, float]
+             ) -> tuple[list[str], float, tuple[float, float]]:
+    """Check :func:`compare`'s arguments; return the variables (once each), u_ref (m s-1) and the range."""
+    bad = [v for v in variables if v not in VARIABLES]
+    if bad or not variables:
+        raise InputError(f"argument 'variables': expected some of {list(VARIABLES)}; found {list(variables)}")
+    if regression not in REGRESSIONS:
+        raise InputError(
+            f"argument 'regression': expected one of {sorted(REGRESSIONS)}; found {regression!r}"
+        )
+    if not 0.0 < float(alpha) < 1.0:
+        raise InputError(f"argument 'alpha': expected a probability in (0, 1); found {alpha!r}")
+    if int(min_samples) < 2:
+        raise InputError(f"argument 'min_samples': expected at least 2 (a bin's spread); found {min_samples}")
+    u_ref = float(
+        to_magnitude(reference_uncertainty, "m s-1", name="reference_uncertainty")
+        if not isinstance(reference_uncertainty, int | float)
+        else reference_uncertainty
+    )
+    if not (np.isfinite(u_ref) and u_ref >= 0):
+        raise InputError(
+            f"argument 'reference_uncertainty': expected >= 0 m s-1; found {reference_uncertainty!r}"
+        )
+    lo, hi = (float(x) for x in reference_range)
+    return list(dict.fromkeys(variables)), u_ref, (lo, hi)
+
+
+def _sensitivities(measured: xr.Dataset, simulated: xr.Dataset, variables: Sequence[str],
+                   bin_widths: Mapping[str, Any] | None, opts: Mapping[str, Any]
+                   ) -> dict[str, dict[str, xr.Dataset | None]]:
+    """Sensitivity artefacts of both sides per variable, the simulated side on the measured side's bins.
+
+    None where a side has no height with two populated bins (no slope: the cells are untested).
+    """
+    sens: dict[str, dict[str, xr.Dataset | None]] = {"measured": {}, "simulated": {}}
+    for v in variables:
+        width = (bin_widths or {}).get(v)
+        try:
+            sm = sensitivity(measured, v, bin_width=width, **opts)
+        except InputError as exc:  # no height with two populated bins: no slope, the cells are untested
+            log.warning(f"{v}: no measured slope ({exc})")
+            sens["measured"][v] = sens["simulated"][v] = None
+            continue
+        sens["measured"][v] = sm
+        try:
+            sens["simulated"][v] = sensitivity(simulated, v, bins=_edges(sm), **opts)
+        except InputError as exc:
+            log.warning(f"{v}: no simulated slope ({exc})")
+            sens["simulated"][v] = None
+    return sens
+
+
+def _verdict(cells: Mapping[str, np.ndarray], variables: Sequence[str], heights: np.ndarray, source: str,
+             min_samples: int, alpha: float, reference_range: tuple[float, float]) -> str:
+    """Return ``agree`` or ``disagree``; refuse a comparison without one tested cell; log the untested."""
+    lo, hi = reference_range
+    tested = np.isfinite(cells["p_adjusted"])
+    if not tested.any():
+        raise InputError(
+            f"{source}: no (height, variable) has three bins with at least {min_samples} periods on both "
+            f"sides, so no slope can be compared (variables {variables}, measured reference in "
+            f"({lo:g}, {hi:g}] m s-1); supply more periods or lower min_samples (--min-samples)"
+        )
+    if not tested.all():
+        skipped = [
+            f"{v} at {h:g} m"
+            for i, v in enumerate(variables)
+            for j, h in enumerate(heights)
+            if not tested[i, j]
+        ]
+        log.warning(f"not tested (fewer than three bins of {min_samples} periods): {', '.join(skipped)}")
+    disagree = int((cells["agree"] == 0).sum())
+    verdict = "disagree" if disagree else "agree"
+    log.info(
+        f"verdict: {verdict} ({disagree} of {int(tested.sum())} cells disagree at alpha {alpha:g}, Holm)"
+    )
+    return verdict
 
 
 def _cells(

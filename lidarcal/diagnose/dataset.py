@@ -202,6 +202,12 @@ def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagno
         for key, side in (("measured", "field records"), ("before", "nominal model"),
                           ("after", "corrected model")):
             put(f"sensitivity_{key}", vh, sens[key], side=side)
+    return _stamped(ds, result, call=call, inputs=inputs, input_datasets=input_datasets)
+
+
+def _stamped(ds: xr.Dataset, result: DiagnosisResult, *, call: str, inputs: dict | None,
+             input_datasets: dict | None) -> xr.Dataset:
+    """``ds`` with the diagnosis' global attributes (the answer, its JSON, both models), stamped."""
     js = summary(result)
     ds.attrs = {
         "diagnosis_effect": result.effect_id,
