@@ -32,9 +32,9 @@ def test_diagnose_is_the_package_and_runs_the_diagnosis(tmp_path):
     import lidarcal.diagnose as package
 
     assert lidarcal.diagnose is package and "effects" in dir(package)
-    # calling the package runs diagnose(): a missing field file is its input error
+    # its diagnose() runs the diagnosis: a missing field file is its input error
     with pytest.raises(InputError, match="missing.nc"):
-        lidarcal.diagnose(tmp_path / "missing.nc")
+        lidarcal.diagnose.diagnose(tmp_path / "missing.nc")
 
 
 def test_import_lidarcal_stays_light():

@@ -50,14 +50,10 @@ from typing import Any
 
 import numpy as np
 
-from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.errors import InputError
 from lidarcal.lidar.model import direction_spread, flow_distortion_factor
 
-__all__ = ["Parameter", "Effect", "EFFECTS", "CONDITION_VARIABLES", "get_effect", "schema_ranges"]
-
-#: The conditions variables of ``docs/contracts.md`` (the only legal drivers).
-CONDITION_VARIABLES = CONDITION_NAMES
+__all__ = ["Parameter", "Effect", "EFFECTS", "get_effect", "schema_ranges"]
 
 #: Records are dicts of arrays over (time, height) with the simulated_rtd names.
 Records = Mapping[str, np.ndarray]
