@@ -162,7 +162,7 @@ def test_compare_with_model_simulates_the_stored_lidar_again(run, field_file):
 
 
 def test_the_lidar_simulated_is_nominal_bench_calibrated_or_a_diagnosis(field_file, run):
-    from lidarcal.compare.core import _model
+    from lidarcal.compare.core import lidar_to_simulate
     from lidarcal.rwf import range_weighting_function
 
     field = xr.open_dataset(field_file)
@@ -170,7 +170,7 @@ def test_the_lidar_simulated_is_nominal_bench_calibrated_or_a_diagnosis(field_fi
 
     def model(rwf=None, diagnosis=None):
         kw = {"cube": None, "model": None, "los_noise_model": None}
-        return _model(field, "f.nc", rwf=rwf, diagnosis=diagnosis, **kw)
+        return lidar_to_simulate(field, "f.nc", rwf=rwf, diagnosis=diagnosis, **kw)
 
     plain, origin = model()
     assert plain.cone_angle == 30.0 and plain.cnr_weighting_scale == 0.0 and origin.startswith("nominal")

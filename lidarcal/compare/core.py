@@ -64,6 +64,7 @@ __all__ = [
     "DEFAULT_REFERENCE_UNCERTAINTY",
     "CORRECTION",
     "slope_test",
+    "lidar_to_simulate",
 ]
 
 log = logging.getLogger("lidarcal.compare")
@@ -139,8 +140,9 @@ def _load(field: str | os.PathLike | xr.Dataset, min_samples: int) -> tuple[xr.D
     return ds, usable, source
 
 
-def _model(ds: xr.Dataset, source: str, *, cube, rwf, model, diagnosis, los_noise_model) -> tuple[Any, str]:
-    """Return the lidar to simulate and a description of where it came from."""
+def lidar_to_simulate(ds: xr.Dataset, source: str, *, cube, rwf, model, diagnosis,
+                      los_noise_model) -> tuple[Any, str]:
+    """Return the lidar to simulate (``compare``'s arguments) and a description of where it came from."""
     if diagnosis is not None:
         found = corrected_model(diagnosis, cube=cube) if model is None else None
         # an rwf only restores the RWF profile the diagnosis records by digest (checked against it)
@@ -255,7 +257,7 @@ def compare(
 
     # 1. the campaign and the lidar to simulate
     ds, usable, source = _load(field, int(min_samples))
-    sim_model, origin = _model(
+    sim_model, origin = lidar_to_simulate(
         ds, source, cube=cube, rwf=rwf, model=model, diagnosis=diagnosis, los_noise_model=los_noise_model
     )
     problems = check_reachable(sim_model, ds.height.values)
