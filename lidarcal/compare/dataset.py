@@ -30,6 +30,7 @@ from lidarcal.schema import output_attrs
 
 __all__ = ["to_dataset", "summary", "slope_units"]
 
+
 def slope_units(variable: str) -> str:
     """Units of a sensitivity slope of the relative difference (%) against ``variable``."""
     return _per_unit("%", CANONICAL_UNITS[variable])

@@ -95,12 +95,13 @@ class DiagnosisResult:
     selected: list[CandidateFit] = field(default_factory=list)  # named effects, most important first
     answer: str = "none"            # effects[0] id, "none" or "unexplained"
     drivers: list[dict] = field(default_factory=list)  # where the residual lies (stats.locate)
-    tolerance: float = 0.1          # %, the practical tolerance
+    tolerance: float = DEFAULT_TOLERANCE  # %, the practical tolerance
 
     @property
     def effect_id(self) -> str:
         """Catalogue id of the answer (``none`` or ``unexplained`` when no effect is named)."""
         return self.chosen.effect.id if self.chosen is not None else self.answer
+
 
 def diagnose(
     field: str | os.PathLike | xr.Dataset,

@@ -35,6 +35,7 @@ from lidarcal.schema import output_attrs
 
 __all__ = ["summary", "to_dataset", "corrected_model", "records_dataset", "sensitivity_statistics"]
 
+
 def _num(x: float) -> float | None:
     x = float(x)
     return x if math.isfinite(x) else None

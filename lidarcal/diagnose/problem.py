@@ -32,7 +32,6 @@ DEFAULT_BOOTSTRAP = 400
 DEFAULT_MODEL_UNCERTAINTY = 0.075
 
 
-
 @dataclass
 class CandidateFit:
     """One catalogue effect fitted to the residual."""
