@@ -49,7 +49,7 @@ import yaml
 
 from lidarcal.data import packaged_dir
 from lidarcal.errors import InputError, ValidationError
-from lidarcal.units import LOG_UNITS, _parse
+from lidarcal.units import LOG_UNITS, parse_unit
 
 __all__ = ["load_schema", "declared_variables", "list_kinds", "validate_dataset", "output_attrs",
            "with_output_attrs", "COMMON_ATTRIBUTES"]
@@ -259,7 +259,7 @@ def _unit_ok(found: str | None, spec: dict) -> str | None:
         if expected in LOG_UNITS:
             return None if found in LOG_UNITS[expected] else f"has units {found!r}; expected {expected!r}"
         try:
-            ok = _parse(found, where="").dimensionality == _parse(expected, where="").dimensionality
+            ok = parse_unit(found, where="").dimensionality == parse_unit(expected, where="").dimensionality
         except InputError:
             ok = False
         return None if ok else f"has units {found!r}; expected units convertible to {expected!r}"

@@ -17,7 +17,7 @@ from lidarcal.diagnose.effects import CONDITION_VARIABLES
 from lidarcal.diagnose.generate import REALISTIC_STRENGTHS
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.lidar import LidarModel, simulate_period
-from lidarcal.units import _parse
+from lidarcal.units import parse_unit
 
 JSON_KEYS = {"effect", "parameters", "uncertainties", "effects", "drivers", "tied", "tolerance", "gap_before",
              "gap_after", "gap_metric", "gap_noise_floor", "candidates"}
@@ -47,7 +47,7 @@ def test_every_catalogue_entry_is_complete():
         assert eff.drivers or key == "reference_gain", f"{key} has no drivers"  # a gain is constant
         for p in eff.parameters:
             assert p.model_field in model_fields
-            _parse(p.units, where=key)  # a valid UDUNITS/pint unit
+            parse_unit(p.units, where=key)  # a valid UDUNITS/pint unit
             lo, hi = p.bounds
             assert lo < getattr(model, p.model_field) < hi or (lo <= getattr(model, p.model_field) <= hi)
             assert p.step != 0 and lo <= eff.probe(model)[p.name] <= hi

@@ -1,9 +1,11 @@
 """The front door for Python users: lazy top-level entry points and the README's Python chain."""
 
+import ast
 import json
 import re
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -16,35 +18,59 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 def test_every_exported_name_resolves_to_its_entry_point():
     from lidarcal.certificate import verify_certificate
+    from lidarcal.diagnose import diagnose
     from lidarcal.pipeline import calibrate
 
     assert len(lidarcal.__all__) >= 11
     for name in lidarcal.__all__:
         assert getattr(lidarcal, name) is not None, name
-        assert name in dir(lidarcal), name
     assert lidarcal.calibrate is calibrate
     assert lidarcal.verify is verify_certificate
+    assert lidarcal.diagnose_campaign is diagnose
     with pytest.raises(AttributeError, match="no attribute 'calibrat'"):
         lidarcal.calibrat  # noqa: B018
 
 
-def test_diagnose_is_the_package_and_runs_the_diagnosis(tmp_path):
+def _type_checking_names() -> dict[str, tuple[str, str]]:
+    """Name -> (module, attribute) imported under ``if TYPE_CHECKING:`` in lidarcal/__init__.py."""
+    tree = ast.parse(Path(lidarcal.__file__).read_text())
+    block = next(node for node in tree.body
+                 if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING")
+    return {alias.asname or alias.name: (node.module, alias.name)
+            for node in block.body if isinstance(node, ast.ImportFrom) for alias in node.names}
+
+
+def test_dir_all_and_the_type_checkers_view_agree():
+    checked = _type_checking_names()
+    exports = {name: (module, attr) for name, (module, attr) in lidarcal._EXPORTS.items()}
+    assert checked == exports  # same names, from the same modules, as __getattr__ imports
+    assert set(lidarcal.__all__) == {"__version__", *checked}
+    # dir() lists every export (before first use too) and no other public name but submodules
+    public = {name for name in dir(lidarcal) if not name.startswith("_") and name != "TYPE_CHECKING"}
+    assert set(lidarcal.__all__) - {"__version__"} <= public
+    others = public - set(lidarcal.__all__)
+    assert others and all(isinstance(getattr(lidarcal, name), types.ModuleType) for name in others)
+
+
+def test_diagnose_campaign_runs_the_diagnosis(tmp_path):
     import lidarcal.diagnose as package
 
-    assert lidarcal.diagnose is package and "effects" in dir(package)
-    # calling the package runs diagnose(): a missing field file is its input error
+    # the top-level name does not collide with the package: after importing it, both are there
+    assert lidarcal.diagnose is package and "diagnose" not in lidarcal.__all__
+    # a missing field file is diagnose()'s input error
     with pytest.raises(InputError, match="missing.nc"):
-        lidarcal.diagnose(tmp_path / "missing.nc")
+        lidarcal.diagnose_campaign(tmp_path / "missing.nc")
 
 
-def test_import_lidarcal_stays_light():
-    code = ("import sys, json, lidarcal; "
-            "print(json.dumps(sorted(m for m in ('numpy', 'xarray', 'dask', 'pint', 'netCDF4') "
-            "if m in sys.modules)))")
+def test_import_lidarcal_registers_units_and_defers_the_engine():
+    code = ("import sys, json, pint, lidarcal; "
+            "print(json.dumps([pint.get_application_registry().get() is lidarcal.units.ureg, "
+            "sorted(m for m in ('distributed', 'netCDF4', 'pyconturb', 'pint_xarray', 'lidarcal.pipeline') "
+            "if m in sys.modules)]))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert json.loads(out) == []
+    assert json.loads(out) == [True, []]
     # first use imports what it needs
-    code = "import sys, lidarcal; lidarcal.open_artefact; print('xarray' in sys.modules)"
+    code = "import sys, lidarcal; lidarcal.calibrate; print('lidarcal.pipeline' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "True"
 
