@@ -277,11 +277,8 @@ def add_contact_options(parser: argparse.ArgumentParser) -> None:
     """``--institution``, ``--creator``, ``--creator-email`` ... recorded in every file written.
 
     Each defaults to its environment variable (``LIDARCAL_INSTITUTION`` ...), then to nothing
-    (``creator_name`` "lidarcal", ``institution`` "unspecified").  Adding them twice to one
-    parser is a no-op.
+    (``creator_name`` "lidarcal", ``institution`` "unspecified").
     """
-    if "--creator" in parser._option_string_actions:
-        return
     g = parser.add_argument_group("who made the files (ACDD attributes of every file written; "
                                   "each defaults to its environment variable)")
     for option, (attr, env) in CONTACT_OPTIONS.items():
