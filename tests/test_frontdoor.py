@@ -76,18 +76,25 @@ def test_import_lidarcal_registers_units_and_defers_the_engine():
     assert out.strip() == "True"
 
 
-def test_readme_python_chain_runs(tmp_path, monkeypatch):
-    """Execute the README's "In Python" block, with one day cut to 24 periods to keep it quick."""
+def test_readme_python_chain_runs_as_a_script_without_a_main_guard(tmp_path):
+    """The README's "In Python" block pasted into a script, run with ``python script.py``.
+
+    No ``if __name__ == "__main__":`` guard: the worker processes (two here) must not run the
+    script again.  One day is cut to 24 periods to keep it quick.
+    """
     section = README.read_text().split("## In Python", 1)[1]
     block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
-    assert "periods=144" in block
-    block = block.replace("periods=144", "periods=24")
-    monkeypatch.chdir(tmp_path)
-    namespace = {}
-    exec(compile(block, str(README), "exec"), namespace)  # noqa: S102 - our own README
-    budget = namespace["budget"]
+    assert "periods=144" in block and "__main__" not in block
+    script = tmp_path / "chain.py"
+    script.write_text(block.replace("periods=144", "periods=24, workers=2"))
+    done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    # the printed number is a relative uncertainty in percent
+    number, unit = done.stdout.split()
+    assert float(number) > 0 and unit == "%"
+    budget = lidarcal.open_artefact(tmp_path / "lidarcal-python" / "budget.nc")
     assert budget.attrs["lidarcal_artefact"] == "uncertainty_budget"
     assert list(budget.height.values) == [80.0, 120.0]
-    # the printed number is a relative uncertainty in percent
     assert budget.relative_uncertainty.attrs["units"] == "%"
     assert (tmp_path / "lidarcal-python" / "certificate.nc").exists()
