@@ -10,11 +10,10 @@ from __future__ import annotations
 import numbers
 from typing import Any
 
-import cf_xarray.units  # noqa: F401  (registers the CF unit formatter and aliases)
 import numpy as np
 import pint
 import xarray as xr
-from cf_xarray.units import units as ureg
+from cf_xarray.units import units as ureg  # importing it makes it pint's application registry
 
 from lidarcal.errors import MissingVariableError, UnitError
 
