@@ -15,20 +15,8 @@ makes cf-xarray's unit registry pint's application registry (docs/units.md), so
 
 from importlib import import_module as _import_module
 from importlib import metadata as _metadata
-from typing import TYPE_CHECKING
 
 from lidarcal import units  # noqa: F401  (imports cf_xarray.units, which registers itself with pint)
-
-if TYPE_CHECKING:  # what type checkers and IDEs see; __getattr__ imports the same names on first use
-    from lidarcal.analysis.budget import budget
-    from lidarcal.analysis.sensitivity import sensitivity
-    from lidarcal.campaign import simulate_campaign
-    from lidarcal.certificate import make_certificate, open_certificate, result_table
-    from lidarcal.certificate import verify_certificate as verify
-    from lidarcal.diagnose import diagnose as diagnose_campaign
-    from lidarcal.io import open_artefact
-    from lidarcal.lidar import LidarModel
-    from lidarcal.pipeline import CalibrationConfig, CalibrationResult, calibrate
 
 #: Public name -> (module, attribute); resolved by :func:`__getattr__` on first access.
 _EXPORTS = {
@@ -47,11 +35,7 @@ _EXPORTS = {
     "diagnose_campaign": ("lidarcal.diagnose", "diagnose"),
 }
 
-__all__ = [  # the same names as _EXPORTS, written out for static tools (tests/test_frontdoor.py)
-    "__version__", "calibrate", "CalibrationConfig", "CalibrationResult", "open_artefact", "LidarModel",
-    "simulate_campaign", "sensitivity", "budget", "make_certificate", "verify", "open_certificate",
-    "result_table", "diagnose_campaign",
-]
+__all__ = ["__version__", *_EXPORTS]  # and __init__.pyi, for type checkers (tests/test_frontdoor.py)
 
 
 def __getattr__(name: str):

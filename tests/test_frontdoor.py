@@ -32,25 +32,27 @@ def test_every_exported_name_resolves_to_its_entry_point():
         lidarcal.calibrat  # noqa: B018
 
 
-def _type_checking_names() -> dict[str, tuple[str, str]]:
-    """Name -> (module, attribute) imported under ``if TYPE_CHECKING:`` in lidarcal/__init__.py."""
-    tree = ast.parse(Path(lidarcal.__file__).read_text())
-    block = next(node for node in tree.body
-                 if isinstance(node, ast.If) and getattr(node.test, "id", None) == "TYPE_CHECKING")
-    return {alias.asname or alias.name: (node.module, alias.name)
-            for node in block.body if isinstance(node, ast.ImportFrom) for alias in node.names}
+def _stub() -> tuple[list[str], dict[str, tuple[str, str]]]:
+    """``__all__`` and the imports (name -> (module, attribute)) of lidarcal/__init__.pyi."""
+    tree = ast.parse(Path(lidarcal.__file__).with_suffix(".pyi").read_text())
+    names = next(ast.literal_eval(node.value) for node in tree.body
+                 if isinstance(node, ast.Assign) and node.targets[0].id == "__all__")
+    imports = {alias.asname or alias.name: (node.module, alias.name)
+               for node in tree.body if isinstance(node, ast.ImportFrom) for alias in node.names}
+    return names, imports
 
 
 def test_dir_all_and_the_type_checkers_view_agree():
-    checked = _type_checking_names()
-    assert set(lidarcal.__all__) == {"__version__", *checked}
-    for name, (module, attr) in checked.items():  # what the checker sees is what __getattr__ returns
+    names, imports = _stub()
+    assert names == lidarcal.__all__
+    assert set(names) - {"__version__"} <= set(imports)
+    for name, (module, attr) in imports.items():  # what the checker sees is what lidarcal holds
         assert getattr(lidarcal, name) is getattr(importlib.import_module(module), attr), name
-    # dir() lists every export (before first use too) and no other public name but submodules
-    public = {name for name in dir(lidarcal) if not name.startswith("_") and name != "TYPE_CHECKING"}
-    assert set(lidarcal.__all__) - {"__version__"} <= public
-    others = public - set(lidarcal.__all__)
-    assert others and all(isinstance(getattr(lidarcal, name), types.ModuleType) for name in others)
+    # dir() lists every export, before its first use too, and otherwise only submodules
+    public = {name for name in dir(lidarcal) if not name.startswith("_")}
+    assert set(names) - {"__version__"} <= public
+    others = public - set(names)
+    assert "units" in others and all(isinstance(getattr(lidarcal, name), types.ModuleType) for name in others)
 
 
 def test_diagnose_campaign_runs_the_diagnosis(tmp_path):
