@@ -68,10 +68,12 @@ def test_diagnose_campaign_runs_the_diagnosis(tmp_path):
 def test_import_lidarcal_registers_units_and_defers_the_engine():
     code = ("import sys, json, pint, lidarcal; "
             "print(json.dumps([pint.get_application_registry().get() is lidarcal.units.ureg, "
+            "[type(f).__module__ for f in sys.meta_path if type(f).__module__.startswith('lidarcal')], "
             "sorted(m for m in ('distributed', 'netCDF4', 'pyconturb', 'pint_xarray', 'lidarcal.pipeline') "
             "if m in sys.modules)]))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert json.loads(out) == [True, []]
+    # the registry is pint's application registry, and no import hook was installed for it
+    assert json.loads(out) == [True, [], []]
     # first use imports what it needs
     code = "import sys, lidarcal; lidarcal.calibrate; print('lidarcal.pipeline' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
