@@ -39,13 +39,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import (
-    HEADLINE_WIND_SPEEDS,
-    components,
-    extract_component,
-    invalid_seal_banner,
-    require_valid_seal,
-)
+from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component
 from lidarcal.document import (
     A4,
     NOT_STATED,
@@ -67,6 +61,7 @@ from lidarcal.document import (
 from lidarcal.errors import InputError
 from lidarcal.htmlpage import offline_html, write_text
 from lidarcal.io import atomic_path, check_writable
+from lidarcal.seal import invalid_seal_banner, require_valid_seal
 
 __all__ = ["Figure", "confidence_band", "fmt", "report_figures", "write_report"]
 

@@ -14,19 +14,16 @@ from lidarcal.bench import build_cube, simulate_run
 from lidarcal.certificate import (
     components,
     extract_component,
-    integrity_record,
     make_certificate,
     open_certificate,
     provenance_chain,
     result_table,
-    verify_certificate,
-    write_certificate,
 )
 from lidarcal.cli import main
 from lidarcal.errors import InputError, OutputExistsError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.provenance import jsonable, sha256, stamp
-from lidarcal.seal import seal_root
+from lidarcal.seal import integrity_record, seal_root, verify_certificate, write_certificate
 
 SERIAL = "WLS7-TEST"
 
