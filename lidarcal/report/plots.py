@@ -1,9 +1,6 @@
-"""Offline HTML report of a calibration (interactive bokeh plots) and the certificate document.
+"""The HTML report's interactive figures: one plain bokeh model each, built when the page is written.
 
-The page embeds BokehJS inline (``resources=INLINE``), so it opens without network access.
-It opens with the calibration status, the headline sentence and the certified result (per
-height and wind-speed bin, U for k = 2), then the certificate's administrative data, and
-shows, as available:
+As available (:func:`report_figures`, in page order):
 
 - the expanded (k = 2) uncertainty vs wind speed (paper Figure 9), the axes set by the
   certified bins (4-16 m/s, enough periods), a menu choosing all heights or one, thin bins
@@ -18,63 +15,35 @@ shows, as available:
   LOS standard deviation, one per line of sight on one colour scale, set by the CNR bins the
   simulation draws from;
 - the range-weighting function (Figure 6): pulse, apodization and RWF, and the RWF for a few
-  CNR gradients, with the zero distance Zd;
+  CNR gradients, with the zero distance Zd.
 
-and last the inputs with their SHA-256.  The plots are plain bokeh models (one plot per
-figure; a menu shows one height's renderers), which keeps the page cheap to write.  Beside
-the page, :func:`write_report` writes the certificate document (:mod:`lidarcal.document`,
-``<stem>.pdf``) and, on request, a PNG of each of its figures.
+A menu shows one height's renderers of a single plot (or copies its columns into the drawn
+ones), which keeps the page cheap to write.  Numbers and words are those of the PDF
+(:mod:`lidarcal.document.facts`).
 """
 
 from __future__ import annotations
 
 import html
-import json
-import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component
-from lidarcal.document import (
-    A4,
-    NOT_STATED,
-    STYLE,
-    VARIABLE_NAMES,
-    certificate_facts,
-    certificate_id,
-    certified_grid,
-    confidence_band,
-    cube_colour_limits,
-    draw,
-    drawn_cnr_range,
-    figure_names,
-    fmt,
-    headline_sentence,
-    units_suffix,
-    write_document,
-)
+from lidarcal.certificate import HEADLINE_WIND_SPEEDS
+from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, fmt, units_suffix
+from lidarcal.document.figures import confidence_band, cube_colour_limits
 from lidarcal.errors import InputError
-from lidarcal.htmlpage import offline_html, write_text
-from lidarcal.io import atomic_path, check_writable
-from lidarcal.seal import invalid_seal_banner, require_valid_seal
+from lidarcal.htmlpage import html_table
 
-__all__ = ["Figure", "confidence_band", "fmt", "report_figures", "write_report"]
+__all__ = ["Figure", "report_figures"]
 
 _WIDTH, _HEIGHT = 900, 380
-_PNG_DPI = 150  # static figures: at least 150 dpi, written into the PNG's pHYs chunk
 _THIN = "#d62728"  # marker colour of thin bins (fewer periods than min_samples)
 _COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
            "#17becf", "#000000"]
-def _table(header: list[str], rows: list[list[str]], caption: str) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "\n".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
-    return (f'<table class="numbers"><caption>{html.escape(caption)}</caption>'
-            f"<tr>{head}</tr>\n{body}</table>")
 
 
 @dataclass
@@ -302,9 +271,10 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
         "(standard deviation / √periods); bins with fewer periods than the minimum are left out of "
         "the regression and not drawn. Line: least-squares fit of the bin means on the bin centres; "
         "band: its 95 % confidence band (from the slope's standard error).</p>"
-        + _table(["height (m)", f"slope m ({units})", "R", "m·std (%)", "m·std·R (%)", "bins", "significant"],
-                 rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
-                       "Eq. 13: |m·std·R| > 0.1 %)")
+        + html_table(["height (m)", f"slope m ({units})", "R", "m·std (%)", "m·std·R (%)", "bins",
+                      "significant"],
+                     rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
+                           "Eq. 13: |m·std·R| > 0.1 %)")
     )
     return Figure(f"Sensitivity to {readable}", build, note=note)
 
@@ -461,152 +431,3 @@ def report_figures(
     if not figs:
         raise InputError("nothing to report: give a certificate, a budget, sensitivities, a cube or an RWF")
     return figs
-
-
-def _from_certificate(cert: xr.Dataset) -> dict[str, Any]:
-    parts: dict[str, Any] = {"sensitivities": []}
-    for comp in components(cert):
-        ds = extract_component(cert, comp["name"])
-        if comp["name"].startswith("sensitivity_"):
-            parts["sensitivities"].append(ds)
-        elif comp["name"] in ("budget", "cube", "rwf"):
-            parts[comp["name"]] = ds
-    return parts
-
-
-def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None = None) -> str:
-    """Return the top of the page: status, headline, certified result, then the certificate's facts."""
-    out = []
-    if cert is not None:
-        status = cert.attrs.get("calibration_status", NOT_STATED)
-        cid = html.escape(certificate_id(cert.attrs))
-        out.append(f'<p class="status status-{html.escape(str(status))}"><strong>Calibration status: '
-                   f"{html.escape(str(status))}</strong> · certificate {cid}</p>")
-    if budget is not None:
-        out.append(f'<p class="headline"><strong>{html.escape(headline_sentence(budget))}</strong></p>')
-        g = certified_grid(budget)
-        rows = []
-        for i in np.flatnonzero(g["inside"]):
-            cells = []
-            for j in range(g["height"].size):
-                v = g["value"][i, j]
-                text = f"{v:.2f}" if g["certified"][i, j] else "–"
-                if g["certified"][i, j] and g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]):
-                    text += f" ± {g['tolerance'][i, j]:.2g}"
-                cells.append(text)
-            rows.append([fmt(g["wind_speed"][i]), *cells])
-        k = float(budget.attrs.get("coverage_factor", 2.0))
-        out.append(_table(["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]], rows,
-                          f"Certified result: relative expanded uncertainty U (%), k = {k:g}, per height and "
-                          "wind-speed bin; – : not certified (too few periods or no data)"))
-    if cert is not None:
-        facts = "\n".join(
-            f"<tr><th>{html.escape(section if n == 0 else '')}</th><td>{html.escape(label)}</td>"
-            f"<td>{html.escape(value).replace(chr(10), '<br>')}</td></tr>"
-            for section, items in certificate_facts(cert.attrs, seal)
-            for n, (label, value) in enumerate(items))
-        out.append(f'<table class="facts">\n{facts}\n</table>')
-    return "\n".join(out)
-
-
-def _provenance(cert: xr.Dataset | None) -> str:
-    """Return the end of the page: the certificate's components and inputs with their SHA-256."""
-    if cert is None:
-        return ""
-    rows = []
-    for key, label in (("title", "Title"), ("id", "Id"), ("date_created", "Created"),
-                       ("lidarcal_version", "lidarcal version"), ("certificate_components", "Components"),
-                       ("zero_distance_m", "Zero distance Zd (m)")):
-        if key in cert.attrs:
-            rows.append((label, fmt(cert.attrs[key]) if key.endswith("_m") else str(cert.attrs[key])))
-    chain = cert.attrs.get("lidarcal_provenance_chain")
-    for item in json.loads(chain) if chain else []:
-        rows.append((f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}"))
-    body = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
-    return f'<div id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></div>'
-
-
-def write_report(
-    path: str | os.PathLike,
-    *,
-    certificate: xr.Dataset | None = None,
-    budget: xr.Dataset | None = None,
-    sensitivities: Iterable[xr.Dataset] | Mapping[str, xr.Dataset] = (),
-    cube: xr.Dataset | None = None,
-    rwf: xr.Dataset | None = None,
-    title: str | None = None,
-    png: bool = False,
-    pdf: bool = True,
-    overwrite: bool = False,
-    allow_invalid: bool = False,
-    seal: str | None = None,
-) -> dict[str, Any]:
-    """Write the offline HTML report, and beside it the certificate document (PDF) and PNGs.
-
-    With ``certificate`` the components are taken from it; explicit arguments override them.
-    The page opens with the status, the headline and the certified result; the inputs'
-    SHA-256 come last.  With ``certificate`` and ``pdf`` the certificate document
-    (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``; ``seal``
-    (:func:`lidarcal.document.seal_statement`) states the seal of a certificate written after
-    its report.  With ``png`` every figure of the document is also written as
-    ``<stem>_<figure>.png`` (150 dpi).
-
-    A certificate read from a file has its seal checked first
-    (:func:`lidarcal.seal.require_valid_seal`): an altered one is refused
-    (:class:`~lidarcal.errors.SealError`), or with ``allow_invalid`` reported under a
-    warning banner (on the page and on every page of the document).
-
-    Returns
-    -------
-    dict
-        ``{"html": Path, "figures": [names], "png": [Paths], "pdf": Path or None}``.
-    """
-    check = require_valid_seal(certificate, allow_invalid=allow_invalid) if certificate is not None else None
-    banner = invalid_seal_banner(check) if check is not None and not check.ok else None
-    parts: dict[str, Any] = (
-        _from_certificate(certificate) if certificate is not None else {"sensitivities": []}
-    )
-    for name, value in (("budget", budget), ("cube", cube), ("rwf", rwf)):
-        if value is not None:
-            parts[name] = value
-    sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
-    if sens:
-        parts["sensitivities"] = sens
-    summary = certificate.attrs.get("lidarcal_records_summary") if certificate is not None else None
-    if summary and parts.get("cube") is not None:
-        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], json.loads(summary))
-    figs = report_figures(**parts)
-    path = Path(path)
-    pdf_path = path.with_suffix(".pdf") if pdf and certificate is not None else None
-    pngs = {name: path.with_name(f"{path.stem}_{name}.png") for name in figure_names(parts)} if png else {}
-    for p in [path, *([pdf_path] if pdf_path else []), *pngs.values()]:
-        check_writable(p, overwrite=overwrite)
-
-    title = title or (
-        certificate.attrs.get("title") if certificate is not None else "lidarcal calibration report"
-    )
-    models = {name: fig.bokeh() for name, fig in figs.items()}
-    after = {name: fig.note for name, fig in figs.items()}
-    warning = f'<p class="invalid"><strong>{html.escape(banner)}</strong></p>\n' if banner else ""
-    page = offline_html(models, title=title, header=warning + _header(certificate, parts.get("budget"), seal),
-                        after=after, titles={name: fig.heading for name, fig in figs.items()},
-                        footer=_provenance(certificate))
-    written = []
-    if pngs:
-        import matplotlib
-        from matplotlib.figure import Figure as MplFigure
-
-        with matplotlib.rc_context(STYLE):
-            for name, target in pngs.items():
-                fig = MplFigure(figsize=A4)
-                draw(fig, name, parts)
-                with atomic_path(target, overwrite=overwrite) as tmp:
-                    fig.savefig(tmp, dpi=_PNG_DPI, format="png")
-                written.append(target)
-    document = None
-    if pdf_path:
-        document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
-                                  warning=banner)
-    write_text(path, page, overwrite=overwrite)
-    return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
-            "pages": document["pages"] if document else 0}
