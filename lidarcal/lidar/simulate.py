@@ -56,7 +56,8 @@ from lidarcal.errors import InputError
 from lidarcal.lidar.geometry import beam_geometry, period_points, wind_axes
 from lidarcal.lidar.model import LidarModel, RwfProfileDigest
 from lidarcal.lidar.quadrature import cnr_weights
-from lidarcal.lidar.spectral import REFERENCE_AMPLITUDES, cross_spectral_matrix, draw_coefficients, synthesise
+from lidarcal.lidar.spectral import cross_spectral_matrix
+from lidarcal.lidar.synthesis import REFERENCE_AMPLITUDES, draw_coefficients, synthesise
 from lidarcal.lidar.wfr import reconstruct
 from lidarcal.turbulence.kernels import sigma_components
 
