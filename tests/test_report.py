@@ -91,12 +91,6 @@ def report(inputs, tmp_path_factory):
     return d / "cert.html"
 
 
-def _glyphs(plot, glyph_type):
-    from bokeh.models import GlyphRenderer
-
-    return [r for r in plot.renderers if isinstance(r, GlyphRenderer) and isinstance(r.glyph, glyph_type)]
-
-
 def test_budget_plot_shows_every_height_and_marks_thin_bins(inputs):
     from bokeh.models import GlyphRenderer, Line, Scatter, Select
 
