@@ -25,6 +25,7 @@ import xarray as xr
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
 from lidarcal.provenance import jsonable, read_json_attr
+from lidarcal.schema import output_attrs
 from lidarcal.seal import invalid_seal_banner, require_valid_seal
 from lidarcal.units import register_units
 
@@ -276,9 +277,7 @@ def provenance_container(role: str, ds: xr.Dataset, *, component: bool) -> xr.Da
              for k, v in keep.items() if v is not None}
     what = ("global attributes" if component
             else "provenance (file, SHA-256, inputs, configuration, seeds, history)")
-    attrs["long_name"] = f"{what} of the certificate's {role} input"
-    attrs["coverage_content_type"] = "auxiliaryInformation"
-    attrs["units"] = "1"  # every variable has units; this one's value (0) carries no meaning
+    attrs.update(output_attrs("certificate", f"{PROVENANCE_PREFIX}{role}", what=what))
     # numeric, not a text scalar: netCDF-C/HDF5 can crash reopening a file after a scalar
     # variable-length string was read from it while another handle was open
     return xr.DataArray(np.int8(0), attrs=attrs)
