@@ -28,7 +28,6 @@ from lidarcal.certificate.layout import (
     records_summary,
 )
 from lidarcal.certificate.results import (
-    HEADLINE_WIND_SPEEDS,
     certified_rule,
     headline_range,
     headline_sentence,
@@ -50,5 +49,4 @@ __all__ = [
     "headline_sentence",
     "certified_rule",
     "not_settled",
-    "HEADLINE_WIND_SPEEDS",
 ]

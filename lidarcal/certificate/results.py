@@ -21,18 +21,12 @@ from lidarcal.io import source_name
 from lidarcal.seal import require_valid_seal
 
 __all__ = [
-    "HEADLINE_WIND_SPEEDS",
     "certified_rule",
     "not_settled",
     "headline_range",
     "headline_sentence",
     "result_table",
 ]
-
-#: Wind speeds (bin centres, m/s) certified by default (the range of the paper's Table 4, from the
-#: 4 m/s cut-in that wind sensors are calibrated from); the rule itself is
-#: :func:`lidarcal.analysis.budget.certified_bins`, recorded in the budget's ``bin_flag``.
-HEADLINE_WIND_SPEEDS = DEFAULT_CERTIFIED_RANGE
 
 
 def _budget_of(obj: xr.Dataset) -> xr.Dataset:

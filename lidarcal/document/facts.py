@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import HEADLINE_WIND_SPEEDS, certified_rule, headline_range, not_settled
+from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
+from lidarcal.certificate import certified_rule, headline_range, not_settled
 from lidarcal.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
 
 __all__ = [
@@ -176,7 +177,7 @@ def certificate_id(attrs: Mapping[str, Any]) -> str:
     return stated(attrs, "certificate_id", "id")
 
 
-def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS) -> str:
+def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE) -> str:
     """Return the headline: the range of the certified relative expanded uncertainty (k = 2)."""
     k = float(budget.attrs.get("coverage_factor", 2.0))
     lo, hi = wind_speeds
@@ -199,7 +200,7 @@ def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLIN
 
 
 def certified_grid(
-    budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS
+    budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE
 ) -> dict[str, Any]:
     """Return the certified result: per (wind speed, height) bin the relative U (k = 2) and its tolerance.
 

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import HEADLINE_WIND_SPEEDS, components, extract_component
+from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
+from lidarcal.certificate import components, extract_component
 from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, fmt, units_suffix
 
 __all__ = [
@@ -108,7 +109,7 @@ def _small(ax, title: str, xlabel: str, ylabel: str) -> None:
             axis.get_major_locator().set_params(nbins=6)
 
 
-def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS) -> None:
+def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE) -> None:
     """U (k = 2) per height on the certified range; bins outside it, or thin, in a panel of their own."""
     g = certified_grid(budget, wind_speeds)
     k = float(budget.attrs.get("coverage_factor", 2.0))
@@ -148,7 +149,7 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = HEAD
 
 
 def draw_contributors(
-    fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = HEADLINE_WIND_SPEEDS
+    fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE
 ) -> None:
     """Standard-uncertainty contributors per height as grouped bars, certified bins only."""
     g = certified_grid(budget, wind_speeds)

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import HEADLINE_WIND_SPEEDS
+from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
 from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, fmt, units_suffix
 from lidarcal.document.figures import confidence_band, cube_colour_limits
 from lidarcal.errors import InputError
@@ -125,7 +125,7 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
     certified = g["value"][g["certified"]]
     ylim = (0.0, float(certified.max()) * 1.15) if certified.size else (0.0, 1.0)
     step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
-    xlim = (HEADLINE_WIND_SPEEDS[0] - step / 2, HEADLINE_WIND_SPEEDS[1] + step / 2)
+    xlim = (DEFAULT_CERTIFIED_RANGE[0] - step / 2, DEFAULT_CERTIFIED_RANGE[1] + step / 2)
     yl = f"relative expanded uncertainty, k = {fmt(k)} (%)"
     title = f"Expanded uncertainty (k = {fmt(k)}), {budget.attrs.get('approach', '')} approach".rstrip(", ")
     labels = ["all heights", *[f"{fmt(h)} m" for h in heights]]
