@@ -112,20 +112,25 @@ def _by_name(p: Any) -> dict[str, list]:
     return groups
 
 
-def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
-    """Plot U (k = 2) per height on the certified range (menu: all heights or one) and the contributors."""
+def _wind_speed_axis(budget: xr.Dataset) -> tuple[str, np.ndarray, float, tuple[float, float]]:
+    """Label, bin centres, bin width and x range (the certified range) of the budget's plots."""
+    ws = budget.wind_speed.values
+    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
+    xlim = (DEFAULT_CERTIFIED_RANGE[0] - step / 2, DEFAULT_CERTIFIED_RANGE[1] + step / 2)
+    return f"reference wind speed bin{units_suffix(budget.wind_speed)}", ws, step, xlim
+
+
+def _budget_figure(budget: xr.Dataset) -> Figure:
+    """Plot U (k = 2) per height on the certified range (menu: all heights or one), thin bins marked."""
     k = float(budget.attrs.get("coverage_factor", 2.0))
-    xl = f"reference wind speed bin{units_suffix(budget.wind_speed)}"
+    xl, ws, _, xlim = _wind_speed_axis(budget)
     rel = budget["relative_expanded_uncertainty"]
     flag = budget["bin_flag"]
-    ws = budget.wind_speed.values
     heights = budget.height.values
     # the axes show the certified bins (flag ok, 4-16 m/s); the others stay reachable by panning
     g = certified_grid(budget)
     certified = g["value"][g["certified"]]
     ylim = (0.0, float(certified.max()) * 1.15) if certified.size else (0.0, 1.0)
-    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
-    xlim = (DEFAULT_CERTIFIED_RANGE[0] - step / 2, DEFAULT_CERTIFIED_RANGE[1] + step / 2)
     yl = f"relative expanded uncertainty, k = {fmt(k)} (%)"
     title = f"Expanded uncertainty (k = {fmt(k)}), {budget.attrs.get('approach', '')} approach".rstrip(", ")
     labels = ["all heights", *[f"{fmt(h)} m" for h in heights]]
@@ -148,19 +153,25 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
         groups = {"all heights": list(p.renderers), **_by_name(p)}
         return _menu(p, groups, "all heights", {lab: f"{title}, {lab}" for lab in labels})
 
-    out = {"budget": Figure(
+    return Figure(
         f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", build,
         note="<p>The axes show the certified bins (enough periods, 4 to 16 m/s); pan or zoom out for the "
              "others. Red crosses: thin bins (fewer periods than the minimum); they are kept in the budget "
              "but left out of the certificate's headline range. Empty bins are not drawn.</p>",
-    )}
+    )
+
+
+def _contributors_figure(budget: xr.Dataset) -> Figure:
+    """Plot the contributors as grouped bars per certified wind-speed bin (menu: the height)."""
+    xl, ws, step, xlim = _wind_speed_axis(budget)
+    g = certified_grid(budget)
     contrib = budget["relative_contribution"].transpose("wind_speed", "height", "contributor")
     names = [str(c).replace("_", " ") for c in budget.contributor.values] + ["combined"]
     combined = budget["relative_uncertainty"].transpose("wind_speed", "height").values
     default = f"{fmt(float(budget.height.sel(height=120.0, method='nearest')))} m"
-    hlabels = [f"{fmt(h)} m" for h in heights]
+    hlabels = [f"{fmt(h)} m" for h in budget.height.values]
 
-    def build_contributors() -> Any:
+    def build() -> Any:
         from bokeh.layouts import column
         from bokeh.models import ColumnDataSource, CustomJS, Select
 
@@ -186,12 +197,11 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
                  "plot.title.text = 'Standard uncertainty contributors at ' + cb_obj.value;"))
         return column(select, p)
 
-    out["budget_contributors"] = Figure(
-        "Uncertainty contributors per height", build_contributors,
+    return Figure(
+        "Uncertainty contributors per height", build,
         note="<p>Relative standard uncertainty (k = 1) of each contributor per certified wind-speed bin "
              "(enough periods, 4 to 16 m/s); <em>combined</em> is their root sum of squares.</p>",
     )
-    return out
 
 
 def _sensitivity_figure(ds: xr.Dataset) -> Figure:
@@ -421,7 +431,7 @@ def report_figures(
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     figs: dict[str, Figure] = {}
     if budget is not None:
-        figs.update(_budget_plots(budget))
+        figs.update({"budget": _budget_figure(budget), "budget_contributors": _contributors_figure(budget)})
     if sens:
         figs.update(_sensitivity_plots(sens))
     if cube is not None:
