@@ -39,6 +39,8 @@ __all__ = [
     "draw_significance",
     "draw_cube",
     "draw_rwf",
+    "bin_means",
+    "rwf_window",
 ]
 
 A4 = (8.27, 11.69)  # inches, portrait
@@ -231,6 +233,16 @@ def confidence_band(
     return fit, fit - half, fit + half
 
 
+def bin_means(one: xr.Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return one height's kept bins (``bin_flag`` 0, finite mean): centres, mean differences, s.e.
+
+    The standard error of a bin mean is its standard deviation over the square root of its periods.
+    """
+    used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
+    sem = one["std_difference"].values / np.sqrt(np.maximum(one["sample_count"].values, 1))
+    return one["bin"].values[used], one["mean_difference"].values[used], sem[used]
+
+
 def draw_sensitivity(fig, ds: xr.Dataset) -> None:
     """Bin means (± s.e.), the regression and its 95 % band, one panel per height."""
     var = str(ds.attrs.get("environmental_variable", "variable"))
@@ -240,11 +252,9 @@ def draw_sensitivity(fig, ds: xr.Dataset) -> None:
     axes = _axes(fig, int(np.ceil(len(heights) / 2)), 2, top=0.9, bottom=0.06, hspace=0.7)
     for ax, h in zip(axes, heights, strict=False):
         one = ds.sel(height=h)
-        used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
-        xb, yb = one["bin"].values[used], one["mean_difference"].values[used]
-        sem = (one["std_difference"].values / np.sqrt(np.maximum(one["sample_count"].values, 1)))[used]
+        xb, yb, sem = bin_means(one)
         ax.errorbar(xb, yb, yerr=sem, fmt="o", color="black", ms=3, lw=0.8, label="bin mean ± s.e.")
-        if used.sum() >= 2 and np.isfinite(float(one["slope"])):
+        if xb.size >= 2 and np.isfinite(float(one["slope"])):
             x = np.linspace(xb.min(), xb.max(), 40)
             fit, lo, hi = confidence_band(ds, h, x)
             ax.fill_between(x, lo, hi, color="#1f77b4", alpha=0.25, lw=0, label="95 % band")
@@ -383,16 +393,27 @@ def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | Non
     fig.suptitle(f"Bench: {what}\n{scale}\nblank cells had no bench samples", fontsize=FONT + 2)
 
 
-def draw_rwf(fig, rwf: xr.Dataset) -> None:
-    """Pulse, apodization and RWF (normalised) with Zd; the RWF for a few CNR gradients."""
-    zd = float(rwf["zero_distance"]) if "zero_distance" in rwf else float("nan")
+def rwf_window(rwf: xr.Dataset) -> tuple[np.ndarray, slice, list[int]]:
+    """Return the RWF at zero CNR gradient over its peak, the range offsets drawn and the gradients drawn.
+
+    The offsets span where the RWF exceeds 1e-3 of its peak, padded by a quarter of that span
+    (at least 5 points); up to five CNR gradients, evenly spread, are drawn.
+    """
     column = rwf["rwf"].sel(cnr_gradient=0.0, method="nearest")
     norm = column.values / float(column.max())
     support = np.flatnonzero(norm > 1e-3)
     n = rwf.sizes["range_offset"]
     lo, hi = (support.min(), support.max()) if support.size else (0, n - 1)
     pad = max(5, (hi - lo) // 4)
-    sl = slice(max(lo - pad, 0), min(hi + pad, n - 1) + 1)
+    g = rwf["cnr_gradient"].values
+    pick = sorted(set(np.linspace(0, len(g) - 1, min(5, len(g))).round().astype(int).tolist()))
+    return norm, slice(max(lo - pad, 0), min(hi + pad, n - 1) + 1), pick
+
+
+def draw_rwf(fig, rwf: xr.Dataset) -> None:
+    """Pulse, apodization and RWF (normalised) with Zd; the RWF for a few CNR gradients."""
+    zd = float(rwf["zero_distance"]) if "zero_distance" in rwf else float("nan")
+    norm, sl, pick = rwf_window(rwf)
     x = rwf["range_offset"].values[sl]
     a, b = _axes(fig, 2, 1, top=0.92, bottom=0.07, right=0.78, hspace=0.35)
     a.plot(x, norm[sl], label="RWF")
@@ -407,7 +428,6 @@ def draw_rwf(fig, rwf: xr.Dataset) -> None:
         "normalised amplitude",
     )
     g = rwf["cnr_gradient"].values
-    pick = sorted(set(np.linspace(0, len(g) - 1, min(5, len(g))).round().astype(int).tolist()))
     for i in pick:
         b.plot(x, rwf["rwf"].isel(cnr_gradient=i).values[sl], label=f"{fmt(g[i])} dB/m")
     b.legend(

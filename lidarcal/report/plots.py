@@ -34,7 +34,7 @@ import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
 from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, fmt, units_suffix
-from lidarcal.document.figures import confidence_band, cube_colour_limits
+from lidarcal.document.figures import bin_means, confidence_band, cube_colour_limits, rwf_window
 from lidarcal.errors import InputError
 from lidarcal.htmlpage import html_table
 
@@ -213,24 +213,22 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
     rows, titles, layers = [], {}, []
     for h in ds.height.values:
         one = ds.sel(height=h)
-        used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
-        xb = one["bin"].values
-        sem = one["std_difference"].values / np.sqrt(np.maximum(one["sample_count"].values, 1))
+        xb, yb, sem = bin_means(one)
         slope, se, r = (float(one[k]) if k in one else np.nan
                         for k in ("slope", "slope_standard_error", "correlation"))
         label = f"{fmt(h)} m"
         line = None
-        if used.sum() >= 2 and np.isfinite(slope):
-            x = np.linspace(xb[used].min(), xb[used].max(), 60)
+        if xb.size >= 2 and np.isfinite(slope):
+            x = np.linspace(xb.min(), xb.max(), 60)
             line = (x, *confidence_band(ds, h, x))
-        layers.append((label, xb[used], one["mean_difference"].values[used], sem[used], line))
+        layers.append((label, xb, yb, sem, line))
         titles[label] = f"{fmt(h)} m: m = {fmt(slope)} ± {fmt(se)} {units}, R = {fmt(r, 2)}"
         sig = [name for name, key in (("Eq. 12", "significant_eq12"), ("Eq. 13", "significant_eq13"))
                if key in one and int(one[key]) == 1]
         rows.append([fmt(h), f"{fmt(slope)} ± {fmt(se)}", fmt(r, 2),
                      fmt(float(one["slope_times_std"])) if "slope_times_std" in one else "–",
                      fmt(float(one["slope_times_std_times_r"])) if "slope_times_std_times_r" in one else "–",
-                     str(int(one["bins_used"])) if "bins_used" in one else str(int(used.sum())),
+                     str(int(one["bins_used"])) if "bins_used" in one else str(int(xb.size)),
                      ", ".join(sig) or "no"])
 
     def build() -> Any:
@@ -381,20 +379,14 @@ def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) 
 
 def _rwf_plots(rwf: xr.Dataset) -> dict[str, Figure]:
     zd = float(rwf["zero_distance"]) if "zero_distance" in rwf else float("nan")
-    column = rwf["rwf"].sel(cnr_gradient=0.0, method="nearest")
-    curves = {"RWF": (column / float(column.max())).values}
+    norm, sl, pick = rwf_window(rwf)
+    curves = {"RWF": norm}
     for name in ("pulse", "apodization"):
         if name in rwf:
             curves[name] = (rwf[name] / float(rwf[name].max())).values
-    support = np.flatnonzero(curves["RWF"] > 1e-3)
-    n = rwf.sizes["range_offset"]
-    lo, hi = (support.min(), support.max()) if support.size else (0, n - 1)
-    pad = max(5, (hi - lo) // 4)
-    sl = slice(max(lo - pad, 0), min(hi + pad, n - 1) + 1)
     x = rwf["range_offset"].values[sl]
     xl = "range offset from gate centre (m)"
     g = rwf["cnr_gradient"].values
-    pick = sorted(set(np.linspace(0, len(g) - 1, min(5, len(g))).round().astype(int).tolist()))
 
     def shape() -> Any:
         p = _plot(f"Pulse, apodization and RWF (normalised), Zd = {fmt(zd)} m", xl, "normalised amplitude")
