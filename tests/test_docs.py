@@ -157,3 +157,35 @@ def test_every_lidarcal_name_in_the_documentation_imports(page):
     text = (ROOT / page).read_text(encoding="utf-8")
     names = sorted(set(DOTTED_NAME.findall(text)))
     assert [n for n in names if not _resolves(n)] == []
+
+
+# -- the docstring examples of the library run with the default suite ---------------------------
+
+#: A doctest directive that keeps an example from running (``+SKIP``), in any spelling.
+SKIPPED_EXAMPLE = re.compile(r"doctest:.*\+SKIP")
+
+
+def skipped_examples(root: Path) -> list[str]:
+    """``file:line`` of every docstring example under ``root`` marked not to run."""
+    return [f"{path.relative_to(root.parent)}:{n}"
+            for path in sorted(root.rglob("*.py"))
+            for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+            if SKIPPED_EXAMPLE.search(line)]
+
+
+def test_the_default_suite_runs_the_docstring_examples():
+    import tomllib
+
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    config = pyproject["tool"]["pytest"]["ini_options"]
+    assert "--doctest-modules" in config["addopts"].split()
+    assert "lidarcal" in config["testpaths"]
+
+
+def test_no_docstring_example_is_skipped(tmp_path):
+    # an example that does not run goes stale: it runs on small data, moves to a docs page, or goes
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "m.py").write_text('"""\n>>> 1 + 1\n2\n>>> heavy()  # doctest: +SKIP\n"""\n')
+    assert skipped_examples(pkg) == ["pkg/m.py:4"]  # the scanner finds a planted one
+    assert skipped_examples(ROOT / "lidarcal") == []
