@@ -29,7 +29,8 @@ from pathlib import Path
 
 import pytest
 
-DOCS = Path(__file__).resolve().parents[1] / "docs"
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
 BLOCK = re.compile(r"^```(console|pycon)[^\n]*\n(.*?)^```", re.M | re.S)
 PLACEHOLDER = "tcp://scheduler-host:8786"
 ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
@@ -132,6 +133,13 @@ def test_steward_walkthrough(tmp_path, monkeypatch):
 
 def test_analyst_walkthrough(tmp_path, monkeypatch):
     assert run_page("analyst.md", tmp_path, monkeypatch) >= 3
+
+
+@pytest.mark.slow
+def test_command_line_walkthrough(tmp_path, monkeypatch):
+    # the page's ``sample_data/...`` paths are the repository's, whatever directory it runs in
+    sample = {"sample_data/": f"{ROOT / 'sample_data'}/"}
+    assert run_page("cli.md", tmp_path, monkeypatch, replace=sample) >= 7
 
 
 def _free_port() -> int:
