@@ -135,11 +135,20 @@ def test_analyst_walkthrough(tmp_path, monkeypatch):
     assert run_page("analyst.md", tmp_path, monkeypatch) >= 3
 
 
+def test_method_notes(tmp_path, monkeypatch):
+    assert run_page("method.md", tmp_path, monkeypatch) >= 4
+
+
 @pytest.mark.slow
 def test_command_line_walkthrough(tmp_path, monkeypatch):
     # the page's ``sample_data/...`` paths are the repository's, whatever directory it runs in
     sample = {"sample_data/": f"{ROOT / 'sample_data'}/"}
     assert run_page("cli.md", tmp_path, monkeypatch, replace=sample) >= 7
+
+
+@pytest.mark.slow
+def test_diagnose_examples(tmp_path, monkeypatch):
+    assert run_page("diagnose_examples.md", tmp_path, monkeypatch) >= 2
 
 
 def _free_port() -> int:
