@@ -4,7 +4,8 @@ Every fenced block whose info string is ``console`` or ``pycon`` runs, in page o
 temporary directory per page:
 
 - ``console``: each ``$ `` line is a command (``lidarcal`` and ``dask`` run as
-  ``python -m lidarcal`` / ``python -m dask`` of this interpreter); it must exit 0, or the code
+  ``python -m lidarcal`` / ``python -m dask`` of this interpreter, ``python`` is this
+  interpreter); it must exit 0, or the code
   named by a trailing ``# exits N``.  The lines below a command are its illustrative output,
   not compared.
 - ``pycon``: doctest examples; all blocks of a page share one namespace and their printed
@@ -69,6 +70,8 @@ def run_command(command: str, cwd: Path, where: str) -> None:
     argv = shlex.split(command, comments=True)
     if argv[0] in ("lidarcal", "dask"):
         argv = [sys.executable, "-m", argv[0], *argv[1:]]
+    elif argv[0] == "python":
+        argv = [sys.executable, *argv[1:]]
     if argv[2:3] == ["calibrate"] and command in _calibrated and "-o" in argv:
         out = argv[argv.index("-o") + 1]
         shutil.copytree(_calibrated[command] / out, cwd / out)
@@ -144,6 +147,12 @@ def test_command_line_walkthrough(tmp_path, monkeypatch):
     # the page's ``sample_data/...`` paths are the repository's, whatever directory it runs in
     sample = {"sample_data/": f"{ROOT / 'sample_data'}/"}
     assert run_page("cli.md", tmp_path, monkeypatch, replace=sample) >= 7
+
+
+@pytest.mark.slow
+def test_benchmark_scripts_run(tmp_path, monkeypatch):
+    scripts = {"benchmarks/": f"{ROOT / 'benchmarks'}/"}
+    assert run_page("performance.md", tmp_path, monkeypatch, replace=scripts) >= 1
 
 
 @pytest.mark.slow
