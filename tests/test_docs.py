@@ -1,4 +1,4 @@
-"""Everything the repository cites exists in the repository.
+"""Everything the repository cites exists in the repository, and the README stays a front door.
 
 * No file points to a document outside the repository (the old design and style notes, or a
   sibling ``shared`` directory): the project's own documentation is ``docs/``.
@@ -6,6 +6,8 @@
   ``schemas/rwf.yaml``, ...) exists; a glob such as ``tests/test_lidar*.py`` matches something.
 * Links between the pages of ``docs/`` resolve, including their ``#anchors``.
 * Every dotted ``lidarcal.…`` name in the Markdown documentation can be imported.
+* The README is short (under 8 KB), its quick start is two commands, the second exactly the
+  test command of ``.ci/run``, and every page of ``docs/`` is reachable from the docs index.
 """
 
 from __future__ import annotations
@@ -120,7 +122,7 @@ def test_docs_pages_exist_and_their_links_resolve():
     names = {p.name for p in pages}
     assert {"README.md", "contracts.md", "diagnose.md", "seeds.md", "units.md"} <= names
     broken = []
-    for page in pages:
+    for page in [ROOT / "README.md", ROOT / "CONTRIBUTING.md", *pages]:
         for target in MD_LINK.findall(page.read_text(encoding="utf-8")):
             if re.match(r"[a-z]+:", target):
                 continue  # an external URL
@@ -131,6 +133,31 @@ def test_docs_pages_exist_and_their_links_resolve():
             elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest.read_text(encoding="utf-8")):
                 broken.append(f"{page.name}: {target} (no such heading)")
     assert broken == []
+
+
+def quick_start_commands(readme: str) -> list[str]:
+    """The fenced commands of the README's quick-start section, one per block."""
+    section = readme.split("## Quick start", 1)[1].split("\n## ", 1)[0]
+    return [block.strip() for block in re.findall(r"^```\n(.*?)^```", section, re.M | re.S)]
+
+
+def test_the_readme_is_a_front_door():
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(readme.encode("utf-8")) < 8 * 1024, "README.md over 8 KB: move the detail into a docs/ page"
+    install_and_run, install_and_test = quick_start_commands(readme)  # two commands, no more
+    assert install_and_run == "pip install . && lidarcal calibrate"
+    install, test = install_and_test.split(" && ")
+    assert (install, test) == ('pip install -e ".[test]"', "python -m pytest")
+    # .ci/run installs the same way and runs exactly the README's test command (then the slow suite)
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+    lines = [line for line in ci if line.endswith(f"&& {test}")]
+    assert len(lines) == 1 and '-e ".[test]"' in lines[0], lines
+
+
+def test_every_docs_page_is_in_the_index():
+    index = (DOCS / "README.md").read_text(encoding="utf-8")
+    listed = set(re.findall(r"\]\(([\w\-]+\.md)\)", index))
+    assert listed == {p.name for p in DOCS.glob("*.md")} - {"README.md"}
 
 
 def _resolves(dotted: str) -> bool:
