@@ -138,6 +138,11 @@ def test_analyst_walkthrough(tmp_path, monkeypatch):
     assert run_page("analyst.md", tmp_path, monkeypatch) >= 3
 
 
+def test_validation_page(tmp_path, monkeypatch):
+    data = {"tests/data/": f"{ROOT / 'tests' / 'data'}/"}
+    assert run_page("validation.md", tmp_path, monkeypatch, replace=data) >= 1
+
+
 def test_method_notes(tmp_path, monkeypatch):
     assert run_page("method.md", tmp_path, monkeypatch) >= 4
 
