@@ -1,4 +1,9 @@
-"""The walk-throughs in docs/ (steward, analyst, cluster user) are executed, so they cannot rot.
+"""The pages of docs/ with examples are executed, so their commands and numbers cannot rot.
+
+Walk-throughs (steward, analyst, cluster user) and the method and validation pages run in the
+default suite; the heavy pages (the command line stage by stage, the diagnose examples, the
+benchmark commands, the certificate's metadata options) are slow tests.  A page with examples
+that no test runs fails :func:`test_every_page_with_examples_is_executed`.
 
 Every fenced block whose info string is ``console`` or ``pycon`` runs, in page order, in one
 temporary directory per page:
@@ -161,6 +166,14 @@ def test_benchmark_scripts_run(tmp_path, monkeypatch):
 
 
 @pytest.mark.slow
+def test_certificate_page(tmp_path, monkeypatch):
+    # the page's metadata options on a short run: the options parse and the run ends well
+    short = {"lidarcal calibrate -o run": "lidarcal calibrate --periods 24 --heights 80 120 --min-periods 3 "
+                                          "--max-replicas 1 --no-progress -o run"}
+    assert run_page("certificate.md", tmp_path, monkeypatch, replace=short) >= 1
+
+
+@pytest.mark.slow
 def test_diagnose_examples(tmp_path, monkeypatch):
     assert run_page("diagnose_examples.md", tmp_path, monkeypatch) >= 2
 
@@ -204,3 +217,13 @@ def local_cluster(tmp_path):
 def test_cluster_walkthrough(tmp_path, monkeypatch, local_cluster):
     assert PLACEHOLDER in (DOCS / "cluster.md").read_text(encoding="utf-8")
     assert run_page("cluster.md", tmp_path, monkeypatch, replace={PLACEHOLDER: local_cluster}) >= 3
+
+
+def test_every_page_with_examples_is_executed():
+    # a page whose console or pycon blocks no test runs would go stale unnoticed
+    tests = Path(__file__).parent
+    executed = {name for path in tests.glob("test_*.py")
+                for name in re.findall(r"run_page\(\s*\"([\w.\-]+\.md)\"", path.read_text(encoding="utf-8"))}
+    with_examples = {page.name for page in DOCS.glob("*.md") if blocks(page)}
+    assert with_examples - executed == set()
+    assert executed - with_examples == set()  # and every page a test runs has something to run
