@@ -216,7 +216,8 @@ def output_attrs(kind: str, name: str, **context: Any) -> dict[str, Any]:
     ``attributes``, with templates filled from ``context`` (and from the parts of a templated
     name).  ``coverage_content_type`` defaults to ``modelResult``; ``flag_values`` become an
     ``int8`` array.  Order: long_name, units, coverage_content_type, standard_name, then the rest
-    as declared.  A template that fills to ``""`` (no standard name, no comment) is left out.
+    as declared.  A template that fills to ``""`` (no standard name, no comment) is left out, and so
+    is a key declared ``null`` (``coverage_content_type: null``: a label coordinate that has none).
     """
     spec, parts = _spec_for(kind, name)
     context = {**parts, **context}
@@ -227,8 +228,8 @@ def output_attrs(kind: str, name: str, **context: Any) -> dict[str, Any]:
     filled = {key: _fill(value, context, where) for key, value in declared.items()}
     if "flag_values" in filled:
         filled["flag_values"] = np.asarray(filled["flag_values"], dtype=np.int8)
-    for key in [k for k, v in declared.items() if _is_template(v) and filled[k] == ""]:
-        del filled[key]  # a template that fills to nothing is left out
+    for key in [k for k, v in declared.items() if (_is_template(v) and filled[k] == "") or v is None]:
+        del filled[key]  # a template that fills to nothing, or a key declared null, is left out
     return {**{k: filled.pop(k) for k in _LEADING_ATTRS if k in filled}, **filled}
 
 
