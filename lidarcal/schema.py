@@ -179,17 +179,21 @@ def _name_pattern(template: str) -> re.Pattern:
 def _spec_for(kind: str, name: str) -> tuple[dict[str, Any], dict[str, str]]:
     """Return the spec ``kind`` writes itself for ``name`` and the parts a name template matched.
 
-    An exact entry wins over a name template.
+    An exact entry wins over a name template.  When ``name`` is also included from another
+    schema, the ``units`` and checked ``attributes`` the include copied are written too, unless
+    the own entry says them (so the grid coordinates of a sweep declare only their long name).
     """
     raw = _read_schema(kind)
     sections = [raw.get("coordinates") or {}, raw.get("variables") or {}]
+    included = {**load_schema(kind)["coordinates"], **load_schema(kind)["variables"]}.get(name, {})
+    inherited = {k: v for k, v in included.items() if k in ("units", "attributes")}
     for section in sections:
         if name in section:
-            return dict(section[name] or {}), {}
+            return {**inherited, **(section[name] or {})}, {}
     for section in sections:
         for key, spec in section.items():
             if _is_template(key) and (match := _name_pattern(key).fullmatch(name)):
-                return dict(spec or {}), match.groupdict()
+                return {**inherited, **(spec or {})}, match.groupdict()
     raise InputError(f"schema {kind}.yaml declares no variable {name!r} (nor a name template matching "
                      f"it); declare it there with its long_name and units")
 
