@@ -57,7 +57,8 @@ from lidarcal.provenance import stamp
 from lidarcal.schema import output_attrs
 from lidarcal.units import LOG_UNITS, to_magnitude
 
-__all__ = ["sensitivity", "sensitivities", "compare_slopes", "DEFAULT_BIN_WIDTHS", "DEFAULT_MIN_SAMPLES"]
+__all__ = ["sensitivity", "sensitivity_fit", "sensitivities", "compare_slopes", "per_unit",
+           "DEFAULT_BIN_WIDTHS", "DEFAULT_MIN_SAMPLES"]
 
 #: Bin widths used when none is given, in the variable's canonical units.
 DEFAULT_BIN_WIDTHS = {
@@ -94,8 +95,12 @@ THRESHOLD_EQ12 = 0.5  # %
 THRESHOLD_EQ13 = 0.1  # %
 
 
-def _per_unit(diff_units: str, x_units: str) -> str:
-    """Units of a slope of ``diff_units`` per ``x_units`` in UDUNITS spelling."""
+def per_unit(diff_units: str, x_units: str) -> str:
+    """Return the units of a slope of ``diff_units`` per ``x_units``, in UDUNITS spelling.
+
+    >>> per_unit("%", "m s-1"), per_unit("%", "dB m-1"), per_unit("m s-1", "1")
+    ('% s m-1', '% m dB-1', 'm s-1')
+    """
     if x_units in ("1", ""):
         return diff_units
     parts = x_units.split()
@@ -194,12 +199,7 @@ def sensitivity(
     source = source or source_name(records)
     if bin_width is not None and bins is not None:
         raise InputError("give either bin_width or bins, not both")
-    if int(min_samples) < 1:
-        raise InputError(f"min_samples must be >= 1; got {min_samples}")
-    min_samples = int(min_samples)
-    if regression not in REGRESSIONS:
-        raise InputError(f"argument 'regression': expected one of {sorted(REGRESSIONS)}; "
-                         f"found {regression!r}")
+    min_samples, regression = _min_samples(min_samples), _regression(regression)
     records = select_heights(records, heights, source=source)
     x = checked(records, variable, source=source)
     lo_ref, hi_ref = _range(reference_range)
@@ -215,6 +215,43 @@ def sensitivity(
         "thresholds_percent": {"eq12": THRESHOLD_EQ12, "eq13": THRESHOLD_EQ13},
     }
     return _assemble(records, variable, x.attrs["units"], relative, edges, fit, config, call)
+
+
+def sensitivity_fit(
+    records: xr.Dataset,
+    variable: str,
+    bins: Any,
+    *,
+    min_samples: int = DEFAULT_MIN_SAMPLES,
+    relative: bool = True,
+    regression: str = "weighted",
+    reference_range: tuple[Any, Any] | None = DEFAULT_REFERENCE_RANGE,
+    source: str | None = None,
+) -> dict[str, np.ndarray]:
+    """Return the numbers of a :func:`sensitivity` on the bin edges ``bins``, without the artefact.
+
+    The arrays of the bin table (height, bin) and of the regression and Eqs. 12-13 tests
+    (height), named as the artefact's variables; the arguments are those of :func:`sensitivity`.
+    For callers that need the slopes of many variables (:func:`lidarcal.analysis.sweep.analyse_sweep`).
+    """
+    source = source or source_name(records)
+    x = checked(records, variable, source=source)
+    lo_ref, hi_ref = _range(reference_range)
+    diff = _difference(records, x, relative, lo_ref, hi_ref, source)
+    edges, _ = _edges(x, diff, variable, bins, None, source, (lo_ref, hi_ref))
+    return _fit(records, x, diff, edges, variable, _min_samples(min_samples), source, _regression(regression))
+
+
+def _min_samples(value: int) -> int:
+    if int(value) < 1:
+        raise InputError(f"min_samples must be >= 1; got {value}")
+    return int(value)
+
+
+def _regression(value: str) -> str:
+    if value not in REGRESSIONS:
+        raise InputError(f"argument 'regression': expected one of {sorted(REGRESSIONS)}; found {value!r}")
+    return value
 
 
 def _difference(records: xr.Dataset, x: xr.DataArray, relative: bool, lo_ref: float, hi_ref: float,
@@ -320,7 +357,7 @@ def _assemble(records: xr.Dataset, variable: str, units: str, relative: bool, ed
     diff_units = "%" if relative else "m s-1"
     context = dict(
         xname=xname, units=units, standard_name=STANDARD_NAMES.get(variable) or "", diff_units=diff_units,
-        slope_units=_per_unit(diff_units, units), relative="relative " if relative else "",
+        slope_units=per_unit(diff_units, units), relative="relative " if relative else "",
         mean_comment="relative to each period's reference wind speed, then averaged" if relative else "",
         statistic_comment="" if relative else _ABSOLUTE_COMMENT, threshold_eq12=THRESHOLD_EQ12,
         threshold_eq13=THRESHOLD_EQ13)
