@@ -48,11 +48,12 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis import kernels
-from lidarcal.analysis._records import checked, select_heights, source_name
+from lidarcal.analysis._records import checked, select_heights
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.binning import bin_index
 from lidarcal.cf import with_bounds
 from lidarcal.errors import InputError, MissingVariableError
+from lidarcal.io import source_name
 from lidarcal.provenance import stamp
 from lidarcal.schema import with_output_attrs
 from lidarcal.units import Q_, convert_values, to_magnitude

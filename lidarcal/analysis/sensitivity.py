@@ -50,9 +50,11 @@ import xarray as xr
 from scipy import stats
 
 from lidarcal.analysis import kernels
-from lidarcal.analysis._records import STANDARD_NAMES, checked, select_heights, source_name
+from lidarcal.analysis._records import checked, select_heights
 from lidarcal.cf import with_bounds
+from lidarcal.conditions.variables import STANDARD_NAMES
 from lidarcal.errors import InputError
+from lidarcal.io import source_name
 from lidarcal.provenance import stamp
 from lidarcal.schema import output_attrs
 from lidarcal.units import LOG_UNITS, to_magnitude

@@ -11,10 +11,10 @@ import argparse
 
 import numpy as np
 
-from lidarcal.analysis._records import CANONICAL_UNITS
 from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES, sensitivity
 from lidarcal.cli import command_line
 from lidarcal.cli.options import add_output_options, nonnegative, positive, positive_int, positive_quantity
+from lidarcal.conditions.variables import CANONICAL_UNITS
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
