@@ -101,7 +101,7 @@ class CalibrationConfig:
     in ``certified_range``, m/s) and a sensitivity bin needs to enter the regression: one rule
     (docs/certificate.md); a short run (a few hundred periods) may need fewer than the default.
     ``significant_digits`` and ``max_replicas`` drive the adaptive Monte Carlo (JCGM 101 7.9,
-    :mod:`lidarcal.campaign.adaptive`).  ``min_samples`` is the former name of ``min_periods``.
+    :mod:`lidarcal.campaign.adaptive`).
     """
 
     bench_rtd: str | None = None
@@ -121,21 +121,15 @@ class CalibrationConfig:
     certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE
     significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS
     max_replicas: int = DEFAULT_MAX_REPLICAS
-    min_samples: int | None = None  # former name of min_periods
     #: LOS error model (``LidarModel.los_noise_model``); None: residuals when the cube has them
     los_noise_model: str | None = None
     #: ``LidarModel.reference_turbulence``; None: the model's default (``"pinned_u"``)
     reference_turbulence: str | None = None
     terms: dict[str, Any] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
-        if self.min_samples is not None:  # one count for the sensitivities and the certified bins
-            self.min_periods, self.min_samples = int(self.min_samples), None
-
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe form, for provenance."""
         out = asdict(self)
-        out.pop("min_samples")
         out["heights"] = list(self.heights)
         out["certified_range"] = list(self.certified_range)
         return out
@@ -374,7 +368,7 @@ def calibrate(
     for var in SENSITIVITY_VARIABLES:
         key = f"sensitivity_{var}"
         try:
-            ds = sensitivity(records, var, min_samples=cfg.min_periods,
+            ds = sensitivity(records, var, min_periods=cfg.min_periods,
                              call=f"lidarcal calibrate (sensitivity {var})")
         except InputError as exc:
             # a short run, or a site where the variable hardly varies, leaves too few full bins

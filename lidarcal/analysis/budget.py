@@ -81,7 +81,13 @@ _CONTRIBUTOR_NAMES = {
 
 #: Certified wind-speed range: bin centres (m s-1, inclusive) a certified bin may have.
 DEFAULT_CERTIFIED_RANGE = (4.0, 16.0)
-#: Fewest distinct 10-minute periods of the conditions record in a certified bin.
+#: Fewest distinct 10-minute periods of the conditions record in a certified bin, and in a bin
+#: entering a sensitivity regression (:mod:`lidarcal.analysis.sensitivity`): one rule for a bin
+#: that counts.  IEC 61400-50-2 drops bins "that do not contain sufficient sample number" without
+#: a number in any text available here, so this is lidarcal's documented choice: 10 periods give
+#: the bin variance 9 degrees of freedom, enough for its inverse (the weight n / s²) to have a
+#: finite mean (inflated 9/7) and variance, and for the bin mean to be close to normal
+#: (docs/sensitivity.md).
 DEFAULT_MIN_PERIODS = 10
 #: Significant digits the Monte Carlo settles every certified value to (JCGM 101 §7.9).
 DEFAULT_SIGNIFICANT_DIGITS = 2
@@ -238,7 +244,6 @@ def budget(
     noise_terms: str = "printed",
     source: str | None = None,
     call: str | None = None,
-    min_samples: int | None = None,
 ) -> xr.Dataset:
     """Uncertainty budget per height and reference wind-speed bin.
 
@@ -274,8 +279,6 @@ def budget(
         bin's mean reference wind speed.
     source, call : str, optional
         File name for messages and the command recorded in ``history``.
-    min_samples : int, optional
-        The former name of ``min_periods`` (given, it replaces it).
 
     Returns
     -------
@@ -285,8 +288,6 @@ def budget(
     source = source or source_name(records)
     if approach not in CONTRIBUTORS:
         raise InputError(f"approach must be one of {sorted(CONTRIBUTORS)}; got {approach!r}")
-    if min_samples is not None:
-        min_periods = int(min_samples)
     if int(min_periods) < 2:
         raise InputError(f"min_periods must be >= 2 (a standard deviation needs two periods); "
                          f"got {min_periods}")

@@ -114,7 +114,7 @@ def analyse_sweep(
     flags = np.zeros((len(swept), len(heights)), dtype=np.int8)
     for j, name in enumerate(swept):
         # a deterministic grid: one value per bin, no sampling error to weight by
-        fit = sensitivity_fit(records, name, _edges(values[name]), min_samples=1, reference_range=None,
+        fit = sensitivity_fit(records, name, _edges(values[name]), min_periods=1, reference_range=None,
                               regression="unweighted")
         for k in stats:
             stats[k][j] = fit[k]
