@@ -278,22 +278,8 @@ def uncertainty_terms(
     if beam_angle_coefficient is not None:
         beam_angle_coefficient = _positive(beam_angle_coefficient, "beam_angle_coefficient", "")
         inputs["beam_angle_coefficient"] = beam_angle_coefficient
-    if noise_terms not in NOISE_TERMS:
-        raise InputError(f"argument 'noise_terms': expected one of {list(NOISE_TERMS)}; "
-                         f"found {noise_terms!r}")
-    derived = {}
-    if noise_terms == "derived":
-        sigma = DERIVED_DEFAULTS["los_noise_std"] if los_noise_std is None else los_noise_std
-        p = DERIVED_DEFAULTS["hybrid_weight"] if hybrid_weight is None else hybrid_weight
-        sigma = to_magnitude(sigma, "m s-1", name="los_noise_std")
-        derived["los_noise_std"] = _positive(sigma, "los_noise_std", "m s-1")
-        derived["hybrid_weight"] = float(p)
-        if not 0.0 <= derived["hybrid_weight"] <= 1.0:
-            raise InputError(f"argument 'hybrid_weight': expected a value in [0, 1]; found {p}")
-        inputs.update(derived)
-    elif los_noise_std is not None or hybrid_weight is not None:
-        raise InputError("arguments 'los_noise_std' and 'hybrid_weight' only apply with "
-                         "noise_terms='derived'")
+    derived = _derived_inputs(noise_terms, los_noise_std, hybrid_weight)
+    inputs.update(derived)
     n_bias = inputs["n_los_samples"] if bias_repeatability_n == "los_samples" else inputs["n_runs"]
     per_height = [table4_kernel(
         ws, std_repeatability=inputs["mean_between_run_std_std"],
@@ -333,6 +319,25 @@ def uncertainty_terms(
                  summary=summary, call=call,
                  input_datasets={"repeatability": repeatability} if repeatability is not None else None,
                  config=config, keywords="Doppler lidar, calibration, uncertainty budget, wind speed")
+
+
+def _derived_inputs(noise_terms: str, los_noise_std: Any, hybrid_weight: Any) -> dict[str, float]:
+    """Check ``noise_terms``; return σ (m s-1) and p of the derived Eq. 6 (empty for the printed form)."""
+    if noise_terms not in NOISE_TERMS:
+        raise InputError(f"argument 'noise_terms': expected one of {list(NOISE_TERMS)}; "
+                         f"found {noise_terms!r}")
+    if noise_terms == "printed":
+        if los_noise_std is not None or hybrid_weight is not None:
+            raise InputError("arguments 'los_noise_std' and 'hybrid_weight' only apply with "
+                             "noise_terms='derived'")
+        return {}
+    sigma = DERIVED_DEFAULTS["los_noise_std"] if los_noise_std is None else los_noise_std
+    p = DERIVED_DEFAULTS["hybrid_weight"] if hybrid_weight is None else hybrid_weight
+    sigma = to_magnitude(sigma, "m s-1", name="los_noise_std")
+    derived = {"los_noise_std": _positive(sigma, "los_noise_std", "m s-1"), "hybrid_weight": float(p)}
+    if not 0.0 <= derived["hybrid_weight"] <= 1.0:
+        raise InputError(f"argument 'hybrid_weight': expected a value in [0, 1]; found {p}")
+    return derived
 
 
 def _checked_wind_speeds(wind_speed: Any) -> np.ndarray:
