@@ -185,8 +185,8 @@ def certified_bins(centres: np.ndarray, period_count: np.ndarray, *,
 def tolerance_exponent(spread: np.ndarray) -> np.ndarray:
     """Smallest integer ℓ with ½·10^ℓ ≥ ``spread`` (= 2 s/√h); NaN where ``spread`` is NaN.
 
-    >>> tolerance_exponent(np.array([0.04, 0.05, 0.051, 0.3])).tolist()
-    [-1.0, -1.0, 0.0, 0.0]
+    >>> tolerance_exponent(np.array([0.04, 0.05, 0.051, 0.3])).astype(int).tolist()
+    [-1, -1, 0, 0]
     """
     spread = np.asarray(spread, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
