@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from lidarcal.analysis import compare_slopes, kernels, sensitivity
 from lidarcal.analysis.kernels import bin_statistics, edges_from_width, linear_regression, significance
+from lidarcal.analysis.sensitivity import per_unit, sensitivity_fit
 from lidarcal.campaign import simulate_campaign
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.cli import main
@@ -223,6 +224,19 @@ def test_dask_records_give_identical_result():
     lazy = sensitivity(recs.chunk(time=100), "turbulence_intensity")
     for name in ("mean_difference", "sample_count", "slope", "correlation", "variable_std"):
         np.testing.assert_array_equal(eager[name].values, lazy[name].values)
+
+
+def test_sensitivity_fit_gives_the_numbers_of_the_artefact():
+    recs = make_records(n=500)
+    s = sensitivity(recs, "wind_shear_exponent", regression="unweighted", min_periods=5)
+    edges = np.append(s.bin_bounds.values[:, 0], s.bin_bounds.values[-1, 1])
+    fit = sensitivity_fit(recs, "wind_shear_exponent", edges, regression="unweighted", min_periods=5)
+    assert set(fit) == set(s.data_vars)
+    for name, values in fit.items():
+        np.testing.assert_array_equal(values, s[name].transpose("height", ...).values, err_msg=name)
+    assert s.slope.attrs["units"] == per_unit("%", "1") == "%"
+    with pytest.raises(InputError, match="min_periods must be >= 1"):
+        sensitivity_fit(recs, "wind_shear_exponent", [0.0, 0.1, 0.2], min_periods=0)
 
 
 def test_units_are_converted_at_the_boundary():

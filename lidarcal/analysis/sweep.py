@@ -10,8 +10,10 @@ onto the grid:
 - ``max_abs_deviation`` — its maximum magnitude over the grid per height (the class-style
   figure of Discussion a) and the conditions where it occurs;
 - sensitivity slopes of the deviation to every swept variable (Discussion b), from
-  :func:`lidarcal.analysis.sensitivity` with one bin per grid value: in a full-factorial
-  design a bin mean is the marginal effect of that variable.
+  :func:`lidarcal.analysis.sensitivity.sensitivity_fit` with one bin per grid value: in a
+  full-factorial design a bin mean is the marginal effect of that variable.
+
+The attributes of every variable are declared in ``schemas/sweep.yaml``.
 
 Grid period *i* is simulated with seed ``(base_seed, i)`` as in any campaign, with the
 replicates of one grid point consecutive: period = grid_index × repeats + replicate.
