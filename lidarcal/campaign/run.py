@@ -51,8 +51,7 @@ from lidarcal.campaign.chunks import (
     unflatten_los,
 )
 from lidarcal.campaign.los import los_variables
-from lidarcal.campaign.scheduler import WORKER_CONFIG, WORKER_TIMEOUT, execute, local_cluster
-from lidarcal.campaign.workers import BLAS_ENV
+from lidarcal.campaign.scheduler import WORKER_TIMEOUT, execute
 from lidarcal.cf import height_coord, time_coord
 from lidarcal.conditions import CONDITION_VARIABLES, SkippedPeriodsWarning, load_conditions
 from lidarcal.errors import InputError
@@ -62,9 +61,7 @@ from lidarcal.lidar.geometry import check_reachable
 from lidarcal.provenance import stamp
 from lidarcal.schema import output_attrs
 
-__all__ = ["simulate_campaign", "simulate_replicas", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV",
-           "WORKER_CONFIG",
-           "WORKER_TIMEOUT"]
+__all__ = ["simulate_campaign", "simulate_replicas", "DEFAULT_BASE_SEED"]
 
 log = logging.getLogger(__name__)
 
