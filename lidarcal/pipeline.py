@@ -51,7 +51,7 @@ from lidarcal.bench.formats import read_control_log
 from lidarcal.bench.ingest import ingest
 from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.campaign.adaptive import DEFAULT_MAX_REPLICAS, adaptive_replicas
-from lidarcal.certificate import make_certificate, write_certificate
+from lidarcal.certificate import make_certificate
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
 from lidarcal.conditions.grid import sweep_conditions
 from lidarcal.data import sample_file
@@ -62,6 +62,7 @@ from lidarcal.lidar import LidarModel
 from lidarcal.provenance import contact_attributes, sha256, stamp
 from lidarcal.report import write_report
 from lidarcal.rwf import range_weighting_function
+from lidarcal.seal import write_certificate
 from lidarcal.signing import fingerprint, load_private_key
 from lidarcal.units import Q_
 
