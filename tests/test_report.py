@@ -403,7 +403,7 @@ def test_budget_figure_is_scaled_to_the_certified_range(inputs):
 
     from lidarcal.document.figures import draw_budget
 
-    b = budget(inputs["records"], min_samples=20)
+    b = budget(inputs["records"], min_periods=20)
     fig = Figure()
     draw_budget(fig, b)
     top, bottom = fig.axes
