@@ -16,7 +16,8 @@ import pytest
 
 from lidarcal.cli import main
 from lidarcal.conditions import load_conditions
-from lidarcal.conditions.sta import read_sta, sta_conditions
+from lidarcal.conditions.sta import sta_conditions
+from lidarcal.conditions.stafile import read_sta
 from lidarcal.errors import InputError
 from lidarcal.provenance import sha256
 
