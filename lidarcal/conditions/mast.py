@@ -91,6 +91,44 @@ def parse_height_columns(text: str, option: str = "--reference-columns") -> dict
     return out
 
 
+def _start_times(path: Path, cells: pd.Series, column: int, timestamp: str) -> np.ndarray:
+    """Return the interval starts of a mast's time column (one UTC offset, parsable, no repeats)."""
+    tcol = cells.name
+    text = cells.astype(str).str.strip()
+    offsets = text.str.extract(_OFFSET, expand=False).fillna("none")
+    if offsets.nunique() > 1:
+        r = int(np.flatnonzero((offsets != offsets.iloc[0]).to_numpy())[0])
+        raise InputError(
+            f"{path}: line {r + 2}, column {column} ({tcol!r}): timestamp {text.iloc[r]!r} "
+            f"has UTC offset {offsets.iloc[r]!r} but line 2 has {offsets.iloc[0]!r}; expected one offset "
+            f"throughout (a daylight-saving switch? convert the record to one clock, e.g. UTC, first)"
+        )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # format inference notices; unparsable cells are reported below
+        try:
+            times = pd.to_datetime(text, errors="coerce")
+        except (ValueError, TypeError) as exc:  # mixtures pandas refuses even with errors="coerce"
+            raise InputError(f"{path}: column {column} ({tcol!r}): timestamps cannot be "
+                             f"read together: {exc}") from None
+    bad = times.isna().to_numpy()
+    if bad.any():
+        r = int(np.flatnonzero(bad)[0])
+        raise InputError(
+            f"{path}: line {r + 2}, column {column} ({tcol!r}): expected a timestamp; found "
+            f"{text.iloc[r]!r}"
+        )
+    start = times.to_numpy(dtype="datetime64[ns]") - (PERIOD if timestamp == "end" else np.timedelta64(0))
+    _, first, counts = np.unique(start, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        a = int(first[np.flatnonzero(counts > 1)[0]])
+        b = int(np.flatnonzero(start == start[a])[1])
+        raise InputError(
+            f"{path}: line {b + 2}, column {column} ({tcol!r}): duplicated timestamp "
+            f"{text.iloc[b]!r} (also line {a + 2})"
+        )
+    return start
+
+
 def read_reference_csv(
     path: str | os.PathLike,
     columns: dict[float, str],
@@ -130,38 +168,7 @@ def read_reference_csv(
     missing = [c for c in wanted if c not in names]
     if missing:
         raise MissingVariableError(f"{path}: column(s) {missing} not found; the file has {names}")
-    text = df[tcol].astype(str).str.strip()
-    offsets = text.str.extract(_OFFSET, expand=False).fillna("none")
-    if offsets.nunique() > 1:
-        r = int(np.flatnonzero((offsets != offsets.iloc[0]).to_numpy())[0])
-        raise InputError(
-            f"{path}: line {r + 2}, column {names.index(tcol) + 1} ({tcol!r}): timestamp {text.iloc[r]!r} "
-            f"has UTC offset {offsets.iloc[r]!r} but line 2 has {offsets.iloc[0]!r}; expected one offset "
-            f"throughout (a daylight-saving switch? convert the record to one clock, e.g. UTC, first)"
-        )
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # format inference notices; unparsable cells are reported below
-        try:
-            times = pd.to_datetime(text, errors="coerce")
-        except (ValueError, TypeError) as exc:  # mixtures pandas refuses even with errors="coerce"
-            raise InputError(f"{path}: column {names.index(tcol) + 1} ({tcol!r}): timestamps cannot be "
-                             f"read together: {exc}") from None
-    bad = times.isna().to_numpy()
-    if bad.any():
-        r = int(np.flatnonzero(bad)[0])
-        raise InputError(
-            f"{path}: line {r + 2}, column {names.index(tcol) + 1} ({tcol!r}): expected a timestamp; found "
-            f"{text.iloc[r]!r}"
-        )
-    start = times.to_numpy(dtype="datetime64[ns]") - (PERIOD if timestamp == "end" else np.timedelta64(0))
-    _, first, counts = np.unique(start, return_index=True, return_counts=True)
-    if (counts > 1).any():
-        a = int(first[np.flatnonzero(counts > 1)[0]])
-        b = int(np.flatnonzero(start == start[a])[1])
-        raise InputError(
-            f"{path}: line {b + 2}, column {names.index(tcol) + 1} ({tcol!r}): duplicated timestamp "
-            f"{text.iloc[b]!r} (also line {a + 2})"
-        )
+    start = _start_times(path, df[tcol], names.index(tcol) + 1, timestamp)
 
     used: dict[str, str] = {}
 
@@ -242,6 +249,19 @@ def _median_ratio(lidar_speed: np.ndarray, ref: np.ndarray, check: bool, used: d
     return ratio
 
 
+def _matcher(times: np.ndarray, start: np.ndarray, reference, timestamp: str):
+    """Return a function putting a mast series on the lidar's ``times`` (NaN where the mast has none)."""
+    pos = pd.Index(start).get_indexer(pd.Index(times))
+    found = pos >= 0
+    if not found.any():
+        raise InputError(
+            f"{reference}: no mast interval start matches a lidar interval start (lidar "
+            f"{pd.Timestamp(times.min())} .. {pd.Timestamp(times.max())}, mast "
+            f"{pd.Timestamp(start.min())} .. {pd.Timestamp(start.max())}, --reference-timestamp {timestamp})"
+        )
+    return lambda series: np.where(found, series[np.clip(pos, 0, None)], np.nan)
+
+
 def _comments(altitudes: np.ndarray, columns: dict[float, str], std: dict[float, str]) -> dict[str, str]:
     """Return the comments of a field campaign's conditions variables (the mast's part in them)."""
     ti_source = {f"{h:g}": f"mast {std[h]} / {columns[h]}" if h in std
@@ -316,19 +336,7 @@ def sta_field_campaign(
     idx = _match_heights(heights, cond.height.values, "--reference-columns", source)
     start, means, stds, used = read_reference_csv(reference, columns, std, timestamp=timestamp,
                                                   time_column=time_column, units=units)
-    times = cond.time.values
-    pos = pd.Index(start).get_indexer(pd.Index(times))
-    found = pos >= 0
-    if not found.any():
-        raise InputError(
-            f"{reference}: no mast interval start matches a lidar interval start (lidar "
-            f"{pd.Timestamp(times.min())} .. {pd.Timestamp(times.max())}, mast "
-            f"{pd.Timestamp(start.min())} .. {pd.Timestamp(start.max())}, --reference-timestamp {timestamp})"
-        )
-
-    def on_lidar_times(series: np.ndarray) -> np.ndarray:
-        return np.where(found, series[np.clip(pos, 0, None)], np.nan)
-
+    on_lidar_times = _matcher(cond.time.values, start, reference, timestamp)
     ref = np.column_stack([on_lidar_times(means[h]) for h in heights])
     out = cond.isel(height=idx)
     lidar_speed = out["wind_speed"].values

@@ -338,6 +338,32 @@ def _columns_older(path: Path, line: int, names: list[str], alts: np.ndarray, al
     return out
 
 
+def _truncated_rows(path: Path, lines: list[str], n: int, names: list[str], allow_gaps: bool) -> list[int]:
+    """Return the file lines of rows cut short (refused unless ``allow_gaps``); refuse rows too long."""
+    col_line = n + 2
+    needed = max(j for j, name in enumerate(names) if name.strip()) + 1  # a trailing empty column may go
+    truncated = []
+    for k in range(n + 2, len(lines)):
+        count = lines[k].count("\t") + 1
+        if count > len(names):
+            raise InputError(
+                f"{path}: line {k + 1}, column {len(names) + 1}: {count} tab-separated fields; the "
+                f"column-name line (line {col_line}) names {len(names)}"
+            )
+        if count < needed:
+            truncated.append((k + 1, count))
+    if truncated:
+        listed = ", ".join(f"line {ln} ({c} of {needed} fields)" for ln, c in truncated[:10])
+        more = f" and {len(truncated) - 10} more" if len(truncated) > 10 else ""
+        text = (f"{path}: {len(truncated)} truncated row(s), cut short before column {needed} "
+                f"({names[needed - 1]!r}): {listed}{more}")
+        if not allow_gaps:
+            raise InputError(f"{text}; repair or remove them, or pass --allow-gaps to read them as "
+                             "missing periods")
+        warnings.warn(f"{text}; read as missing periods (--allow-gaps)", UserWarning, stacklevel=3)
+    return [ln for ln, _ in truncated]
+
+
 def read_sta(path: str | os.PathLike, *, allow_gaps: bool = False) -> StaFile:
     """Parse one WindCube ``.sta`` file (either dialect; see the module docstring).
 
@@ -382,26 +408,7 @@ def read_sta(path: str | os.PathLike, *, allow_gaps: bool = False) -> StaFile:
     n_rows = len(lines) - (n + 2)
     if n_rows < 1:
         raise InputError(f"{path}: line {col_line}: no data rows after the column-name line")
-    needed = max(j for j, name in enumerate(names) if name.strip()) + 1  # a trailing empty column may go
-    truncated = []
-    for k in range(n + 2, len(lines)):
-        count = lines[k].count("\t") + 1
-        if count > len(names):
-            raise InputError(
-                f"{path}: line {k + 1}, column {len(names) + 1}: {count} tab-separated fields; the "
-                f"column-name line (line {col_line}) names {len(names)}"
-            )
-        if count < needed:
-            truncated.append((k + 1, count))
-    if truncated:
-        listed = ", ".join(f"line {ln} ({c} of {needed} fields)" for ln, c in truncated[:10])
-        more = f" and {len(truncated) - 10} more" if len(truncated) > 10 else ""
-        text = (f"{path}: {len(truncated)} truncated row(s), cut short before column {needed} "
-                f"({names[needed - 1]!r}): {listed}{more}")
-        if not allow_gaps:
-            raise InputError(f"{text}; repair or remove them, or pass --allow-gaps to read them as "
-                             "missing periods")
-        warnings.warn(f"{text}; read as missing periods (--allow-gaps)", UserWarning, stacklevel=2)
+    truncated = _truncated_rows(path, lines, n, names, allow_gaps)
     # the table is parsed from the lines split above (decoded as Latin-1, CR stripped) so that
     # row r is exactly file line n + 3 + r, whatever stray carriage returns a line holds
     try:
@@ -433,7 +440,7 @@ def read_sta(path: str | os.PathLike, *, allow_gaps: bool = False) -> StaFile:
             f"{row_lines[a]})"
         )
     check_spacing(lambda k: path, end, row_lines)
-    cut = np.isin(row_lines, [ln for ln, _ in truncated])
+    cut = np.isin(row_lines, truncated)
     values = {}
     for role in ROLES:
         values[role] = np.column_stack([
