@@ -39,6 +39,24 @@ def _generate(generator: str, wind: np.ndarray, U: float, sigma: np.ndarray,
     raise InputError(f"generator must be one of {GENERATORS}; got {generator!r}")
 
 
+def _coords(points: np.ndarray, labels: list[str], nt: int, dt: float) -> dict:
+    """Coordinates of a turbulence box: time (from the nominal epoch), elapsed time, x, y, z, labels."""
+    coords = {
+        "time": ("time", _EPOCH + np.round(np.arange(nt) * dt * 1e9).astype("timedelta64[ns]"),
+                 {"standard_name": "time", "axis": "T",
+                  "long_name": "simulation time (nominal period start 2000-01-01T00:00:00Z)"}),
+        "elapsed_time": ("time", np.arange(nt) * dt, {"long_name": "time since the start of the period",
+                                                      "units": "s"}),
+        "x": ("point", points[:, 0], {"long_name": "along-wind position (downwind positive)", "units": "m"}),
+        "y": ("point", points[:, 1], {"long_name": "cross-wind position (left of downwind positive)",
+                                      "units": "m"}),
+        "z": ("point", points[:, 2], {"long_name": "height above ground level", "units": "m",
+                                      "standard_name": "height", "positive": "up"}),
+        "point_label": ("point", np.array(labels, dtype=object), {"long_name": "point label"}),
+    }
+    return coords
+
+
 def turbulence_box(
     points: np.ndarray,
     *,
@@ -105,20 +123,7 @@ def turbulence_box(
     }
     data["mean_wind_speed"] = (("point",), U * (points[:, 2] / z_ref) ** alpha,
                                output_attrs("turbulence_box", "mean_wind_speed"))
-    coords = {
-        "time": ("time", _EPOCH + np.round(np.arange(nt) * dt * 1e9).astype("timedelta64[ns]"),
-                 {"standard_name": "time", "axis": "T",
-                  "long_name": "simulation time (nominal period start 2000-01-01T00:00:00Z)"}),
-        "elapsed_time": ("time", np.arange(nt) * dt, {"long_name": "time since the start of the period",
-                                                      "units": "s"}),
-        "x": ("point", points[:, 0], {"long_name": "along-wind position (downwind positive)", "units": "m"}),
-        "y": ("point", points[:, 1], {"long_name": "cross-wind position (left of downwind positive)",
-                                      "units": "m"}),
-        "z": ("point", points[:, 2], {"long_name": "height above ground level", "units": "m",
-                                      "standard_name": "height", "positive": "up"}),
-        "point_label": ("point", np.array(labels, dtype=object), {"long_name": "point label"}),
-    }
-    ds = xr.Dataset(data, coords=coords)
+    ds = xr.Dataset(data, coords=_coords(points, labels, nt, dt))
     attrs = {
         "wind_speed": U, "turbulence_intensity": ti, "wind_shear_exponent": alpha,
         "reference_height": z_ref, "generator": generator, "coherence_model": "iec3d",
