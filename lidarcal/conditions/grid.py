@@ -119,7 +119,8 @@ def sweep_conditions(
         name: (
             ("time", "height"),
             np.repeat(points[:, i : i + 1], nh, axis=1),
-            variable_attrs(name, content="auxiliaryInformation"),
+            variable_attrs(name, content="auxiliaryInformation",
+                           comment="value of the full-factorial grid (lidarcal.conditions.grid)"),
         )
         for i, name in enumerate(SWEEP_VARIABLES)
     }
