@@ -208,7 +208,7 @@ def _conditions(cfg: CalibrationConfig) -> tuple[xr.Dataset, dict]:
     log.info("conditions: %d periods of the real brightwind sample (40/60/80 m) carried to %s m with "
              "each period's shear", n, ", ".join(f"{h:g}" for h in cfg.heights))
     ds = synthetic_conditions(n, cfg.heights, base=base, call="lidarcal calibrate")
-    return ds, {"conditions_source": path}
+    return ds, {}  # stamped by synthetic_conditions, with the sample in its provenance chain
 
 
 def _check_issuer(cfg: CalibrationConfig, admin: Mapping[str, str], demonstration: bool) -> None:
