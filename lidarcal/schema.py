@@ -214,15 +214,17 @@ def output_attrs(kind: str, name: str, **context: Any) -> dict[str, Any]:
 
     Every key of the variable's spec that is not a check, plus ``units`` and the checked
     ``attributes``, with templates filled from ``context`` (and from the parts of a templated
-    name).  ``coverage_content_type`` defaults to ``modelResult``; ``flag_values`` become an
-    ``int8`` array.  Order: long_name, units, coverage_content_type, standard_name, then the rest
-    as declared.  A template that fills to ``""`` (no standard name, no comment) is left out.
+    name).  ``coverage_content_type`` defaults to ``modelResult`` (on a data variable; a coordinate
+    has one only where declared); ``flag_values`` become an ``int8`` array.  Order: long_name,
+    units, coverage_content_type, standard_name, then the rest as declared.  A template that
+    fills to ``""`` (no standard name, no comment) is left out.
     """
     spec, parts = _spec_for(kind, name)
     context = {**parts, **context}
     declared = {k: v for k, v in spec.items() if k not in _CHECK_KEYS or k == "units"}
     declared.update(spec.get("attributes") or {})
-    declared.setdefault("coverage_content_type", "modelResult")
+    if name not in (_read_schema(kind).get("coordinates") or {}):  # a coordinate declares its own, if any
+        declared.setdefault("coverage_content_type", "modelResult")
     where = f"schema {kind}.yaml, variable {name!r}"
     filled = {key: _fill(value, context, where) for key, value in declared.items()}
     if "flag_values" in filled:
