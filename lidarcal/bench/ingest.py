@@ -101,20 +101,11 @@ def _iso(t_ns: int) -> str:
 
 def cube_template() -> xr.Dataset:
     """Empty ℓcv grid with the ``bench_cube`` coordinates (los, cnr, velocity) and bounds."""
-    ds = xr.Dataset(coords={
-        "los": ("los", np.asarray(LOS_LABELS, dtype=object),
-                {"long_name": "line-of-sight beam identifier (azimuth in degree, or V for vertical)"}),
-        "los_azimuth": ("los", LOS_AZIMUTH,
-                        {"long_name": "beam azimuth, clockwise from the lidar's north mark",
-                         "units": "degree", "standard_name": "sensor_azimuth_angle"}),
-        "los_elevation": ("los", LOS_ELEVATION, {"long_name": "beam elevation above the horizontal",
-                                                 "units": "degree"}),
-        "cnr": ("cnr", CNR_NODES, {"long_name": "programmed carrier-to-noise ratio", "units": "dB"}),
-        "velocity": ("velocity", VELOCITY_NODES,
-                     {"long_name": "programmed radial velocity (Doppler shift applied by the bench)",
-                      "units": "m s-1",
-                      "standard_name": "radial_velocity_of_scatterers_away_from_instrument"}),
-    })
+    values = {"los": ("los", np.asarray(LOS_LABELS, dtype=object)), "los_azimuth": ("los", LOS_AZIMUTH),
+              "los_elevation": ("los", LOS_ELEVATION), "cnr": ("cnr", CNR_NODES),
+              "velocity": ("velocity", VELOCITY_NODES)}
+    ds = xr.Dataset(coords={name: (dim, data, output_attrs("bench_cube", name))
+                            for name, (dim, data) in values.items()})
     ds = with_bounds(ds, "cnr", CNR_EDGES)
     ds = with_bounds(ds, "velocity", VELOCITY_EDGES)
     return ds

@@ -146,9 +146,9 @@ def repeatability(
     rdims = ("run", *dims)
     out = cube_template().assign_coords(
         run=("run", np.asarray([str(ds.attrs["run_id"]) for ds in kept], dtype=object),
-             {"long_name": "bench run identifier (run_id of the input cube)"}),
+             output_attrs("repeatability", "run")),
         operator=("run", np.asarray([str(ds.attrs["operator"]) for ds in kept], dtype=object),
-                  {"long_name": "operator of the bench run"}),
+                  output_attrs("repeatability", "operator")),
     )
     values = {"run_los_bias": (rdims, bias), "run_los_std": (rdims, std),
               "run_sample_count": (rdims, count.astype(np.int32)),

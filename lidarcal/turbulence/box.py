@@ -41,20 +41,15 @@ def _generate(generator: str, wind: np.ndarray, U: float, sigma: np.ndarray,
 
 def _coords(points: np.ndarray, labels: list[str], nt: int, dt: float) -> dict:
     """Coordinates of a turbulence box: time (from the nominal epoch), elapsed time, x, y, z, labels."""
-    coords = {
-        "time": ("time", _EPOCH + np.round(np.arange(nt) * dt * 1e9).astype("timedelta64[ns]"),
-                 {"standard_name": "time", "axis": "T",
-                  "long_name": "simulation time (nominal period start 2000-01-01T00:00:00Z)"}),
-        "elapsed_time": ("time", np.arange(nt) * dt, {"long_name": "time since the start of the period",
-                                                      "units": "s"}),
-        "x": ("point", points[:, 0], {"long_name": "along-wind position (downwind positive)", "units": "m"}),
-        "y": ("point", points[:, 1], {"long_name": "cross-wind position (left of downwind positive)",
-                                      "units": "m"}),
-        "z": ("point", points[:, 2], {"long_name": "height above ground level", "units": "m",
-                                      "standard_name": "height", "positive": "up"}),
-        "point_label": ("point", np.array(labels, dtype=object), {"long_name": "point label"}),
+    values = {
+        "time": ("time", _EPOCH + np.round(np.arange(nt) * dt * 1e9).astype("timedelta64[ns]")),
+        "elapsed_time": ("time", np.arange(nt) * dt),
+        "x": ("point", points[:, 0]),
+        "y": ("point", points[:, 1]),
+        "z": ("point", points[:, 2]),
+        "point_label": ("point", np.array(labels, dtype=object)),
     }
-    return coords
+    return {name: (dim, data, output_attrs("turbulence_box", name)) for name, (dim, data) in values.items()}
 
 
 def turbulence_box(
