@@ -40,7 +40,6 @@ STA_COMMENTS = {
 }
 
 
-
 def _joined(files: list[StaFile], min_availability: float):
     order_h = np.argsort(files[0].altitudes, kind="stable")
     z = files[0].altitudes[order_h]
