@@ -46,7 +46,7 @@ _EXPORTS = {
     "sensitivity": ("lidarcal.analysis.sensitivity", "sensitivity"),
     "budget": ("lidarcal.analysis.budget", "budget"),
     "make_certificate": ("lidarcal.certificate", "make_certificate"),
-    "verify": ("lidarcal.certificate", "verify_certificate"),
+    "verify": ("lidarcal.seal", "verify_certificate"),
     "open_certificate": ("lidarcal.certificate", "open_certificate"),
     "result_table": ("lidarcal.certificate", "result_table"),
     # the subpackage itself, callable as its diagnose() function (a submodule import would

@@ -179,17 +179,21 @@ def _name_pattern(template: str) -> re.Pattern:
 def _spec_for(kind: str, name: str) -> tuple[dict[str, Any], dict[str, str]]:
     """Return the spec ``kind`` writes itself for ``name`` and the parts a name template matched.
 
-    An exact entry wins over a name template.
+    An exact entry wins over a name template.  When ``name`` is also included from another
+    schema, the ``units`` and checked ``attributes`` the include copied are written too, unless
+    the own entry says them (so the grid coordinates of a sweep declare only their long name).
     """
     raw = _read_schema(kind)
     sections = [raw.get("coordinates") or {}, raw.get("variables") or {}]
+    included = {**load_schema(kind)["coordinates"], **load_schema(kind)["variables"]}.get(name, {})
+    inherited = {k: v for k, v in included.items() if k in ("units", "attributes")}
     for section in sections:
         if name in section:
-            return dict(section[name] or {}), {}
+            return {**inherited, **(section[name] or {})}, {}
     for section in sections:
         for key, spec in section.items():
             if _is_template(key) and (match := _name_pattern(key).fullmatch(name)):
-                return dict(spec or {}), match.groupdict()
+                return {**inherited, **(spec or {})}, match.groupdict()
     raise InputError(f"schema {kind}.yaml declares no variable {name!r} (nor a name template matching "
                      f"it); declare it there with its long_name and units")
 
@@ -214,23 +218,22 @@ def output_attrs(kind: str, name: str, **context: Any) -> dict[str, Any]:
 
     Every key of the variable's spec that is not a check, plus ``units`` and the checked
     ``attributes``, with templates filled from ``context`` (and from the parts of a templated
-    name).  ``coverage_content_type`` defaults to ``modelResult`` (on a data variable; a coordinate
-    has one only where declared); ``flag_values`` become an ``int8`` array.  Order: long_name,
-    units, coverage_content_type, standard_name, then the rest as declared.  A template that
-    fills to ``""`` (no standard name, no comment) is left out.
+    name).  ``coverage_content_type`` defaults to ``modelResult``; ``flag_values`` become an
+    ``int8`` array.  Order: long_name, units, coverage_content_type, standard_name, then the rest
+    as declared.  A template that fills to ``""`` (no standard name, no comment) is left out, and so
+    is a key declared ``null`` (``coverage_content_type: null``: a label coordinate that has none).
     """
     spec, parts = _spec_for(kind, name)
     context = {**parts, **context}
     declared = {k: v for k, v in spec.items() if k not in _CHECK_KEYS or k == "units"}
     declared.update(spec.get("attributes") or {})
-    if name not in (_read_schema(kind).get("coordinates") or {}):  # a coordinate declares its own, if any
-        declared.setdefault("coverage_content_type", "modelResult")
+    declared.setdefault("coverage_content_type", "modelResult")
     where = f"schema {kind}.yaml, variable {name!r}"
     filled = {key: _fill(value, context, where) for key, value in declared.items()}
     if "flag_values" in filled:
         filled["flag_values"] = np.asarray(filled["flag_values"], dtype=np.int8)
-    for key in [k for k, v in declared.items() if _is_template(v) and filled[k] == ""]:
-        del filled[key]  # a template that fills to nothing is left out
+    for key in [k for k, v in declared.items() if (_is_template(v) and filled[k] == "") or v is None]:
+        del filled[key]  # a template that fills to nothing, or a key declared null, is left out
     return {**{k: filled.pop(k) for k in _LEADING_ATTRS if k in filled}, **filled}
 
 

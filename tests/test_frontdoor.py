@@ -15,8 +15,8 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def test_every_exported_name_resolves_to_its_entry_point():
-    from lidarcal.certificate import verify_certificate
     from lidarcal.pipeline import calibrate
+    from lidarcal.seal import verify_certificate
 
     assert len(lidarcal.__all__) >= 11
     for name in lidarcal.__all__:

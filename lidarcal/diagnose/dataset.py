@@ -130,7 +130,7 @@ def sensitivity_statistics(result: DiagnosisResult) -> dict[str, np.ndarray]:
             edges = result.binned_before.edges[i]
             edges = edges[np.isfinite(edges)]
             try:
-                sens = sensitivity(recs, name, bins=edges, min_samples=result.settings["min_bin_count"],
+                sens = sensitivity(recs, name, bins=edges, min_periods=result.settings["min_bin_count"],
                                    reference_range=None, source=result.source)
             except InputError:
                 continue  # a variable without two populated bins has no slope

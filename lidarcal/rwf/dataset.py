@@ -57,7 +57,7 @@ import xarray as xr
 from lidarcal.errors import InputError, MissingVariableError, UnitError
 from lidarcal.provenance import stamp
 from lidarcal.rwf import kernels as k
-from lidarcal.schema import load_schema, output_attrs
+from lidarcal.schema import output_attrs
 from lidarcal.units import cf_units, convert_values, to_magnitude
 
 __all__ = [
@@ -346,15 +346,11 @@ def _to_dataset(out: dict, cfg: RwfConfig, measured: PulseSamples | None, pulse_
                    window_std_fraction=cfg.window_std_fraction, window_length_m=cfg.fft_size * dr)
     dims = {"rwf": ("range_offset", "cnr_gradient"), "pulse": "range_offset", "apodization": "range_offset",
             "barycenter": "cnr_gradient", "zero_distance": (), "rwf_fwhm": ()}
-    gradient_units = load_schema("rwf")["coordinates"]["cnr_gradient"]["units"]  # included from conditions
     ds = xr.Dataset(
         {name: (var_dims, out[name], output_attrs("rwf", name, **context))
          for name, var_dims in dims.items()},
-        coords={
-            "range_offset": ("range_offset", out["range_offset"], output_attrs("rwf", "range_offset")),
-            "cnr_gradient": ("cnr_gradient", out["cnr_gradient"],
-                             {**output_attrs("rwf", "cnr_gradient"), "units": gradient_units}),
-        },
+        coords={name: (name, out[name], output_attrs("rwf", name))
+                for name in ("range_offset", "cnr_gradient")},
     )
     ds.attrs.update({
         "pulse_shape": cfg.pulse_shape,
