@@ -181,8 +181,8 @@ def _conditions(cfg: CalibrationConfig) -> tuple[xr.Dataset, dict]:
     n = base.sizes["time"] if cfg.periods is None else min(cfg.periods, base.sizes["time"])
     log.info("conditions: %d periods of the real brightwind sample (40/60/80 m) carried to %s m with "
              "each period's shear", n, ", ".join(f"{h:g}" for h in cfg.heights))
-    ds = synthetic_conditions(n, cfg.heights, base=base)
-    return ds, {"conditions_source": path}
+    ds = synthetic_conditions(n, cfg.heights, base=base, call="lidarcal calibrate")
+    return ds, {}  # stamped by synthetic_conditions, with the sample in its provenance chain
 
 
 def _check_issuer(cfg: CalibrationConfig, admin: Mapping[str, str], demonstration: bool) -> None:
@@ -320,9 +320,9 @@ def calibrate(
 
     # 3. conditions
     cond, cond_inputs = _conditions(cfg)
-    if cfg.conditions is None or cond.attrs.get("lidarcal_artefact") != "conditions":
-        # made here (the sample carried to other heights): stamped as this run's file, with the
-        # sample and, through it, the raw mast record in its provenance chain
+    if cond.attrs.get("lidarcal_artefact") != "conditions":
+        # a user's file that is not a lidarcal conditions artefact (a field campaign, a plain
+        # input): stamped as this run's file, with the file in its provenance chain
         cond = stamp(cond, "conditions", title="Conditions simulated by lidarcal calibrate",
                      summary="10-minute conditions (lidarcal docs/contracts.md) used as Monte Carlo input.",
                      call="lidarcal calibrate",

@@ -13,7 +13,7 @@ A variable is declared once.  A schema that carries variables declared in anothe
     include:
       - from: conditions          # schema kind whose own variables are copied
         into: coordinates         # or variables (the default)
-        only: [wind_speed, cnr]   # a subset (default: all of them, in their order)
+        only: [wind_speed, cnr]   # a subset (default: all its required ones, in their order)
         name: "{name}_bin_lower"  # name template (default "{name}")
         keep: [units, range]      # spec keys copied (default: all)
         set: {dims: ["{name}"]}   # keys set on every copy; "{name}" is replaced in strings
@@ -120,7 +120,7 @@ def _included(entry: dict[str, Any], where: str) -> tuple[str, dict[str, dict[st
     if into not in ("variables", "coordinates"):
         raise InputError(f"schema {where}: include 'into' is {into!r}; expected 'variables' or 'coordinates'")
     source = declared_variables(entry["from"])
-    only = entry.get("only", list(source))
+    only = entry.get("only", [n for n, spec in source.items() if spec.get("required", True)])
     missing = [n for n in only if n not in source]
     if missing:
         raise InputError(f"schema {where}: include from {entry['from']!r} names {missing}, which "

@@ -100,11 +100,10 @@ def test_schemas_that_carry_the_conditions_include_all_six():
 def test_module_tables_come_from_the_registry():
     from lidarcal.analysis.sweep import SWEEP_VARIABLES
     from lidarcal.campaign.chunks import INPUTS
-    from lidarcal.conditions import CONDITION_VARIABLES, FIELD_VARIABLES
     from lidarcal.diagnose import effects
     from lidarcal.diagnose.dataset import UNITS
 
-    assert {n: u for n, (u, _, _) in {**CONDITION_VARIABLES, **FIELD_VARIABLES}.items()} == CONTRACT_UNITS
+    assert variables.CANONICAL_UNITS == CONTRACT_UNITS
     assert tuple(effects.CONDITION_VARIABLES) == tuple(INPUTS) == variables.CONDITION_NAMES
     assert UNITS == {n: CONTRACT_UNITS[n] for n in variables.CONDITION_NAMES}
     assert sorted(SWEEP_VARIABLES) == sorted(variables.CONDITION_NAMES)

@@ -53,7 +53,8 @@ from lidarcal.campaign.chunks import (
 from lidarcal.campaign.los import los_variables
 from lidarcal.campaign.scheduler import WORKER_TIMEOUT, execute
 from lidarcal.cf import height_coord, time_coord
-from lidarcal.conditions import CONDITION_VARIABLES, SkippedPeriodsWarning, load_conditions
+from lidarcal.conditions import SkippedPeriodsWarning, load_conditions
+from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.errors import InputError
 from lidarcal.io import source_name
 from lidarcal.lidar import LidarModel
@@ -412,7 +413,7 @@ def _assemble(
     ds = xr.Dataset(
         coords={"time": time_coord(cond.time.values), "height": height_coord(cond.height.values[hidx])}
     )
-    for name in CONDITION_VARIABLES:
+    for name in CONDITION_NAMES:
         ds[name] = (
             dims,
             cond[name].values[:, hidx],
