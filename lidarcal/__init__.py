@@ -1,25 +1,6 @@
 """lidarcal — anemometer-free calibration of pulsed Doppler wind lidars.
 
-Stages (one module or sub-package each; imports flow from kernels to datasets to the CLI):
-
-- :mod:`lidarcal.bench` — fiber-optic bench (SAFO-MV): simulated runs, ingest to the
-  ℓcv-bin cube, repeatability (ISO 5725-4).
-- :mod:`lidarcal.rwf` — range-weighting function and zero distance (Eqs. 1–2).
-- :mod:`lidarcal.analysis.terms` — uncertainty terms not modelled by Monte Carlo (Eqs. 6–11, Table 4).
-- :mod:`lidarcal.conditions` — the ``conditions`` / ``field_campaign`` input contract.
-- :mod:`lidarcal.turbulence` — Kaimal/coherence turbulence at the points the lidar needs.
-- :mod:`lidarcal.lidar` — virtual DBS lidar, wind-field reconstruction, virtual reference.
-- :mod:`lidarcal.campaign` — Dask-parallel, resumable Monte Carlo over a campaign.
-- :mod:`lidarcal.analysis` — sensitivities, uncertainty budgets, classification sweeps.
-- :mod:`lidarcal.certificate`, :mod:`lidarcal.report` — archiving and presenting results.
-- :mod:`lidarcal.diagnose` — find, name and fix model–field discrepancies.
-- :mod:`lidarcal.compare` — a field campaign's slopes and budget beside the virtual lidar's.
-
-Shared infrastructure: :mod:`lidarcal.units`, :mod:`lidarcal.schema`, :mod:`lidarcal.io`,
-:mod:`lidarcal.provenance`, :mod:`lidarcal.compliance`, :mod:`lidarcal.errors`.
-
-The main entry points are available from the top level, imported on first use so that
-``import lidarcal`` stays fast::
+The main entry points are available from the top level and imported on first use::
 
     import lidarcal
 
@@ -27,15 +8,17 @@ The main entry points are available from the top level, imported on first use so
     result.datasets["budget"].sel(height=120).relative_uncertainty
     lidarcal.verify(result.paths["certificate"]).ok
 
-``lidarcal.diagnose`` is the :mod:`lidarcal.diagnose` package; calling it runs
-:func:`lidarcal.diagnose.diagnose`.
+``lidarcal.diagnose_campaign`` is :func:`lidarcal.diagnose.diagnose`.  Importing lidarcal
+makes cf-xarray's unit registry pint's application registry (docs/units.md), so
+``ds.pint.quantify()`` reads the units of every artefact.
 """
 
-import sys as _sys
 from importlib import import_module as _import_module
 from importlib import metadata as _metadata
 
-#: Public name -> (module, attribute); resolved lazily by :func:`__getattr__`.
+from lidarcal import units  # noqa: F401  (imports cf_xarray.units, which registers itself with pint)
+
+#: Public name -> (module, attribute); resolved by :func:`__getattr__` on first access.
 _EXPORTS = {
     "calibrate": ("lidarcal.pipeline", "calibrate"),
     "CalibrationConfig": ("lidarcal.pipeline", "CalibrationConfig"),
@@ -46,15 +29,13 @@ _EXPORTS = {
     "sensitivity": ("lidarcal.analysis.sensitivity", "sensitivity"),
     "budget": ("lidarcal.analysis.budget", "budget"),
     "make_certificate": ("lidarcal.certificate", "make_certificate"),
-    "verify": ("lidarcal.certificate", "verify_certificate"),
+    "verify": ("lidarcal.seal", "verify_certificate"),
     "open_certificate": ("lidarcal.certificate", "open_certificate"),
     "result_table": ("lidarcal.certificate", "result_table"),
-    # the subpackage itself, callable as its diagnose() function (a submodule import would
-    # rebind the attribute to the package anyway)
-    "diagnose": ("lidarcal.diagnose", None),
+    "diagnose_campaign": ("lidarcal.diagnose", "diagnose"),
 }
 
-__all__ = ["__version__", *_EXPORTS]
+__all__ = ["__version__", *_EXPORTS]  # and __init__.pyi, for type checkers (tests/test_frontdoor.py)
 
 
 def __getattr__(name: str):
@@ -63,53 +44,13 @@ def __getattr__(name: str):
         module, attr = _EXPORTS[name]
     except KeyError:
         raise AttributeError(f"module 'lidarcal' has no attribute {name!r}") from None
-    value = _import_module(module)
-    if attr is not None:
-        value = getattr(value, attr)
-    globals()[name] = value  # later accesses skip __getattr__
-    return value
+    return getattr(_import_module(module), attr)
 
 
 def __dir__() -> list[str]:
+    """List the module's names and the entry points not yet imported (PEP 562)."""
     return sorted({*globals(), *_EXPORTS})
 
-
-
-class _UnitsOnPintImport:
-    """Import hook: when ``pint_xarray`` is first imported, register cf-xarray's unit registry.
-
-    pint-xarray's ``ds.pint.quantify()`` parses units with pint's application registry, which
-    does not understand CF spellings (``m s-1``, ``1``, ``dB``) until ``cf_xarray.units`` is
-    imported.  Importing it costs most of a second, so ``import lidarcal`` does it only once
-    pint-xarray is in use (now, if it already is).
-    """
-
-    def find_spec(self, name, path=None, target=None):
-        if name != "pint_xarray":
-            return None
-        _sys.meta_path.remove(self)
-        from importlib.util import find_spec
-
-        spec = find_spec(name)
-        if spec is not None and spec.loader is not None and hasattr(spec.loader, "exec_module"):
-            run = spec.loader.exec_module
-
-            def exec_module(module):
-                run(module)
-                _register_units()
-
-            spec.loader.exec_module = exec_module
-        return spec
-
-
-def _register_units() -> None:
-    _import_module("lidarcal.units").register_units()
-
-
-if "pint_xarray" in _sys.modules:
-    _register_units()
-elif not any(isinstance(f, _UnitsOnPintImport) for f in _sys.meta_path):
-    _sys.meta_path.insert(0, _UnitsOnPintImport())
 
 try:
     __version__ = _metadata.version("lidarcal")

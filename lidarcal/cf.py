@@ -2,15 +2,12 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import xarray as xr
 
-__all__ = ["var_attrs", "with_bounds", "height_coord", "time_coord", "Param", "declared_attrs",
-           "canonical_dims", "canonical_order"]
+__all__ = ["var_attrs", "with_bounds", "height_coord", "time_coord", "canonical_dims", "canonical_order"]
 
 
 def var_attrs(
@@ -30,35 +27,6 @@ def var_attrs(
         attrs["standard_name"] = standard_name
     attrs.update(extra)
     return attrs
-
-
-@dataclass(frozen=True)
-class Param:
-    """Placeholder in a declared-attributes table: the context value ``key`` as it is (not as text)."""
-
-    key: str
-
-
-def declared_attrs(table: Mapping[str, Mapping[str, Any]], name: str, **context: Any) -> dict[str, Any]:
-    """Attributes of output variable ``name`` from a declarative ``table`` (output metadata declared once).
-
-    An entry holds ``long_name`` and ``units`` and optionally ``standard_name``,
-    ``coverage_content_type`` and any further attribute, in the order they are written.  String
-    values are templates filled from ``context`` (``"mean {xname} in bin"``); a :class:`Param`
-    is replaced by the context value itself; arrays are copied.  The result is :func:`var_attrs`
-    of the filled entry, so an empty ``standard_name`` is left out.
-    """
-    filled = {}
-    for key, value in table[name].items():
-        if isinstance(value, str):
-            value = value.format_map(context)
-        elif isinstance(value, Param):
-            value = context[value.key]
-        elif isinstance(value, np.ndarray):
-            value = value.copy()
-        filled[key] = value
-    return var_attrs(filled.pop("long_name"), filled.pop("units"), filled.pop("standard_name", None),
-                     filled.pop("coverage_content_type", "modelResult"), **filled)
 
 
 def height_coord(values: Any) -> xr.DataArray:

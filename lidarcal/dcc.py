@@ -175,6 +175,7 @@ def _persons(text: str | None) -> list[tuple[str, str | None]]:
 
 
 def _administrative(root: etree._Element, attrs: Mapping[str, Any], digest: str, file_name: str) -> None:
+    """Write ``administrativeData``: software, core data, item, laboratory, persons, customer, statements."""
     admin = _sub(root, _d("administrativeData"))
     software = _sub(_sub(admin, _d("dccSoftware")), _d("software"))
     _text(software, "name", "lidarcal")
@@ -183,6 +184,33 @@ def _administrative(root: etree._Element, attrs: Mapping[str, Any], digest: str,
     _text(software, "description", "Anemometer-free calibration of pulsed Doppler wind lidars: fiber-optic "
           "bench and Monte Carlo virtual lidar; wrote this DCC from the netCDF certificate")
 
+    _core_data(admin, attrs, digest, file_name)
+    _item(admin, attrs)
+    lab = _sub(admin, _d("calibrationLaboratory"))
+    _contact(lab, "contact", attrs.get("laboratory_name") or (
+        attrs.get("institution") if attrs.get("institution") != "unspecified" else None),
+        email=attrs.get("creator_email"), address=attrs.get("laboratory_address"),
+        country=attrs.get("laboratory_country_code"))
+
+    persons = _sub(admin, _d("respPersons"))
+    listed = _persons(attrs.get("responsible_persons")) or [(f"{_NOT_STATED} (demonstration certificate)"
+                                                             if attrs.get(STATUS_ATTR) != "issued"
+                                                             else _NOT_STATED, None)]
+    for i, (name, role) in enumerate(listed):
+        person = _sub(persons, _d("respPerson"))
+        _text(_sub(person, _d("person")), "name", name)
+        if role:
+            _sub(person, _d("role"), role)
+        if i == 0:
+            _sub(person, _d("mainSigner"), "true" if attrs.get(STATUS_ATTR) == "issued" else "false")
+
+    _contact(admin, "customer", attrs.get("customer_name"), email=None, address=attrs.get("customer_address"))
+
+    _statements(admin, attrs, digest, file_name)
+
+
+def _core_data(admin: etree._Element, attrs: Mapping[str, Any], digest: str, file_name: str) -> None:
+    """Write ``coreData``: country, languages, identifier (the netCDF's SHA-256), performance dates."""
     core = _sub(admin, _d("coreData"))
     country = attrs.get("laboratory_country_code")
     _sub(core, _d("countryCodeISO3166_1"), country or "ZZ")  # ZZ: ISO 3166 user-assigned, "not stated"
@@ -203,6 +231,9 @@ def _administrative(root: etree._Element, attrs: Mapping[str, Any], digest: str,
     _sub(core, _d("endPerformanceDate"), max(dates, default=created).isoformat())
     _sub(core, _d("performanceLocation"), "laboratory")
 
+
+def _item(admin: etree._Element, attrs: Mapping[str, Any]) -> None:
+    """Write ``items``: the lidar, its firmware, manufacturer, model and serial number."""
     items = _sub(admin, _d("items"))
     item = _sub(items, _d("item"))
     _text(item, "name", "Pulsed Doppler wind lidar")
@@ -223,25 +254,9 @@ def _administrative(root: etree._Element, attrs: Mapping[str, Any], digest: str,
     _sub(ident, _d("value"), attrs.get("item_serial_number") or attrs.get("lidar_serial") or _NOT_STATED)
     _text(ident, "name", "Serial number")
 
-    lab = _sub(admin, _d("calibrationLaboratory"))
-    _contact(lab, "contact", attrs.get("laboratory_name") or (
-        attrs.get("institution") if attrs.get("institution") != "unspecified" else None),
-        email=attrs.get("creator_email"), address=attrs.get("laboratory_address"), country=country)
 
-    persons = _sub(admin, _d("respPersons"))
-    listed = _persons(attrs.get("responsible_persons")) or [(f"{_NOT_STATED} (demonstration certificate)"
-                                                             if attrs.get(STATUS_ATTR) != "issued"
-                                                             else _NOT_STATED, None)]
-    for i, (name, role) in enumerate(listed):
-        person = _sub(persons, _d("respPerson"))
-        _text(_sub(person, _d("person")), "name", name)
-        if role:
-            _sub(person, _d("role"), role)
-        if i == 0:
-            _sub(person, _d("mainSigner"), "true" if attrs.get(STATUS_ATTR) == "issued" else "false")
-
-    _contact(admin, "customer", attrs.get("customer_name"), email=None, address=attrs.get("customer_address"))
-
+def _statements(admin: etree._Element, attrs: Mapping[str, Any], digest: str, file_name: str) -> None:
+    """Write ``statements``: calibration status, the netCDF original, place and headline."""
     statements = _sub(admin, _d("statements"))
     status = _sub(statements, _d("statement"), refType="lidarcal_calibrationStatus")
     _sub(status, _d("convention"), f"lidarcal {STATUS_ATTR}: {attrs.get(STATUS_ATTR) or _NOT_STATED}")

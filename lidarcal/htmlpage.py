@@ -15,7 +15,15 @@ from typing import Any
 from lidarcal.errors import InputError
 from lidarcal.io import atomic_path
 
-__all__ = ["offline_html", "write_text"]
+__all__ = ["offline_html", "html_table", "write_text"]
+
+
+def html_table(header: list[str], rows: list[list[str]], caption: str) -> str:
+    """Return a ``<table class="numbers">`` of text ``rows`` under ``header``, with its caption (escaped)."""
+    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
+    body = "\n".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
+    return (f'<table class="numbers"><caption>{html.escape(caption)}</caption>'
+            f"<tr>{head}</tr>\n{body}</table>")
 
 
 def offline_html(models: Mapping[str, Any], *, title: str, header: str = "",

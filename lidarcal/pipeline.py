@@ -24,7 +24,6 @@ holding the path and the (re-read) dataset of every artefact::
 
 from __future__ import annotations
 
-import json
 import logging
 import os
 import shutil
@@ -52,8 +51,7 @@ from lidarcal.bench.formats import read_control_log
 from lidarcal.bench.ingest import ingest
 from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.campaign.adaptive import DEFAULT_MAX_REPLICAS, adaptive_replicas
-from lidarcal.certificate import make_certificate, write_certificate
-from lidarcal.cf import canonical_order
+from lidarcal.certificate import make_certificate
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
 from lidarcal.conditions.grid import sweep_conditions
 from lidarcal.data import sample_file
@@ -64,6 +62,7 @@ from lidarcal.lidar import LidarModel
 from lidarcal.provenance import contact_attributes, sha256, stamp
 from lidarcal.report import write_report
 from lidarcal.rwf import range_weighting_function
+from lidarcal.seal import write_certificate
 from lidarcal.signing import fingerprint, load_private_key
 from lidarcal.units import Q_
 
@@ -103,7 +102,7 @@ class CalibrationConfig:
     in ``certified_range``, m/s) and a sensitivity bin needs to enter the regression: one rule
     (docs/certificate.md); a short run (a few hundred periods) may need fewer than the default.
     ``significant_digits`` and ``max_replicas`` drive the adaptive Monte Carlo (JCGM 101 7.9,
-    :mod:`lidarcal.campaign.adaptive`).  ``min_samples`` is the former name of ``min_periods``.
+    :mod:`lidarcal.campaign.adaptive`).
     """
 
     bench_rtd: str | None = None
@@ -123,56 +122,31 @@ class CalibrationConfig:
     certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE
     significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS
     max_replicas: int = DEFAULT_MAX_REPLICAS
-    min_samples: int | None = None  # former name of min_periods
     #: LOS error model (``LidarModel.los_noise_model``); None: residuals when the cube has them
     los_noise_model: str | None = None
     #: ``LidarModel.reference_turbulence``; None: the model's default (``"pinned_u"``)
     reference_turbulence: str | None = None
     terms: dict[str, Any] = field(default_factory=dict)
 
-    def __post_init__(self) -> None:
-        if self.min_samples is not None:  # one count for the sensitivities and the certified bins
-            self.min_periods, self.min_samples = int(self.min_samples), None
-
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe form, for provenance."""
         out = asdict(self)
-        out.pop("min_samples")
         out["heights"] = list(self.heights)
         out["certified_range"] = list(self.certified_range)
         return out
 
 
 def _terms_per_height(records: xr.Dataset, overrides: dict[str, Any]) -> xr.Dataset:
-    """Table 4 terms at every simulated height, with that height's median shear exponent."""
-    speeds = Q_(np.arange(0.25, 40.01, 0.25), "m/s")
-    parts = []
-    heights = ", ".join(f"{z:g}" for z in records.height.values)
-    for z in records.height.values:
-        # Eq. 11 at this height with the campaign's median shear (Table 4 fixes 100 m, 0.2)
-        alpha = abs(float(np.nanmedian(records.wind_shear_exponent.sel(height=z).values)))
-        inputs = {**PAPER_INPUTS, "height": Q_(float(z), "m"), "shear_exponent": alpha, **overrides}
-        part = uncertainty_terms(speeds, **inputs, call=f"lidarcal calibrate (terms at {heights} m)")
-        parts.append(part)
-    if len(parts) == 1:
-        return parts[0]
-    out = canonical_order(xr.concat(parts, dim="height", data_vars="all", coords="different", compat="equals",
-                                    combine_attrs="override"))  # height stacked last, like stamp's order
-    # the attributes were the first height's: describe every height (values are per height)
-    config = json.loads(out.attrs.get("lidarcal_config", "{}"))
-    config.update(height=[float(z) for z in out.height.values],
-                  shear_exponent=[float(a) for a in out.shear_exponent.values])
-    out.attrs["lidarcal_config"] = json.dumps(config, sort_keys=True)
-    out.attrs.update(geospatial_vertical_min=float(out.height.min()),
-                     geospatial_vertical_max=float(out.height.max()))
-    out.attrs["summary"] = (
-        "Uncertainty terms of the horizontal wind speed not modelled by Monte Carlo (paper Eqs. 6-11, "
-        f"Table 4) at each height z = {heights} m, with that height's median shear exponent "
-        f"(variable shear_exponent, {float(out.shear_exponent.min()):.4g} to "
-        f"{float(out.shear_exponent.max()):.4g}), for {out.sizes['wind_speed']} wind speeds; total "
-        f"{float(out.total.min()):.4f} to {float(out.total.max()):.4f} m/s."
-    )
-    return out
+    """Table 4 terms at every simulated height, with that height's median shear exponent.
+
+    Eq. 11 at each height with the campaign's median shear (Table 4 fixes 100 m and 0.2).
+    """
+    heights = np.asarray(records.height.values, dtype=float)
+    alphas = [abs(float(np.nanmedian(records.wind_shear_exponent.sel(height=z).values))) for z in heights]
+    inputs = {**PAPER_INPUTS, "height": Q_(heights, "m"), "shear_exponent": alphas, **overrides}
+    return uncertainty_terms(Q_(np.arange(0.25, 40.01, 0.25), "m/s"), **inputs,
+                             call=f"lidarcal calibrate (terms at {', '.join(f'{z:g}' for z in heights)} m, "
+                                  "each height's median shear exponent)")
 
 
 @dataclass(frozen=True)
@@ -207,8 +181,8 @@ def _conditions(cfg: CalibrationConfig) -> tuple[xr.Dataset, dict]:
     n = base.sizes["time"] if cfg.periods is None else min(cfg.periods, base.sizes["time"])
     log.info("conditions: %d periods of the real brightwind sample (40/60/80 m) carried to %s m with "
              "each period's shear", n, ", ".join(f"{h:g}" for h in cfg.heights))
-    ds = synthetic_conditions(n, cfg.heights, base=base)
-    return ds, {"conditions_source": path}
+    ds = synthetic_conditions(n, cfg.heights, base=base, call="lidarcal calibrate")
+    return ds, {}  # stamped by synthetic_conditions, with the sample in its provenance chain
 
 
 def _check_issuer(cfg: CalibrationConfig, admin: Mapping[str, str], demonstration: bool) -> None:
@@ -346,9 +320,9 @@ def calibrate(
 
     # 3. conditions
     cond, cond_inputs = _conditions(cfg)
-    if cfg.conditions is None or cond.attrs.get("lidarcal_artefact") != "conditions":
-        # made here (the sample carried to other heights): stamped as this run's file, with the
-        # sample and, through it, the raw mast record in its provenance chain
+    if cond.attrs.get("lidarcal_artefact") != "conditions":
+        # a user's file that is not a lidarcal conditions artefact (a field campaign, a plain
+        # input): stamped as this run's file, with the file in its provenance chain
         cond = stamp(cond, "conditions", title="Conditions simulated by lidarcal calibrate",
                      summary="10-minute conditions (lidarcal docs/contracts.md) used as Monte Carlo input.",
                      call="lidarcal calibrate",
@@ -395,7 +369,7 @@ def calibrate(
     for var in SENSITIVITY_VARIABLES:
         key = f"sensitivity_{var}"
         try:
-            ds = sensitivity(records, var, min_samples=cfg.min_periods,
+            ds = sensitivity(records, var, min_periods=cfg.min_periods,
                              call=f"lidarcal calibrate (sensitivity {var})")
         except InputError as exc:
             # a short run, or a site where the variable hardly varies, leaves too few full bins

@@ -325,6 +325,32 @@ _CARRIED = ("acknowledgment", "geospatial_lat_min", "geospatial_lat_max", "geosp
 _TIME_COVERAGE = ("time_coverage_start", "time_coverage_end")
 
 
+def _from_inputs(inputs: Mapping[str, str | os.PathLike], input_datasets: Mapping[str, xr.Dataset],
+                 ) -> tuple[list[dict], list[str], dict[str, Any], dict[str, Any]]:
+    """Collect what :func:`stamp` takes from the inputs: records, histories, carried attributes, coverage."""
+    records = [{"role": role, "file": Path(path).name, "sha256": sha256(path)}
+               for role, path in inputs.items()]
+    past = []
+    carried: dict[str, Any] = {}
+    coverage: dict[str, Any] = {}
+    for role, other in input_datasets.items():
+        digest = other.attrs.get("lidarcal_source_sha256")
+        given = next((r for r in records if r["role"] == role), None)
+        if given is not None:  # also given as a path: add what the dataset knows (its own chain)
+            extra = _input_record(role, other)
+            given.update({k: v for k, v in extra.items() if k not in ("role", "file", "sha256")})
+        elif digest:
+            records.append(_input_record(role, other))
+        if other.attrs.get("history"):
+            past.append(str(other.attrs["history"]))
+        for key in _CARRIED:
+            if key in other.attrs and key not in carried:
+                carried[key] = other.attrs[key]
+        if "time_coverage_start" in other.attrs and "time_coverage_end" in other.attrs:
+            coverage = coverage or {k: other.attrs[k] for k in _TIME_COVERAGE if k in other.attrs}
+    return records, past, carried, coverage
+
+
 def stamp(
     ds: xr.Dataset,
     kind: str,
@@ -365,27 +391,7 @@ def stamp(
         Random seeds used, recorded as JSON.
     """
     now = _now()
-    records = []
-    for role, path in (inputs or {}).items():
-        records.append({"role": role, "file": Path(path).name, "sha256": sha256(path)})
-    past = []
-    carried: dict[str, Any] = {}
-    coverage: dict[str, Any] = {}
-    for role, other in (input_datasets or {}).items():
-        digest = other.attrs.get("lidarcal_source_sha256")
-        given = next((r for r in records if r["role"] == role), None)
-        if given is not None:  # also given as a path: add what the dataset knows (its own chain)
-            extra = _input_record(role, other)
-            given.update({k: v for k, v in extra.items() if k not in ("role", "file", "sha256")})
-        elif digest:
-            records.append(_input_record(role, other))
-        if other.attrs.get("history"):
-            past.append(str(other.attrs["history"]))
-        for key in _CARRIED:
-            if key in other.attrs and key not in carried:
-                carried[key] = other.attrs[key]
-        if "time_coverage_start" in other.attrs and "time_coverage_end" in other.attrs:
-            coverage = coverage or {k: other.attrs[k] for k in _TIME_COVERAGE if k in other.attrs}
+    records, past, carried, coverage = _from_inputs(inputs or {}, input_datasets or {})
     history = merge_history(*past, f"[{now}] {call} - lidarcal version: {__version__}")
 
     out = canonical_order(ds)

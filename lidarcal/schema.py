@@ -13,7 +13,7 @@ A variable is declared once.  A schema that carries variables declared in anothe
     include:
       - from: conditions          # schema kind whose own variables are copied
         into: coordinates         # or variables (the default)
-        only: [wind_speed, cnr]   # a subset (default: all of them, in their order)
+        only: [wind_speed, cnr]   # a subset (default: all its required ones, in their order)
         name: "{name}_bin_lower"  # name template (default "{name}")
         keep: [units, range]      # spec keys copied (default: all)
         set: {dims: ["{name}"]}   # keys set on every copy; "{name}" is replaced in strings
@@ -49,7 +49,7 @@ import yaml
 
 from lidarcal.data import packaged_dir
 from lidarcal.errors import InputError, ValidationError
-from lidarcal.units import LOG_UNITS, _parse
+from lidarcal.units import LOG_UNITS, parse_unit
 
 __all__ = ["load_schema", "declared_variables", "list_kinds", "validate_dataset", "output_attrs",
            "with_output_attrs", "COMMON_ATTRIBUTES"]
@@ -120,7 +120,7 @@ def _included(entry: dict[str, Any], where: str) -> tuple[str, dict[str, dict[st
     if into not in ("variables", "coordinates"):
         raise InputError(f"schema {where}: include 'into' is {into!r}; expected 'variables' or 'coordinates'")
     source = declared_variables(entry["from"])
-    only = entry.get("only", list(source))
+    only = entry.get("only", [n for n, spec in source.items() if spec.get("required", True)])
     missing = [n for n in only if n not in source]
     if missing:
         raise InputError(f"schema {where}: include from {entry['from']!r} names {missing}, which "
@@ -179,17 +179,21 @@ def _name_pattern(template: str) -> re.Pattern:
 def _spec_for(kind: str, name: str) -> tuple[dict[str, Any], dict[str, str]]:
     """Return the spec ``kind`` writes itself for ``name`` and the parts a name template matched.
 
-    An exact entry wins over a name template.
+    An exact entry wins over a name template.  When ``name`` is also included from another
+    schema, the ``units`` and checked ``attributes`` the include copied are written too, unless
+    the own entry says them (so the grid coordinates of a sweep declare only their long name).
     """
     raw = _read_schema(kind)
     sections = [raw.get("coordinates") or {}, raw.get("variables") or {}]
+    included = {**load_schema(kind)["coordinates"], **load_schema(kind)["variables"]}.get(name, {})
+    inherited = {k: v for k, v in included.items() if k in ("units", "attributes")}
     for section in sections:
         if name in section:
-            return dict(section[name] or {}), {}
+            return {**inherited, **(section[name] or {})}, {}
     for section in sections:
         for key, spec in section.items():
             if _is_template(key) and (match := _name_pattern(key).fullmatch(name)):
-                return dict(spec or {}), match.groupdict()
+                return {**inherited, **(spec or {})}, match.groupdict()
     raise InputError(f"schema {kind}.yaml declares no variable {name!r} (nor a name template matching "
                      f"it); declare it there with its long_name and units")
 
@@ -216,7 +220,8 @@ def output_attrs(kind: str, name: str, **context: Any) -> dict[str, Any]:
     ``attributes``, with templates filled from ``context`` (and from the parts of a templated
     name).  ``coverage_content_type`` defaults to ``modelResult``; ``flag_values`` become an
     ``int8`` array.  Order: long_name, units, coverage_content_type, standard_name, then the rest
-    as declared.  A template that fills to ``""`` (no standard name, no comment) is left out.
+    as declared.  A template that fills to ``""`` (no standard name, no comment) is left out, and so
+    is a key declared ``null`` (``coverage_content_type: null``: a label coordinate that has none).
     """
     spec, parts = _spec_for(kind, name)
     context = {**parts, **context}
@@ -227,8 +232,8 @@ def output_attrs(kind: str, name: str, **context: Any) -> dict[str, Any]:
     filled = {key: _fill(value, context, where) for key, value in declared.items()}
     if "flag_values" in filled:
         filled["flag_values"] = np.asarray(filled["flag_values"], dtype=np.int8)
-    for key in [k for k, v in declared.items() if _is_template(v) and filled[k] == ""]:
-        del filled[key]  # a template that fills to nothing is left out
+    for key in [k for k, v in declared.items() if (_is_template(v) and filled[k] == "") or v is None]:
+        del filled[key]  # a template that fills to nothing, or a key declared null, is left out
     return {**{k: filled.pop(k) for k in _LEADING_ATTRS if k in filled}, **filled}
 
 
@@ -259,7 +264,7 @@ def _unit_ok(found: str | None, spec: dict) -> str | None:
         if expected in LOG_UNITS:
             return None if found in LOG_UNITS[expected] else f"has units {found!r}; expected {expected!r}"
         try:
-            ok = _parse(found, where="").dimensionality == _parse(expected, where="").dimensionality
+            ok = parse_unit(found, where="").dimensionality == parse_unit(expected, where="").dimensionality
         except InputError:
             ok = False
         return None if ok else f"has units {found!r}; expected units convertible to {expected!r}"

@@ -4,7 +4,7 @@
 defines the canonical byte forms the seal digests (so the record can be re-checked with any
 netCDF library); :func:`verify_certificate` (``lidarcal verify``) recomputes them and checks a
 signature against a trusted public key.  Building the certificate itself is
-:mod:`lidarcal.certificate`, which re-exports these names.
+:mod:`lidarcal.certificate`.
 """
 
 from __future__ import annotations

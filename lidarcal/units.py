@@ -10,11 +10,10 @@ from __future__ import annotations
 import numbers
 from typing import Any
 
-import cf_xarray.units  # noqa: F401  (registers the CF unit formatter and aliases)
 import numpy as np
 import pint
 import xarray as xr
-from cf_xarray.units import units as ureg
+from cf_xarray.units import units as ureg  # importing it makes it pint's application registry
 
 from lidarcal.errors import MissingVariableError, UnitError
 
@@ -26,6 +25,7 @@ __all__ = [
     "convert_values",
     "convert_variable",
     "to_magnitude",
+    "parse_unit",
     "register_units",
 ]
 
@@ -46,10 +46,10 @@ _CANONICAL = {
 def register_units() -> None:
     """Make this registry (cf-xarray's) pint's application registry, the one pint-xarray uses.
 
-    Importing this module already does it (``cf_xarray.units`` registers itself); call this
-    again if other code replaced the application registry since.  ``import lidarcal`` arranges
-    it too, on the first import of ``pint_xarray``, so ``ds.pint.quantify()`` understands the
-    units of every artefact (``m s-1``, ``%``, ``dB``, ``1``).
+    ``import lidarcal`` already does it (it imports this module, and ``cf_xarray.units``
+    registers itself), so ``ds.pint.quantify()`` understands the units of every artefact
+    (``m s-1``, ``%``, ``dB``, ``1``); call this again if other code replaced the application
+    registry since.
     """
     if pint.get_application_registry().get() is not ureg:
         pint.set_application_registry(ureg)
@@ -64,7 +64,8 @@ def cf_units(unit: pint.Unit | str) -> str:
     return f"{unit:cf}" or "1"
 
 
-def _parse(text: str, *, where: str) -> pint.Unit:
+def parse_unit(text: str, *, where: str) -> pint.Unit:
+    """Return ``text`` as a unit of the registry or raise a :class:`UnitError` naming ``where``."""
     try:
         return ureg.Unit(text)
     except Exception as exc:  # pint raises several unrelated types here
@@ -87,7 +88,7 @@ def convert_values(values: Any, found: str | None, expected: str, *, where: str)
         raise UnitError(f"{where} has units {found!r}; expected {expected!r}")
     if found in {alias for a in LOG_UNITS.values() for alias in a}:
         raise UnitError(f"{where} has units {found!r}; expected units convertible to {expected!r}")
-    src, dst = _parse(found, where=where), _parse(expected, where="expected unit")
+    src, dst = parse_unit(found, where=where), parse_unit(expected, where="expected unit")
     if src.dimensionality != dst.dimensionality:
         raise UnitError(
             f"{where} has units {found!r} ({src.dimensionality}); expected units convertible "
@@ -137,7 +138,7 @@ def to_magnitude(value: Any, expected: str, *, name: str) -> float | np.ndarray:
         found = cf_units(value.units)
         out = convert_values(value.magnitude, found, expected, where=where)
         return out.item() if out.ndim == 0 else out
-    dimensionless = expected not in LOG_UNITS and _parse(expected, where="expected unit").dimensionless
+    dimensionless = expected not in LOG_UNITS and parse_unit(expected, where="expected unit").dimensionless
     if isinstance(value, numbers.Number | np.ndarray | list | tuple) and dimensionless:
         return np.asarray(value, dtype=float) if not isinstance(value, numbers.Number) else float(value)
     raise UnitError(

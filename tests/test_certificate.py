@@ -14,19 +14,17 @@ from lidarcal.bench import build_cube, simulate_run
 from lidarcal.certificate import (
     components,
     extract_component,
-    integrity_record,
     make_certificate,
     open_certificate,
     provenance_chain,
     result_table,
-    verify_certificate,
-    write_certificate,
 )
 from lidarcal.cli import main
 from lidarcal.errors import InputError, OutputExistsError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.provenance import jsonable, sha256, stamp
-from lidarcal.seal import seal_root
+from lidarcal.schema import validate_dataset
+from lidarcal.seal import integrity_record, seal_root, verify_certificate, write_certificate
 
 SERIAL = "WLS7-TEST"
 
@@ -195,6 +193,25 @@ def test_verify_cli_exit_codes(artefact_files, tmp_path, capsys):
     junk.write_bytes(b"not netcdf")
     assert main(["verify", str(junk)]) == 2
     assert "junk.nc: not a readable netCDF" in capsys.readouterr().err
+
+
+def test_provenance_variables_take_their_metadata_from_the_schema(artefact_files):
+    # the only variables a certificate writes itself: schemas/certificate.yaml declares them
+    # (name template provenance_{role}), and the validator checks every one
+    cert = make_certificate(**_open(artefact_files))
+    own = {k: cert["provenance_sensitivity_turbulence_intensity"].attrs[k]
+           for k in ("long_name", "units", "coverage_content_type")}
+    assert own == {
+        "long_name": "global attributes of the certificate's sensitivity_turbulence_intensity input",
+        "units": "1",
+        "coverage_content_type": "auxiliaryInformation",
+    }
+    assert cert["provenance_records"].attrs["long_name"] == (
+        "provenance (file, SHA-256, inputs, configuration, seeds, history) of the certificate's "
+        "records input")
+    assert validate_dataset(cert, "certificate") == []
+    cert["provenance_cube"].attrs["units"] = "m"
+    assert validate_dataset(cert, "certificate") == ["variable 'provenance_cube' has units 'm'; expected '1'"]
 
 
 def test_written_certificate_passes_validate(artefact_files, tmp_path, capsys):

@@ -78,7 +78,8 @@ def field_file(tmp_path_factory):
     cond["reference_wind_speed"] = ref.copy()
     cond["lidar_wind_speed"] = ref * (1.0 + 0.015 * rng.standard_normal(ref.shape))
     cond["lidar_wind_speed"].attrs = dict(ref.attrs)
-    cond.attrs.update(lidar_cone_angle=28.0, lidar_hybrid_weight=2 / 3, lidar_rwf_fwhm=30.0)
+    cond.attrs.update(lidarcal_artefact="field_campaign", lidar_cone_angle=28.0, lidar_hybrid_weight=2 / 3,
+                      lidar_rwf_fwhm=30.0)
     path = tmp_path_factory.mktemp("compare") / "field.nc"
     cond.to_netcdf(path)
     return path

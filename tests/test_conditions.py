@@ -84,12 +84,19 @@ def test_cnr_gradient_is_along_the_beam_hand_computed():
     z = np.array([40.0, 60.0, 100.0, 200.0])
     cnr = -12.0 - 0.09 * (z - 40.0)
     np.testing.assert_allclose(cnr_gradient_along_beam(cnr, z, 28.0), -0.0794653, rtol=1e-6)
-    # default cone angle is LidarModel's (28 deg); a 45 deg beam gives 0.09 / sqrt(2) = 0.0636396
-    np.testing.assert_allclose(cnr_gradient_along_beam(cnr, z), -0.0794653, rtol=1e-6)
+    # a 45 deg beam gives 0.09 / sqrt(2) = 0.0636396
     np.testing.assert_allclose(cnr_gradient_along_beam(cnr, z, 45.0), -0.0636396, rtol=1e-6)
     # vertical beam: the height derivative itself
     np.testing.assert_allclose(cnr_gradient_along_beam(cnr, z, 0.0), -0.09, rtol=1e-12)
-    assert LidarModel().cone_angle == 28.0
+
+
+def test_synthetic_cnr_gradient_uses_the_default_lidar_cone_angle():
+    # without a cone angle (and no base record giving lidar_cone_angle) the along-beam gradient is
+    # for LidarModel's default cone (28 deg): cos 28 deg times the vertical derivative of the CNR
+    ds = synthetic_conditions(3, (40, 80, 120), seed=1)
+    assert LidarModel().cone_angle == 28.0 == ds.attrs["lidarcal_synthetic_cone_angle"]
+    np.testing.assert_allclose(ds.cnr_gradient.values,
+                               cnr_gradient_along_beam(ds.cnr.values, ds.height.values, 28.0), rtol=1e-12)
 
 
 def test_cnr_model_gradient_crosses_zero_near_the_focus_as_figure_3():
@@ -100,7 +107,7 @@ def test_cnr_model_gradient_crosses_zero_near_the_focus_as_figure_3():
     z = np.arange(40.0, 201.0, 10.0)
     hours = np.arange(20000) * (10 / 60) % 24
     cnr = cnr_model(hours, z, np.random.default_rng(1))
-    g = cnr_gradient_along_beam(cnr, z).mean(axis=0)
+    g = cnr_gradient_along_beam(cnr, z, 28.0).mean(axis=0)
     assert (g[z <= 90] > 0.02).all() and (g[z >= 130] < -0.02).all()
     crossing = np.interp(0.0, -g, z)  # g decreases through zero
     assert 95.0 < crossing < 115.0
@@ -235,7 +242,8 @@ def test_synthetic_is_seeded_valid_and_power_law():
     a = synthetic_conditions(500, z, seed=3)
     b = synthetic_conditions(500, z, seed=3)
     c = synthetic_conditions(500, z, seed=4)
-    xr.testing.assert_identical(a, b)
+    xr.testing.assert_equal(a, b)  # same values (each artefact has its own id and creation date)
+    assert a.attrs["lidarcal_artefact"] == "conditions" and a.attrs["lidarcal_seeds"] == '{"seed": 3}'
     assert not np.array_equal(a.wind_speed.values, c.wind_speed.values)
     out = load_conditions(a)
     assert out.attrs["lidarcal_skipped_count"] == 0

@@ -1,4 +1,4 @@
-"""Everything the repository cites exists in the repository.
+"""Everything the repository cites exists in the repository, and the README stays a front door.
 
 * No file points to a document outside the repository (the old design and style notes, or a
   sibling ``shared`` directory): the project's own documentation is ``docs/``.
@@ -6,6 +6,8 @@
   ``schemas/rwf.yaml``, ...) exists; a glob such as ``tests/test_lidar*.py`` matches something.
 * Links between the pages of ``docs/`` resolve, including their ``#anchors``.
 * Every dotted ``lidarcal.…`` name in the Markdown documentation can be imported.
+* The README is short (under 8 KB), its quick start is two commands, the second exactly the
+  test command of ``.ci/run``, and every page of ``docs/`` is reachable from the docs index.
 """
 
 from __future__ import annotations
@@ -120,7 +122,7 @@ def test_docs_pages_exist_and_their_links_resolve():
     names = {p.name for p in pages}
     assert {"README.md", "contracts.md", "diagnose.md", "seeds.md", "units.md"} <= names
     broken = []
-    for page in pages:
+    for page in [ROOT / "README.md", ROOT / "CONTRIBUTING.md", *pages]:
         for target in MD_LINK.findall(page.read_text(encoding="utf-8")):
             if re.match(r"[a-z]+:", target):
                 continue  # an external URL
@@ -131,6 +133,31 @@ def test_docs_pages_exist_and_their_links_resolve():
             elif anchor and dest.suffix == ".md" and anchor not in _anchors(dest.read_text(encoding="utf-8")):
                 broken.append(f"{page.name}: {target} (no such heading)")
     assert broken == []
+
+
+def quick_start_commands(readme: str) -> list[str]:
+    """The fenced commands of the README's quick-start section, one per block."""
+    section = readme.split("## Quick start", 1)[1].split("\n## ", 1)[0]
+    return [block.strip() for block in re.findall(r"^```\n(.*?)^```", section, re.M | re.S)]
+
+
+def test_the_readme_is_a_front_door():
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    assert len(readme.encode("utf-8")) < 8 * 1024, "README.md over 8 KB: move the detail into a docs/ page"
+    install_and_run, install_and_test = quick_start_commands(readme)  # two commands, no more
+    assert install_and_run == "pip install . && lidarcal calibrate"
+    install, test = install_and_test.split(" && ")
+    assert (install, test) == ('pip install -e ".[test]"', "python -m pytest")
+    # .ci/run installs the same way and runs exactly the README's test command (then the slow suite)
+    ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+    lines = [line for line in ci if line.endswith(f"&& {test}")]
+    assert len(lines) == 1 and '-e ".[test]"' in lines[0], lines
+
+
+def test_every_docs_page_is_in_the_index():
+    index = (DOCS / "README.md").read_text(encoding="utf-8")
+    listed = set(re.findall(r"\]\(([\w\-]+\.md)\)", index))
+    assert listed == {p.name for p in DOCS.glob("*.md")} - {"README.md"}
 
 
 def _resolves(dotted: str) -> bool:
@@ -157,3 +184,35 @@ def test_every_lidarcal_name_in_the_documentation_imports(page):
     text = (ROOT / page).read_text(encoding="utf-8")
     names = sorted(set(DOTTED_NAME.findall(text)))
     assert [n for n in names if not _resolves(n)] == []
+
+
+# -- the docstring examples of the library run with the default suite ---------------------------
+
+#: A doctest directive that keeps an example from running (``+SKIP``), in any spelling.
+SKIPPED_EXAMPLE = re.compile(r"doctest:.*\+SKIP")
+
+
+def skipped_examples(root: Path) -> list[str]:
+    """``file:line`` of every docstring example under ``root`` marked not to run."""
+    return [f"{path.relative_to(root.parent)}:{n}"
+            for path in sorted(root.rglob("*.py"))
+            for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+            if SKIPPED_EXAMPLE.search(line)]
+
+
+def test_the_default_suite_runs_the_docstring_examples():
+    import tomllib
+
+    pyproject = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))
+    config = pyproject["tool"]["pytest"]["ini_options"]
+    assert "--doctest-modules" in config["addopts"].split()
+    assert "lidarcal" in config["testpaths"]
+
+
+def test_no_docstring_example_is_skipped(tmp_path):
+    # an example that does not run goes stale: it runs on small data, moves to a docs page, or goes
+    pkg = tmp_path / "pkg"
+    pkg.mkdir()
+    (pkg / "m.py").write_text('"""\n>>> 1 + 1\n2\n>>> heavy()  # doctest: +SKIP\n"""\n')
+    assert skipped_examples(pkg) == ["pkg/m.py:4"]  # the scanner finds a planted one
+    assert skipped_examples(ROOT / "lidarcal") == []

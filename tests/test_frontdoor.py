@@ -1,9 +1,12 @@
 """The front door for Python users: lazy top-level entry points and the README's Python chain."""
 
+import ast
+import importlib
 import json
 import re
 import subprocess
 import sys
+import types
 from pathlib import Path
 
 import pytest
@@ -15,52 +18,87 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def test_every_exported_name_resolves_to_its_entry_point():
-    from lidarcal.certificate import verify_certificate
+    from lidarcal.diagnose import diagnose
     from lidarcal.pipeline import calibrate
+    from lidarcal.seal import verify_certificate
 
     assert len(lidarcal.__all__) >= 11
     for name in lidarcal.__all__:
         assert getattr(lidarcal, name) is not None, name
-        assert name in dir(lidarcal), name
     assert lidarcal.calibrate is calibrate
     assert lidarcal.verify is verify_certificate
+    assert lidarcal.diagnose_campaign is diagnose
     with pytest.raises(AttributeError, match="no attribute 'calibrat'"):
         lidarcal.calibrat  # noqa: B018
 
 
-def test_diagnose_is_the_package_and_runs_the_diagnosis(tmp_path):
+def _stub() -> tuple[list[str], dict[str, tuple[str, str]]]:
+    """``__all__`` and the imports (name -> (module, attribute)) of lidarcal/__init__.pyi."""
+    tree = ast.parse(Path(lidarcal.__file__).with_suffix(".pyi").read_text())
+    names = next(ast.literal_eval(node.value) for node in tree.body
+                 if isinstance(node, ast.Assign) and node.targets[0].id == "__all__")
+    imports = {alias.asname or alias.name: (node.module, alias.name)
+               for node in tree.body if isinstance(node, ast.ImportFrom) for alias in node.names}
+    return names, imports
+
+
+def test_dir_all_and_the_type_checkers_view_agree():
+    names, imports = _stub()
+    assert names == lidarcal.__all__
+    assert set(names) - {"__version__"} <= set(imports)
+    for name, (module, attr) in imports.items():  # what the checker sees is what lidarcal holds
+        assert getattr(lidarcal, name) is getattr(importlib.import_module(module), attr), name
+    # dir() lists every export, before its first use too, and otherwise only submodules
+    public = {name for name in dir(lidarcal) if not name.startswith("_")}
+    assert set(names) - {"__version__"} <= public
+    others = public - set(names)
+    assert "units" in others and all(isinstance(getattr(lidarcal, name), types.ModuleType) for name in others)
+
+
+def test_diagnose_campaign_runs_the_diagnosis(tmp_path):
     import lidarcal.diagnose as package
 
-    assert lidarcal.diagnose is package and "effects" in dir(package)
-    # its diagnose() runs the diagnosis: a missing field file is its input error
+    # the top-level name does not collide with the package: after importing it, both are there
+    assert lidarcal.diagnose is package and "diagnose" not in lidarcal.__all__
+    # a missing field file is diagnose()'s input error
     with pytest.raises(InputError, match="missing.nc"):
-        lidarcal.diagnose.diagnose(tmp_path / "missing.nc")
+        lidarcal.diagnose_campaign(tmp_path / "missing.nc")
 
 
-def test_import_lidarcal_stays_light():
-    code = ("import sys, json, lidarcal; "
-            "print(json.dumps(sorted(m for m in ('numpy', 'xarray', 'dask', 'pint', 'netCDF4') "
-            "if m in sys.modules)))")
+def test_import_lidarcal_registers_units_and_defers_the_engine():
+    code = ("import sys, json, pint, lidarcal; "
+            "print(json.dumps([pint.get_application_registry().get() is lidarcal.units.ureg, "
+            "[type(f).__module__ for f in sys.meta_path if type(f).__module__.startswith('lidarcal')], "
+            "sorted(m for m in ('distributed', 'netCDF4', 'pyconturb', 'pint_xarray', 'lidarcal.pipeline') "
+            "if m in sys.modules)]))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert json.loads(out) == []
+    # the registry is pint's application registry, and no import hook was installed for it
+    assert json.loads(out) == [True, [], []]
     # first use imports what it needs
-    code = "import sys, lidarcal; lidarcal.open_artefact; print('xarray' in sys.modules)"
+    code = "import sys, lidarcal; lidarcal.calibrate; print('lidarcal.pipeline' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "True"
 
 
-def test_readme_python_chain_runs(tmp_path, monkeypatch):
-    """Execute the README's "In Python" block, with one day cut to 24 periods to keep it quick."""
+def test_readme_python_chain_runs_as_a_script_without_a_main_guard(tmp_path):
+    """The README's "In Python" block pasted into a script, run with ``python script.py``.
+
+    No ``if __name__ == "__main__":`` guard: the worker processes (two here) must not run the
+    script again.  One day is cut to 24 periods to keep it quick.
+    """
     section = README.read_text().split("## In Python", 1)[1]
     block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
-    assert "periods=144" in block
-    block = block.replace("periods=144", "periods=24")
-    monkeypatch.chdir(tmp_path)
-    namespace = {}
-    exec(compile(block, str(README), "exec"), namespace)  # noqa: S102 - our own README
-    budget = namespace["budget"]
+    assert "periods=144" in block and "__main__" not in block
+    script = tmp_path / "chain.py"
+    script.write_text(block.replace("periods=144", "periods=24, workers=2"))
+    done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    # the printed number is a relative uncertainty in percent
+    number, unit = done.stdout.split()
+    assert float(number) > 0 and unit == "%"
+    budget = lidarcal.open_artefact(tmp_path / "lidarcal-python" / "budget.nc")
     assert budget.attrs["lidarcal_artefact"] == "uncertainty_budget"
     assert list(budget.height.values) == [80.0, 120.0]
-    # the printed number is a relative uncertainty in percent
     assert budget.relative_uncertainty.attrs["units"] == "%"
     assert (tmp_path / "lidarcal-python" / "certificate.nc").exists()

@@ -5,13 +5,20 @@ and the package root) never import a stage.  Stages may import infrastructure an
 *before* them in :data:`STAGES`; importing a later stage (one that may depend on the importer)
 fails with the file, line and edge.  Function-local imports count like module-level ones, so
 a cycle cannot hide inside a function, and each one must say why it is local (``# cycle:``
-or ``# deferred:``).  Finally the module import graph has no cycle.  The checkers are
-themselves tested on small packages written to ``tmp_path``.
+or ``# deferred:``).  Finally the module import graph has no cycle.
+
+CONTRIBUTING.md holds the one map of the package: every module is named there, one table row
+each, and the stages appear in the order of :data:`STAGES`.  A ``kernels.py`` imports only the
+standard library, numpy, scipy and lidarcal modules that themselves import nothing else,
+followed through every import.  The checkers are themselves tested on small packages written
+to ``tmp_path``.
 """
 
 from __future__ import annotations
 
 import ast
+import re
+import sys
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -20,6 +27,7 @@ import pytest
 import lidarcal
 
 PACKAGE = Path(lidarcal.__file__).parent
+CONTRIBUTING = PACKAGE.parent / "CONTRIBUTING.md"
 
 #: Shared infrastructure: importable from anywhere, imports no stage.
 INFRASTRUCTURE = ("", "errors", "units", "schema", "cf", "binning", "provenance", "io", "compliance", "data",
@@ -298,3 +306,132 @@ def test_checker_finds_unexplained_local_imports(tmp_path):
         },
     )
     assert unexplained_local_imports(root) == ["pkg/io.py:5", "pkg/io.py:13"]
+
+
+# -- the map in CONTRIBUTING.md names every module ---------------------------------------------
+
+#: A map row: its first cell is a module path under the package, in backticks (bold or not).
+MAP_ROW = re.compile(r"^\|\s*\**`([\w./]+)`\**\s*\|", re.M)
+
+
+def package_modules(root: Path) -> list[str]:
+    """Every module of the package at ``root`` as the map names it: ``x.py``, ``pkg/x.py``, ``pkg/``."""
+    names = []
+    for path in sorted(root.rglob("*.py")):
+        rel = path.relative_to(root)
+        if rel.name != "__init__.py":
+            names.append(rel.as_posix())
+        elif rel.parent != Path("."):
+            names.append(rel.parent.as_posix() + "/")
+        else:
+            names.append("__init__.py")
+    return names
+
+
+def map_problems(root: Path, markdown: str, stages: tuple[str, ...] = STAGES) -> list[str]:
+    """What the map in ``markdown`` (its ``## Layout`` section) gets wrong about the package."""
+    section = markdown.split("\n## Layout", 1)[-1].split("\n## ", 1)[0]
+    named = MAP_ROW.findall(section)
+    actual = package_modules(root)
+    problems = [f"not in the map: {m}" for m in actual if m not in named]
+    problems += [f"in the map but gone: {m}" for m in named if m not in actual]
+    problems += [f"named twice: {m}" for m in sorted({m for m in named if named.count(m) > 1})]
+    order = []
+    for m in named:
+        stage = stage_of(module_name(root / (m + "__init__.py" if m.endswith("/") else m), root))
+        if stage in stages and stage not in order:
+            order.append(stage)
+    if order != [s for s in stages if s in order]:
+        problems.append(f"stages in the map in the order {order}, not that of STAGES")
+    return problems
+
+
+def test_contributing_names_every_module():
+    problems = map_problems(PACKAGE, CONTRIBUTING.read_text(encoding="utf-8"))
+    assert not problems, (f"the map in {CONTRIBUTING.name} (add or remove a row `| `path` | what it holds |` "
+                          "under the module's stage):\n" + "\n".join(problems))
+
+
+def test_map_checker_finds_missing_gone_and_misordered_modules(tmp_path):
+    root = _package(tmp_path, {"errors.py": "", "lidar/__init__.py": "", "lidar/wfr.py": "",
+                               "bench/__init__.py": "", "bench/grid.py": ""})
+    good = ("## Layout\n| module | holds |\n|---|---|\n| `__init__.py` | front |\n| `errors.py` | errors |\n"
+            "| **`bench/`** | bench |\n| `bench/grid.py` | grid |\n| **`lidar/`** | lidar |\n"
+            "| `lidar/wfr.py` | wfr |\n\n## Next\n| `gone.py` | outside the Layout section |\n")
+    assert map_problems(root, good) == []
+    bad = good.replace("| `lidar/wfr.py` | wfr |\n", "| `lidar/spectral.py` | moved |\n")
+    assert map_problems(root, bad) == ["not in the map: lidar/wfr.py",
+                                       "in the map but gone: lidar/spectral.py"]
+    swapped = good.replace("| **`bench/`** | bench |\n| `bench/grid.py` | grid |\n", "") + \
+        "| **`bench/`** | bench |\n| `bench/grid.py` | grid |\n"
+    swapped = swapped.replace("\n## Next", "")  # the rows after the lidar ones, still in Layout
+    assert map_problems(root, swapped) == [
+        "in the map but gone: gone.py",
+        "stages in the map in the order ['lidar', 'bench'], not that of STAGES"]
+
+
+# -- kernels take numbers: numpy, scipy and the standard library only --------------------------
+
+KERNEL_LIBRARIES = {"numpy", "scipy"}
+
+
+def third_party_imports(path: Path, root: Path) -> set[str]:
+    """Top-level names of what ``path`` imports outside the standard library and the package."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"), filename=str(path))):
+        if isinstance(node, ast.Import):
+            tops = [a.name.split(".")[0] for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and not node.level:
+            tops = [(node.module or "").split(".")[0]]
+        else:
+            continue
+        out |= {t for t in tops if t != root.name and t not in sys.stdlib_module_names}
+    return out
+
+
+def kernel_problems(root: Path) -> list[str]:
+    """Each import of a ``kernels.py`` that brings in anything but numpy/scipy, and what it brings."""
+    graph = import_graph(root)
+    files = {module_name(p, root): p for p in root.rglob("*.py")}
+
+    def reached(mod: str, seen: set[str]) -> set[str]:
+        """Third-party libraries ``mod`` imports, directly or through the package's modules."""
+        seen.add(mod)
+        libs = third_party_imports(files[mod], root)
+        for _, _, target in graph[mod]:
+            if target in files and target not in seen:
+                libs |= reached(target, seen)
+        return libs
+
+    problems = []
+    for kernel in sorted(m for m in graph if m.endswith(".kernels")):
+        own = sorted(third_party_imports(files[kernel], root) - KERNEL_LIBRARIES)
+        problems += [f"{kernel} imports {lib}" for lib in own]
+        for target in sorted({t for _, _, t in graph[kernel] if t in files and t != kernel}):
+            extra = sorted(reached(target, {kernel}) - KERNEL_LIBRARIES)
+            if extra:
+                problems.append(f"{kernel} imports {target}, which brings in {', '.join(extra)}")
+    return problems
+
+
+def test_kernels_import_only_numpy_and_scipy():
+    problems = kernel_problems(PACKAGE)
+    assert not problems, "kernels must take and return numbers (numpy/scipy only):\n" + "\n".join(problems)
+
+
+def test_kernel_checker_follows_imports(tmp_path):
+    root = _package(tmp_path, {
+        "binning.py": "import numpy as np\n",
+        "units.py": "import pint\n",
+        "lidar/__init__.py": "import xarray\n",
+        "lidar/model.py": "from dataclasses import dataclass\nimport xarray as xr\nfrom pkg import units\n",
+        "rwf/__init__.py": "",
+        "rwf/kernels.py": "import math\nfrom scipy import stats\n",
+        "analysis/__init__.py": "",
+        "analysis/kernels.py": "from pkg.binning import f\nfrom pkg.rwf import kernels\n",
+        "conditions/__init__.py": "",
+        "conditions/kernels.py": "import pandas\n\ndef f():\n    from pkg.lidar.model import M\n",
+    })
+    assert kernel_problems(root) == [
+        "pkg.conditions.kernels imports pandas",
+        "pkg.conditions.kernels imports pkg.lidar.model, which brings in pint, xarray"]

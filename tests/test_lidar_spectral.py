@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from lidarcal.lidar import LidarModel, simulate_period
-from lidarcal.lidar.spectral import cross_spectral_matrix, draw_coefficients, knot_indices, synthesise
+from lidarcal.lidar.spectral import cross_spectral_matrix, knot_indices
+from lidarcal.lidar.synthesis import draw_coefficients, synthesise
 
 PHI = np.radians(28.0)
 SIGMA_RWF = 30.0 / (2.0 * np.sqrt(2.0 * np.log(2.0)))

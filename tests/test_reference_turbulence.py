@@ -17,7 +17,8 @@ import pytest
 
 from lidarcal.errors import InputError
 from lidarcal.lidar import LidarModel, simulate_period
-from lidarcal.lidar.spectral import cross_spectral_matrix, draw_coefficients, synthesise
+from lidarcal.lidar.spectral import cross_spectral_matrix
+from lidarcal.lidar.synthesis import draw_coefficients, synthesise
 
 NT, T = 600, 600.0
 

@@ -11,10 +11,12 @@ from analysis_factories import make_records
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.bench import build_cube, simulate_run
 from lidarcal.cli import main
+from lidarcal.document.facts import fmt
+from lidarcal.document.figures import confidence_band
 from lidarcal.errors import OutputExistsError
 from lidarcal.io import write_artefact
 from lidarcal.provenance import stamp
-from lidarcal.report import confidence_band, fmt, report_figures, write_report
+from lidarcal.report import report_figures, write_report
 from lidarcal.rwf import range_weighting_function
 
 FIGURES = [  # page order: budget first
@@ -87,12 +89,6 @@ def report(inputs, tmp_path_factory):
         args += ["--sensitivity", str(s)]
     assert main(args) == 0
     return d / "cert.html"
-
-
-def _glyphs(plot, glyph_type):
-    from bokeh.models import GlyphRenderer
-
-    return [r for r in plot.renderers if isinstance(r, GlyphRenderer) and isinstance(r.glyph, glyph_type)]
 
 
 def test_budget_plot_shows_every_height_and_marks_thin_bins(inputs):
@@ -405,9 +401,9 @@ def test_certificate_document_states_status_admin_data_and_tolerance(inputs, rep
 def test_budget_figure_is_scaled_to_the_certified_range(inputs):
     from matplotlib.figure import Figure
 
-    from lidarcal.document import draw_budget
+    from lidarcal.document.figures import draw_budget
 
-    b = budget(inputs["records"], min_samples=20)
+    b = budget(inputs["records"], min_periods=20)
     fig = Figure()
     draw_budget(fig, b)
     top, bottom = fig.axes
@@ -424,7 +420,7 @@ def test_budget_figure_is_scaled_to_the_certified_range(inputs):
 
 
 def test_cube_colour_scale_from_the_cnr_bins_drawn(inputs):
-    from lidarcal.document import cube_colour_limits, drawn_cnr_range
+    from lidarcal.document.figures import cube_colour_limits, drawn_cnr_range
 
     cube = inputs["cube"]
     axis = np.sort(cube.cnr.values)

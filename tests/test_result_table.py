@@ -9,9 +9,10 @@ from analysis_factories import make_records
 import lidarcal
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.analysis.terms import PAPER_INPUTS, TABLE4_WIND_SPEEDS, uncertainty_terms
-from lidarcal.certificate import headline_range, make_certificate, result_table, write_certificate
+from lidarcal.certificate import headline_range, make_certificate, result_table
 from lidarcal.cli import main
 from lidarcal.io import write_artefact
+from lidarcal.seal import write_certificate
 
 SERIAL = "WLS7-TABLE"
 

@@ -20,12 +20,12 @@ from analysis_factories import make_records
 
 import lidarcal
 from lidarcal.analysis import budget, sensitivity
-from lidarcal.certificate import INTEGRITY_ATTR, make_certificate, result_table, write_certificate
+from lidarcal.certificate import make_certificate, result_table
 from lidarcal.cli import main
 from lidarcal.errors import InputError, SealError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.report import write_report
-from lidarcal.seal import require_valid_seal
+from lidarcal.seal import INTEGRITY_ATTR, require_valid_seal, write_certificate
 
 HALVED = ("budget_uncertainty", "budget_expanded_uncertainty", "budget_relative_expanded_uncertainty")
 

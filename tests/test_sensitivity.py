@@ -10,6 +10,7 @@ from hypothesis import strategies as st
 
 from lidarcal.analysis import compare_slopes, kernels, sensitivity
 from lidarcal.analysis.kernels import bin_statistics, edges_from_width, linear_regression, significance
+from lidarcal.analysis.sensitivity import per_unit, sensitivity_fit
 from lidarcal.campaign import simulate_campaign
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.cli import main
@@ -131,7 +132,7 @@ def test_known_slope_is_recovered_exactly():
     means = slopes[:, None] * centres[None, :] + np.array([[0.3], [-0.1]])
     recs, alpha = exact_records(means, centres, heights=(80.0, 140.0))
     # 5 periods per bin: below the default minimum of 10, so the minimum is lowered here
-    s = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None, min_samples=3)
+    s = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None, min_periods=3)
     assert s.sizes == {"height": 2, "bin": 5, "nv": 2}
     np.testing.assert_allclose(s.bin.values, centres, atol=1e-12)
     np.testing.assert_allclose(s.bin_bounds.values[:, 0], centres - 0.025, atol=1e-12)
@@ -155,7 +156,7 @@ def _scaled_case(target_stat, which):
     base = 3.0 * centres + np.array([0.05, -0.04, 0.03, 0.02, -0.05])  # R < 1
     recs, alpha = exact_records(base, centres)
     # the paper's 50-2 procedure (unweighted fit on bin centres), 5 periods per bin
-    opts = dict(bin_width=0.05, reference_range=None, min_samples=3, regression="unweighted")
+    opts = dict(bin_width=0.05, reference_range=None, min_periods=3, regression="unweighted")
     s0 = sensitivity(recs, "wind_shear_exponent", **opts)
     # independent expectation: scipy on the bin means, std of alpha by formula
     reg = scipy.stats.linregress(centres, base)
@@ -196,13 +197,13 @@ def test_thin_bins_are_dropped_but_kept_in_table():
     extra["wind_shear_exponent"][:] = 0.225
     extra["lidar_wind_speed"][:] = 8.0 * 1.5  # +50 %
     recs = xr.concat([recs, extra], dim="time")
-    s = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None, min_samples=3)
+    s = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None, min_periods=3)
     assert s.sample_count.isel(height=0).values.tolist() == [5, 5, 5, 5, 2]
     assert s.bin_flag.isel(height=0).values.tolist() == [0, 0, 0, 0, 1]
     assert np.isnan(s.mean_difference.isel(height=0, bin=4))
     np.testing.assert_allclose(s.slope.values[0], 2.0, atol=1e-9)
     assert int(s.periods_used[0]) == 20 and int(s.bins_used[0]) == 4
-    s2 = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None, min_samples=2)
+    s2 = sensitivity(recs, "wind_shear_exponent", bin_width=0.05, reference_range=None, min_periods=2)
     assert s2.slope.values[0] > 10  # the outlier bin now pulls the slope
 
 
@@ -223,6 +224,19 @@ def test_dask_records_give_identical_result():
     lazy = sensitivity(recs.chunk(time=100), "turbulence_intensity")
     for name in ("mean_difference", "sample_count", "slope", "correlation", "variable_std"):
         np.testing.assert_array_equal(eager[name].values, lazy[name].values)
+
+
+def test_sensitivity_fit_gives_the_numbers_of_the_artefact():
+    recs = make_records(n=500)
+    s = sensitivity(recs, "wind_shear_exponent", regression="unweighted", min_periods=5)
+    edges = np.append(s.bin_bounds.values[:, 0], s.bin_bounds.values[-1, 1])
+    fit = sensitivity_fit(recs, "wind_shear_exponent", edges, regression="unweighted", min_periods=5)
+    assert set(fit) == set(s.data_vars)
+    for name, values in fit.items():
+        np.testing.assert_array_equal(values, s[name].transpose("height", ...).values, err_msg=name)
+    assert s.slope.attrs["units"] == per_unit("%", "1") == "%"
+    with pytest.raises(InputError, match="min_periods must be >= 1"):
+        sensitivity_fit(recs, "wind_shear_exponent", [0.0, 0.1, 0.2], min_periods=0)
 
 
 def test_units_are_converted_at_the_boundary():
@@ -248,9 +262,9 @@ def test_too_few_samples_for_any_bin_is_a_clear_error(tmp_path):
     with pytest.raises(
         InputError,
         match=r"tiny.nc: variable 'wind_shear_exponent': no bin has at least "
-        r"min_samples=5",
+        r"min_periods=5",
     ):
-        sensitivity(recs, "wind_shear_exponent", min_samples=5)
+        sensitivity(recs, "wind_shear_exponent", min_periods=5)
     path = tmp_path / "tiny.nc"
     recs.to_netcdf(path)
     out = tmp_path / "sens.nc"
@@ -374,7 +388,7 @@ def test_bins_with_zero_spread_or_one_period_take_the_pooled_variance():
     extra["wind_shear_exponent"][:] = 0.225
     extra["lidar_wind_speed"][:] = 8.0 * (1 + 0.45 / 100)  # +0.45 % = 2 x 0.225: on the line, s = 0
     sens = sensitivity(xr.concat([recs, extra], dim="time"), "wind_shear_exponent", bin_width=0.05,
-                       reference_range=None, min_samples=3)
+                       reference_range=None, min_periods=3)
     assert np.isfinite(sens.regression_weight.values).all() and sens.bins_used.values[0] == 5
     np.testing.assert_allclose(sens.slope.values[0], 2.0, atol=1e-9)
 
@@ -392,7 +406,7 @@ def test_default_minimum_count_drops_sparse_tail_bins():
     assert (s.bin_flag.sel(bin=1.225).values == 1).all()
     assert (np.abs(s.slope.values - [2.0, -1.0]) < 4 * s.slope_standard_error.values).all()
     # with the old minimum of 3 and the unweighted fit on bin centres the tail bin decides the slope
-    old = sensitivity(both, "wind_shear_exponent", min_samples=3, regression="unweighted")
+    old = sensitivity(both, "wind_shear_exponent", min_periods=3, regression="unweighted")
     assert (old.slope.values < -4.0).all()
 
 

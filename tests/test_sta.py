@@ -8,6 +8,7 @@ here from the written numbers (finite differences, power law), not by lidarcal.
 """
 
 import json
+import re
 import warnings
 
 import numpy as np
@@ -16,7 +17,8 @@ import pytest
 
 from lidarcal.cli import main
 from lidarcal.conditions import load_conditions
-from lidarcal.conditions.sta import read_sta, sta_conditions
+from lidarcal.conditions.sta import sta_conditions
+from lidarcal.conditions.stafile import read_sta
 from lidarcal.errors import InputError
 from lidarcal.provenance import sha256
 
@@ -523,3 +525,85 @@ def test_sample_outputs_pass_validate(tmp_path, capsys):
     assert main(["validate", str(cond), str(field)]) == 0, capsys.readouterr().out
     report = capsys.readouterr().out
     assert "compliance:" not in report  # only the documented dB / standard_name exceptions remain
+
+
+# -- one missing-value rule for .sta files and mast CSVs ------------------------------------------
+
+
+def _with_cell(path, line, column, text):
+    """Rewrite one cell (1-based file line and column) of a tab- or comma-separated file."""
+    raw = path.read_bytes().decode("latin-1")
+    sep = "\t" if path.suffix == ".sta" else ","
+    lines = raw.split("\n")
+    cells = lines[line - 1].split(sep)
+    cells[column - 1] = text
+    lines[line - 1] = sep.join(cells)
+    path.write_bytes("\n".join(lines).encode("latin-1"))
+
+
+def _sta_and_mast(tmp_path):
+    z = np.array([40.0, 60.0, 80.0])
+    v = make_values(4, z, seed=3)
+    sta = write_older(tmp_path / "l.sta", ends(4), z, v)
+    starts = ends(4) - np.timedelta64(600, "s")
+    mast = write_mast(tmp_path / "mast.csv", starts, [80], v["speed"][:, [2]], v["disp"][:, [2]])
+    return sta, mast, v
+
+
+@pytest.mark.parametrize("marker", ["", "NaN", "nan", "NA", "n/a", "N/A", "null", "None", "-", " NaN "])
+def test_missing_markers_mean_missing_in_sta_files_and_mast_csvs_alike(tmp_path, marker):
+    from lidarcal.conditions.mast import read_reference_csv
+
+    sta, mast, v = _sta_and_mast(tmp_path)
+    first = read_sta(sta).lines[0]  # file line of the first data row
+    _with_cell(sta, first + 1, 4, marker)  # Vhm1 (speed at 40 m) of the second period
+    _with_cell(mast, 3, 2, marker)  # Spd80mN of the second period
+    speed = read_sta(sta).values["speed"]
+    assert np.isnan(speed[1, 0]) and np.isfinite(np.delete(speed.ravel(), 3)).all()
+    _, means, _, _ = read_reference_csv(mast, {80.0: "Spd80mN"})
+    assert np.isnan(means[80.0][1]) and np.isfinite(np.delete(means[80.0], 1)).all()
+
+
+@pytest.mark.parametrize("text", ["inf", "-Infinity", "12.5.1", "n/a?", "missing"])
+def test_other_text_is_refused_in_sta_files_and_mast_csvs_alike(tmp_path, text):
+    from lidarcal.conditions.mast import read_reference_csv
+
+    sta, mast, _ = _sta_and_mast(tmp_path)
+    first = read_sta(sta).lines[0]
+    _with_cell(sta, first + 1, 4, text)
+    _with_cell(mast, 3, 2, text)
+    found = re.escape(f"expected a number; found '{text}'")
+    with pytest.raises(InputError, match=rf"line {first + 1}, column 4 \('Vhm1'\): {found}"):
+        read_sta(sta)
+    with pytest.raises(InputError, match=rf"line 3, column 2 \('Spd80mN'\): {found}"):
+        read_reference_csv(mast, {80.0: "Spd80mN"})
+
+
+def test_sentinels_are_refused_not_read_as_missing_in_both(tmp_path):
+    from lidarcal.conditions.mast import read_reference_csv
+
+    sta, mast, _ = _sta_and_mast(tmp_path)
+    first = read_sta(sta).lines[0]
+    _with_cell(sta, first + 1, 4, "9999")
+    _with_cell(mast, 3, 2, "-999")
+    with pytest.raises(InputError, match="9999 is a missing-data code"):
+        read_sta(sta)
+    with pytest.raises(InputError, match="-999 is a missing-data code"):
+        read_reference_csv(mast, {80.0: "Spd80mN"})
+
+
+def test_sta_and_field_functions_return_stamped_artefacts(tmp_path):
+    from lidarcal.conditions.mast import sta_field_campaign
+    from lidarcal.schema import validate_dataset
+
+    sta, mast, _ = _sta_and_mast(tmp_path)
+    cond = sta_conditions([sta])
+    field = sta_field_campaign([sta], mast, {80.0: "Spd80mN"})
+    for ds, kind in ((cond, "conditions"), (field, "field_campaign")):
+        assert ds.attrs["lidarcal_artefact"] == kind
+        assert validate_dataset(ds, kind) == []
+    assert cond.wind_speed.attrs["coverage_content_type"] == "physicalMeasurement"
+    assert cond.data_availability.attrs["comment"] == "periods below 80 % are missing in every other variable"
+    assert field.wind_speed.attrs["comment"].startswith("mast 10-minute mean")
+    assert field.reference_wind_speed.attrs["long_name"] == (
+        "reference anemometer 10-minute mean wind speed (measured)")

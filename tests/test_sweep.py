@@ -85,6 +85,13 @@ def test_analysis_recovers_known_deviation_slopes_and_maximum():
     np.testing.assert_allclose(float(ds.slope_wind_shear_exponent[0]), -2.0, atol=1e-8)
     np.testing.assert_allclose(float(ds.slope_wind_speed[0]), 0.01, atol=1e-9)
     assert ds.slope_wind_speed.attrs["units"] == "% s m-1"
+    # metadata from schemas/sweep.yaml; units and standard names of the grid from conditions.yaml
+    assert ds.wind_speed.attrs == {"long_name": "swept wind speed", "units": "m s-1",
+                                   "coverage_content_type": "coordinate", "standard_name": "wind_speed"}
+    assert ds.max_deviation_wind_speed.attrs["standard_name"] == "wind_speed"
+    assert "standard_name" not in ds.max_deviation_cnr.attrs and ds.max_deviation_cnr.attrs["units"] == "dB"
+    assert ds.deviation.attrs["comment"] == "100 % (lidar - reference) / reference, mean over 2 replicate(s)"
+    assert "coverage_content_type" not in ds.variable.attrs  # declared null: a label coordinate
     np.testing.assert_allclose(float(ds.slope_wind_from_direction[0]), 0.0, atol=1e-9)
     assert ds.variable.values.tolist() == [
         "wind_speed",

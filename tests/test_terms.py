@@ -129,6 +129,29 @@ def test_kernel_scaling():
     np.testing.assert_array_equal(a[0, :4], b[0, :4])
 
 
+def test_terms_at_several_heights_stack_the_single_height_artefacts():
+    heights, alphas = [60.0, 120.0, 200.0], [0.1, 0.15, 0.3]
+    stacked = uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "height": Q_(heights, "m"),
+                                                      "shear_exponent": alphas})
+    assert validate_dataset(stacked) == []
+    assert stacked.uncertainty.dims == ("wind_speed", "contributor", "height")
+    assert stacked.n_runs.dims == ("height",) and stacked.n_runs.dtype == np.int32
+    config = json.loads(stacked.attrs["lidarcal_config"])
+    assert config["height"] == heights and config["shear_exponent"] == alphas
+    for z, alpha in zip(heights, alphas, strict=True):
+        one = uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "height": Q_(z, "m"),
+                                                      "shear_exponent": alpha})
+        at = stacked.sel(height=z)
+        for name in ("uncertainty", "relative_uncertainty", "total", "total_relative", "shear_exponent"):
+            np.testing.assert_array_equal(at[name].values, one[name].values)  # bit-identical
+            assert at[name].attrs == one[name].attrs
+    with pytest.raises(InputError, match="one exponent or one per height"):
+        uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "height": Q_(heights, "m"),
+                                                 "shear_exponent": [0.1, 0.2]})
+    with pytest.raises(InputError, match="distinct heights"):
+        uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "height": Q_([80.0, 80.0], "m")})
+
+
 def test_units_and_bad_values_refused():
     with pytest.raises(UnitError, match="argument 'height'"):
         uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "height": 100.0})

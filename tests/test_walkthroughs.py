@@ -1,10 +1,16 @@
-"""The walk-throughs in docs/ (steward, analyst, cluster user) are executed, so they cannot rot.
+"""The pages of docs/ with examples are executed, so their commands and numbers cannot rot.
+
+Walk-throughs (steward, analyst, cluster user) and the method and validation pages run in the
+default suite; the heavy pages (the command line stage by stage, the diagnose examples, the
+benchmark commands, the certificate's metadata options) are slow tests.  A page with examples
+that no test runs fails :func:`test_every_page_with_examples_is_executed`.
 
 Every fenced block whose info string is ``console`` or ``pycon`` runs, in page order, in one
 temporary directory per page:
 
 - ``console``: each ``$ `` line is a command (``lidarcal`` and ``dask`` run as
-  ``python -m lidarcal`` / ``python -m dask`` of this interpreter); it must exit 0, or the code
+  ``python -m lidarcal`` / ``python -m dask`` of this interpreter, ``python`` is this
+  interpreter); it must exit 0, or the code
   named by a trailing ``# exits N``.  The lines below a command are its illustrative output,
   not compared.
 - ``pycon``: doctest examples; all blocks of a page share one namespace and their printed
@@ -29,7 +35,8 @@ from pathlib import Path
 
 import pytest
 
-DOCS = Path(__file__).resolve().parents[1] / "docs"
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ROOT / "docs"
 BLOCK = re.compile(r"^```(console|pycon)[^\n]*\n(.*?)^```", re.M | re.S)
 PLACEHOLDER = "tcp://scheduler-host:8786"
 ENV = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
@@ -68,6 +75,8 @@ def run_command(command: str, cwd: Path, where: str) -> None:
     argv = shlex.split(command, comments=True)
     if argv[0] in ("lidarcal", "dask"):
         argv = [sys.executable, "-m", argv[0], *argv[1:]]
+    elif argv[0] == "python":
+        argv = [sys.executable, *argv[1:]]
     if argv[2:3] == ["calibrate"] and command in _calibrated and "-o" in argv:
         out = argv[argv.index("-o") + 1]
         shutil.copytree(_calibrated[command] / out, cwd / out)
@@ -134,6 +143,41 @@ def test_analyst_walkthrough(tmp_path, monkeypatch):
     assert run_page("analyst.md", tmp_path, monkeypatch) >= 3
 
 
+def test_validation_page(tmp_path, monkeypatch):
+    data = {"tests/data/": f"{ROOT / 'tests' / 'data'}/"}
+    assert run_page("validation.md", tmp_path, monkeypatch, replace=data) >= 1
+
+
+def test_method_notes(tmp_path, monkeypatch):
+    assert run_page("method.md", tmp_path, monkeypatch) >= 4
+
+
+@pytest.mark.slow
+def test_command_line_walkthrough(tmp_path, monkeypatch):
+    # the page's ``sample_data/...`` paths are the repository's, whatever directory it runs in
+    sample = {"sample_data/": f"{ROOT / 'sample_data'}/"}
+    assert run_page("cli.md", tmp_path, monkeypatch, replace=sample) >= 7
+
+
+@pytest.mark.slow
+def test_benchmark_scripts_run(tmp_path, monkeypatch):
+    scripts = {"benchmarks/": f"{ROOT / 'benchmarks'}/"}
+    assert run_page("performance.md", tmp_path, monkeypatch, replace=scripts) >= 1
+
+
+@pytest.mark.slow
+def test_certificate_page(tmp_path, monkeypatch):
+    # the page's metadata options on a short run: the options parse and the run ends well
+    short = {"lidarcal calibrate -o run": "lidarcal calibrate --periods 24 --heights 80 120 --min-periods 3 "
+                                          "--max-replicas 1 --no-progress -o run"}
+    assert run_page("certificate.md", tmp_path, monkeypatch, replace=short) >= 1
+
+
+@pytest.mark.slow
+def test_diagnose_examples(tmp_path, monkeypatch):
+    assert run_page("diagnose_examples.md", tmp_path, monkeypatch) >= 2
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -173,3 +217,13 @@ def local_cluster(tmp_path):
 def test_cluster_walkthrough(tmp_path, monkeypatch, local_cluster):
     assert PLACEHOLDER in (DOCS / "cluster.md").read_text(encoding="utf-8")
     assert run_page("cluster.md", tmp_path, monkeypatch, replace={PLACEHOLDER: local_cluster}) >= 3
+
+
+def test_every_page_with_examples_is_executed():
+    # a page whose console or pycon blocks no test runs would go stale unnoticed
+    tests = Path(__file__).parent
+    executed = {name for path in tests.glob("test_*.py")
+                for name in re.findall(r"run_page\(\s*\"([\w.\-]+\.md)\"", path.read_text(encoding="utf-8"))}
+    with_examples = {page.name for page in DOCS.glob("*.md") if blocks(page)}
+    assert with_examples - executed == set()
+    assert executed - with_examples == set()  # and every page a test runs has something to run

@@ -9,27 +9,17 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from lidarcal.conditions.variables import CANONICAL_UNITS as _VARIABLE_UNITS
-from lidarcal.conditions.variables import CONDITIONS
-from lidarcal.conditions.variables import STANDARD_NAMES as _STANDARD_NAMES
+from lidarcal.conditions.variables import CANONICAL_UNITS
 from lidarcal.errors import InputError, MissingVariableError
-from lidarcal.io import source_name  # noqa: F401  (imported from here by the analysis modules)
 from lidarcal.units import LOG_UNITS, convert_values
-
-#: Canonical units of the variables an analysis may use (docs/contracts.md): the declared
-#: conditions variables and measured pair, plus the simulated scalar and vector speeds.
-CANONICAL_UNITS = {
-    **_VARIABLE_UNITS,
-    "lidar_wind_speed_scalar": "m s-1",
-    "lidar_wind_speed_vector": "m s-1",
-}
-
-#: CF standard names of the conditions variables.
-STANDARD_NAMES = {n: s for n, s in _STANDARD_NAMES.items() if n in CONDITIONS}
 
 
 def checked(ds: xr.Dataset, name: str, *, source: str, expected: str | None = None) -> xr.DataArray:
-    """``ds[name]`` on dims (time, height) in ``expected`` units (default: canonical)."""
+    """``ds[name]`` on dims (time, height) in ``expected`` units.
+
+    The default is the canonical unit of a conditions variable or of the measured pair
+    (:data:`lidarcal.conditions.variables.CANONICAL_UNITS`), else the variable's own unit.
+    """
     if name not in ds.variables:
         raise MissingVariableError(
             f"{source}: required variable {name!r} is missing; found {sorted(map(str, ds.data_vars))}"

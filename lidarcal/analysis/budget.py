@@ -48,17 +48,18 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis import kernels
-from lidarcal.analysis._records import checked, select_heights, source_name
+from lidarcal.analysis._records import checked, select_heights
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.binning import bin_index
-from lidarcal.cf import Param, declared_attrs, with_bounds
+from lidarcal.cf import with_bounds
 from lidarcal.errors import InputError, MissingVariableError
+from lidarcal.io import source_name
 from lidarcal.provenance import stamp
+from lidarcal.schema import with_output_attrs
 from lidarcal.units import Q_, convert_values, to_magnitude
 
 __all__ = ["budget", "certified_bins", "numerical_state", "tolerance_exponent", "CONTRIBUTORS",
-           "DEFAULT_CERTIFIED_RANGE", "DEFAULT_MIN_PERIODS", "DEFAULT_SIGNIFICANT_DIGITS", "FLAG_MEANINGS",
-           "TERMS_TOTAL_NAMES", "TRIAL_VARIABLES"]
+           "DEFAULT_CERTIFIED_RANGE", "DEFAULT_MIN_PERIODS", "DEFAULT_SIGNIFICANT_DIGITS", "TRIAL_VARIABLES"]
 
 #: Contributors of each approach, in the order of the ``contributor`` dimension.
 CONTRIBUTORS = {
@@ -80,20 +81,19 @@ _CONTRIBUTOR_NAMES = {
 
 #: Certified wind-speed range: bin centres (m s-1, inclusive) a certified bin may have.
 DEFAULT_CERTIFIED_RANGE = (4.0, 16.0)
-#: Fewest distinct 10-minute periods of the conditions record in a certified bin.
+#: Fewest distinct 10-minute periods of the conditions record in a certified bin, and in a bin
+#: entering a sensitivity regression (:mod:`lidarcal.analysis.sensitivity`): one rule for a bin
+#: that counts.  IEC 61400-50-2 drops bins "that do not contain sufficient sample number" without
+#: a number in any text available here, so this is lidarcal's documented choice: 10 periods give
+#: the bin variance 9 degrees of freedom, enough for its inverse (the weight n / s²) to have a
+#: finite mean (inflated 9/7) and variance, and for the bin mean to be close to normal
+#: (docs/sensitivity.md).
 DEFAULT_MIN_PERIODS = 10
 #: Significant digits the Monte Carlo settles every certified value to (JCGM 101 §7.9).
 DEFAULT_SIGNIFICANT_DIGITS = 2
-#: ``bin_flag`` meanings, in the order of its values 0, 1, 2, 3.
-FLAG_MEANINGS = ("certified", "too_few_periods", "empty", "outside_certified_range")
-#: ``numerical_flag`` meanings (values 0, 1, 2).
-NUMERICAL_FLAG_MEANINGS = ("settled", "not_settled", "not_certified")
 #: Variables (dim ``trial``) of the further Monte Carlo replicas in ``simulated_rtd`` records.
 TRIAL_VARIABLES = ("trial_replica", "trial_period_key", "trial_height", "trial_lidar_wind_speed",
                    "trial_reference_wind_speed")
-
-#: Names under which an ``uncertainty_terms`` artefact may store the Table 4 total (m s-1).
-TERMS_TOTAL_NAMES = ("total", "total_uncertainty", "combined_uncertainty", "uncertainty")
 
 
 def _fraction(value: Any, name: str) -> float:
@@ -115,9 +115,9 @@ def _terms_total(
     positive = centres > 0
     if terms is None:
         out = np.full((len(heights), len(centres)), np.nan)
-        for i, h in enumerate(heights):
-            inputs = {**PAPER_INPUTS, "height": f"{h} m", "noise_terms": noise_terms}
-            out[i, positive] = uncertainty_terms(Q_(centres[positive], "m s-1"), **inputs).total.values
+        at = uncertainty_terms(Q_(centres[positive], "m s-1"), **{**PAPER_INPUTS, "height": Q_(heights, "m")},
+                               noise_terms=noise_terms)
+        out[:, positive] = at.total.transpose("height", "wind_speed").values
         how = "" if noise_terms == "printed" else f", noise_terms={noise_terms!r}"
         return out, f"lidarcal.analysis.terms.uncertainty_terms(**PAPER_INPUTS{how}) at each budget height"
     if noise_terms != "printed" and terms.attrs.get("noise_terms", "printed") != noise_terms:
@@ -125,25 +125,20 @@ def _terms_total(
                          f"{terms.attrs.get('noise_terms', 'printed')!r}; asked for {noise_terms!r} "
                          "(recompute it with lidarcal terms --noise-terms)")
     src = source_name(terms, "<terms>")
-    name = next((n for n in TERMS_TOTAL_NAMES if n in terms.data_vars), None)
-    if name is None:
-        raise MissingVariableError(
-            f"{src}: no Table 4 total variable; expected one of {list(TERMS_TOTAL_NAMES)}, "
-            f"found {sorted(map(str, terms.data_vars))}"
-        )
-    total = terms[name]
+    if "total" not in terms.data_vars:
+        raise MissingVariableError(f"{src}: no Table 4 total variable 'total'; found "
+                                   f"{sorted(map(str, terms.data_vars))}")
+    total = terms["total"]
     if "wind_speed" not in total.dims:
-        raise InputError(
-            f"{src}: variable {name!r} has dims {tuple(total.dims)}; expected a 'wind_speed' dim")
-    where = f"{src}: variable {name!r}"
-    values = convert_values(total.values, total.attrs.get("units"), "m s-1", where=where)
+        raise InputError(f"{src}: variable 'total' has dims {tuple(total.dims)}; expected a 'wind_speed' dim")
+    values = convert_values(total.values, total.attrs.get("units"), "m s-1", where=f"{src}: variable 'total'")
     total = total.copy(data=values)
     ws = np.asarray(terms["wind_speed"].values, dtype=float)
     lo, hi = float(ws.min()), float(ws.max())
     need = centres[positive] if positive.any() else centres
     if need.min() < lo - 1e-9 or need.max() > hi + 1e-9:
         raise InputError(
-            f"{src}: variable {name!r} covers wind speeds {lo:g}-{hi:g} m s-1; the budget needs "
+            f"{src}: variable 'total' covers wind speeds {lo:g}-{hi:g} m s-1; the budget needs "
             f"{need.min():g}-{need.max():g} m s-1 (no extrapolation); recompute the terms over "
             "that range"
         )
@@ -153,12 +148,12 @@ def _terms_total(
         if heights.min() < th.min() - 1e-6 or heights.max() > th.max() + 1e-6:
             raise InputError(f"{src}: terms cover heights {th.min():g}-{th.max():g} m; budget needs "
                              f"{heights.min():g}-{heights.max():g} m")
-        out = out.interp(height=heights).transpose("height", "wind_speed")
-        arr = out.values
+        out = out.interp(height=heights) if th.size > 1 else out.isel(height=[0] * len(heights))
+        arr = out.transpose("height", "wind_speed").values
     else:
         extra = [d for d in out.dims if d != "wind_speed"]
         if extra:
-            raise InputError(f"{src}: variable {name!r} has unexpected dims {extra}")
+            raise InputError(f"{src}: variable 'total' has unexpected dims {extra}")
         arr = np.broadcast_to(out.values, (len(heights), len(centres)))
     origin = src
     if "height" in terms.coords and terms["height"].ndim == 0:
@@ -190,8 +185,8 @@ def certified_bins(centres: np.ndarray, period_count: np.ndarray, *,
 def tolerance_exponent(spread: np.ndarray) -> np.ndarray:
     """Smallest integer ℓ with ½·10^ℓ ≥ ``spread`` (= 2 s/√h); NaN where ``spread`` is NaN.
 
-    >>> tolerance_exponent(np.array([0.04, 0.05, 0.051, 0.3])).tolist()
-    [-1.0, -1.0, 0.0, 0.0]
+    >>> tolerance_exponent(np.array([0.04, 0.05, 0.051, 0.3])).astype(int).tolist()
+    [-1, -1, 0, 0]
     """
     spread = np.asarray(spread, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -226,62 +221,6 @@ def numerical_state(value: np.ndarray, estimates: np.ndarray, certified: np.ndar
     return tol, flag, h
 
 
-#: Declared CF attributes of every output variable (applied by :func:`_assemble`).  Templates:
-#: ``{k}`` the coverage factor as text, ``{min_periods}``, ``{lo}``, ``{hi}``, ``{digits}``;
-#: ``Param("k")`` the factor as a number.
-OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
-    "uncertainty": dict(
-        long_name="combined standard uncertainty of the lidar wind speed (quadrature sum of contributors)",
-        units="m s-1", ancillary_variables="sample_count period_count bin_flag",
-        standard_name="wind_speed standard_error"),
-    "relative_uncertainty": dict(
-        long_name="combined standard uncertainty relative to the bin mean reference wind speed", units="%"),
-    "expanded_uncertainty": dict(long_name="expanded uncertainty (k = {k})", units="m s-1",
-                                 coverage_factor=Param("coverage_factor")),
-    "relative_expanded_uncertainty": dict(
-        long_name="expanded uncertainty (k = {k}) relative to the bin mean reference wind speed", units="%",
-        coverage_factor=Param("coverage_factor"), ancillary_variables="numerical_tolerance numerical_flag"),
-    "numerical_tolerance": dict(
-        long_name="numerical tolerance of the relative expanded uncertainty reached by the Monte Carlo "
-                  "(JCGM 101 7.9.4: smallest 1/2 10^l at least 2 s / sqrt(h), s the standard deviation of "
-                  "the h replica estimates)", units="%", coverage_content_type="qualityInformation",
-        comment="NaN where fewer than two replicas estimated the value"),
-    "numerical_flag": dict(
-        long_name="relative expanded uncertainty settled to {digits} significant digits by the Monte Carlo",
-        units="1", coverage_content_type="qualityInformation",
-        flag_values=np.array([0, 1, 2], dtype=np.int8), flag_meanings=" ".join(NUMERICAL_FLAG_MEANINGS),
-        comment="settled: numerical_tolerance <= 1/2 10^l for {digits} significant digits (JCGM 101 7.9.2); "
-                "only certified bins are assessed"),
-    # CF standard-name modifiers (Appendix C): each contribution is a standard uncertainty of
-    # the wind speed; relative and expanded uncertainties have no CF name (docs/certificate.md)
-    "contribution": dict(long_name="standard uncertainty contribution", units="m s-1",
-                         standard_name="wind_speed standard_error"),
-    "relative_contribution": dict(
-        long_name="standard uncertainty contribution relative to the bin mean reference wind speed",
-        units="%"),
-    "sample_count": dict(long_name="number of Monte Carlo trials (10-minute records, all replicas) in bin",
-                         units="1", coverage_content_type="auxiliaryInformation",
-                         standard_name="wind_speed number_of_observations"),
-    "period_count": dict(long_name="number of distinct 10-minute periods of the conditions record in bin",
-                         units="1", coverage_content_type="auxiliaryInformation"),
-    "mean_reference_wind_speed": dict(long_name="mean reference wind speed in bin", units="m s-1",
-                                      standard_name="wind_speed"),
-    "mean_lidar_wind_speed": dict(long_name="mean lidar wind speed in bin", units="m s-1",
-                                  standard_name="wind_speed"),
-    "mean_difference": dict(long_name="mean lidar minus reference wind speed", units="m s-1"),
-    "std_difference": dict(long_name="standard deviation of lidar minus reference wind speed (ddof=1)",
-                           units="m s-1"),
-    "bin_flag": dict(long_name="bin certification flag", units="1",
-                     coverage_content_type="qualityInformation",
-                     flag_values=np.array([0, 1, 2, 3], dtype=np.int8), flag_meanings=" ".join(FLAG_MEANINGS),
-                     comment="certified: centre in {lo:g} to {hi:g} m s-1 and at least {min_periods} "
-                             "distinct "
-                             "periods; too_few_periods: fewer than {min_periods} periods; empty: no period; "
-                             "outside_certified_range: centre outside {lo:g} to {hi:g} m s-1"),
-    "wind_speed": dict(long_name="centre of reference wind speed bin", units="m s-1",
-                       standard_name="wind_speed", coverage_content_type="coordinate"),
-}
-
 #: Relative (fraction of the bin mean reference speed) inputs of the IEC approach.
 _IEC_FRACTIONS = ("reference_relative_uncertainty", "mounting", "separation", "flow_inhomogeneity")
 
@@ -305,7 +244,6 @@ def budget(
     noise_terms: str = "printed",
     source: str | None = None,
     call: str | None = None,
-    min_samples: int | None = None,
 ) -> xr.Dataset:
     """Uncertainty budget per height and reference wind-speed bin.
 
@@ -341,8 +279,6 @@ def budget(
         bin's mean reference wind speed.
     source, call : str, optional
         File name for messages and the command recorded in ``history``.
-    min_samples : int, optional
-        The former name of ``min_periods`` (given, it replaces it).
 
     Returns
     -------
@@ -352,8 +288,6 @@ def budget(
     source = source or source_name(records)
     if approach not in CONTRIBUTORS:
         raise InputError(f"approach must be one of {sorted(CONTRIBUTORS)}; got {approach!r}")
-    if min_samples is not None:
-        min_periods = int(min_samples)
     if int(min_periods) < 2:
         raise InputError(f"min_periods must be >= 2 (a standard deviation needs two periods); "
                          f"got {min_periods}")
@@ -582,7 +516,7 @@ def _iec_parts(binned: Mapping[str, np.ndarray], u_abs: float,
 def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edges: np.ndarray,
               binned: Mapping[str, Any], contribution: np.ndarray, rule: Mapping[str, Any], k: float,
               config: dict[str, Any], call: str | None) -> xr.Dataset:
-    """Build the ``uncertainty_budget`` artefact with the attributes of :data:`OUTPUT_ATTRS`, stamped."""
+    """Build the ``uncertainty_budget`` artefact with the attributes of its schema, stamped."""
     n, names = binned["n"], CONTRIBUTORS[approach]
     combined = kernels.quadrature(contribution, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -614,19 +548,15 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edge
               "monte_carlo_not_settled": int((nflag == 1).sum())}
     lo, hi = rule["certified_range"]
     context = {"k": f"{k:g}", "coverage_factor": k, "min_periods": rule["min_periods"], "lo": lo, "hi": hi,
-               "digits": rule["significant_digits"]}
+               "digits": rule["significant_digits"],
+               "contributor_description": "; ".join(f"{c}: {_CONTRIBUTOR_NAMES[c]}" for c in names)}
     ds = xr.Dataset(
-        {name: (dims, data, declared_attrs(OUTPUT_ATTRS, name, **context))
-         for name, (dims, data) in values.items()},
-        coords={
-            "height": records["height"].variable.copy(),
-            "wind_speed": ("wind_speed", 0.5 * (edges[:-1] + edges[1:]),
-                           declared_attrs(OUTPUT_ATTRS, "wind_speed", **context)),
-            "contributor": ("contributor", np.array(names, dtype=object), {
-                "long_name": "uncertainty contributor",
-                "description": "; ".join(f"{c}: {_CONTRIBUTOR_NAMES[c]}" for c in names)}),
-        },
+        {name: (dims, data) for name, (dims, data) in values.items()},
+        coords={"height": records["height"].variable.copy(),
+                "wind_speed": ("wind_speed", 0.5 * (edges[:-1] + edges[1:])),
+                "contributor": ("contributor", np.array(names, dtype=object))},
     )
+    ds = with_output_attrs(ds, "uncertainty_budget", **context)
     ds["height"].attrs = dict(records["height"].attrs)
     ds = with_bounds(ds, "wind_speed", edges)
     ds.attrs = {"approach": approach, "coverage_factor": k, "min_periods": rule["min_periods"],

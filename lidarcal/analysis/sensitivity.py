@@ -8,7 +8,8 @@ For one environmental variable *X* and each height:
    ``d = 100 % · (lidar − reference) / reference`` (``relative=True``; relative to the
    **reference** wind speed of each period, then averaged) or ``d = lidar − reference`` in
    m s-1 (``relative=False``);
-3. bins with fewer than ``min_samples`` periods (default 10, see :data:`DEFAULT_MIN_SAMPLES`)
+3. bins with fewer than ``min_periods`` periods (default 10, the budget's
+   :data:`~lidarcal.analysis.budget.DEFAULT_MIN_PERIODS`: one rule for a bin that counts)
    are dropped (kept in the table with their count, flagged, mean set to NaN);
 4. a **weighted** least-squares line of the remaining bin means against the mean of *X* in
    each bin, with weights ``1 / SE² = n / s²`` from each bin's count *n* and spread *s*
@@ -31,7 +32,8 @@ documented choice: with ``n ≥ 10`` the bin's ``s²`` has 9 degrees of freedom,
 (the weight) has a finite mean and variance (``E[σ²/s²] = ν/(ν − 2) = 1.29``, relative
 spread ≈ 0.6; with ``n = 3`` the mean of ``1/s²`` is infinite and one lucky bin can take
 all the weight) and the bin mean of a skewed difference is close to normal.  The count is
-a parameter (``--min-samples``) and recorded in the artefact.  ``docs/sensitivity.md`` has
+a parameter (``min_periods``; ``--min-samples`` on the command line) and recorded in the
+artefact (attribute ``min_samples``, the file's name for it).  ``docs/sensitivity.md`` has
 the derivation.
 
 One ``sensitivity`` artefact describes one variable, so every quantity has a single unit
@@ -50,14 +52,18 @@ import xarray as xr
 from scipy import stats
 
 from lidarcal.analysis import kernels
-from lidarcal.analysis._records import STANDARD_NAMES, checked, select_heights, source_name
+from lidarcal.analysis._records import checked, select_heights
+from lidarcal.analysis.budget import DEFAULT_MIN_PERIODS
 from lidarcal.cf import with_bounds
+from lidarcal.conditions.variables import STANDARD_NAMES
 from lidarcal.errors import InputError
+from lidarcal.io import source_name
 from lidarcal.provenance import stamp
 from lidarcal.schema import output_attrs
 from lidarcal.units import LOG_UNITS, to_magnitude
 
-__all__ = ["sensitivity", "sensitivities", "compare_slopes", "DEFAULT_BIN_WIDTHS", "DEFAULT_MIN_SAMPLES"]
+__all__ = ["sensitivity", "sensitivity_fit", "sensitivities", "compare_slopes", "per_unit",
+           "DEFAULT_BIN_WIDTHS"]
 
 #: Bin widths used when none is given, in the variable's canonical units.
 DEFAULT_BIN_WIDTHS = {
@@ -68,15 +74,6 @@ DEFAULT_BIN_WIDTHS = {
     "cnr": 2.0,                   # dB, the bench's CNR step (Table 1)
     "cnr_gradient": 0.01,         # dB m-1
 }
-
-#: Minimum number of 10-minute periods for a bin to enter the regression.  IEC 61400-50-2
-#: classification (paper §3.3) filters out bins "that do not contain sufficient sample number"
-#: without a number in any text available here, so this is lidarcal's documented choice: 10
-#: periods give the bin variance 9 degrees of freedom, enough for its inverse (the weight
-#: n / s²) to have a finite mean (inflated 9/7) and variance, and for the bin mean to be
-#: close to normal (module docstring, docs/sensitivity.md).  A parameter (``--min-samples``),
-#: recorded in the artefact.
-DEFAULT_MIN_SAMPLES = 10
 
 #: Confidence level of the slope's confidence interval.
 CONFIDENCE = 0.95
@@ -94,8 +91,12 @@ THRESHOLD_EQ12 = 0.5  # %
 THRESHOLD_EQ13 = 0.1  # %
 
 
-def _per_unit(diff_units: str, x_units: str) -> str:
-    """Units of a slope of ``diff_units`` per ``x_units`` in UDUNITS spelling."""
+def per_unit(diff_units: str, x_units: str) -> str:
+    """Return the units of a slope of ``diff_units`` per ``x_units``, in UDUNITS spelling.
+
+    >>> per_unit("%", "m s-1"), per_unit("%", "dB m-1"), per_unit("m s-1", "1")
+    ('% s m-1', '% m dB-1', 'm s-1')
+    """
     if x_units in ("1", ""):
         return diff_units
     parts = x_units.split()
@@ -146,7 +147,7 @@ def sensitivity(
     *,
     bin_width: Any = None,
     bins: Any = None,
-    min_samples: int = DEFAULT_MIN_SAMPLES,
+    min_periods: int = DEFAULT_MIN_PERIODS,
     relative: bool = True,
     regression: str = "weighted",
     heights: Iterable[float] | None = None,
@@ -169,8 +170,9 @@ def sensitivity(
         dimensionless variables and dB); default :data:`DEFAULT_BIN_WIDTHS`.
     bins : array, optional
         Explicit increasing bin edges (canonical units) instead of ``bin_width``.
-    min_samples : int
-        Bins with fewer periods are left out of the regression (default 3).
+    min_periods : int
+        Bins with fewer periods are left out of the regression (default
+        :data:`~lidarcal.analysis.budget.DEFAULT_MIN_PERIODS`, 10).
     relative : bool
         Difference in % of the reference (default) or in m s-1.
     regression : {"weighted", "unweighted"}
@@ -194,27 +196,59 @@ def sensitivity(
     source = source or source_name(records)
     if bin_width is not None and bins is not None:
         raise InputError("give either bin_width or bins, not both")
-    if int(min_samples) < 1:
-        raise InputError(f"min_samples must be >= 1; got {min_samples}")
-    min_samples = int(min_samples)
-    if regression not in REGRESSIONS:
-        raise InputError(f"argument 'regression': expected one of {sorted(REGRESSIONS)}; "
-                         f"found {regression!r}")
+    min_periods, regression = _min_periods(min_periods), _regression(regression)
     records = select_heights(records, heights, source=source)
     x = checked(records, variable, source=source)
     lo_ref, hi_ref = _range(reference_range)
     diff = _difference(records, x, relative, lo_ref, hi_ref, source)
     edges, width = _edges(x, diff, variable, bins, bin_width, source, (lo_ref, hi_ref))
-    fit = _fit(records, x, diff, edges, variable, min_samples, source, regression)
+    fit = _fit(records, x, diff, edges, variable, min_periods, source, regression)
     config = {
         "variable": variable, "variable_units": x.attrs["units"], "bin_width": width,
-        "bin_edges": edges.tolist(), "min_samples": min_samples, "relative": relative,
+        "bin_edges": edges.tolist(), "min_samples": min_periods, "relative": relative,  # the file's name
         "reference_range_m_s-1": [lo_ref, None if np.isinf(hi_ref) else hi_ref],
         "regression": REGRESSIONS[regression],
         "confidence": CONFIDENCE,
         "thresholds_percent": {"eq12": THRESHOLD_EQ12, "eq13": THRESHOLD_EQ13},
     }
     return _assemble(records, variable, x.attrs["units"], relative, edges, fit, config, call)
+
+
+def sensitivity_fit(
+    records: xr.Dataset,
+    variable: str,
+    bins: Any,
+    *,
+    min_periods: int = DEFAULT_MIN_PERIODS,
+    relative: bool = True,
+    regression: str = "weighted",
+    reference_range: tuple[Any, Any] | None = DEFAULT_REFERENCE_RANGE,
+    source: str | None = None,
+) -> dict[str, np.ndarray]:
+    """Return the numbers of a :func:`sensitivity` on the bin edges ``bins``, without the artefact.
+
+    The arrays of the bin table (height, bin) and of the regression and Eqs. 12-13 tests
+    (height), named as the artefact's variables; the arguments are those of :func:`sensitivity`.
+    For callers that need the slopes of many variables (:func:`lidarcal.analysis.sweep.analyse_sweep`).
+    """
+    source = source or source_name(records)
+    x = checked(records, variable, source=source)
+    lo_ref, hi_ref = _range(reference_range)
+    diff = _difference(records, x, relative, lo_ref, hi_ref, source)
+    edges, _ = _edges(x, diff, variable, bins, None, source, (lo_ref, hi_ref))
+    return _fit(records, x, diff, edges, variable, _min_periods(min_periods), source, _regression(regression))
+
+
+def _min_periods(value: int) -> int:
+    if int(value) < 1:
+        raise InputError(f"min_periods must be >= 1; got {value}")
+    return int(value)
+
+
+def _regression(value: str) -> str:
+    if value not in REGRESSIONS:
+        raise InputError(f"argument 'regression': expected one of {sorted(REGRESSIONS)}; found {value!r}")
+    return value
 
 
 def _difference(records: xr.Dataset, x: xr.DataArray, relative: bool, lo_ref: float, hi_ref: float,
@@ -247,7 +281,7 @@ def _edges(x: xr.DataArray, diff: xr.DataArray, variable: str, bins: Any, bin_wi
 
 
 def _fit(records: xr.Dataset, x: xr.DataArray, diff: xr.DataArray, edges: np.ndarray, variable: str,
-         min_samples: int, source: str, regression: str = "weighted") -> dict[str, Any]:
+         min_periods: int, source: str, regression: str = "weighted") -> dict[str, Any]:
     """Bin table, regression of the kept bin means, std of the variable and the Eqs. 12-13 tests."""
     nb = len(edges) - 1
 
@@ -260,10 +294,10 @@ def _fit(records: xr.Dataset, x: xr.DataArray, diff: xr.DataArray, edges: np.nda
         dask_gufunc_kwargs={"output_sizes": {"bin": nb}, "allow_rechunk": True},
     )
     count, mean, std, mean_x = (a.compute() for a in (count, mean, std, mean_x))
-    keep = count >= min_samples
+    keep = count >= min_periods
     if not bool(keep.any()):
         raise InputError(
-            f"{source}: variable {variable!r}: no bin has at least min_samples={min_samples} periods "
+            f"{source}: variable {variable!r}: no bin has at least min_periods={min_periods} periods "
             f"(largest bin count {int(count.max())}, {int(count.sum())} usable periods in {nb} bins); "
             "lower --min-samples, widen the bins or supply more records"
         )
@@ -285,7 +319,7 @@ def _fit(records: xr.Dataset, x: xr.DataArray, diff: xr.DataArray, edges: np.nda
     if not np.isfinite(slope).any():
         raise InputError(
             f"{source}: variable {variable!r}: no height has two bins with at least "
-            f"min_samples={min_samples} "
+            f"min_periods={min_periods} "
             f"periods, so no regression is possible (bins per height: "
             f"{dict(zip(map(float, records.height.values), keep.sum('bin').values.tolist(), strict=True))})"
         )
@@ -320,7 +354,7 @@ def _assemble(records: xr.Dataset, variable: str, units: str, relative: bool, ed
     diff_units = "%" if relative else "m s-1"
     context = dict(
         xname=xname, units=units, standard_name=STANDARD_NAMES.get(variable) or "", diff_units=diff_units,
-        slope_units=_per_unit(diff_units, units), relative="relative " if relative else "",
+        slope_units=per_unit(diff_units, units), relative="relative " if relative else "",
         mean_comment="relative to each period's reference wind speed, then averaged" if relative else "",
         statistic_comment="" if relative else _ABSOLUTE_COMMENT, threshold_eq12=THRESHOLD_EQ12,
         threshold_eq13=THRESHOLD_EQ13)

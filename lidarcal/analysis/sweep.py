@@ -10,8 +10,10 @@ onto the grid:
 - ``max_abs_deviation`` — its maximum magnitude over the grid per height (the class-style
   figure of Discussion a) and the conditions where it occurs;
 - sensitivity slopes of the deviation to every swept variable (Discussion b), from
-  :func:`lidarcal.analysis.sensitivity` with one bin per grid value: in a full-factorial
-  design a bin mean is the marginal effect of that variable.
+  :func:`lidarcal.analysis.sensitivity.sensitivity_fit` with one bin per grid value: in a
+  full-factorial design a bin mean is the marginal effect of that variable.
+
+The attributes of every variable are declared in ``schemas/sweep.yaml``.
 
 Grid period *i* is simulated with seed ``(base_seed, i)`` as in any campaign, with the
 replicates of one grid point consecutive: period = grid_index × repeats + replicate.
@@ -26,12 +28,12 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.analysis._records import CANONICAL_UNITS, STANDARD_NAMES
-from lidarcal.analysis.sensitivity import sensitivity
-from lidarcal.cf import var_attrs
+from lidarcal.analysis.sensitivity import per_unit, sensitivity_fit
 from lidarcal.conditions.grid import SWEEP_VARIABLES, grid_values
+from lidarcal.conditions.variables import CANONICAL_UNITS, STANDARD_NAMES
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
+from lidarcal.schema import output_attrs
 
 __all__ = ["analyse_sweep"]
 
@@ -90,118 +92,43 @@ def analyse_sweep(
     where = np.argmax(absdev, axis=0)  # per height, flat grid index of the largest |deviation|
     at = np.array(np.unravel_index(where, shape))  # (variable, height)
 
+    def attrs(name: str, variable: str | None = None) -> dict[str, Any]:
+        context = {} if variable is None else {
+            "xname": variable.replace("_", " "), "standard_name": STANDARD_NAMES.get(variable, ""),
+            "slope_units": per_unit("%", CANONICAL_UNITS[variable])}
+        return output_attrs("sweep", name, repeats=repeats, **context)
+
     gdims = ("height", *SWEEP_VARIABLES)
     data = {
-        "deviation": (
-            gdims,
-            dev_grid,
-            var_attrs(
-                "mean relative lidar minus reference wind speed deviation at grid point",
-                "%",
-                comment=f"100 % (lidar - reference) / reference, mean over {repeats} replicate(s)",
-            ),
-        ),
-        "deviation_replicate_std": (
-            gdims,
-            spread_grid,
-            var_attrs("standard deviation of the deviation over replicates (ddof=1)", "%"),
-        ),
-        "max_abs_deviation": (
-            "height",
-            np.take_along_axis(np.abs(dev), where[None, :], 0)[0],
-            var_attrs("maximum magnitude of the mean deviation over the grid (class-style figure)", "%"),
-        ),
-        "max_deviation": (
-            "height",
-            np.take_along_axis(dev, where[None, :], 0)[0],
-            var_attrs("signed mean deviation at the grid point of maximum magnitude", "%"),
-        ),
-        "mean_deviation": ("height", np.nanmean(dev, axis=0), var_attrs("mean deviation over the grid", "%")),
+        "deviation": (gdims, dev_grid),
+        "deviation_replicate_std": (gdims, spread_grid),
+        "max_abs_deviation": ("height", np.take_along_axis(np.abs(dev), where[None, :], 0)[0]),
+        "max_deviation": ("height", np.take_along_axis(dev, where[None, :], 0)[0]),
+        "mean_deviation": ("height", np.nanmean(dev, axis=0)),
     }
+    data = {name: (*spec, attrs(name)) for name, spec in data.items()}
     for i, name in enumerate(SWEEP_VARIABLES):
-        data[f"max_deviation_{name}"] = (
-            "height",
-            values[name][at[i]],
-            var_attrs(
-                f"{name.replace('_', ' ')} at the grid point of maximum deviation magnitude",
-                CANONICAL_UNITS[name],
-                STANDARD_NAMES.get(name),
-                coverage_content_type="auxiliaryInformation",
-            ),
-        )
-
+        key = f"max_deviation_{name}"
+        data[key] = ("height", values[name][at[i]], attrs(key, name))
     swept = [n for n in SWEEP_VARIABLES if len(values[n]) > 1]
-    stats = {
-        k: np.full((len(swept), len(heights)), np.nan)
-        for k in ("slope_times_std", "slope_times_std_times_r", "correlation")
-    }
+    stats = {k: np.full((len(swept), len(heights)), np.nan)
+             for k in ("slope_times_std", "slope_times_std_times_r", "correlation")}
     flags = np.zeros((len(swept), len(heights)), dtype=np.int8)
     for j, name in enumerate(swept):
         # a deterministic grid: one value per bin, no sampling error to weight by
-        s = sensitivity(records, name, bins=_edges(values[name]), min_samples=1, reference_range=None,
-                        regression="unweighted")
+        fit = sensitivity_fit(records, name, _edges(values[name]), min_periods=1, reference_range=None,
+                              regression="unweighted")
         for k in stats:
-            stats[k][j] = s[k].values
-        flags[j] = s["significant"].values
-        data[f"slope_{name}"] = (
-            "height",
-            s["slope"].values,
-            var_attrs(
-                f"sensitivity slope of the deviation to {name.replace('_', ' ')} over the grid",
-                s.slope.attrs["units"],
-                comment="unweighted regression of per-value mean deviations on the grid values",
-            ),
-        )
-    vd = ("variable", "height")
+            stats[k][j] = fit[k]
+        flags[j] = fit["significant"]
+        data[f"slope_{name}"] = ("height", fit["slope"], attrs(f"slope_{name}", name))
+    coords = {"height": records["height"].variable.copy(),
+              **{name: (name, values[name], attrs(name, name)) for name in SWEEP_VARIABLES}}
     if swept:
-        data.update(
-            {
-                "slope_times_std": (
-                    vd,
-                    stats["slope_times_std"],
-                    var_attrs("Eq. 12 statistic m * std over the grid", "%"),
-                ),
-                "slope_times_std_times_r": (
-                    vd,
-                    stats["slope_times_std_times_r"],
-                    var_attrs("Eq. 13 statistic m * std * R over the grid", "%"),
-                ),
-                "correlation": (
-                    vd,
-                    stats["correlation"],
-                    var_attrs("correlation coefficient R of the regression", "1"),
-                ),
-                "significant": (
-                    vd,
-                    flags,
-                    var_attrs(
-                        "sensitivity significant by Eq. 12 or 13",
-                        "1",
-                        coverage_content_type="qualityInformation",
-                        flag_values=np.array([0, 1], dtype=np.int8),
-                        flag_meanings="not_significant significant",
-                    ),
-                ),
-            }
-        )
-    coords = {"height": records["height"].variable.copy()}
-    for name in SWEEP_VARIABLES:
-        coords[name] = (
-            name,
-            values[name],
-            var_attrs(
-                f"swept {name.replace('_', ' ')}",
-                CANONICAL_UNITS[name],
-                STANDARD_NAMES.get(name),
-                coverage_content_type="coordinate",
-            ),
-        )
-    if swept:
-        coords["variable"] = (
-            "variable",
-            np.array(swept, dtype=object),
-            {"long_name": "swept environmental variable of the sensitivity statistics"},
-        )
+        vd = ("variable", "height")
+        data.update({k: (vd, v, attrs(k)) for k, v in stats.items()})
+        data["significant"] = (vd, flags, attrs("significant"))
+        coords["variable"] = ("variable", np.array(swept, dtype=object), attrs("variable"))
     ds = xr.Dataset(data, coords=coords)
     ds["height"].attrs = dict(records["height"].attrs)
     ds.attrs = {

@@ -68,10 +68,10 @@ from typing import Any, Literal
 import numpy as np
 import xarray as xr
 
-from lidarcal.cf import declared_attrs, var_attrs
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
 from lidarcal.provenance import stamp
+from lidarcal.schema import with_output_attrs
 from lidarcal.units import Q_, convert_variable, to_magnitude
 
 __all__ = [
@@ -173,45 +173,12 @@ def _positive(value: float, name: str, unit: str, *, allow_zero: bool = True) ->
     return value
 
 
-#: Declared attributes of the scalar input variables: name -> (units, long_name), in output order.
-INPUT_ATTRS: dict[str, tuple[str, str]] = {
-    "mean_between_run_std_std": ("m s-1", "mean between-run std of the bench LOS std (s-bar_s)"),
-    "mean_between_run_std_bias": ("m s-1", "mean between-run std of the bench LOS bias (s-bar_delta)"),
-    "n_runs": ("1", "number of bench runs in the repeatability analysis"),
-    "n_los_samples": ("1", "radial velocities per LOS per 10 minutes"),
-    "bench_uncertainty": ("m s-1", "SAFO-MV bench radial-velocity uncertainty as stated (dv_SAFO)"),
-    "bench_coverage_factor": ("1", "coverage factor dividing bench_uncertainty in Eq. 8"),
-    "beam_angle_uncertainty": ("degree", "standard uncertainty of the beam cone angle"),
-    "zero_distance_uncertainty": ("m", "standard uncertainty of the zero distance"),
-    "shear_exponent": ("1", "wind shear power-law exponent (Eq. 10)"),
-    "cone_angle": ("degree", "beam cone angle from vertical"),
-    "beam_angle_coefficient": ("1", "coefficient replacing cot(phi) dphi in Eq. 9"),
-    "los_noise_std": ("m s-1", "LOS noise standard deviation in the derived Eq. 6 (noise bias part)"),
-    "hybrid_weight": ("1", "hybrid weight p in the derived Eq. 6 (noise bias part)"),
-}
-
-#: Declared CF attributes of the result variables (:func:`lidarcal.cf.declared_attrs`).
-OUTPUT_ATTRS: dict[str, dict[str, Any]] = {
-    "uncertainty": dict(
-        long_name="standard uncertainty of the horizontal wind speed per contributor (Table 4)",
-        units="m s-1", standard_name="wind_speed standard_error"),
-    "relative_uncertainty": dict(long_name="standard uncertainty per contributor relative to the wind speed",
-                                 units="%"),
-    "total": dict(long_name="quadrature sum of the non-simulated uncertainty terms", units="m s-1",
-                  standard_name="wind_speed standard_error"),
-    "total_relative": dict(long_name="quadrature sum of the non-simulated terms relative to the wind speed",
-                           units="%"),
-}
-
-#: Attributes of the coordinates, as written.
-COORD_ATTRS: dict[str, dict[str, str]] = {
-    "wind_speed": {"standard_name": "wind_speed", "units": "m s-1", "long_name": "horizontal wind speed"},
-    "contributor": {"long_name": "uncertainty contributor (paper Table 4 row)"},
-    "equation": {"long_name": "equation number in the paper"},
-    "contributor_description": {"long_name": "description of the uncertainty contributor"},
-    "height": {"standard_name": "height", "long_name": "measurement height above ground", "units": "m",
-               "positive": "up", "axis": "Z"},
-}
+#: The inputs stored as scalar variables (one per height when stacked), in output order; their
+#: units and long names are declared in ``schemas/uncertainty_terms.yaml``.
+INPUT_NAMES = ("mean_between_run_std_std", "mean_between_run_std_bias", "n_runs", "n_los_samples",
+               "bench_uncertainty", "bench_coverage_factor", "beam_angle_uncertainty",
+               "zero_distance_uncertainty", "shear_exponent", "cone_angle", "beam_angle_coefficient",
+               "los_noise_std", "hybrid_weight")
 
 
 def uncertainty_terms(
@@ -254,10 +221,11 @@ def uncertainty_terms(
         dphi, standard uncertainty of the cone angle (0.087°).
     zero_distance_uncertainty : pint.Quantity (length)
         dz, standard uncertainty of the zero distance (0.45 m).
-    shear_exponent : float
-        Power-law alpha of Eq. 10 (0.2).
+    shear_exponent : float or sequence of float
+        Power-law alpha of Eq. 10 (0.2); one per height when ``height`` is 1-D.
     height : pint.Quantity (length)
-        Measurement height z (100 m).
+        Measurement height z (100 m), or a 1-D array of heights: the terms of each height then
+        stack along a ``height`` dimension (Eq. 11 scales with 1/z).
     cone_angle : pint.Quantity (angle)
         phi, beam angle from vertical (28°).
     beam_angle_coefficient : float, optional
@@ -283,7 +251,8 @@ def uncertainty_terms(
     xarray.Dataset
         Dims ``(wind_speed, contributor)``: ``uncertainty`` (m s-1) and
         ``relative_uncertainty`` (%) per contributor, ``total`` and ``total_relative`` (the
-        quadrature sums), the inputs as scalar variables and ``height`` as a scalar coordinate.
+        quadrature sums), the inputs as scalar variables and ``height`` as a scalar coordinate;
+        with several heights, every variable has a trailing ``height`` dimension.
         Select with ``ds.uncertainty.sel(wind_speed=8, contributor="beam_angle")``.
 
     Examples
@@ -291,68 +260,84 @@ def uncertainty_terms(
     >>> ds = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, beam_angle_coefficient=0.00248)
     >>> round(float(ds.uncertainty.sel(wind_speed=10, contributor="beam_angle")), 4)
     0.0248
+    >>> at = uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "height": Q_([50.0, 100.0], "m")})
+    >>> at.total.dims, round(float(at.uncertainty.sel(wind_speed=10, height=50)[-1]), 4)
+    (('wind_speed', 'height'), 0.018)
     """
     ws = _checked_wind_speeds(wind_speed)
-    inputs, z = _checked_inputs(
+    heights, alphas = _checked_heights(height, shear_exponent)
+    inputs = _checked_inputs(
         mean_between_run_std_std=mean_between_run_std_std,
         mean_between_run_std_bias=mean_between_run_std_bias,
         n_runs=n_runs, n_los_samples=n_los_samples, bench_uncertainty=bench_uncertainty,
         bench_coverage_factor=bench_coverage_factor, beam_angle_uncertainty=beam_angle_uncertainty,
-        zero_distance_uncertainty=zero_distance_uncertainty, shear_exponent=shear_exponent,
-        cone_angle=cone_angle, height=height)
+        zero_distance_uncertainty=zero_distance_uncertainty, cone_angle=cone_angle)
     if bias_repeatability_n not in ("los_samples", "runs"):
         raise InputError(f"argument 'bias_repeatability_n': expected 'los_samples' or 'runs'; "
                          f"found {bias_repeatability_n!r}")
     if beam_angle_coefficient is not None:
         beam_angle_coefficient = _positive(beam_angle_coefficient, "beam_angle_coefficient", "")
         inputs["beam_angle_coefficient"] = beam_angle_coefficient
-    if noise_terms not in NOISE_TERMS:
-        raise InputError(f"argument 'noise_terms': expected one of {list(NOISE_TERMS)}; "
-                         f"found {noise_terms!r}")
-    derived = {}
-    if noise_terms == "derived":
-        sigma = DERIVED_DEFAULTS["los_noise_std"] if los_noise_std is None else los_noise_std
-        p = DERIVED_DEFAULTS["hybrid_weight"] if hybrid_weight is None else hybrid_weight
-        sigma = to_magnitude(sigma, "m s-1", name="los_noise_std")
-        derived["los_noise_std"] = _positive(sigma, "los_noise_std", "m s-1")
-        derived["hybrid_weight"] = float(p)
-        if not 0.0 <= derived["hybrid_weight"] <= 1.0:
-            raise InputError(f"argument 'hybrid_weight': expected a value in [0, 1]; found {p}")
-        inputs.update(derived)
-    elif los_noise_std is not None or hybrid_weight is not None:
-        raise InputError("arguments 'los_noise_std' and 'hybrid_weight' only apply with "
-                         "noise_terms='derived'")
+    derived = _derived_inputs(noise_terms, los_noise_std, hybrid_weight)
+    inputs.update(derived)
     n_bias = inputs["n_los_samples"] if bias_repeatability_n == "los_samples" else inputs["n_runs"]
-    terms = table4_kernel(
+    per_height = [table4_kernel(
         ws, std_repeatability=inputs["mean_between_run_std_std"],
         bias_repeatability=inputs["mean_between_run_std_bias"], n_bias=n_bias,
         n_los_samples=inputs["n_los_samples"],
         bench_uncertainty=inputs["bench_uncertainty"] / inputs["bench_coverage_factor"],
         beam_angle_uncertainty=np.deg2rad(inputs["beam_angle_uncertainty"]),
         zero_distance_uncertainty=inputs["zero_distance_uncertainty"],
-        shear_exponent=inputs["shear_exponent"],
-        height=z, cone_angle=np.deg2rad(inputs["cone_angle"]), beam_angle_coefficient=beam_angle_coefficient,
-        noise_terms=noise_terms, **derived,
-    )
-    config = {**inputs, "height": z, "wind_speed": ws, "bias_repeatability_n": bias_repeatability_n,
-              "beam_angle_coefficient": beam_angle_coefficient, "noise_terms": noise_terms}
-    ds = _to_dataset(ws, terms, z, inputs)
+        shear_exponent=alpha, height=z, cone_angle=np.deg2rad(inputs["cone_angle"]),
+        beam_angle_coefficient=beam_angle_coefficient, noise_terms=noise_terms, **derived,
+    ) for z, alpha in zip(np.atleast_1d(heights), alphas, strict=True)]
+    inputs = {name: (alphas if name == "shear_exponent" else inputs[name]) for name in INPUT_NAMES
+              if name in inputs or name == "shear_exponent"}
+    ds = _to_dataset(ws, per_height, heights, inputs)
+    stacked = np.ndim(heights) == 1
+    config = {**{k: (v if stacked else v[0]) if k == "shear_exponent" else v for k, v in inputs.items()},
+              "height": heights.tolist() if stacked else heights, "wind_speed": ws,
+              "bias_repeatability_n": bias_repeatability_n, "beam_angle_coefficient": beam_angle_coefficient,
+              "noise_terms": noise_terms}
     ds.attrs.update({
         "bias_repeatability_n": bias_repeatability_n,
         "eq7_sample_count": np.int32(n_bias) if noise_terms == "printed" else np.int32(1),
         "noise_terms": noise_terms,
         "beam_angle_method": "coefficient" if beam_angle_coefficient is not None else "cot(phi) dphi (Eq. 9)",
     })
+    if stacked:
+        where = (f"at each height z = {', '.join(f'{z:g}' for z in heights)} m, with that height's shear "
+                 f"exponent (variable shear_exponent, {min(alphas):.4g} to {max(alphas):.4g}), ")
+    else:
+        where = f"at z = {heights:g} m, alpha = {alphas[0]:g}, phi = {inputs['cone_angle']:g} degree "
     summary = (
         f"Uncertainty terms of the horizontal wind speed not modelled by Monte Carlo (paper Eqs. 6-11, "
-        f"Table 4) at z = {z:g} m, alpha = {inputs['shear_exponent']:g}, phi = {inputs['cone_angle']:g} "
-        f"degree for {ws.size} wind speeds; "
+        f"Table 4) {where}for {ws.size} wind speeds; "
         f"total {float(ds.total.min()):.4f} to {float(ds.total.max()):.4f} m/s."
     )
     return stamp(ds, "uncertainty_terms", title="Non-simulated calibration uncertainty terms (Table 4)",
                  summary=summary, call=call,
                  input_datasets={"repeatability": repeatability} if repeatability is not None else None,
                  config=config, keywords="Doppler lidar, calibration, uncertainty budget, wind speed")
+
+
+def _derived_inputs(noise_terms: str, los_noise_std: Any, hybrid_weight: Any) -> dict[str, float]:
+    """Check ``noise_terms``; return σ (m s-1) and p of the derived Eq. 6 (empty for the printed form)."""
+    if noise_terms not in NOISE_TERMS:
+        raise InputError(f"argument 'noise_terms': expected one of {list(NOISE_TERMS)}; "
+                         f"found {noise_terms!r}")
+    if noise_terms == "printed":
+        if los_noise_std is not None or hybrid_weight is not None:
+            raise InputError("arguments 'los_noise_std' and 'hybrid_weight' only apply with "
+                             "noise_terms='derived'")
+        return {}
+    sigma = DERIVED_DEFAULTS["los_noise_std"] if los_noise_std is None else los_noise_std
+    p = DERIVED_DEFAULTS["hybrid_weight"] if hybrid_weight is None else hybrid_weight
+    sigma = to_magnitude(sigma, "m s-1", name="los_noise_std")
+    derived = {"los_noise_std": _positive(sigma, "los_noise_std", "m s-1"), "hybrid_weight": float(p)}
+    if not 0.0 <= derived["hybrid_weight"] <= 1.0:
+        raise InputError(f"argument 'hybrid_weight': expected a value in [0, 1]; found {p}")
+    return derived
 
 
 def _checked_wind_speeds(wind_speed: Any) -> np.ndarray:
@@ -365,25 +350,41 @@ def _checked_wind_speeds(wind_speed: Any) -> np.ndarray:
     return ws
 
 
-def _checked_inputs(*, height: Any, **given: Any) -> tuple[dict[str, Any], float]:
-    """Check Table 4's inputs and convert them to the units of :data:`INPUT_ATTRS`.
+def _checked_heights(height: Any, shear_exponent: Any) -> tuple[Any, list[float]]:
+    """Height(s) z in m (a float, or a 1-D array of distinct heights) and the shear exponent of each.
 
-    Returns the inputs (floats; counts as ``int``) in :data:`INPUT_ATTRS` order and the height z (m).
+    ``shear_exponent`` is one exponent for every height or one per height.
     """
+    z = np.asarray(to_magnitude(height, "m", name="height"), dtype=float)
+    if z.ndim > 1 or z.size == 0:
+        raise InputError(f"argument 'height': expected a height or a 1-D array of heights; found {z}")
+    for value in np.atleast_1d(z):
+        _positive(value, "height", "m", allow_zero=False)
+    if z.ndim == 1 and len(np.unique(z)) != z.size:
+        raise InputError(f"argument 'height': expected distinct heights; found duplicates in {z}")
+    alpha = np.asarray(to_magnitude(shear_exponent, "1", name="shear_exponent"), dtype=float)
+    if alpha.ndim == 0:
+        alpha = np.full(z.size, float(alpha))
+    if alpha.shape != (z.size,):
+        raise InputError(f"argument 'shear_exponent': expected one exponent or one per height ({z.size}); "
+                         f"found {alpha.tolist()}")
+    if not np.all(np.isfinite(alpha)):
+        raise InputError(f"argument 'shear_exponent': expected a finite exponent; found {alpha.tolist()}")
+    return (z if z.ndim == 1 else float(z)), [float(a) for a in alpha]
+
+
+def _checked_inputs(**given: Any) -> dict[str, Any]:
+    """Check Table 4's inputs other than height and shear; return them as floats (counts as ``int``)."""
     out: dict[str, Any] = {}
     for name, unit in (("mean_between_run_std_std", "m s-1"), ("mean_between_run_std_bias", "m s-1"),
                        ("bench_uncertainty", "m s-1"), ("beam_angle_uncertainty", "degree"),
                        ("zero_distance_uncertainty", "m")):
         out[name] = _positive(to_magnitude(given[name], unit, name=name), name, unit)
-    z = _positive(to_magnitude(height, "m", name="height"), "height", "m", allow_zero=False)
     phi = float(to_magnitude(given["cone_angle"], "degree", name="cone_angle"))
     if not 0 < phi < 90:
         raise InputError(
             f"argument 'cone_angle': expected an angle from vertical in (0, 90) degree; found {phi:g}")
-    alpha = float(to_magnitude(given["shear_exponent"], "1", name="shear_exponent"))
-    if not np.isfinite(alpha):
-        raise InputError(f"argument 'shear_exponent': expected a finite exponent; found {alpha}")
-    out.update(cone_angle=phi, shear_exponent=alpha)
+    out["cone_angle"] = phi
     out["bench_coverage_factor"] = _positive(given["bench_coverage_factor"], "bench_coverage_factor", "",
                                              allow_zero=False)
     for name in ("n_runs", "n_los_samples"):
@@ -391,34 +392,42 @@ def _checked_inputs(*, height: Any, **given: Any) -> tuple[dict[str, Any], float
         if not float(value) >= 1 or float(value) != int(value):
             raise InputError(f"argument {name!r}: expected a whole number >= 1; found {value}")
         out[name] = int(value)
-    return {name: out[name] for name in INPUT_ATTRS if name in out}, z
+    return out
 
 
-def _to_dataset(ws: np.ndarray, terms: np.ndarray, z: float, inputs: Mapping[str, Any]) -> xr.Dataset:
-    """Assemble the dataset with the declared attributes (OUTPUT_ATTRS, COORD_ATTRS, INPUT_ATTRS)."""
-    total = np.sqrt(np.sum(terms**2, axis=1))
-    names = list(CONTRIBUTORS)
-    wc = ("wind_speed", "contributor")
-    values = {"uncertainty": (wc, terms), "relative_uncertainty": (wc, 100.0 * terms / ws[:, None]),
-              "total": ("wind_speed", total), "total_relative": ("wind_speed", 100.0 * total / ws)}
-    ds = xr.Dataset(
-        {name: (dims, data, declared_attrs(OUTPUT_ATTRS, name)) for name, (dims, data) in values.items()},
-        coords={
-            "wind_speed": ("wind_speed", ws, dict(COORD_ATTRS["wind_speed"])),
-            "contributor": ("contributor", np.array(names, dtype=object), dict(COORD_ATTRS["contributor"])),
-            "equation": ("contributor", np.array([CONTRIBUTORS[n][0] for n in names], dtype=object),
-                         dict(COORD_ATTRS["equation"])),
-            "contributor_description": ("contributor",
-                                        np.array([CONTRIBUTORS[n][1] for n in names], dtype=object),
-                                        dict(COORD_ATTRS["contributor_description"])),
-            "height": ((), z, dict(COORD_ATTRS["height"])),
-        },
-    )
+def _to_dataset(ws: np.ndarray, per_height: list[np.ndarray], heights: Any,
+                inputs: Mapping[str, Any]) -> xr.Dataset:
+    """Assemble the terms of each height and the inputs, with the attributes of their schema.
+
+    With 1-D ``heights`` every variable stacks the heights on a trailing ``height`` dim.
+    """
+    stacked = np.ndim(heights) == 1
+    values: dict[str, list[np.ndarray]] = {"uncertainty": [], "relative_uncertainty": [], "total": [],
+                                           "total_relative": []}
+    for terms in per_height:
+        total = np.sqrt(np.sum(terms**2, axis=1))
+        values["uncertainty"].append(terms)
+        values["relative_uncertainty"].append(100.0 * terms / ws[:, None])
+        values["total"].append(total)
+        values["total_relative"].append(100.0 * total / ws)
+    wc, tail = ("wind_speed", "contributor"), ("height",) if stacked else ()
+    dims = {"uncertainty": wc, "relative_uncertainty": wc, "total": wc[:1], "total_relative": wc[:1]}
+    data = {name: (dims[name] + tail, np.stack(parts, axis=-1) if stacked else parts[0])
+            for name, parts in values.items()}
     for name, value in inputs.items():
-        unit, text = INPUT_ATTRS[name]
-        value = np.int32(value) if name in ("n_runs", "n_los_samples") else value
-        ds[name] = ((), value, var_attrs(text, unit, coverage_content_type="auxiliaryInformation"))
-    return ds
+        dtype = np.int32 if name in ("n_runs", "n_los_samples") else float
+        per = value if name == "shear_exponent" else [value] * len(per_height)
+        data[name] = (tail, np.asarray(per if stacked else per[0], dtype=dtype))
+    rows = list(CONTRIBUTORS)
+    ds = xr.Dataset(data, coords={
+        "wind_speed": ("wind_speed", ws),
+        "contributor": ("contributor", np.array(rows, dtype=object)),
+        "equation": ("contributor", np.array([CONTRIBUTORS[n][0] for n in rows], dtype=object)),
+        "contributor_description": ("contributor",
+                                    np.array([CONTRIBUTORS[n][1] for n in rows], dtype=object)),
+        "height": (tail, heights),
+    })
+    return with_output_attrs(ds, "uncertainty_terms")
 
 
 def repeatability_inputs(source: str | os.PathLike | xr.Dataset) -> tuple[dict[str, Any], xr.Dataset]:

@@ -74,9 +74,10 @@ from lidarcal.bench.grid import (
     grid_index,
 )
 from lidarcal.binning import group_statistics
-from lidarcal.cf import var_attrs, with_bounds
+from lidarcal.cf import with_bounds
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
+from lidarcal.schema import output_attrs
 from lidarcal.units import to_magnitude
 
 __all__ = ["ingest", "build_cube", "cube_template", "check_agreement", "OUTLIER_RULES"]
@@ -100,20 +101,11 @@ def _iso(t_ns: int) -> str:
 
 def cube_template() -> xr.Dataset:
     """Empty ℓcv grid with the ``bench_cube`` coordinates (los, cnr, velocity) and bounds."""
-    ds = xr.Dataset(coords={
-        "los": ("los", np.asarray(LOS_LABELS, dtype=object),
-                {"long_name": "line-of-sight beam identifier (azimuth in degree, or V for vertical)"}),
-        "los_azimuth": ("los", LOS_AZIMUTH,
-                        {"long_name": "beam azimuth, clockwise from the lidar's north mark",
-                         "units": "degree", "standard_name": "sensor_azimuth_angle"}),
-        "los_elevation": ("los", LOS_ELEVATION, {"long_name": "beam elevation above the horizontal",
-                                                 "units": "degree"}),
-        "cnr": ("cnr", CNR_NODES, {"long_name": "programmed carrier-to-noise ratio", "units": "dB"}),
-        "velocity": ("velocity", VELOCITY_NODES,
-                     {"long_name": "programmed radial velocity (Doppler shift applied by the bench)",
-                      "units": "m s-1",
-                      "standard_name": "radial_velocity_of_scatterers_away_from_instrument"}),
-    })
+    values = {"los": ("los", np.asarray(LOS_LABELS, dtype=object)), "los_azimuth": ("los", LOS_AZIMUTH),
+              "los_elevation": ("los", LOS_ELEVATION), "cnr": ("cnr", CNR_NODES),
+              "velocity": ("velocity", VELOCITY_NODES)}
+    ds = xr.Dataset(coords={name: (dim, data, output_attrs("bench_cube", name))
+                            for name, (dim, data) in values.items()})
     ds = with_bounds(ds, "cnr", CNR_EDGES)
     ds = with_bounds(ds, "velocity", VELOCITY_EDGES)
     return ds
@@ -266,26 +258,12 @@ def build_cube(
 
     dims = ("los", "cnr", "velocity")
     ds = cube_template()
-    ds["los_bias"] = (dims, mean.reshape(_SHAPE), var_attrs(
-        "mean LOS velocity error (measured minus programmed radial velocity)", "m s-1",
-        coverage_content_type="physicalMeasurement", cell_methods="los: cnr: velocity: mean"))
-    ds["los_std"] = (dims, std.reshape(_SHAPE), var_attrs(
-        "standard deviation of the LOS velocity error (ddof=1)", "m s-1",
-        coverage_content_type="physicalMeasurement", cell_methods="los: cnr: velocity: standard_deviation"))
-    ds["sample_count"] = (dims, count.reshape(_SHAPE).astype(np.int32), var_attrs(
-        "number of RTD samples used in the bin", "1", coverage_content_type="auxiliaryInformation"))
-    ds["outlier_count"] = (dims, rejected.reshape(_SHAPE).astype(np.int32), var_attrs(
-        "number of RTD samples rejected as bad estimates", "1", coverage_content_type="qualityInformation"))
-    ds["mean_measured_cnr"] = (dims, cnr_mean.reshape(_SHAPE), var_attrs(
-        "mean carrier-to-noise ratio reported by the lidar", "dB",
-        coverage_content_type="physicalMeasurement"))
+    values = {"los_bias": mean, "los_std": std, "sample_count": count.astype(np.int32),
+              "outlier_count": rejected.astype(np.int32), "mean_measured_cnr": cnr_mean}
+    for name, data in values.items():
+        ds[name] = (dims, data.reshape(_SHAPE), output_attrs("bench_cube", name))
     ds["los_residual"] = ((*dims, "sample"), kernels.pad_groups(residual, cell, n_cells).reshape(
-        (*_SHAPE, -1)), var_attrs(
-        "LOS velocity error of each RTD sample (measured minus programmed radial velocity), "
-        "before bad-estimate rejection", "m s-1", coverage_content_type="physicalMeasurement",
-        comment=("the untrimmed residuals of the bin in time order, NaN-padded to the largest bin "
-                 "(CF incomplete multidimensional array); they include the bad estimates that "
-                 "outlier_count counts and los_bias / los_std exclude")))
+        (*_SHAPE, -1)), output_attrs("bench_cube", "los_residual"))
     meta = control.metadata
     ds.attrs.update({
         "lidar_serial": meta["lidar_serial"], "bench_id": meta["bench_id"], "operator": meta["operator"],

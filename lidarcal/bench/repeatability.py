@@ -30,11 +30,10 @@ import xarray as xr
 
 from lidarcal.bench import kernels
 from lidarcal.bench.ingest import cube_template
-from lidarcal.cf import var_attrs
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import stamp
-from lidarcal.schema import validate_dataset
+from lidarcal.schema import output_attrs, validate_dataset
 from lidarcal.units import to_magnitude
 
 __all__ = ["repeatability", "select_runs"]
@@ -147,40 +146,21 @@ def repeatability(
     rdims = ("run", *dims)
     out = cube_template().assign_coords(
         run=("run", np.asarray([str(ds.attrs["run_id"]) for ds in kept], dtype=object),
-             {"long_name": "bench run identifier (run_id of the input cube)"}),
+             output_attrs("repeatability", "run")),
         operator=("run", np.asarray([str(ds.attrs["operator"]) for ds in kept], dtype=object),
-                  {"long_name": "operator of the bench run"}),
+                  output_attrs("repeatability", "operator")),
     )
-    ms = "m s-1"
-    out["run_los_bias"] = (rdims, bias, var_attrs("mean LOS velocity error of each run", ms,
-                                                  coverage_content_type="physicalMeasurement"))
-    out["run_los_std"] = (rdims, std, var_attrs(
-        "standard deviation of the LOS velocity error of each run", ms,
-        coverage_content_type="physicalMeasurement"))
-    out["run_sample_count"] = (rdims, count.astype(np.int32), var_attrs(
-        "number of RTD samples in the bin in each run", "1", coverage_content_type="auxiliaryInformation"))
-    texts = {
-        "grand_mean_bias": "grand mean over runs of the mean LOS velocity error",
-        "grand_mean_std": "grand mean over runs of the LOS velocity error standard deviation",
-        "between_run_std_bias": "between-run standard deviation of the mean LOS velocity error (s_delta)",
-        "between_run_std_std": "between-run standard deviation of the LOS velocity error std (s_s)",
-    }
-    for name, text in texts.items():
-        out[name] = (dims, stats[name], var_attrs(text, ms, coverage_content_type="modelResult"))
-    out["bin_used"] = (dims, used.astype(np.int8), {
-        "long_name": "bin enters the summary means (eligible in every run and inside the window)",
-        "flag_values": np.array([0, 1], dtype=np.int8), "flag_meanings": "not_used used",
-        "coverage_content_type": "qualityInformation"})
+    values = {"run_los_bias": (rdims, bias), "run_los_std": (rdims, std),
+              "run_sample_count": (rdims, count.astype(np.int32)),
+              **{name: (dims, stats[name]) for name in ("grand_mean_bias", "grand_mean_std",
+                                                        "between_run_std_bias", "between_run_std_std")},
+              "bin_used": (dims, used.astype(np.int8))}
     s_delta = float(np.mean(stats["between_run_std_bias"][used]))
     s_s = float(np.mean(stats["between_run_std_std"][used]))
-    out["mean_between_run_std_bias"] = ((), s_delta, var_attrs(
-        "mean over used bins of the between-run std of the LOS bias (s-bar_delta, paper section 2.4)", ms))
-    out["mean_between_run_std_std"] = ((), s_s, var_attrs(
-        "mean over used bins of the between-run std of the LOS std (s-bar_s, paper section 2.4)", ms))
-    out["n_runs"] = ((), np.int32(len(kept)), var_attrs("number of runs analysed", "1",
-                                                         coverage_content_type="auxiliaryInformation"))
-    out["n_bins_used"] = ((), np.int32(used.sum()), var_attrs(
-        "number of bins in the summary means", "1", coverage_content_type="auxiliaryInformation"))
+    values.update({"mean_between_run_std_bias": ((), s_delta), "mean_between_run_std_std": ((), s_s),
+                   "n_runs": ((), np.int32(len(kept))), "n_bins_used": ((), np.int32(used.sum()))})
+    for name, (var_dims, data) in values.items():
+        out[name] = (var_dims, data, output_attrs("repeatability", name))
     out.attrs.update({
         "lidar_serial": kept[0].attrs["lidar_serial"], "bench_id": kept[0].attrs["bench_id"],
         "runs_used": ", ".join(_label(ds) for ds in kept),

@@ -5,6 +5,8 @@
 :mod:`lidarcal.campaign.run` for scheduling, seeding and resuming.
 """
 
-from lidarcal.campaign.run import BLAS_ENV, DEFAULT_BASE_SEED, WORKER_CONFIG, local_cluster, simulate_campaign
+from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_campaign
+from lidarcal.campaign.scheduler import WORKER_CONFIG, local_cluster
+from lidarcal.campaign.workers import BLAS_ENV
 
 __all__ = ["simulate_campaign", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV", "WORKER_CONFIG"]

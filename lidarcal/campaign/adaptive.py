@@ -36,12 +36,13 @@ from lidarcal.analysis.budget import (
     DEFAULT_CERTIFIED_RANGE,
     DEFAULT_MIN_PERIODS,
     DEFAULT_SIGNIFICANT_DIGITS,
+    TRIAL_VARIABLES,
     budget,
 )
 from lidarcal.binning import bin_index
 from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_replicas
-from lidarcal.cf import var_attrs
 from lidarcal.errors import InputError
+from lidarcal.schema import output_attrs
 
 __all__ = ["adaptive_replicas", "with_trials", "DEFAULT_MAX_REPLICAS", "BATCH_SCHEDULE"]
 
@@ -52,27 +53,10 @@ DEFAULT_MAX_REPLICAS = 30
 #: Replicas per batch, in order; the last repeats (the first check at h = 4 replicas).
 BATCH_SCHEDULE = (3, 4, 8)
 
-_TRIAL_ATTRS = {
-    "trial_replica": var_attrs(
-        "Monte Carlo replica of the trial (>= 1; replica 0 is the time, height records)", "1",
-        coverage_content_type="auxiliaryInformation"),
-    "trial_period_key": var_attrs("seed key of the trial's period (as period_key; random streams: "
-                                  "SeedSequence([base_seed, replica, period_key, round(height_m * 1000)]))",
-                                  "s", coverage_content_type="auxiliaryInformation"),
-    "trial_height": var_attrs("height of the trial", "m", "height",
-                              coverage_content_type="auxiliaryInformation", positive="up"),
-    "trial_lidar_wind_speed": var_attrs(
-        "virtual lidar 10-minute horizontal wind speed (hybrid reconstruction) of the trial", "m s-1",
-        "wind_speed"),
-    "trial_reference_wind_speed": var_attrs(
-        "virtual point reference 10-minute scalar mean horizontal wind speed of the trial", "m s-1",
-        "wind_speed"),
-}
-
 
 def with_trials(records: xr.Dataset, trials: Sequence[dict[str, np.ndarray]]) -> xr.Dataset:
     """Return ``records`` with the replica ``trials`` as ``trial_*`` variables on a ``trial`` dim."""
-    out = records.drop_vars([n for n in _TRIAL_ATTRS if n in records.variables])
+    out = records.drop_vars([n for n in TRIAL_VARIABLES if n in records.variables])
     if not trials:
         return out
     keys = np.asarray(records["period_key"].values, dtype=np.int64)
@@ -85,7 +69,7 @@ def with_trials(records: xr.Dataset, trials: Sequence[dict[str, np.ndarray]]) ->
         "trial_reference_wind_speed": np.concatenate([t["reference_wind_speed"] for t in trials]),
     }
     for name, values in cols.items():
-        out[name] = ("trial", values, dict(_TRIAL_ATTRS[name]))
+        out[name] = ("trial", values, output_attrs("simulated_rtd", name))
     return out
 
 

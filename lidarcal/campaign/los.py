@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from lidarcal.cf import var_attrs
+from lidarcal.schema import output_attrs
 
 __all__ = ["los_variables"]
 
@@ -27,32 +27,24 @@ def los_variables(los_data: dict[int, dict[str, np.ndarray]], heights: np.ndarra
             "los_radial_velocity": (
                 ("los_period", "height", "los_time"),
                 values,
-                var_attrs(
-                    "radial velocity of the virtual lidar along its line of sight "
-                    "(positive away from the lidar; NaN = sample not available)",
-                    "m s-1",
-                    "radial_velocity_of_scatterers_away_from_instrument",
-                ),
+                output_attrs("simulated_rtd", "los_radial_velocity"),
             )
         },
         coords={
             "los_period": (
                 "los_period",
                 np.asarray(periods, dtype=np.int64),
-                {"long_name": "period index of the stored LOS time series", "units": "1"},
+                output_attrs("simulated_rtd", "los_period"),
             ),
             "los_time": (
                 "los_time",
                 np.asarray(first["los_time"], dtype=float),
-                {"long_name": "time of the LOS sample since the period start", "units": "s"},
+                output_attrs("simulated_rtd", "los_time"),
             ),
             "los_beam": (
                 "los_time",
                 np.asarray(first["los_beam"], dtype=np.int8),
-                {
-                    "long_name": "index of the oblique beam (into the model's azimuths) of the LOS sample",
-                    "units": "1",
-                },
+                output_attrs("simulated_rtd", "los_beam"),
             ),
         },
     )

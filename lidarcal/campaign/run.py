@@ -51,40 +51,22 @@ from lidarcal.campaign.chunks import (
     unflatten_los,
 )
 from lidarcal.campaign.los import los_variables
-from lidarcal.campaign.scheduler import WORKER_CONFIG, WORKER_TIMEOUT, execute, local_cluster
-from lidarcal.campaign.workers import BLAS_ENV
-from lidarcal.cf import height_coord, time_coord, var_attrs
-from lidarcal.conditions import CONDITION_VARIABLES, SkippedPeriodsWarning, load_conditions
+from lidarcal.campaign.scheduler import WORKER_TIMEOUT, execute
+from lidarcal.cf import height_coord, time_coord
+from lidarcal.conditions import SkippedPeriodsWarning, load_conditions
+from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.errors import InputError
 from lidarcal.io import source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 from lidarcal.provenance import stamp
+from lidarcal.schema import output_attrs
 
-__all__ = ["simulate_campaign", "simulate_replicas", "local_cluster", "DEFAULT_BASE_SEED", "BLAS_ENV",
-           "WORKER_CONFIG",
-           "WORKER_TIMEOUT"]
+__all__ = ["simulate_campaign", "simulate_replicas", "DEFAULT_BASE_SEED"]
 
 log = logging.getLogger(__name__)
 
 DEFAULT_BASE_SEED = 20240101
-_OUTPUT_ATTRS = {
-    "lidar_wind_speed": var_attrs(
-        "virtual lidar 10-minute horizontal wind speed (hybrid reconstruction)", "m s-1", "wind_speed"
-    ),
-    "lidar_wind_speed_scalar": var_attrs(
-        "virtual lidar 10-minute horizontal wind speed (scalar average, Eq. 3)", "m s-1", "wind_speed"
-    ),
-    "lidar_wind_speed_vector": var_attrs(
-        "virtual lidar 10-minute horizontal wind speed (vector average, Eq. 4)", "m s-1", "wind_speed"
-    ),
-    "reference_wind_speed": var_attrs(
-        "virtual point reference 10-minute scalar mean horizontal wind speed", "m s-1", "wind_speed"
-    ),
-    "availability": var_attrs("fraction of LOS samples kept in the period", "1"),
-}
-
-
 
 
 def _select_heights(cond: xr.Dataset, heights: Sequence[float] | None, source: str) -> np.ndarray:
@@ -431,45 +413,22 @@ def _assemble(
     ds = xr.Dataset(
         coords={"time": time_coord(cond.time.values), "height": height_coord(cond.height.values[hidx])}
     )
-    for name in CONDITION_VARIABLES:
+    for name in CONDITION_NAMES:
         ds[name] = (
             dims,
             cond[name].values[:, hidx],
             {**cond[name].attrs, "coverage_content_type": "modelResult"},
         )
     for name in OUTPUTS:
-        ds[name] = (dims, out[name], dict(_OUTPUT_ATTRS[name]))
+        ds[name] = (dims, out[name], output_attrs("simulated_rtd", name))
     flag = valid.astype(np.int8)
     flag[valid & (out["availability"] == 0)] = 2  # the lidar's CNR filter dropped every LOS
-    ds["simulated"] = (
-        dims,
-        flag,
-        {
-            "long_name": "period simulated at this height (0: skipped, a needed input was missing; "
-            "2: simulated but below the lidar's CNR threshold, so no lidar value)",
-            "flag_values": np.array([0, 1, 2], dtype=np.int8),
-            "flag_meanings": "skipped_missing_input simulated filtered_low_cnr",
-            "coverage_content_type": "qualityInformation",
-        },
-    )
+    ds["simulated"] = (dims, flag, output_attrs("simulated_rtd", "simulated"))
     # the seed entropy of every period, as time variables: position-free, so parts of a campaign
     # concatenate to the whole, and members of an ensemble keep their base seed when joined
-    ds["period_key"] = (
-        "time",
-        np.asarray(keys, dtype=np.int64),
-        var_attrs(
-            "seed key of the period: whole seconds of its time since 1970-01-01T00:00:00 "
-            "(random streams: SeedSequence([base_seed, period_key, round(height_m * 1000)]))",
-            "s",
-            coverage_content_type="auxiliaryInformation",
-        ),
-    )
-    ds["base_seed"] = (
-        "time",
-        np.full(cond.sizes["time"], int(base_seed), dtype=np.int64),
-        var_attrs("base seed of the Monte Carlo run that simulated the period", "1",
-                  coverage_content_type="auxiliaryInformation"),
-    )
+    ds["period_key"] = ("time", np.asarray(keys, dtype=np.int64), output_attrs("simulated_rtd", "period_key"))
+    ds["base_seed"] = ("time", np.full(cond.sizes["time"], int(base_seed), dtype=np.int64),
+                       output_attrs("simulated_rtd", "base_seed"))
     if los_data:
         ds = ds.merge(los_variables(los_data, ds.height.values))
     return ds

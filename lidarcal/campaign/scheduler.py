@@ -15,7 +15,9 @@ import contextlib
 import functools
 import logging
 import os
+import sys
 import time
+import types
 import uuid
 import warnings
 from collections.abc import Iterator
@@ -51,7 +53,7 @@ def local_cluster(n_workers: int, **kwargs):
     # workers die with this process (campaign.workers: preloaded, told our pid)
     env = {**BLAS_ENV, PARENT_PID_ENV: str(os.getpid())}
     kwargs = {"threads_per_worker": 1, "processes": True, "env": env, **kwargs}
-    with _blas_env(), dask.config.set({**WORKER_CONFIG, **WORKER_PRELOAD}):
+    with _blas_env(), _workers_skip_main(), dask.config.set({**WORKER_CONFIG, **WORKER_PRELOAD}):
         return LocalCluster(n_workers=n_workers, **kwargs)
 
 
@@ -68,6 +70,28 @@ def _blas_env() -> Iterator[None]:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+@contextlib.contextmanager
+def _workers_skip_main() -> Iterator[None]:
+    """Start worker processes that import lidarcal, not the user's ``__main__`` script.
+
+    The spawn start method runs the parent's main script (or module) again in every new
+    process, so that functions defined there can be unpickled.  The chunks need only lidarcal
+    (and dask's cloudpickle sends anything defined in ``__main__`` by value), while a script that
+    calls :func:`lidarcal.calibrate` at top level, without an ``if __name__ == "__main__":``
+    guard, would run the calibration again in every worker.  So while the pool starts,
+    multiprocessing sees a bare ``__main__`` with no file to run.
+    """
+    main = sys.modules.get("__main__")
+    sys.modules["__main__"] = types.ModuleType("__main__")
+    try:
+        yield
+    finally:
+        if main is None:
+            del sys.modules["__main__"]
+        else:
+            sys.modules["__main__"] = main
 
 
 def _connect(address: str, timeout: float):
@@ -299,6 +323,7 @@ def _run_local(
                 "multiprocessing.context": "spawn",
                 "multiprocessing.initializer": functools.partial(init_pool_worker, os.getpid()),
             }))
+            stack.enter_context(_workers_skip_main())
         results = dask.compute(*delayed, **kw)
     yield from zip((name for name, _ in tasks), results, strict=True)
 

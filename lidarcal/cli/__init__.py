@@ -118,6 +118,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         logger.removeHandler(handler)
         logger.setLevel(level)
 
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())

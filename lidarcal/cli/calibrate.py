@@ -38,7 +38,6 @@ from lidarcal.cli.options import (
     add_reference_turbulence_option,
     add_seed_option,
     admin_from_args,
-    positive_int,
     progress_enabled,
 )
 from lidarcal.pipeline import DEFAULT_HEIGHTS, CalibrationConfig, calibrate
@@ -77,8 +76,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_los_noise_option(p)
     add_reference_turbulence_option(p)
     add_certification_options(p)  # --min-periods also sets the sensitivities' bins (one rule)
-    p.add_argument("--min-samples", dest="min_periods", type=positive_int("--min-samples"),
-                   help=argparse.SUPPRESS)  # the former name of --min-periods
     add_monte_carlo_options(p)
     add_seed_option(p)
     add_parallel_options(p, workdir=False)  # chunks are cached in OUTDIR/.simulation-chunks

@@ -16,12 +16,13 @@ import argparse
 from pathlib import Path
 
 from lidarcal.admin import status_line
-from lidarcal.certificate import make_certificate, write_certificate
+from lidarcal.certificate import make_certificate
 from lidarcal.cli import command_line
 from lidarcal.cli.options import add_admin_options, add_output_options, admin_from_args
 from lidarcal.document import seal_statement
 from lidarcal.io import check_writable, open_artefact
 from lidarcal.report import write_report
+from lidarcal.seal import write_certificate
 from lidarcal.signing import fingerprint, load_private_key
 
 

@@ -16,7 +16,6 @@ from lidarcal.cli.options import add_contact_options, number
 from lidarcal.conditions.mast import parse_height_columns, sta_field_campaign
 from lidarcal.conditions.sta import sta_conditions
 from lidarcal.io import check_writable, write_artefact
-from lidarcal.provenance import stamp
 
 
 def _common(p: argparse.ArgumentParser) -> None:
@@ -68,25 +67,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=lambda args: p.print_help() or 1)
 
 
-def _config(args: argparse.Namespace) -> dict:
-    return {k: v for k, v in vars(args).items() if k not in ("handler", "output", "overwrite", "argv")}
-
-
 def run_conditions(args: argparse.Namespace) -> int:
     """Read the ``.sta`` files and write a ``conditions`` artefact."""
     check_writable(args.output, overwrite=args.overwrite)
-    ds = sta_conditions(args.files, args.min_availability, allow_gaps=args.allow_gaps)
-    ds = stamp(
-        ds, "conditions",
-        title=f"Measured 10-minute conditions from WindCube {ds.attrs['lidar_serial_number']}",
-        summary=f"{ds.sizes['time']} ten-minute periods at {ds.sizes['height']} heights read from "
-                f"{len(args.files)} WindCube .sta file(s); CNR and CNR gradient measured; periods below "
-                f"{args.min_availability:g} % availability missing.",
-        call=command_line(args),
-        inputs={f"sta_{k}": p for k, p in enumerate(args.files, start=1)},
-        config=_config(args),
-    )
-    ds.attrs["license"] = "not specified: the licence of the source .sta files applies"
+    ds = sta_conditions(args.files, args.min_availability, allow_gaps=args.allow_gaps,
+                        call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: {ds.sizes['time']} periods at heights {ds.height.values.tolist()} m")
     return 0
@@ -100,17 +85,7 @@ def run_field(args: argparse.Namespace) -> int:
     ds = sta_field_campaign(args.files, args.reference, columns, std, timestamp=args.reference_timestamp,
                             time_column=args.reference_time_column, min_availability=args.min_availability,
                             allow_gaps=args.allow_gaps, units=args.reference_units,
-                            check_ratio=not args.skip_ratio_check)
-    ds = stamp(
-        ds, "field_campaign",
-        title=f"Field campaign: WindCube {ds.attrs['lidar_serial_number']} against a met mast",
-        summary=f"{ds.sizes['time']} ten-minute periods at {ds.sizes['height']} mast heights: lidar speed "
-                f"from {len(args.files)} .sta file(s), reference speed from {ds.attrs['reference_file']}.",
-        call=command_line(args),
-        inputs={**{f"sta_{k}": p for k, p in enumerate(args.files, start=1)}, "reference": args.reference},
-        config=_config(args),
-    )
-    ds.attrs["license"] = "not specified: the licences of the source .sta files and mast record apply"
+                            check_ratio=not args.skip_ratio_check, call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: {ds.sizes['time']} periods at heights {ds.height.values.tolist()} m, "
           f"{ds.attrs['reference_matched_periods']} with a mast record")

@@ -47,7 +47,6 @@ __all__ = [
     "add_heights_option",
     "add_output_options",
     "add_contact_options",
-    "contact_from_args",
     "add_overwrite_option",
     "add_admin_options",
     "admin_from_args",
@@ -278,11 +277,8 @@ def add_contact_options(parser: argparse.ArgumentParser) -> None:
     """``--institution``, ``--creator``, ``--creator-email`` ... recorded in every file written.
 
     Each defaults to its environment variable (``LIDARCAL_INSTITUTION`` ...), then to nothing
-    (``creator_name`` "lidarcal", ``institution`` "unspecified").  Adding them twice to one
-    parser is a no-op.
+    (``creator_name`` "lidarcal", ``institution`` "unspecified").
     """
-    if "--creator" in parser._option_string_actions:
-        return
     g = parser.add_argument_group("who made the files (ACDD attributes of every file written; "
                                   "each defaults to its environment variable)")
     for option, (attr, env) in CONTACT_OPTIONS.items():
@@ -294,12 +290,6 @@ def add_contact_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--attribute", action=_AttributeAction, metavar="NAME=VALUE",
                    help="a further ACDD attribute only you know, recorded in every file written "
                         f"(repeatable; NAME one of {', '.join(USER_ATTRIBUTES)})")
-
-
-def contact_from_args(args: argparse.Namespace) -> dict[str, str]:
-    """Return the contact attributes given on the command line (for ``provenance.contact``)."""
-    return {attr: value for attr in [a for a, _ in CONTACT_OPTIONS.values()] + list(USER_ATTRIBUTES)
-            if (value := getattr(args, f"contact_{attr}", None))}
 
 
 #: option -> administrative attribute (lidarcal.admin; docs/certificate.md)

@@ -11,10 +11,11 @@ import argparse
 
 import numpy as np
 
-from lidarcal.analysis._records import CANONICAL_UNITS
-from lidarcal.analysis.sensitivity import DEFAULT_MIN_SAMPLES, sensitivity
+from lidarcal.analysis.budget import DEFAULT_MIN_PERIODS
+from lidarcal.analysis.sensitivity import sensitivity
 from lidarcal.cli import command_line
 from lidarcal.cli.options import add_output_options, nonnegative, positive, positive_int, positive_quantity
+from lidarcal.conditions.variables import CANONICAL_UNITS
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
@@ -55,8 +56,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--min-samples",
         type=positive_int("--min-samples"),
-        default=DEFAULT_MIN_SAMPLES,
-        help=f"minimum periods per bin used in the regression (default {DEFAULT_MIN_SAMPLES})",
+        default=DEFAULT_MIN_PERIODS,
+        help=f"minimum periods per bin used in the regression (default {DEFAULT_MIN_PERIODS})",
     )
     p.add_argument(
         "--regression",
@@ -123,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
             records,
             v,
             bin_width=widths.get(v),
-            min_samples=args.min_samples,
+            min_periods=args.min_samples,
             regression=args.regression,
             relative=not args.absolute,
             heights=args.height,

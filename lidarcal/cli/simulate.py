@@ -23,7 +23,7 @@ import argparse
 import os
 
 from lidarcal.campaign import simulate_campaign
-from lidarcal.campaign.run import WORKER_TIMEOUT
+from lidarcal.campaign.scheduler import WORKER_TIMEOUT
 from lidarcal.cli import command_line
 from lidarcal.cli.options import (
     add_certification_options,

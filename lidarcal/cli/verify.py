@@ -24,8 +24,8 @@ import sys
 import netCDF4
 
 from lidarcal.admin import status_line
-from lidarcal.certificate import verify_certificate
 from lidarcal.errors import LidarcalError
+from lidarcal.seal import verify_certificate
 from lidarcal.signing import load_public_key
 
 

@@ -35,9 +35,8 @@ import numpy as np
 import xarray as xr
 from scipy import stats as st
 
-from lidarcal.analysis.budget import budget
+from lidarcal.analysis.budget import DEFAULT_MIN_PERIODS, budget
 from lidarcal.analysis.sensitivity import (
-    DEFAULT_MIN_SAMPLES,
     DEFAULT_REFERENCE_RANGE,
     REGRESSIONS,
     sensitivity,
@@ -200,7 +199,7 @@ def compare(
     alpha: float = DEFAULT_ALPHA,
     reference_uncertainty: Any = DEFAULT_REFERENCE_UNCERTAINTY,
     base_seed: int = DEFAULT_BASE_SEED,
-    min_samples: int = DEFAULT_MIN_SAMPLES,
+    min_samples: int = DEFAULT_MIN_PERIODS,
     regression: str = "weighted",
     bin_widths: Mapping[str, Any] | None = None,
     reference_range: tuple[float, float] = DEFAULT_REFERENCE_RANGE,
@@ -283,7 +282,7 @@ def compare(
     log.info(f"{int(keep.sum())} period-heights with the measured reference in ({lo:g}, {hi:g}] m s-1")
 
     # 3. sensitivities on the same bins, and the cell tests
-    opts = {"min_samples": int(min_samples), "regression": regression, "reference_range": None,
+    opts = {"min_periods": int(min_samples), "regression": regression, "reference_range": None,
             "source": source}
     sens = _sensitivities(measured, simulated, variables, bin_widths, opts)
     cells = _cells(sens, variables, ds.sizes["height"], float(alpha))

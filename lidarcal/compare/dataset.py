@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.analysis.sensitivity import _per_unit
+from lidarcal.analysis.sensitivity import per_unit
 from lidarcal.cf import height_coord, with_bounds
 from lidarcal.compare.core import CORRECTION, Comparison
 from lidarcal.conditions.variables import CANONICAL_UNITS
@@ -33,7 +33,7 @@ __all__ = ["to_dataset", "summary", "slope_units"]
 
 def slope_units(variable: str) -> str:
     """Units of a sensitivity slope of the relative difference (%) against ``variable``."""
-    return _per_unit("%", CANONICAL_UNITS[variable])
+    return per_unit("%", CANONICAL_UNITS[variable])
 
 
 def _num(x: Any) -> float | None:

@@ -3,24 +3,21 @@
 - :func:`load_conditions` — open, convert to canonical units, check, flag missing periods.
 - :func:`synthetic_conditions` — seeded synthetic conditions, or a real record extrapolated
   to more heights with each period's shear (Eq. 10).
+- :mod:`lidarcal.conditions.variables` — the variable names, units and attributes, read from
+  ``schemas/conditions.yaml`` and ``schemas/field_campaign.yaml``.
+- :mod:`lidarcal.conditions.sta` / :mod:`~lidarcal.conditions.stafile` /
+  :mod:`~lidarcal.conditions.mast` — WindCube ``.sta`` files and met-mast CSV records in, with
+  the value rules of :mod:`lidarcal.conditions.readings`.
 - :mod:`lidarcal.conditions.kernels` — shear exponent and CNR gradient from neighbouring
   heights (paper §3.3), the CNR model used where no lidar CNR was measured.
 """
 
 from lidarcal.conditions.kernels import cnr_gradient_along_beam, cnr_model, shear_exponent, vertical_gradient
-from lidarcal.conditions.load import (
-    CONDITION_VARIABLES,
-    FIELD_VARIABLES,
-    SkippedPeriodsWarning,
-    conditions_checksum,
-    load_conditions,
-)
+from lidarcal.conditions.load import SkippedPeriodsWarning, conditions_checksum, load_conditions
 from lidarcal.conditions.synthetic import conditions_dataset, synthetic_conditions
 from lidarcal.data import sample_file
 
 __all__ = [
-    "CONDITION_VARIABLES",
-    "FIELD_VARIABLES",
     "SkippedPeriodsWarning",
     "conditions_checksum",
     "conditions_dataset",

@@ -23,8 +23,8 @@ import numpy as np
 import pint
 import xarray as xr
 
-from lidarcal.cf import height_coord, time_coord, var_attrs
-from lidarcal.conditions.variables import CANONICAL_UNITS, STANDARD_NAMES
+from lidarcal.cf import height_coord, time_coord
+from lidarcal.conditions.variables import CANONICAL_UNITS, variable_attrs
 from lidarcal.errors import InputError, UnitError
 from lidarcal.units import LOG_UNITS, to_magnitude
 
@@ -119,12 +119,8 @@ def sweep_conditions(
         name: (
             ("time", "height"),
             np.repeat(points[:, i : i + 1], nh, axis=1),
-            var_attrs(
-                name.replace("_", " "),
-                CANONICAL_UNITS[name],
-                STANDARD_NAMES.get(name),
-                coverage_content_type="auxiliaryInformation",
-            ),
+            variable_attrs(name, content="auxiliaryInformation",
+                           comment="value of the full-factorial grid (lidarcal.conditions.grid)"),
         )
         for i, name in enumerate(SWEEP_VARIABLES)
     }

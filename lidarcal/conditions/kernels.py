@@ -21,10 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from lidarcal.lidar.model import LidarModel
-
 __all__ = [
-    "DEFAULT_CONE_ANGLE",
     "neighbour_pairs",
     "shear_exponent",
     "vertical_gradient",
@@ -33,11 +30,6 @@ __all__ = [
     "cnr_model",
     "ar1",
 ]
-
-
-#: Cone angle (degree from vertical) used to turn height differences into along-beam ones when
-#: none is given: the :class:`~lidarcal.lidar.LidarModel` default (28°, WindCube).
-DEFAULT_CONE_ANGLE: float = LidarModel.cone_angle
 
 
 def neighbour_pairs(heights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -98,12 +90,11 @@ def vertical_gradient(values: np.ndarray, heights: np.ndarray) -> np.ndarray:
     return (values[..., hi] - values[..., lo]) / (z[hi] - z[lo])
 
 
-def cnr_gradient_along_beam(cnr: np.ndarray, heights: np.ndarray,
-                            cone_angle: float = DEFAULT_CONE_ANGLE) -> np.ndarray:
+def cnr_gradient_along_beam(cnr: np.ndarray, heights: np.ndarray, cone_angle: float) -> np.ndarray:
     """CNR gradient along the beam (dB per metre of range) from CNR at neighbouring heights.
 
     ``dCNR/ds = dCNR/dz · cos φ`` with ``dCNR/dz`` from :func:`vertical_gradient` and φ the
-    cone angle in degrees from the vertical (default :data:`DEFAULT_CONE_ANGLE`).
+    cone angle in degrees from the vertical (28° for a WindCube).
 
     Examples
     --------

@@ -16,27 +16,14 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from lidarcal.cf import height_coord, var_attrs
-from lidarcal.conditions.variables import CONDITIONS, FIELD_PAIR
+from lidarcal.cf import height_coord
+from lidarcal.conditions.variables import CANONICAL_UNITS, CONDITION_NAMES, FIELD_NAMES, variable_attrs
 from lidarcal.errors import InputError, MissingVariableError, ValidationError
 from lidarcal.io import open_artefact, source_name
-from lidarcal.schema import declared_variables, validate_dataset
+from lidarcal.schema import declared_variables, output_attrs, validate_dataset
 from lidarcal.units import convert_values, convert_variable
 
-__all__ = [
-    "CONDITION_VARIABLES",
-    "FIELD_VARIABLES",
-    "SkippedPeriodsWarning",
-    "load_conditions",
-    "conditions_checksum",
-]
-
-#: The six variables of the contract: canonical unit, long name, CF standard name
-#: (declared in ``schemas/conditions.yaml``, see :mod:`lidarcal.conditions.variables`).
-CONDITION_VARIABLES: dict[str, tuple[str, str, str | None]] = {n: tuple(v) for n, v in CONDITIONS.items()}
-
-#: The measured pair a ``field_campaign`` adds (declared in ``schemas/field_campaign.yaml``).
-FIELD_VARIABLES: dict[str, tuple[str, str, str | None]] = {n: tuple(v) for n, v in FIELD_PAIR.items()}
+__all__ = ["SkippedPeriodsWarning", "load_conditions", "conditions_checksum"]
 
 
 class SkippedPeriodsWarning(UserWarning):
@@ -128,7 +115,7 @@ def conditions_checksum(ds: xr.Dataset, names: tuple[str, ...] | None = None) ->
     digest = hashlib.sha256()
     digest.update(np.ascontiguousarray(ds["height"].values, dtype=float).tobytes())
     digest.update(np.ascontiguousarray(ds["time"].values).view(np.uint8).tobytes())
-    for name in names or tuple(CONDITION_VARIABLES):
+    for name in names or CONDITION_NAMES:
         digest.update(name.encode())
         digest.update(np.ascontiguousarray(ds[name].values, dtype=float).tobytes())
     return digest.hexdigest()
@@ -182,10 +169,8 @@ def load_conditions(
         )
     _check_time(raw, source)
     heights = _check_height(raw, source)
-    specs = dict(CONDITION_VARIABLES)
-    if kind == "field_campaign":
-        specs.update(FIELD_VARIABLES)
-    missing = [n for n in specs if n not in raw.variables]
+    needed = CONDITION_NAMES + (FIELD_NAMES if kind == "field_campaign" else ())
+    missing = [n for n in needed if n not in raw.variables]
     if missing:
         raise MissingVariableError(
             f"{source}: required variable(s) {missing} missing for a {kind!r} input; "
@@ -193,43 +178,33 @@ def load_conditions(
         )
     order = np.argsort(heights, kind="stable")
     data = {}
-    for name, (unit, _long_name, _std) in specs.items():
+    for name in needed:
         var = raw[name]
         if set(var.dims) != {"time", "height"}:
             raise InputError(
                 f"{source}: variable {name!r} has dims {tuple(var.dims)}; expected ('time', 'height')"
             )
-        da = convert_variable(raw, name, unit, source=source).transpose("time", "height")
+        da = convert_variable(raw, name, CANONICAL_UNITS[name], source=source).transpose("time", "height")
         values = np.asarray(da.values, dtype=float)[:, order]
         data[name] = values
     ds_shape = xr.Dataset(coords={"time": raw["time"].values, "height": heights[order]})
     declared = {**declared_variables("conditions"), **declared_variables(kind)}  # ranges, as validated
     hints = {"turbulence_intensity": "; expected a fraction sigma_u / U (percent must carry units '%')"}
-    for name, (unit, _long_name, _std) in specs.items():
-        _check_values(name, data[name], unit, declared.get(name, {}), ds_shape, source, hints.get(name, ""))
+    for name in needed:
+        _check_values(name, data[name], CANONICAL_UNITS[name], declared.get(name, {}), ds_shape, source,
+                      hints.get(name, ""))
     data["wind_from_direction"] = np.mod(data["wind_from_direction"], 360.0)
 
-    needed = list(CONDITION_VARIABLES) + (list(FIELD_VARIABLES) if kind == "field_campaign" else [])
     complete = np.all([np.isfinite(data[n]) for n in needed], axis=0)
 
     dims = ("time", "height")
     out = xr.Dataset(coords={"time": raw["time"].copy(), "height": height_coord(heights[order])})
-    for name, (unit, long_name, std) in specs.items():
-        content = "physicalMeasurement" if name in FIELD_VARIABLES else "modelResult"
-        out[name] = (dims, data[name], var_attrs(long_name, unit, std, coverage_content_type=content))
-    out["input_complete"] = (
-        dims,
-        complete.astype(np.int8),
-        {
-            "long_name": "all needed input values present (period simulated at this height)",
-            "flag_values": np.array([0, 1], dtype=np.int8),
-            "flag_meanings": "skipped_missing_input complete",
-            "coverage_content_type": "qualityInformation",
-        },
-    )
+    for name in needed:
+        out[name] = (dims, data[name], variable_attrs(name))
+    out["input_complete"] = (dims, complete.astype(np.int8), output_attrs("conditions", "input_complete"))
     attrs = {k: v for k, v in raw.attrs.items() if not k.startswith("lidarcal_conditions_")}
     out.attrs = attrs
-    out.attrs["lidarcal_conditions_checksum"] = conditions_checksum(out, tuple(needed))
+    out.attrs["lidarcal_conditions_checksum"] = conditions_checksum(out, needed)
     n_skip = int((~complete).sum())
     out.attrs["lidarcal_skipped_count"] = n_skip
     # a field_campaign holds everything a conditions input needs, so it may stand in for one

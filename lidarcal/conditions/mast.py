@@ -22,18 +22,21 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from lidarcal.cf import var_attrs
-from lidarcal.conditions.sta import (
+from lidarcal.conditions.readings import (
     DERIVED_LIMITS,
     PERIOD,
     RAW_RANGES,
     SENTINELS,
-    _out_of_range,
-    sta_conditions,
+    read_numbers,
+    set_missing_out_of_range,
     value_problem,
 )
+from lidarcal.conditions.sta import STA_COMMENTS, measured_conditions
+from lidarcal.conditions.stafile import read_sta_files
+from lidarcal.conditions.variables import variable_attrs
 from lidarcal.errors import InputError, LidarcalError, MissingVariableError
 from lidarcal.io import check_input_file
+from lidarcal.provenance import stamp
 from lidarcal.units import convert_values
 
 __all__ = ["parse_height_columns", "read_reference_csv", "sta_field_campaign", "column_unit", "RATIO_LIMITS"]
@@ -88,6 +91,44 @@ def parse_height_columns(text: str, option: str = "--reference-columns") -> dict
     return out
 
 
+def _start_times(path: Path, cells: pd.Series, column: int, timestamp: str) -> np.ndarray:
+    """Return the interval starts of a mast's time column (one UTC offset, parsable, no repeats)."""
+    tcol = cells.name
+    text = cells.astype(str).str.strip()
+    offsets = text.str.extract(_OFFSET, expand=False).fillna("none")
+    if offsets.nunique() > 1:
+        r = int(np.flatnonzero((offsets != offsets.iloc[0]).to_numpy())[0])
+        raise InputError(
+            f"{path}: line {r + 2}, column {column} ({tcol!r}): timestamp {text.iloc[r]!r} "
+            f"has UTC offset {offsets.iloc[r]!r} but line 2 has {offsets.iloc[0]!r}; expected one offset "
+            f"throughout (a daylight-saving switch? convert the record to one clock, e.g. UTC, first)"
+        )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # format inference notices; unparsable cells are reported below
+        try:
+            times = pd.to_datetime(text, errors="coerce")
+        except (ValueError, TypeError) as exc:  # mixtures pandas refuses even with errors="coerce"
+            raise InputError(f"{path}: column {column} ({tcol!r}): timestamps cannot be "
+                             f"read together: {exc}") from None
+    bad = times.isna().to_numpy()
+    if bad.any():
+        r = int(np.flatnonzero(bad)[0])
+        raise InputError(
+            f"{path}: line {r + 2}, column {column} ({tcol!r}): expected a timestamp; found "
+            f"{text.iloc[r]!r}"
+        )
+    start = times.to_numpy(dtype="datetime64[ns]") - (PERIOD if timestamp == "end" else np.timedelta64(0))
+    _, first, counts = np.unique(start, return_index=True, return_counts=True)
+    if (counts > 1).any():
+        a = int(first[np.flatnonzero(counts > 1)[0]])
+        b = int(np.flatnonzero(start == start[a])[1])
+        raise InputError(
+            f"{path}: line {b + 2}, column {column} ({tcol!r}): duplicated timestamp "
+            f"{text.iloc[b]!r} (also line {a + 2})"
+        )
+    return start
+
+
 def read_reference_csv(
     path: str | os.PathLike,
     columns: dict[float, str],
@@ -101,8 +142,8 @@ def read_reference_csv(
 
     A column's unit is the one its name declares (:func:`column_unit`), else ``units``
     (``--reference-units``), else m s-1; a name and ``units`` that disagree are refused.
-    Sentinels (9999, -999), negative speeds and speeds beyond the physical range are refused
-    with the file, line and column.
+    Missing values, sentinels (9999, -999), negative speeds and speeds beyond the physical
+    range follow :mod:`lidarcal.conditions.readings`; refusals name the file, line and column.
 
     Returns
     -------
@@ -127,53 +168,14 @@ def read_reference_csv(
     missing = [c for c in wanted if c not in names]
     if missing:
         raise MissingVariableError(f"{path}: column(s) {missing} not found; the file has {names}")
-    text = df[tcol].astype(str).str.strip()
-    offsets = text.str.extract(_OFFSET, expand=False).fillna("none")
-    if offsets.nunique() > 1:
-        r = int(np.flatnonzero((offsets != offsets.iloc[0]).to_numpy())[0])
-        raise InputError(
-            f"{path}: line {r + 2}, column {names.index(tcol) + 1} ({tcol!r}): timestamp {text.iloc[r]!r} "
-            f"has UTC offset {offsets.iloc[r]!r} but line 2 has {offsets.iloc[0]!r}; expected one offset "
-            f"throughout (a daylight-saving switch? convert the record to one clock, e.g. UTC, first)"
-        )
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # format inference notices; unparsable cells are reported below
-        try:
-            times = pd.to_datetime(text, errors="coerce")
-        except (ValueError, TypeError) as exc:  # mixtures pandas refuses even with errors="coerce"
-            raise InputError(f"{path}: column {names.index(tcol) + 1} ({tcol!r}): timestamps cannot be "
-                             f"read together: {exc}") from None
-    bad = times.isna().to_numpy()
-    if bad.any():
-        r = int(np.flatnonzero(bad)[0])
-        raise InputError(
-            f"{path}: line {r + 2}, column {names.index(tcol) + 1} ({tcol!r}): expected a timestamp; found "
-            f"{text.iloc[r]!r}"
-        )
-    start = times.to_numpy(dtype="datetime64[ns]") - (PERIOD if timestamp == "end" else np.timedelta64(0))
-    _, first, counts = np.unique(start, return_index=True, return_counts=True)
-    if (counts > 1).any():
-        a = int(first[np.flatnonzero(counts > 1)[0]])
-        b = int(np.flatnonzero(start == start[a])[1])
-        raise InputError(
-            f"{path}: line {b + 2}, column {names.index(tcol) + 1} ({tcol!r}): duplicated timestamp "
-            f"{text.iloc[b]!r} (also line {a + 2})"
-        )
+    start = _start_times(path, df[tcol], names.index(tcol) + 1, timestamp)
 
     used: dict[str, str] = {}
 
     def numbers(col: str, role: str) -> np.ndarray:
-        cells = df[col].astype(str).str.strip()
-        values = pd.to_numeric(cells, errors="coerce").to_numpy(dtype=float)
-        blank = cells.str.lower().isin(["", "nan", "na", "n/a", "null", "none", "-"]).to_numpy()
-        bad = np.isnan(values) & ~blank
-        where = f"{path}: column {names.index(col) + 1} ({col!r})"
-        if bad.any():
-            r = int(np.flatnonzero(bad)[0])
-            raise InputError(
-                f"{path}: line {r + 2}, column {names.index(col) + 1} ({col!r}): expected a number; found "
-                f"{cells.iloc[r]!r}"
-            )
+        number = names.index(col) + 1
+        where = f"{path}: column {number} ({col!r})"
+        values = read_numbers(df[col], lambda r: f"{path}: line {r + 2}, column {number} ({col!r})")
         sentinel = np.isin(values, SENTINELS)
         declared = column_unit(col)
         if declared and units and not _same_unit(declared, units):
@@ -197,7 +199,7 @@ def read_reference_csv(
                            f"[{lo:g}, {hi:g}] m/s")
                 if unit == "m/s" and v <= 360 and role == "speed":
                     problem += " (a wind direction? are the column names swapped?)"
-            raise InputError(f"{path}: line {r + 2}, column {names.index(col) + 1} ({col!r}): {problem}")
+            raise InputError(f"{path}: line {r + 2}, column {number} ({col!r}): {problem}")
         return converted
 
     means = {h: numbers(c, "speed") for h, c in columns.items()}
@@ -229,6 +231,50 @@ def _match_heights(heights: list[float], altitudes: np.ndarray, option: str, sou
     return idx
 
 
+def _median_ratio(lidar_speed: np.ndarray, ref: np.ndarray, check: bool, used: dict[str, str],
+                  columns: dict[float, str], reference, source: str) -> float:
+    """Median lidar / reference speed ratio; refuse an implausible one (a unit or column mix-up)."""
+    both = np.isfinite(lidar_speed) & np.isfinite(ref) & (ref > 0)
+    ratio = float(np.median(lidar_speed[both] / ref[both])) if both.any() else float("nan")
+    lo, hi = RATIO_LIMITS
+    if check and np.isfinite(ratio) and not lo <= ratio <= hi:
+        read = ", ".join(f"{c!r} in {u}" for c, u in used.items() if c in columns.values())
+        raise InputError(
+            f"{reference}: the median lidar / reference wind speed ratio is {ratio:.3f} over "
+            f"{int(both.sum())} matched period-heights (lidar {source}), outside the plausible "
+            f"[{lo:g}, {hi:g}]; mast columns read as {read}. Is the mast in another unit (give "
+            f"--reference-units, e.g. km/h) or are these the wrong columns? --skip-ratio-check accepts "
+            f"the campaign as it is"
+        )
+    return ratio
+
+
+def _matcher(times: np.ndarray, start: np.ndarray, reference, timestamp: str):
+    """Return a function putting a mast series on the lidar's ``times`` (NaN where the mast has none)."""
+    pos = pd.Index(start).get_indexer(pd.Index(times))
+    found = pos >= 0
+    if not found.any():
+        raise InputError(
+            f"{reference}: no mast interval start matches a lidar interval start (lidar "
+            f"{pd.Timestamp(times.min())} .. {pd.Timestamp(times.max())}, mast "
+            f"{pd.Timestamp(start.min())} .. {pd.Timestamp(start.max())}, --reference-timestamp {timestamp})"
+        )
+    return lambda series: np.where(found, series[np.clip(pos, 0, None)], np.nan)
+
+
+def _comments(altitudes: np.ndarray, columns: dict[float, str], std: dict[float, str]) -> dict[str, str]:
+    """Return the comments of a field campaign's conditions variables (the mast's part in them)."""
+    ti_source = {f"{h:g}": f"mast {std[h]} / {columns[h]}" if h in std
+                 else "lidar speed dispersion / lidar speed" for h in sorted(columns)}
+    return {
+        "wind_speed": "mast 10-minute mean (the reference): the conditions to simulate",
+        "turbulence_intensity": "per height: " + json.dumps(ti_source),
+        "wind_shear_exponent": STA_COMMENTS["wind_shear_exponent"] + " of the lidar's altitudes "
+                               + str([float(a) for a in np.sort(altitudes)]),
+        "cnr_gradient": STA_COMMENTS["cnr_gradient"] + "; neighbours among the lidar's altitudes",
+    }
+
+
 def sta_field_campaign(
     sta_paths,
     reference: str | os.PathLike,
@@ -241,8 +287,9 @@ def sta_field_campaign(
     allow_gaps: bool = False,
     units: str | None = None,
     check_ratio: bool = True,
+    call: str | None = None,
 ) -> xr.Dataset:
-    """Build a ``field_campaign`` Dataset (``docs/contracts.md``) from ``.sta`` files and a mast CSV.
+    """Build a stamped ``field_campaign`` artefact (``docs/contracts.md``) from ``.sta`` files and a mast CSV.
 
     Parameters
     ----------
@@ -266,86 +313,54 @@ def sta_field_campaign(
     check_ratio : bool
         Refuse a campaign whose median lidar / reference speed ratio is outside
         :data:`RATIO_LIMITS` (a unit or column mix-up); False records the ratio only.
+    call : str, optional
+        What produced it, for the provenance (default: this function).
 
     Returns
     -------
     xarray.Dataset
-        On (time, height) at the mast heights (ascending), lidar times; not yet stamped.
+        On (time, height) at the mast heights (ascending), lidar times, with lidarcal's provenance.
     """
-    std = dict(std or {})
+    sta_paths, std = list(sta_paths), dict(std or {})
     extra = [h for h in std if h not in columns]
     if extra:
         raise InputError(
             f"--reference-std: height(s) {[f'{h:g}' for h in extra]} m have no mean column in "
             f"--reference-columns ({[f'{h:g}' for h in columns]} m)"
         )
-    cond = sta_conditions(sta_paths, min_availability, warn=False, allow_gaps=allow_gaps)
-    z = cond.height.values
+    files = read_sta_files(sta_paths, allow_gaps=allow_gaps)
+    cond = measured_conditions(files, min_availability, warn=False,
+                               comments=_comments(files[0].altitudes, columns, std))
     source = ", ".join(Path(p).name for p in sta_paths)
     heights = sorted(columns)
-    idx = _match_heights(heights, z, "--reference-columns", source)
+    idx = _match_heights(heights, cond.height.values, "--reference-columns", source)
     start, means, stds, used = read_reference_csv(reference, columns, std, timestamp=timestamp,
                                                   time_column=time_column, units=units)
-    times = cond.time.values
-    pos = pd.Index(start).get_indexer(pd.Index(times))
-    found = pos >= 0
-    if not found.any():
-        raise InputError(
-            f"{reference}: no mast interval start matches a lidar interval start (lidar "
-            f"{pd.Timestamp(times.min())} .. {pd.Timestamp(times.max())}, mast "
-            f"{pd.Timestamp(start.min())} .. {pd.Timestamp(start.max())}, --reference-timestamp {timestamp})"
-        )
-
-    def on_lidar_times(series: np.ndarray) -> np.ndarray:
-        return np.where(found, series[np.clip(pos, 0, None)], np.nan)
-
+    on_lidar_times = _matcher(cond.time.values, start, reference, timestamp)
     ref = np.column_stack([on_lidar_times(means[h]) for h in heights])
-    sub = cond.isel(height=idx)
-    lidar_speed = sub["wind_speed"].values
-    both = np.isfinite(lidar_speed) & np.isfinite(ref) & (ref > 0)
-    ratio = float(np.median(lidar_speed[both] / ref[both])) if both.any() else float("nan")
-    lo, hi = RATIO_LIMITS
-    if check_ratio and np.isfinite(ratio) and not lo <= ratio <= hi:
-        read = ", ".join(f"{c!r} in {u}" for c, u in used.items() if c in columns.values())
-        raise InputError(
-            f"{reference}: the median lidar / reference wind speed ratio is {ratio:.3f} over "
-            f"{int(both.sum())} matched period-heights (lidar {source}), outside the plausible "
-            f"[{lo:g}, {hi:g}]; mast columns read as {read}. Is the mast in another unit (give "
-            f"--reference-units, e.g. km/h) or are these the wrong columns? --skip-ratio-check accepts "
-            f"the campaign as it is"
-        )
-    ti = sub["turbulence_intensity"].values.copy()
-    ti_source = {}
+    out = cond.isel(height=idx)
+    lidar_speed = out["wind_speed"].values
+    ratio = _median_ratio(lidar_speed, ref, check_ratio, used, columns, reference, source)
+    ti = out["turbulence_intensity"].values.copy()
     for k, h in enumerate(heights):
         if h in stds:
-            sd = on_lidar_times(stds[h])
             with np.errstate(divide="ignore", invalid="ignore"):
-                ti[:, k] = np.where(ref[:, k] > 0, sd / ref[:, k], np.nan)
-            ti_source[f"{h:g}"] = f"mast {std[h]} / {columns[h]}"
-        else:
-            ti_source[f"{h:g}"] = "lidar speed dispersion / lidar speed"
+                ti[:, k] = np.where(ref[:, k] > 0, on_lidar_times(stds[h]) / ref[:, k], np.nan)
     vals = {"turbulence_intensity": ti}
-    dropped = _out_of_range(vals, {"turbulence_intensity": DERIVED_LIMITS["turbulence_intensity"]})
-    out = sub.copy()
-    out["wind_speed"] = (("time", "height"), ref, dict(sub["wind_speed"].attrs))
-    out["wind_speed"].attrs["comment"] = "mast 10-minute mean (the reference): the conditions to simulate"
-    out["turbulence_intensity"] = (("time", "height"), vals["turbulence_intensity"],
-                                   dict(sub["turbulence_intensity"].attrs))
-    out["turbulence_intensity"].attrs["comment"] = "per height: " + json.dumps(ti_source)
-    out["wind_shear_exponent"].attrs["comment"] += " of the lidar's altitudes " + str(
-        [float(a) for a in z])
-    out["cnr_gradient"].attrs["comment"] += "; neighbours among the lidar's altitudes"
-    out["lidar_wind_speed"] = (("time", "height"), lidar_speed, var_attrs(
-        "lidar 10-minute horizontal wind speed (measured)", "m s-1", "wind_speed",
-        coverage_content_type="physicalMeasurement",
-        comment="the .sta file's speed column; missing below the availability threshold"))
-    out["reference_wind_speed"] = (("time", "height"), ref, var_attrs(
-        "reference anemometer 10-minute mean wind speed (measured)", "m s-1", "wind_speed",
-        coverage_content_type="physicalMeasurement",
+    dropped = set_missing_out_of_range(vals, {"turbulence_intensity": DERIVED_LIMITS["turbulence_intensity"]})
+    dims = ("time", "height")
+    out["wind_speed"] = (dims, ref, dict(out["wind_speed"].attrs))
+    out["turbulence_intensity"] = (dims, vals["turbulence_intensity"],
+                                   dict(out["turbulence_intensity"].attrs))
+    out["lidar_wind_speed"] = (dims, lidar_speed, variable_attrs(
+        "lidar_wind_speed", comment="the .sta file's speed column; missing below the availability threshold"))
+    out["reference_wind_speed"] = (dims, ref, variable_attrs(
+        "reference_wind_speed",
         comment=f"mast CSV {Path(reference).name}, columns "
                 f"{json.dumps({f'{h:g}': columns[h] for h in heights})} (read in "
                 f"{json.dumps({columns[h]: used[columns[h]] for h in heights})}, converted to m s-1), "
                 f"matched on interval start"))
+    lo, hi = RATIO_LIMITS
     out.attrs.update({
         "reference_file": Path(reference).name,
         "reference_columns": json.dumps({f"{h:g}": columns[h] for h in heights}),
@@ -359,5 +374,19 @@ def sta_field_campaign(
         "sta_out_of_range_set_missing": json.dumps(
             {**json.loads(cond.attrs["sta_out_of_range_set_missing"]), **{f"mast {k}": v for k, v in
                                                                          dropped.items()}}),
+        "license": "not specified: the licences of the source .sta files and mast record apply",
     })
-    return out
+    config = {"files": [str(p) for p in sta_paths], "reference": str(reference),
+              "columns": {f"{h:g}": c for h, c in columns.items()},
+              "std": {f"{h:g}": c for h, c in std.items()},
+              "timestamp": timestamp, "time_column": time_column, "min_availability": float(min_availability),
+              "allow_gaps": bool(allow_gaps), "units": units, "check_ratio": bool(check_ratio)}
+    return stamp(
+        out, "field_campaign",
+        title=f"Field campaign: WindCube {out.attrs['lidar_serial_number']} against a met mast",
+        summary=f"{out.sizes['time']} ten-minute periods at {out.sizes['height']} mast heights: lidar speed "
+                f"from {len(sta_paths)} .sta file(s), reference speed from {out.attrs['reference_file']}.",
+        call=call or "lidarcal.conditions.mast.sta_field_campaign(...)",
+        inputs={**{f"sta_{k}": p for k, p in enumerate(sta_paths, start=1)}, "reference": reference},
+        config=config,
+    )

@@ -1,567 +1,43 @@
-"""Read WindCube ``.sta`` 10-minute statistics files into a ``conditions`` input.
-
-Two dialects exist, both Latin-1 text with LF or CRLF line ends and tab-separated columns:
-
-* the **newer** one: first line ``HeaderSize=N``, first column ``Timestamp (end of interval)``
-  (``YYYY/MM/DD HH:MM``), a few station columns, then one group per height whose column
-  names carry the height (``40m Wind Speed (m/s)``, ``40m Wind Speed Dispersion (m/s)``,
-  ``40m Wind Direction (°)``, ``40m CNR (dB)``, ``40m Data Availability (%)`` ...), each
-  group followed by an empty column;
-* the **older** one: first line ``HeaderLength=N``, first column ``Date``
-  (``DD/MM/YYYY HH:MM:SS``, end of interval), ``WiperCount``, ``Tm``, then per height index
-  ``i`` (1 ... number of altitudes, in header order) ``Vhm<i>``, ``dVh<i>``, ``VhMax<i>``,
-  ``VhMin<i>``, ``Azim<i>``, ``um<i>`` ... ``dw<i>``, the **un-indexed** ``CNRm``, ``dCNR``,
-  ``CNRmax``, ``CNRmin`` (the same names in every group: they are mapped by their position
-  inside the group that ``Vhm<i>`` opens), ``spectral_broadening``, ``dspectral_broadening``,
-  ``Avail.<i>`` and an empty column.
-
-Line 1 is ``HeaderSize=N`` / ``HeaderLength=N``; lines 2 ... N + 1 are the header (``key=value``
-lines, ``****`` separators, section titles); line N + 2 names the columns; data follow.  The
-dialect is recognised from the first column name.  ``NaN`` (or an empty cell) marks a
-missing value.
+"""WindCube ``.sta`` files into a ``conditions`` input (the format: :mod:`lidarcal.conditions.stafile`).
 
 Conventions of :func:`sta_conditions`: ``time`` is the interval start (the end-of-interval
 stamp minus 10 minutes) with CF ``time_bounds``; TI = speed dispersion / speed; a period whose
 data availability at a height is below ``min_availability`` (%) is missing (NaN) at that
 height; ``cnr_gradient`` is the gradient *along the beam*, ``dCNR/ds = dCNR/dz · cos φ``
 (φ the file's scan angle from vertical), from neighbouring heights, and the shear exponent
-uses the same neighbours (:mod:`lidarcal.conditions.kernels`).
+uses the same neighbours (:mod:`lidarcal.conditions.kernels`).  Derived values outside the
+contract's range are set missing (:func:`lidarcal.conditions.readings.set_missing_out_of_range`).
 """
 
 from __future__ import annotations
 
-import csv
-import hashlib
-import io
 import json
-import os
-import re
 import warnings
-from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import xarray as xr
 
 from lidarcal.conditions.kernels import shear_exponent, vertical_gradient
+from lidarcal.conditions.readings import DERIVED_LIMITS, PERIOD, set_missing_out_of_range
+from lidarcal.conditions.stafile import ROLES, StaFile, read_sta_files
 from lidarcal.conditions.synthetic import conditions_dataset
 from lidarcal.errors import InputError
-from lidarcal.io import check_input_file
-from lidarcal.schema import declared_variables
+from lidarcal.provenance import stamp
+from lidarcal.schema import output_attrs
 
-__all__ = ["StaFile", "read_sta", "read_sta_files", "sta_conditions", "DIALECTS", "PERIOD"]
+__all__ = ["STA_COMMENTS", "measured_conditions", "sta_attributes", "sta_conditions"]
 
-#: Length of a WindCube statistics interval.
-PERIOD = np.timedelta64(600, "s")
-
-#: First column name -> (dialect name, timestamp format, description of the format).
-DIALECTS = {
-    "Timestamp (end of interval)": ("newer", "%Y/%m/%d %H:%M", "YYYY/MM/DD HH:MM"),
-    "Date": ("older", "%d/%m/%Y %H:%M:%S", "DD/MM/YYYY HH:MM:SS"),
+#: How each conditions variable is obtained from ``.sta`` columns (its ``comment`` attribute).
+STA_COMMENTS = {
+    "wind_speed": "lidar 10-minute mean horizontal wind speed (.sta speed column)",
+    "wind_from_direction": "lidar 10-minute mean wind direction (.sta direction column)",
+    "turbulence_intensity": "speed dispersion / speed (.sta dispersion and speed columns)",
+    "wind_shear_exponent": "ln(U_b/U_a)/ln(z_b/z_a) between the neighbouring heights (Eq. 10)",
+    "cnr": "measured carrier-to-noise ratio (.sta mean CNR column)",
+    "cnr_gradient": "along the beam: finite difference between neighbouring heights times cos(scan "
+                    "angle), dCNR/ds = dCNR/dz cos(phi)",
 }
-
-#: The five per-height quantities read; the others of each group are ignored.
-ROLES = ("speed", "dispersion", "direction", "cnr", "availability")
-
-#: Newer dialect: quantity (lower case, without units) -> (role, accepted unit spellings).
-_NEWER = {
-    "wind speed": ("speed", ("m/s",)),
-    "wind speed dispersion": ("dispersion", ("m/s",)),
-    "wind direction": ("direction", ("°", "deg", "degree", "degrees")),
-    "cnr": ("cnr", ("dB",)),
-    "data availability": ("availability", ("%",)),
-}
-_NEWER_NAME = re.compile(r"^(\d+(?:\.\d+)?)\s*m\s+(.*?)\s*(?:\(([^()]*)\))?\s*$")
-_OLDER_INDEXED = re.compile(
-    r"^(Vhm|dVh|VhMax|VhMin|Azim|um|du|vm|dv|wm|dw|Avail\.)(\d+)$"
-)
-_OLDER_ROLE = {"Vhm": "speed", "dVh": "dispersion", "Azim": "direction", "Avail.": "availability"}
-_FIRST_LINE = re.compile(r"^\s*(HeaderSize|HeaderLength)\s*=\s*(\d+)\s*$")
-#: Normalised header keys (:func:`_norm`) that may declare the statistics averaging period.
-_PERIOD_KEYS = ("averagingperiod", "averagingtime", "averageperiod", "averagetime", "statisticsperiod",
-                "statisticaverage", "averaging")
-#: Values that loggers write for "no data": reported as such, never read as a measurement.
-SENTINELS = (9999.0, -999.0, -9999.0, 999.0, 99999.0, -99999.0, 999999.0)
-_CONDITIONS_SPECS = declared_variables("conditions")
-#: Physical range of each raw column read (the conditions contract's ranges, schemas/conditions.yaml).
-RAW_RANGES = {
-    "speed": (tuple(_CONDITIONS_SPECS["wind_speed"]["range"]), "m/s"),
-    "dispersion": (tuple(_CONDITIONS_SPECS["wind_speed"]["range"]), "m/s"),
-    "direction": (tuple(_CONDITIONS_SPECS["wind_from_direction"]["range"]), "degree"),
-    "cnr": (tuple(_CONDITIONS_SPECS["cnr"]["range"]), "dB"),
-    "availability": ((0.0, 100.0), "%"),
-}
-
-
-def value_problem(value: float, role: str, lo: float, hi: float, unit: str) -> str:
-    """Why ``value`` (outside [lo, hi]) cannot be a ``role`` reading: sentinel, negative, swapped column."""
-    if value in SENTINELS:
-        return (f"{value:g} is a missing-data code (sentinel), not a measurement; expected {unit} in "
-                f"[{lo:g}, {hi:g}] or NaN")
-    if role in ("speed", "dispersion") and value < 0:
-        return f"negative wind speed {value:g} {unit}; expected {unit} in [{lo:g}, {hi:g}] or NaN"
-    hint = ""
-    if role in ("speed", "dispersion") and hi < value <= 360:
-        hint = " (it looks like a wind direction: are the column names swapped?)"
-    return f"expected {unit} in [{lo:g}, {hi:g}] or NaN; found {value:g}{hint}"
-
-
-@dataclass
-class StaFile:
-    """One parsed ``.sta`` file; arrays on (row, altitude) in the header's altitude order."""
-
-    path: Path
-    dialect: str
-    header_size: int
-    header: dict[str, str]
-    header_lines: dict[str, tuple[int, str]]  # normalised key -> (line number, key as written)
-    altitudes: np.ndarray
-    scan_angle: float
-    end: np.ndarray  # datetime64[ns], end-of-interval stamps as written
-    lines: np.ndarray  # file line number of each row
-    values: dict[str, np.ndarray]  # role -> (row, altitude)
-    columns: dict[str, list[int]]  # role -> 1-based column of each altitude
-    sha256: str = ""
-
-    def get(self, *keys: str) -> str | None:
-        """Header value of the first normalised key present (see :func:`_norm`)."""
-        for key in keys:
-            if key in self.header_lines:
-                return self.header[self.header_lines[key][1]]
-        return None
-
-    def line_of(self, *keys: str) -> int | None:
-        """Line number of the first normalised key present."""
-        for key in keys:
-            if key in self.header_lines:
-                return self.header_lines[key][0]
-        return None
-
-    @property
-    def serial(self) -> str | None:
-        """``ID System``: the lidar's serial."""
-        return self.get("idsystem")
-
-
-def _norm(key: str) -> str:
-    """Header key without units, spaces or case: ``ScanAngle (°)`` -> ``scanangle``."""
-    return re.sub(r"\([^)]*\)", "", key).replace(" ", "").replace("\t", "").lower()
-
-
-def _declared_period(path: Path, header: dict, where: dict) -> None:
-    """Refuse a file whose header declares an averaging period other than 10 minutes."""
-    for key in _PERIOD_KEYS:
-        if key not in where:
-            continue
-        line, name = where[key]
-        text = header[name]
-        m = re.match(r"^\s*([0-9.]+)\s*([a-zA-Z]*)\s*$", text)
-        in_name = re.search(r"\(([^)]*)\)", name)
-        unit = (in_name.group(1).strip().lower() if in_name else "") or (m.group(2).lower() if m else "")
-        scale = {"s": 1, "sec": 1, "second": 1, "seconds": 1, "": 1, "min": 60, "mn": 60, "minute": 60,
-                 "minutes": 60, "m": 60, "h": 3600}.get(unit or "")
-        if not m or scale is None:
-            raise InputError(f"{path}: line {line} ({name!r}): expected an averaging period such as 600 s; "
-                             f"found {text!r}")
-        seconds = float(m.group(1)) * scale
-        if seconds != PERIOD / np.timedelta64(1, "s"):
-            raise InputError(
-                f"{path}: line {line} ({name}={text}): the file declares {seconds:g} s statistics; lidarcal "
-                f"reads 10-minute (600 s) statistics only"
-            )
-        return
-
-
-def check_spacing(path_of, end: np.ndarray, lines: np.ndarray) -> None:
-    """Refuse interval ends that are not whole 10-minute periods apart (overlapping or shifted periods).
-
-    ``end`` sorted or not; gaps of whole periods (missing statistics) are allowed.  ``path_of(k)``
-    names the file of row ``k``.
-    """
-    if end.size < 2:
-        return
-    order = np.argsort(end, kind="stable")
-    step = np.diff(end[order])
-    bad = (step % PERIOD != np.timedelta64(0, "ns")) | (step <= np.timedelta64(0, "ns"))
-    if bad.any():
-        k = int(np.flatnonzero(bad)[0])
-        a, b = int(order[k]), int(order[k + 1])
-        where_a = path_of(a)
-        raise InputError(
-            f"{path_of(b)}: line {lines[b]}, column 1: interval ending {pd.Timestamp(end[b])} is "
-            f"{step[k] / np.timedelta64(1, 's'):g} s after the one ending {pd.Timestamp(end[a])} "
-            f"({where_a}, line {lines[a]}); 10-minute statistics must be whole multiples of 600 s apart "
-            f"(overlapping or shifted periods are refused)"
-        )
-
-
-def _float(text: str, where: str, what: str) -> float:
-    try:
-        return float(text)
-    except ValueError:
-        raise InputError(f"{where}: {what}: expected a number; found {text!r}") from None
-
-
-def _parse_header(path: Path, lines: list[str]) -> tuple[int, dict, dict]:
-    m = _FIRST_LINE.match(lines[0]) if lines else None
-    if not m:
-        found = lines[0][:60] if lines else "an empty file"
-        raise InputError(
-            f"{path}: line 1, column 1: unknown STA dialect: expected 'HeaderSize=N' (newer WindCube "
-            f"firmware) or 'HeaderLength=N' (older); found {found!r}"
-        )
-    n = int(m.group(2))
-    n_lines = len(lines)
-    if n + 2 > n_lines:
-        raise InputError(
-            f"{path}: line 1, column 1: {m.group(1)}={n} points past the data: the column-name line "
-            f"would be line {n + 2} but the file has {n_lines} line(s)"
-        )
-    header: dict[str, str] = {}
-    where: dict[str, tuple[int, str]] = {}
-    for k in range(1, n + 1):
-        text = lines[k]
-        if "=" not in text:
-            continue  # '****' separators and section titles
-        key, value = text.split("=", 1)
-        key = key.strip()
-        if not key:
-            continue
-        name = key if key not in header else f"{key} (line {k + 1})"
-        header[name] = value.strip().replace("\t", " ")
-        where.setdefault(_norm(key), (k + 1, name))
-    return n, header, where
-
-
-def _header_numbers(path: Path, n: int, header: dict, where: dict) -> tuple[np.ndarray, float]:
-    span = f"{path}: header (lines 2-{n + 1})"
-    if "altitudes" not in where:
-        raise InputError(f"{span}: key 'Altitudes (m)' missing; expected the measurement heights in m")
-    line, key = where["altitudes"]
-    raw = header[key].split()
-    alts = np.array([_float(t, f"{path}: line {line}", f"{key!r} value {t!r}") for t in raw])
-    if alts.size < 2 or np.any(~np.isfinite(alts)) or np.any(alts <= 0):
-        raise InputError(
-            f"{path}: line {line}: {key!r}: expected at least two heights > 0 m (shear and CNR gradient "
-            f"need neighbours); found {raw}"
-        )
-    if np.unique(alts).size != alts.size:
-        raise InputError(f"{path}: line {line}: {key!r}: repeated height in {raw}")
-    if "scanangle" not in where:
-        raise InputError(f"{span}: key 'ScanAngle (°)' missing; expected the cone angle in degrees")
-    line, key = where["scanangle"]
-    phi = _float(header[key], f"{path}: line {line}", f"{key!r}")
-    if not 0 < phi < 90:
-        raise InputError(
-            f"{path}: line {line}: {key!r}: expected a cone angle in (0, 90) degree; found {phi}"
-        )
-    return alts, phi
-
-
-def _missing_group(path: Path, line: int, h: float, i: int, alts: np.ndarray, where: str,
-                   expected: str, after: int) -> InputError:
-    return InputError(
-        f"{path}: line {line}, column {after}: height group missing: no column {expected!r} for altitude "
-        f"{h:g} m (number {i} of {alts.size} in the header's Altitudes, {where}); expected the group "
-        f"from column {after} on"
-    )
-
-
-def _columns_newer(path: Path, line: int, names: list[str], alts: np.ndarray, alt_line: int) -> dict:
-    found: dict[float, dict[str, int]] = {}
-    last_col: dict[float, int] = {}
-    for j, name in enumerate(names):
-        m = _NEWER_NAME.match(name)
-        if not m:
-            continue
-        h = float(m.group(1))
-        if not np.any(np.isclose(alts, h, rtol=0, atol=1e-6)):
-            raise InputError(
-                f"{path}: line {line}, column {j + 1}: {name!r} is for height {h:g} m, which is not among "
-                f"the header's Altitudes {alts.tolist()} (line {alt_line})"
-            )
-        last_col[h] = j + 1
-        spec = _NEWER.get(re.sub(r"\s+", " ", m.group(2)).lower())
-        if spec is None:
-            continue
-        role, units = spec
-        unit = (m.group(3) or "").strip()
-        if unit not in units:
-            hint = " (is the file Latin-1 encoded?)" if "Â" in unit else ""
-            raise InputError(
-                f"{path}: line {line}, column {j + 1}: {name!r}: expected units {units[0]!r}; found "
-                f"{unit!r}{hint}"
-            )
-        group = found.setdefault(h, {})
-        if role in group:
-            raise InputError(
-                f"{path}: line {line}, column {j + 1}: {name!r} repeats column {group[role] + 1} "
-                f"({names[group[role]]!r})"
-            )
-        group[role] = j
-    out = {role: [] for role in ROLES}
-    labels = {"speed": "Wind Speed (m/s)", "dispersion": "Wind Speed Dispersion (m/s)",
-              "direction": "Wind Direction (°)", "cnr": "CNR (dB)", "availability": "Data Availability (%)"}
-    after = 2
-    for i, h in enumerate(alts, start=1):
-        key = next((k for k in found if abs(k - h) <= 1e-6), None)
-        group = found.get(key, {}) if key is not None else {}
-        for role in ROLES:
-            if role not in group:
-                raise _missing_group(path, line, h, i, alts, f"line {alt_line}", f"{h:g}m {labels[role]}",
-                                     after if not group else min(group.values()) + 1)
-            out[role].append(group[role])
-        after = last_col[key] + 2  # past the group's empty column
-    return out
-
-
-def _columns_older(path: Path, line: int, names: list[str], alts: np.ndarray, alt_line: int) -> dict:
-    starts: dict[int, int] = {}
-    for j, name in enumerate(names):
-        m = _OLDER_INDEXED.match(name)
-        if m and m.group(1) == "Vhm":
-            i = int(m.group(2))
-            if not 1 <= i <= alts.size:
-                raise InputError(
-                    f"{path}: line {line}, column {j + 1}: {name!r}: height index {i} outside 1..{alts.size} "
-                    f"(the header's Altitudes, line {alt_line}, list {alts.size} heights)"
-                )
-            if i in starts:
-                raise InputError(
-                    f"{path}: line {line}, column {j + 1}: {name!r} repeats column {starts[i] + 1}"
-                )
-            starts[i] = j
-    bounds = sorted(starts.values()) + [len(names)]
-    out = {role: [] for role in ROLES}
-    after = 4  # Date, WiperCount, Tm
-    for i, h in enumerate(alts, start=1):
-        if i not in starts:
-            raise _missing_group(path, line, h, i, alts, f"line {alt_line}", f"Vhm{i}", after)
-        j0 = starts[i]
-        j1 = bounds[bounds.index(j0) + 1]
-        group: dict[str, int] = {}
-        for j in range(j0, j1):
-            name = names[j]
-            m = _OLDER_INDEXED.match(name)
-            if m:
-                if int(m.group(2)) != i:
-                    raise InputError(
-                        f"{path}: line {line}, column {j + 1}: {name!r} inside the group of height index {i} "
-                        f"({h:g} m, opened by 'Vhm{i}' at column {j0 + 1}); expected index {i}"
-                    )
-                role = _OLDER_ROLE.get(m.group(1))
-            else:
-                role = "cnr" if name == "CNRm" else None  # un-indexed: by position in this group
-            if role is None:
-                continue
-            if role in group:
-                raise InputError(
-                    f"{path}: line {line}, column {j + 1}: {name!r} appears twice in the group of height "
-                    f"index {i} (also column {group[role] + 1})"
-                )
-            group[role] = j
-        expected = {"speed": f"Vhm{i}", "dispersion": f"dVh{i}", "direction": f"Azim{i}", "cnr": "CNRm",
-                    "availability": f"Avail.{i}"}
-        for role in ROLES:
-            if role not in group:
-                raise InputError(
-                    f"{path}: line {line}, columns {j0 + 1}-{j1}: the group of height index {i} ({h:g} m) "
-                    f"has no column {expected[role]!r}"
-                )
-            out[role].append(group[role])
-        after = j1 + 1
-    return out
-
-
-def _numbers(path: Path, df: pd.DataFrame, j: int, name: str, first_line: int) -> np.ndarray:
-    text = df[j].fillna("").astype(str).str.strip()
-    values = pd.to_numeric(text.where(text != "", "NaN"), errors="coerce").to_numpy(dtype=float)
-    bad = np.isnan(values) & ~text.str.lower().isin(["", "nan"]).to_numpy()
-    if bad.any():
-        r = int(np.flatnonzero(bad)[0])
-        raise InputError(
-            f"{path}: line {first_line + r}, column {j + 1} ({name!r}): expected a number or NaN; "
-            f"found {text.iloc[r]!r} ({int(bad.sum())} such cell(s))"
-        )
-    return values
-
-
-def read_sta(path: str | os.PathLike, *, allow_gaps: bool = False) -> StaFile:
-    """Parse one WindCube ``.sta`` file (either dialect; see the module docstring).
-
-    ``allow_gaps``: rows cut short (fewer fields than the column names) become missing periods
-    with a warning naming them, instead of an error.
-
-    Raises
-    ------
-    InputError
-        Unknown dialect, header length pointing past the data, a height group missing,
-        unparsable numbers or timestamps, duplicated timestamps, statistics not 10 minutes
-        apart, truncated rows, sentinel values (9999, -999), negative speeds or values outside
-        the physical range (e.g. swapped columns); the message names the file, the line and
-        the column.
-    """
-    path = check_input_file(path, ".sta file")
-    raw = path.read_bytes()
-    text = raw.decode("latin-1")  # every byte is a Latin-1 character: decoding cannot fail
-    lines = text.split("\n")
-    lines = [ln[:-1] if ln.endswith("\r") else ln for ln in lines]
-    while lines and not lines[-1].strip():
-        lines.pop()
-    n, header, where = _parse_header(path, lines)
-    alts, phi = _header_numbers(path, n, header, where)
-    _declared_period(path, header, where)
-    col_line = n + 2
-    names = lines[n + 1].split("\t")
-    first = names[0].strip()
-    if first not in DIALECTS:
-        looks = " (it looks like a data row: does the header length point past the column names?)" \
-            if re.match(r"^\d", first) else ""
-        raise InputError(
-            f"{path}: line {col_line}, column 1: unknown STA dialect: the column-name line (line N + 2 for "
-            f"{lines[0].strip()}) must start with 'Timestamp (end of interval)' (newer) or 'Date' (older); "
-            f"found {first[:60]!r}{looks}"
-        )
-    dialect, fmt, fmt_text = DIALECTS[first]
-    alt_line = where["altitudes"][0]
-    finder = _columns_newer if dialect == "newer" else _columns_older
-    cols = finder(path, col_line, names, alts, alt_line)
-
-    n_rows = len(lines) - (n + 2)
-    if n_rows < 1:
-        raise InputError(f"{path}: line {col_line}: no data rows after the column-name line")
-    needed = max(j for j, name in enumerate(names) if name.strip()) + 1  # a trailing empty column may go
-    truncated = []
-    for k in range(n + 2, len(lines)):
-        count = lines[k].count("\t") + 1
-        if count > len(names):
-            raise InputError(
-                f"{path}: line {k + 1}, column {len(names) + 1}: {count} tab-separated fields; the "
-                f"column-name line (line {col_line}) names {len(names)}"
-            )
-        if count < needed:
-            truncated.append((k + 1, count))
-    if truncated:
-        listed = ", ".join(f"line {ln} ({c} of {needed} fields)" for ln, c in truncated[:10])
-        more = f" and {len(truncated) - 10} more" if len(truncated) > 10 else ""
-        text = (f"{path}: {len(truncated)} truncated row(s), cut short before column {needed} "
-                f"({names[needed - 1]!r}): {listed}{more}")
-        if not allow_gaps:
-            raise InputError(f"{text}; repair or remove them, or pass --allow-gaps to read them as "
-                             "missing periods")
-        warnings.warn(f"{text}; read as missing periods (--allow-gaps)", UserWarning, stacklevel=2)
-    # the table is parsed from the lines split above (decoded as Latin-1, CR stripped) so that
-    # row r is exactly file line n + 3 + r, whatever stray carriage returns a line holds
-    try:
-        df = pd.read_csv(
-            io.StringIO("\n".join(lines[n + 2:]) + "\n"), sep="\t", header=None,
-            names=list(range(len(names))), dtype=str, keep_default_na=False, skip_blank_lines=False,
-            quoting=csv.QUOTE_NONE, index_col=False, lineterminator="\n",
-        )
-    except (pd.errors.ParserError, ValueError) as exc:
-        raise InputError(f"{path}: lines {n + 3}-{len(lines)}: not a tab-separated table: {exc}") from None
-    first_line = n + 3
-    stamps = df[0].fillna("").astype(str).str.strip()
-    end = pd.to_datetime(stamps, format=fmt, errors="coerce")
-    bad = end.isna().to_numpy()
-    if bad.any():
-        r = int(np.flatnonzero(bad)[0])
-        raise InputError(
-            f"{path}: line {first_line + r}, column 1 ({first!r}): expected a timestamp {fmt_text}; found "
-            f"{stamps.iloc[r]!r}"
-        )
-    end = end.to_numpy(dtype="datetime64[ns]")
-    row_lines = first_line + np.arange(n_rows)
-    uniq, inverse, counts = np.unique(end, return_inverse=True, return_counts=True)
-    if (counts > 1).any():
-        dup = np.flatnonzero(counts[inverse] > 1)
-        a, b = dup[0], dup[1:][end[dup[1:]] == end[dup[0]]][0]
-        raise InputError(
-            f"{path}: line {row_lines[b]}, column 1: duplicated timestamp {stamps.iloc[b]!r} (also line "
-            f"{row_lines[a]})"
-        )
-    check_spacing(lambda k: path, end, row_lines)
-    cut = np.isin(row_lines, [ln for ln, _ in truncated])
-    values = {}
-    for role in ROLES:
-        values[role] = np.column_stack([_numbers(path, df, j, names[j], first_line) for j in cols[role]])
-        values[role][cut] = np.nan  # a row cut short: its last field may be cut mid-number
-        (lo, hi), unit = RAW_RANGES[role]
-        v = values[role]
-        bad = np.isfinite(v) & ((v < lo) | (v > hi))
-        if bad.any():
-            r, c = np.argwhere(bad)[0]
-            j = cols[role][c]
-            more = f" ({int(bad.sum())} such cell(s) in the file)" if bad.sum() > 1 else ""
-            raise InputError(
-                f"{path}: line {first_line + r}, column {j + 1} ({names[j]!r}): "
-                f"{value_problem(float(v[r, c]), role, lo, hi, unit)}{more}"
-            )
-    return StaFile(
-        path=path, dialect=dialect, header_size=n, header=header, header_lines=where, altitudes=alts,
-        scan_angle=phi, end=end, lines=row_lines, values=values,
-        columns={role: [j + 1 for j in js] for role, js in cols.items()},
-        sha256=hashlib.sha256(raw).hexdigest(),
-    )
-
-
-def _same(files: list[StaFile], what: str, key: str, get) -> None:
-    ref = files[0]
-    for other in files[1:]:
-        a, b = get(ref), get(other)
-        if a != b:
-            line_a, line_b = ref.line_of(key), other.line_of(key)
-            written = f"{other.header_lines[key][1]}={other.get(key)}" if line_b else "key missing"
-            raise InputError(
-                f"{other.path}: line {line_b or f'2-{other.header_size + 1}'} ({written!r}): {what} {b!r} "
-                f"differs from {a!r} in {ref.path} (line {line_a}); files joined along time must come "
-                f"from one lidar with one configuration"
-            )
-
-
-def read_sta_files(paths, *, allow_gaps: bool = False) -> list[StaFile]:
-    """Read several ``.sta`` files and check they can be joined along time (one lidar, one setup)."""
-    paths = [Path(p) for p in paths]
-    if not paths:
-        raise InputError("no .sta file given")
-    files = [read_sta(p, allow_gaps=allow_gaps) for p in paths]
-    _same(files, "ID System (serial)", "idsystem", lambda f: f.serial)
-    _same(files, "Altitudes", "altitudes", lambda f: f.altitudes.tolist())
-    _same(files, "ScanAngle", "scanangle", lambda f: f.scan_angle)
-    seen: dict[np.datetime64, tuple[StaFile, int]] = {}
-    for f in files:
-        for t, line in zip(f.end, f.lines, strict=True):
-            if t in seen:
-                g, line0 = seen[t]
-                raise InputError(
-                    f"{f.path}: line {line}, column 1: duplicated timestamp (interval ending "
-                    f"{pd.Timestamp(t)}) also in {g.path}, line {line0}"
-                )
-            seen[t] = (f, int(line))
-    if len(files) > 1:
-        owner = np.concatenate([np.full(f.end.size, k) for k, f in enumerate(files)])
-        check_spacing(lambda k: files[owner[k]].path, np.concatenate([f.end for f in files]),
-                      np.concatenate([f.lines for f in files]))
-    return files
-
-
-def _out_of_range(values: dict[str, np.ndarray], limits: dict[str, tuple[float, float]]) -> dict[str, int]:
-    """Set values outside the contract's physical range to NaN; return how many per variable."""
-    counts = {}
-    for name, (lo, hi) in limits.items():
-        v = values[name]
-        bad = np.isfinite(v) & ((v < lo) | (v > hi))
-        if bad.any():
-            v[bad] = np.nan
-            counts[name] = int(bad.sum())
-    return counts
-
-
-#: Contract ranges (schemas/conditions.yaml) of the derived variables: beyond them a value is
-#: an artefact of a tiny speed (TI, shear) or a noisy CNR and is left missing, not clipped.
-DERIVED_LIMITS = {"turbulence_intensity": (0.0, 1.0), "wind_shear_exponent": (-2.0, 2.0),
-                  "cnr_gradient": (-5.0, 5.0)}
 
 
 def _joined(files: list[StaFile], min_availability: float):
@@ -629,30 +105,15 @@ def _time_bounds(ds: xr.Dataset, end: np.ndarray) -> xr.Dataset:
     return ds
 
 
-def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
-                   allow_gaps: bool = False) -> xr.Dataset:
-    """Read ``.sta`` files (one lidar) into a ``conditions`` Dataset (``docs/contracts.md``), not yet stamped.
+def measured_conditions(files: list[StaFile], min_availability: float = 80.0, *, warn: bool = True,
+                        comments: dict[str, str] | None = None) -> xr.Dataset:
+    """Return the conditions of parsed ``.sta`` files (:func:`~lidarcal.conditions.stafile.read_sta_files`).
 
-    Parameters
-    ----------
-    paths : sequence of path
-        One or more ``.sta`` files of either dialect; joined along time (sorted).
-    min_availability : float
-        Data availability (%) a period needs at a height; below it every variable is NaN there.
-    warn : bool
-        Warn when derived values outside the contract's range are set missing.
-    allow_gaps : bool
-        Read rows cut short as missing periods (with a warning naming them) instead of refusing.
-
-    Returns
-    -------
-    xarray.Dataset
-        The six contract variables on (time, height) plus ``data_availability`` (%) and
-        ``time_bounds``; global attributes from :func:`sta_attributes`.
+    What :func:`sta_conditions` stamps and a field campaign builds on (not yet stamped);
+    ``comments`` overrides entries of :data:`STA_COMMENTS`.
     """
     if not 0 <= float(min_availability) <= 100:
         raise InputError(f"--min-availability: expected a percentage in [0, 100]; found {min_availability}")
-    files = read_sta_files(paths, allow_gaps=allow_gaps)
     z, end, vals, low = _joined(files, min_availability)
     speed = vals["speed"]
     cos_phi = np.cos(np.radians(files[0].scan_angle))
@@ -666,38 +127,61 @@ def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
         "cnr": vals["cnr"],
         "cnr_gradient": vertical_gradient(vals["cnr"], z) * cos_phi,
     }
-    dropped = _out_of_range(out, DERIVED_LIMITS)
+    dropped = set_missing_out_of_range(out, DERIVED_LIMITS)
     if dropped and warn:
         warnings.warn(
             f"{files[0].path}{' ...' if len(files) > 1 else ''}: derived values outside the conditions "
             f"contract's range set missing: {dropped}",
             UserWarning,
-            stacklevel=2,
+            stacklevel=3,
         )
     attrs = sta_attributes(files, min_availability)
     attrs["sta_out_of_range_set_missing"] = json.dumps(dropped)
     attrs["sta_below_availability_count"] = int(low.sum())
-    ds = conditions_dataset(end - PERIOD, z, out, attrs)
-    comments = {
-        "wind_speed": "lidar 10-minute mean horizontal wind speed (.sta speed column)",
-        "wind_from_direction": "lidar 10-minute mean wind direction (.sta direction column)",
-        "turbulence_intensity": "speed dispersion / speed (.sta dispersion and speed columns)",
-        "wind_shear_exponent": "ln(U_b/U_a)/ln(z_b/z_a) between the neighbouring heights (Eq. 10)",
-        "cnr": "measured carrier-to-noise ratio (.sta mean CNR column)",
-        "cnr_gradient": "along the beam: finite difference between neighbouring heights times cos(scan "
-                        "angle), dCNR/ds = dCNR/dz cos(phi)",
-    }
-    for name, text in comments.items():
-        ds[name].attrs["comment"] = text
-        ds[name].attrs["coverage_content_type"] = "physicalMeasurement"
-    ds["data_availability"] = (
-        ("time", "height"),
-        vals["availability"],
-        {"long_name": "lidar data availability in the 10-minute period", "units": "%",
-         "coverage_content_type": "qualityInformation",
-         "comment": f"periods below {float(min_availability):g} % are missing in every other variable"},
-    )
+    ds = conditions_dataset(end - PERIOD, z, out, attrs, content="physicalMeasurement",
+                            comments={**STA_COMMENTS, **(comments or {})})
+    ds["data_availability"] = (("time", "height"), vals["availability"], output_attrs(
+        "conditions", "data_availability", min_availability=f"{float(min_availability):g}"))
     ds = _time_bounds(ds, end)
     ds.attrs["time_coverage_start"] = str(pd.Timestamp(end.min() - PERIOD).isoformat())
     ds.attrs["time_coverage_end"] = str(pd.Timestamp(end.max()).isoformat())
     return ds
+
+
+def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
+                   allow_gaps: bool = False, call: str | None = None) -> xr.Dataset:
+    """Read ``.sta`` files (one lidar) into a stamped ``conditions`` artefact (``docs/contracts.md``).
+
+    Parameters
+    ----------
+    paths : sequence of path
+        One or more ``.sta`` files of either dialect; joined along time (sorted).
+    min_availability : float
+        Data availability (%) a period needs at a height; below it every variable is NaN there.
+    warn : bool
+        Warn when derived values outside the contract's range are set missing.
+    allow_gaps : bool
+        Read rows cut short as missing periods (with a warning naming them) instead of refusing.
+    call : str, optional
+        What produced it, for the provenance (default: this function).
+
+    Returns
+    -------
+    xarray.Dataset
+        The six contract variables on (time, height) plus ``data_availability`` (%) and
+        ``time_bounds``; global attributes from :func:`sta_attributes` and the provenance.
+    """
+    paths = list(paths)
+    ds = measured_conditions(read_sta_files(paths, allow_gaps=allow_gaps), min_availability, warn=warn)
+    ds.attrs["license"] = "not specified: the licence of the source .sta files applies"
+    return stamp(
+        ds, "conditions",
+        title=f"Measured 10-minute conditions from WindCube {ds.attrs['lidar_serial_number']}",
+        summary=f"{ds.sizes['time']} ten-minute periods at {ds.sizes['height']} heights read from "
+                f"{len(paths)} WindCube .sta file(s); CNR and CNR gradient measured; periods below "
+                f"{float(min_availability):g} % availability missing.",
+        call=call or "lidarcal.conditions.sta.sta_conditions(...)",
+        inputs={f"sta_{k}": p for k, p in enumerate(paths, start=1)},
+        config={"files": [str(p) for p in paths], "min_availability": float(min_availability),
+                "allow_gaps": bool(allow_gaps)},
+    )

@@ -3,15 +3,16 @@
 ``schemas/conditions.yaml`` declares the six conditions variables and
 ``schemas/field_campaign.yaml`` the measured pair (``lidar_wind_speed``,
 ``reference_wind_speed``), each with its canonical unit, long name and CF standard name.
-Every module that needs those names, units or attributes takes them from here; every schema
-that carries them copies the specs with an ``include`` entry (:mod:`lidarcal.schema`).
+Every module that needs those names, units or attributes takes them from here (a writer takes
+a variable's attributes from :func:`variable_attrs`); every schema that carries them copies the
+specs with an ``include`` entry (:mod:`lidarcal.schema`).
 """
 
 from __future__ import annotations
 
 from typing import NamedTuple
 
-from lidarcal.schema import declared_variables
+from lidarcal.schema import declared_variables, output_attrs
 
 __all__ = [
     "Variable",
@@ -21,6 +22,7 @@ __all__ = [
     "FIELD_NAMES",
     "CANONICAL_UNITS",
     "STANDARD_NAMES",
+    "variable_attrs",
 ]
 
 
@@ -33,10 +35,11 @@ class Variable(NamedTuple):
 
 
 def _registry(kind: str, exclude: tuple[str, ...] = ()) -> dict[str, Variable]:
+    """Return the required variables ``kind`` declares itself (optional ones are not in the contract)."""
     return {
         name: Variable(str(spec["units"]), str(spec["long_name"]), spec.get("standard_name"))
         for name, spec in declared_variables(kind).items()
-        if name not in exclude
+        if name not in exclude and spec.get("required", True)
     }
 
 
@@ -54,3 +57,18 @@ CANONICAL_UNITS: dict[str, str] = {n: v.units for n, v in {**CONDITIONS, **FIELD
 STANDARD_NAMES: dict[str, str] = {
     n: v.standard_name for n, v in {**CONDITIONS, **FIELD_PAIR}.items() if v.standard_name
 }
+
+
+def variable_attrs(name: str, *, content: str = "modelResult", comment: str = "") -> dict:
+    """Attributes a writer puts on conditions variable or measured-pair variable ``name``.
+
+    From the schema that declares it (:func:`lidarcal.schema.output_attrs`): ``content`` is the
+    ``coverage_content_type`` of a conditions variable (the measured pair is always a
+    ``physicalMeasurement``), ``comment`` says how the values were obtained ("" writes none).
+
+    >>> variable_attrs("cnr")["long_name"]
+    'carrier-to-noise ratio'
+    """
+    if name in FIELD_PAIR:
+        return output_attrs("field_campaign", name, comment=comment)
+    return output_attrs("conditions", name, content=content, comment=comment)

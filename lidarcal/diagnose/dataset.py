@@ -23,7 +23,7 @@ import xarray as xr
 
 from lidarcal.analysis.sensitivity import sensitivity
 from lidarcal.cf import height_coord
-from lidarcal.conditions.variables import CONDITION_NAMES, CONDITIONS
+from lidarcal.conditions.variables import CONDITION_NAMES, variable_attrs
 from lidarcal.diagnose.core import DiagnosisResult
 from lidarcal.diagnose.effects import EFFECTS
 from lidarcal.diagnose.stats import GAP_METRIC
@@ -103,11 +103,10 @@ def records_dataset(result: DiagnosisResult, which: str) -> xr.Dataset:
     ref = np.where(result.valid, ref, np.nan)
     dims = ("time", "height")
     ds = xr.Dataset(coords={"time": result.times, "height": height_coord(result.heights)})
-    ds["lidar_wind_speed"] = (dims, ref * (1.0 + d), output_attrs("field_campaign", "lidar_wind_speed"))
-    ds["reference_wind_speed"] = (dims, ref, output_attrs("field_campaign", "reference_wind_speed"))
+    ds["lidar_wind_speed"] = (dims, ref * (1.0 + d), variable_attrs("lidar_wind_speed"))
+    ds["reference_wind_speed"] = (dims, ref, variable_attrs("reference_wind_speed"))
     for name in CONDITION_NAMES:
-        ds[name] = (dims, np.where(result.valid, result.conditions[name], np.nan),
-                    output_attrs("conditions", name))
+        ds[name] = (dims, np.where(result.valid, result.conditions[name], np.nan), variable_attrs(name))
     ds.attrs["lidarcal_artefact"] = "field_campaign" if which == "measured" else "simulated_rtd"
     return ds
 
@@ -126,7 +125,7 @@ def sensitivity_statistics(result: DiagnosisResult) -> dict[str, np.ndarray]:
             edges = result.binned_before.edges[i]
             edges = edges[np.isfinite(edges)]
             try:
-                sens = sensitivity(recs, name, bins=edges, min_samples=result.settings["min_bin_count"],
+                sens = sensitivity(recs, name, bins=edges, min_periods=result.settings["min_bin_count"],
                                    reference_range=None, source=result.source)
             except InputError:
                 continue  # a variable without two populated bins has no slope
@@ -174,11 +173,10 @@ def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagno
         lower, upper = np.full(nb, np.nan), np.full(nb, np.nan)
         k = int(np.isfinite(e).sum()) - 1
         lower[:k], upper[:k] = e[:k], e[1:k + 1]
-        var = CONDITIONS[name]
-        about = dict(label=name.replace("_", " "), units=var.units, standard_name=var.standard_name or "")
-        put(f"{name}_bin_lower", "bin", lower, **about)
-        put(f"{name}_bin_upper", "bin", upper, **about)
-        put(f"{name}_bin_mean", ("bin", "height"), b0.center[i], **about)
+        label = name.replace("_", " ")
+        put(f"{name}_bin_lower", "bin", lower, label=label)
+        put(f"{name}_bin_upper", "bin", upper, label=label)
+        put(f"{name}_bin_mean", ("bin", "height"), b0.center[i], label=label)
     put("disagreement_chi2", vh, result.tests["chi2"])
     put("disagreement_dof", vh, result.tests["dof"].astype(np.int32))
     put("disagreement_p_adjusted", vh, result.tests["p_adjusted"])

@@ -26,12 +26,11 @@ import xarray as xr
 
 from lidarcal.campaign import simulate_campaign
 from lidarcal.conditions import synthetic_conditions
-from lidarcal.conditions.variables import CONDITION_NAMES, FIELD_NAMES
+from lidarcal.conditions.variables import CONDITION_NAMES, FIELD_NAMES, variable_attrs
 from lidarcal.diagnose.effects import get_effect
 from lidarcal.errors import InputError
 from lidarcal.lidar import LidarModel
 from lidarcal.provenance import stamp
-from lidarcal.schema import output_attrs
 
 __all__ = ["GENERATOR_SEED", "REALISTIC_STRENGTHS", "DIAGNOSIS_CNR_MODEL", "hidden_effect_conditions",
            "generate_field_campaign"]
@@ -129,8 +128,9 @@ def generate_field_campaign(
     simulated = (sim["simulated"].values == 1 if "simulated" in sim
                  else np.ones(out.wind_speed.shape, bool))
     for name in FIELD_NAMES:  # the measured pair, declared in schemas/field_campaign.yaml
-        out[name] = (sim[name].dims, np.where(simulated, sim[name].values, np.nan),
-                     output_attrs("field_campaign", name))
+        out[name] = (sim[name].dims, np.where(simulated, sim[name].values, np.nan), variable_attrs(
+            name, comment="synthetic measurement: lidarcal virtual lidar with a hidden effect "
+                          "(lidarcal_hidden_effect)"))
     fwhm = _rwf_fwhm(nominal)
     out.attrs = {
         "lidar_cone_angle": float(nominal.cone_angle),

@@ -8,6 +8,7 @@ Public API (see ``docs/contracts.md``, "The virtual lidar"):
 * :class:`NoiseTable` (:mod:`lidarcal.lidar.noise`) — the bench cube's LOS bias, std and measured
   residuals per (CNR, velocity) bin, as the simulation draws from them;
 * :mod:`lidarcal.lidar.spectral` — the continuous-RWF LOS signals' cross-spectral matrix;
+* :mod:`lidarcal.lidar.synthesis` — Fourier coefficients and time series drawn from that matrix;
 * :mod:`lidarcal.lidar.geometry` — beams, range gates, sample points, reachability;
 * :func:`simulate_period` — one 10-minute period at several heights, lidar (hybrid, scalar,
   vector) and reference speeds;

@@ -46,9 +46,9 @@ from lidarcal.rwf.kernels import barycenter
 from lidarcal.turbulence.kernels import SIGMA_RATIOS
 from lidarcal.units import convert_variable
 
-__all__ = ["LidarModel", "NoiseTable", "DEFAULT_CNR_THRESHOLD", "LOS_NOISE_MODELS", "flow_distortion_factor",
-           "direction_spread", "residuals_digest", "RwfProfileDigest", "rwf_profile_digest",
-           "REFERENCE_TURBULENCE"]
+__all__ = ["LidarModel", "DEFAULT_CNR_THRESHOLD", "flow_distortion_factor", "direction_spread",
+           "RwfProfileDigest",
+           "rwf_profile_digest", "REFERENCE_TURBULENCE"]
 
 #: Conventions of ``LidarModel.reference_turbulence`` (``docs/validation.md``).
 REFERENCE_TURBULENCE = ("pinned_u", "pinned_uvw", "free", "inferred_level")

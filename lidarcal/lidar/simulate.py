@@ -56,7 +56,8 @@ from lidarcal.errors import InputError
 from lidarcal.lidar.geometry import beam_geometry, period_points, wind_axes
 from lidarcal.lidar.model import LidarModel, RwfProfileDigest
 from lidarcal.lidar.quadrature import cnr_weights
-from lidarcal.lidar.spectral import REFERENCE_AMPLITUDES, cross_spectral_matrix, draw_coefficients, synthesise
+from lidarcal.lidar.spectral import cross_spectral_matrix
+from lidarcal.lidar.synthesis import REFERENCE_AMPLITUDES, draw_coefficients, synthesise
 from lidarcal.lidar.wfr import reconstruct
 from lidarcal.turbulence.kernels import sigma_components
 
@@ -115,6 +116,43 @@ def _simulate_height(model: LidarModel, height: float, U: float, direction: floa
     return {"reference_wind_speed": reference, "availability": keep.mean(), "los": los}
 
 
+def _checked_arguments(model: LidarModel, heights, duration: float, **given
+                       ) -> tuple[np.ndarray, dict[str, np.ndarray], int]:
+    """Check :func:`simulate_period`'s arguments; return the heights, the conditions per height and the steps.
+
+    ``given`` holds the six conditions in their order (wind speed, direction, turbulence
+    intensity, shear exponent, CNR, CNR gradient), each broadcast to one value per height.
+    """
+    if not isinstance(model, LidarModel):
+        raise InputError(f"simulate_period: model must be a LidarModel; got {type(model).__name__}")
+    if isinstance(model.rwf_profile, RwfProfileDigest):  # an attribute-form record: never a silent default
+        raise InputError(model.missing_rwf_message())
+    heights = np.atleast_1d(np.asarray(heights, dtype=float))
+    if heights.ndim != 1 or np.any(~np.isfinite(heights)) or np.any(heights <= 0):
+        raise InputError(f"simulate_period: argument 'heights' must be a 1-D array of finite heights > 0 m; "
+                         f"got {heights.tolist()}")
+    conditions = {}
+    for name, value in given.items():
+        try:
+            conditions[name] = np.broadcast_to(np.asarray(value, dtype=float), heights.shape)
+        except ValueError:
+            raise InputError(f"simulate_period: argument {name!r} has shape {np.shape(value)}; expected a "
+                             f"scalar or one value per height {heights.shape}") from None
+    bad = conditions["wind_speed"] <= 0
+    if bad.any():
+        raise InputError(f"simulate_period: argument 'wind_speed' must be > 0 m s-1 (or NaN); found "
+                         f"{conditions['wind_speed'][bad].tolist()} at heights {heights[bad].tolist()} m")
+    bad = conditions["turbulence_intensity"] < 0
+    if bad.any():
+        raise InputError(f"simulate_period: argument 'turbulence_intensity' must be >= 0; found "
+                         f"{conditions['turbulence_intensity'][bad].tolist()}")
+    n_times = int(round(duration / model.beam_period))
+    if n_times < 4 or abs(n_times * model.beam_period - duration) > 1e-9 * duration:
+        raise InputError(f"simulate_period: duration {duration} s must be a whole number (>= 4) of beam "
+                         f"periods ({model.beam_period} s)")
+    return heights, conditions, n_times
+
+
 def simulate_period(
     model: LidarModel,
     *,
@@ -157,36 +195,10 @@ def simulate_period(
         ``reference_wind_speed`` (m s-1) and ``availability`` (fraction of LOS samples kept),
         each of shape ``(len(heights),)``.
     """
-    if not isinstance(model, LidarModel):
-        raise InputError(f"simulate_period: model must be a LidarModel; got {type(model).__name__}")
-    if isinstance(model.rwf_profile, RwfProfileDigest):  # an attribute-form record: never a silent default
-        raise InputError(model.missing_rwf_message())
-    heights = np.atleast_1d(np.asarray(heights, dtype=float))
-    if heights.ndim != 1 or np.any(~np.isfinite(heights)) or np.any(heights <= 0):
-        raise InputError(f"simulate_period: argument 'heights' must be a 1-D array of finite heights > 0 m; "
-                         f"got {heights.tolist()}")
-    conditions = {}
-    for name, value in (("wind_speed", wind_speed), ("wind_from_direction", wind_from_direction),
-                        ("turbulence_intensity", turbulence_intensity),
-                        ("wind_shear_exponent", wind_shear_exponent), ("cnr", cnr),
-                        ("cnr_gradient", cnr_gradient)):
-        try:
-            conditions[name] = np.broadcast_to(np.asarray(value, dtype=float), heights.shape)
-        except ValueError:
-            raise InputError(f"simulate_period: argument {name!r} has shape {np.shape(value)}; expected a "
-                             f"scalar or one value per height {heights.shape}") from None
-    bad = conditions["wind_speed"] <= 0
-    if bad.any():
-        raise InputError(f"simulate_period: argument 'wind_speed' must be > 0 m s-1 (or NaN); found "
-                         f"{conditions['wind_speed'][bad].tolist()} at heights {heights[bad].tolist()} m")
-    bad = conditions["turbulence_intensity"] < 0
-    if bad.any():
-        raise InputError(f"simulate_period: argument 'turbulence_intensity' must be >= 0; found "
-                         f"{conditions['turbulence_intensity'][bad].tolist()}")
-    n_times = int(round(duration / model.beam_period))
-    if n_times < 4 or abs(n_times * model.beam_period - duration) > 1e-9 * duration:
-        raise InputError(f"simulate_period: duration {duration} s must be a whole number (>= 4) of beam "
-                         f"periods ({model.beam_period} s)")
+    heights, conditions, n_times = _checked_arguments(
+        model, heights, duration, wind_speed=wind_speed, wind_from_direction=wind_from_direction,
+        turbulence_intensity=turbulence_intensity, wind_shear_exponent=wind_shear_exponent, cnr=cnr,
+        cnr_gradient=cnr_gradient)
     out = {name: np.full(heights.shape, np.nan) for name in OUTPUTS}
     los = np.full((heights.size, n_times), np.nan)
     done = []

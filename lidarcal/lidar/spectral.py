@@ -47,61 +47,28 @@ every coherence is a smooth function of f (a cubic spline reproduces the full co
 1.2e-4 of ``sqrt(C_ii C_jj)``), and so is every spectrum in log f.  The reference's spectra are
 exact at every frequency.
 
-Synthesis (:func:`draw_coefficients`) follows PyConTurb: the matrix is normalised to a
-coherence matrix ``Γ = D⁻¹ C D⁻¹`` (``D = sqrt(diag C)``), factorised ``Γ = L L^H`` (batched
-Cholesky over frequencies), and ``c = D L ξ``.  The reference comes first in the
-factorisation, so its u coefficients are ``m_u ξ_0``.  Which ``ξ`` have a fixed modulus is the
-convention of ``LidarModel.reference_turbulence`` (``docs/validation.md``):
-
-* ``"pinned_u"`` (``"first_fixed"`` here, the default): ``ξ_0`` unit-modulus with uniform phase,
-  every other ``ξ`` circular complex Gaussian.  The reference's realised 10-minute σ_u is the
-  period's ``TI U`` exactly (the measured value, as for the first point of a ``gen_turb`` box),
-  and nothing else is pinned: in PyConTurb only the *points'* amplitudes are fixed, and a LOS
-  value integrates a continuum of points through the RWF, so its Fourier coefficients (given
-  the reference's) are Gaussian; the reference's v (and the cup's ``σ_v²/2U``) scatters from
-  period to period as in the atmosphere.
-* ``"pinned_uvw"`` (``"deterministic"``): every ``ξ`` unit-modulus (the engine before
-  ``reference_turbulence`` existed; kept bit for bit so that earlier results reproduce).  It
-  pins the reference's σ_v too and gives the six signals fixed amplitudes, which removes
-  15-25 % of the spread of lidar − reference.
-* ``"free"`` (``"rayleigh"``): every ``ξ`` circular complex Gaussian (a Gaussian process; the
-  reference's realised σ_u scatters ~10 %).
-
-* ``"inferred_level"`` (``"first_rescaled"``): the field's turbulence level is *unknown*, and
-  the reference's realised σ_u is what was measured: all six signals are drawn as ``"free"``
-  and then scaled by the one factor that makes the reference's realised σ_u equal ``TI U``.
-  Given one 10-minute σ_u (and no prior on the level, the scale-invariant 1/σ), this is the
-  posterior of the field: its level is ``TI U / sqrt(V)`` with ``V`` the realised variance
-  of a unit-level reference, so it scatters about the measured value as a 10-minute σ_u
-  scatters about the atmosphere's (±10 %).
-
-``"first_fixed"`` and ``"first_rescaled"`` draw the same numbers as ``"rayleigh"``.
+The signals are drawn from the matrix by :mod:`lidarcal.lidar.synthesis`.
 """
 
 from __future__ import annotations
 
 import functools
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
 from lidarcal.lidar.geometry import beam_geometry, wind_axes
+from lidarcal.lidar.product_integration import cusp_integral, side_integral
 from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes
 from lidarcal.turbulence.kernels import L_C, LENGTH_SCALE_FACTORS, spectral_magnitudes
 
-__all__ = ["N_CROSS", "AMPLITUDES", "REFERENCE_AMPLITUDES", "continuous_rwf", "cross_spectral_matrix",
-           "draw_coefficients",
-           "knot_indices", "synthesise"]
+__all__ = ["N_CROSS", "continuous_rwf", "cross_spectral_matrix", "knot_indices"]
 
 #: Gauss nodes per beam for the beam-beam and beam-reference entries.
 N_CROSS = 8
 #: Fine-grid spacing of the same-beam autocorrelation, as a fraction of the RWF's standard deviation.
 GRID_PER_SIGMA = 1.0 / 6.0
-#: Amplitude schemes of :func:`draw_coefficients`.
-AMPLITUDES = ("deterministic", "rayleigh", "first_fixed", "first_rescaled")
-#: ``LidarModel.reference_turbulence`` -> amplitude scheme.
-REFERENCE_AMPLITUDES = {"pinned_u": "first_fixed", "pinned_uvw": "deterministic", "free": "rayleigh",
-                        "inferred_level": "first_rescaled"}
 #: Above this height (m) PyConTurb's Kaimal length scale stops depending on z.
 _Z_KAIMAL = 60.0
 #: The continuous RWF is cut off below this height (m): at 40 m the part of a 30-m Gaussian RWF
@@ -214,53 +181,6 @@ class _Magnitudes:
         return self.m @ self.weights(z)
 
 
-def _phi(z: np.ndarray, ez: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``∫_0^1 (1 - t) e^(zt) dt`` and ``∫_0^1 t e^(zt) dt`` for complex ``z``, given ``ez = e^z``.
-
-    The closed forms lose ``~1e-16 / |z|²`` to cancellation, so ``|z| < 1e-3`` takes the series.
-    """
-    z2 = z * z
-    with np.errstate(divide="ignore", invalid="ignore"):
-        phi0 = (ez - 1.0 - z) / z2
-        phi1 = (z * ez - ez + 1.0) / z2
-    small = np.abs(z) < 1e-3
-    if small.any():
-        zs = z[small]
-        phi0[small] = 0.5 + zs / 6.0 + zs * zs / 24.0
-        phi1[small] = 0.5 + zs / 3.0 + zs * zs / 8.0
-    return phi0, phi1
-
-
-def _side_integral(P: np.ndarray, h: float, z: np.ndarray) -> np.ndarray:
-    """``∫_0^∞ P(t) e^(z t / h) dt``, ``P`` piecewise linear on ``t_j = j h`` (FIRST axis); exact kernel.
-
-    ``z`` (complex, ``Re z <= 0``) broadcasts against ``P[0]``.  Interval ``j`` contributes
-    ``h e^(j z) (P_j φ0(z) + P_(j+1) φ1(z))``: a polynomial in ``e^z``, evaluated by Horner's rule
-    (the lag axis first, so that every step reads one contiguous slice).
-    """
-    z = np.asarray(z, dtype=complex)
-    rho = np.exp(z)
-    phi0, phi1 = _phi(z, rho)
-    Pt = np.asarray(P)
-    n = Pt.shape[0]
-    # Σ_j ρ^j (P_j φ0 + P_(j+1) φ1) = φ0 Σ_j ρ^j P_j + φ1 Σ_j ρ^j P_(j+1), j = 0 .. n-2
-    tail = np.zeros(np.broadcast_shapes(rho.shape, Pt.shape[1:]), dtype=complex)
-    scalar = Pt.ndim == 1 or all(d == 1 for d in Pt.shape[1:])
-    coef = Pt.reshape(n).tolist() if scalar else Pt  # per-lag scalars: Python numbers add fastest
-    for j in range(n - 1, 0, -1):  # tail = Σ_(j>=1) ρ^(j-1) P_j
-        tail *= rho
-        tail += coef[j]
-    head = Pt[0] + rho * (tail - Pt[n - 1] * rho ** (n - 2)) if n > 1 else Pt[0]  # Σ_(j<=n-2) ρ^j P_j
-    return h * (phi0 * head + phi1 * tail)
-
-
-def _cusp_integral(P: np.ndarray, j0: int, h: float, mu: np.ndarray, kap: np.ndarray) -> np.ndarray:
-    """``∫ P(D) exp(-mu |D| + i kap D) dD``, ``P`` piecewise linear on ``D_j = (j - j0) h`` (first axis)."""
-    pos = _side_integral(P[j0:], h, (-mu + 1j * kap) * h)
-    neg = _side_integral(P[j0::-1], h, (-mu - 1j * kap) * h)
-    return pos + neg
-
-
 @functools.lru_cache(maxsize=256)
 def _line_nodes(offsets, weights, profile, n_cut: int, n_nodes: int):
     """Gauss nodes and weights of the continuous RWF with its first ``n_cut`` grid points cut off."""
@@ -370,7 +290,7 @@ def _collinear_pair(F, s, h, R, up, qa, qb, pa, pb, eps, beta, k, mags: _Magnitu
             else:
                 P *= damp
         P_sum = P_sum + P
-    total = _cusp_integral(P_sum, j0, hr, beta * np.sqrt(alpha), -k * (pa + pb) / 2.0)
+    total = cusp_integral(P_sum, j0, hr, beta * np.sqrt(alpha), -k * (pa + pb) / 2.0)
     if mags.uniform:
         total = total * mags.m[:, :, 0] ** 2
     return np.einsum("c,cf->f", proj2, total)
@@ -453,19 +373,61 @@ def cross_spectral_matrix(model, height: float, wind_speed: float, wind_from_dir
     return G * a[:, :, None] * np.conj(a)[:, None, :]
 
 
-def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma: np.ndarray,
-               cnr_gradient: float, duration: float, n_cross: int, sel: np.ndarray):
-    """Compute the matrix at the positive frequencies ``sel`` (0-based).
+@dataclass
+class _Gate:
+    """One height's range gate, as every block of :func:`_matrix_at` sees it.
 
-    Also returns the signals' gate-centre along-wind positions (m) and the reference's magnitudes
-    ``m_c(f, h)`` (3, n_f) at every frequency.
+    The CNR-weighted RWF ``F`` on the fine grid ``s`` (spacing ``h``, cut off below the ground),
+    the beams' unit vectors in the wind frame (``along``, ``across``, ``up``; ``proj`` the
+    components ``a_bc``, ``q`` each beam's y-z length per metre), the coherence decay ``beta``
+    and wavenumbers ``k`` at the frequencies ``f``, the Kaimal magnitudes ``mags`` and the
+    reference's ``m_ref``.
     """
-    nt = int(round(duration / model.beam_period))
-    df = 1.0 / duration
-    n_f_all = nt // 2
-    f_all = np.arange(n_f_all + 1) * df
+
+    height: float
+    U: float
+    f: np.ndarray
+    s: np.ndarray
+    h: float
+    F: np.ndarray
+    R: float
+    up: float
+    along: np.ndarray
+    across: np.ndarray
+    proj: np.ndarray
+    q: np.ndarray
+    beta: np.ndarray
+    beta32: np.ndarray
+    k: np.ndarray
+    mags: _Magnitudes
+    m_ref: np.ndarray
+    rwf_key: tuple
+    n_cut: int
+    scale: float
+    n_cross: int
+    _nodes: dict = field(default_factory=dict)
+
+    def nodes(self, n: int) -> tuple:
+        """Return ``n`` Gauss nodes of the weighted RWF: y and z positions, weights x magnitudes x phases."""
+        if n not in self._nodes:
+            nodes, node_w = _line_nodes(*self.rwf_key, self.n_cut, n)
+            wn = node_w * 10.0 ** (self.scale * nodes)
+            wn /= wn.sum()
+            rn = self.R + nodes
+            ph = _phases(rn[None, :] * self.along[:, None], self.U, self.f)  # (4, n, nf)
+            Ub = wn * self.mags(rn * self.up)[None] * np.swapaxes(ph, 1, 2)[:, None]  # (4, 3, nf, n)
+            self._nodes[n] = (rn[None, :] * self.across[:, None], rn * self.up, Ub)
+        return self._nodes[n]
+
+    def rule(self, r0: float) -> int:
+        """Gauss nodes per beam for two signals ``r0`` apart (m) at the gate."""
+        return N_FINE if r0 < R_FINE else self.n_cross if r0 < R_FAR else min(self.n_cross, N_FAR)
+
+
+def _gate(model, height: float, U: float, wind_from_direction: float, sigma: np.ndarray, cnr_gradient: float,
+          f_all: np.ndarray, nt: int, n_cross: int, sel: np.ndarray) -> _Gate:
+    """Set up :class:`_Gate` at the positive frequencies ``sel`` (0-based) of ``f_all``."""
     f = f_all[1:][sel]
-    n_f = f.size
     key = (model.rwf_offsets, model.rwf_weights, getattr(model, "rwf_profile", None))
     s, w0, _, _ = continuous_rwf(*key)
     h = s[1] - s[0]
@@ -483,23 +445,47 @@ def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma
     proj = np.stack([along, across, units[:, 2]], axis=-1)  # (4, 3): a_bc
     q = np.hypot(across, up)  # (4,) y-z length of the beam per metre
     beta = _beta(f, U)  # (3, nf)
-    beta32 = beta.astype(np.float32)
-    k = 2.0 * np.pi * f / U
     z_line = (R + s) * up
     # spectra vary with z below 60 m: tabulated where the RWF carries weight (> 1e-3 of its peak,
     # clamped beyond: the tails hold < 3e-4 of the weight)
     z_w = z_line[F > 1e-3 * F.max()]
     mags = _Magnitudes(float(min(z_w.min(), height)), float(max(z_w.max(), height)), f_all, U, sigma, nt,
                        z_weight=lambda z: np.interp(z, z_line, F) / F.max(), sel=sel)
-    C = np.zeros((n_f, 6, 6), dtype=complex)
+    return _Gate(height=height, U=U, f=f, s=s, h=h, F=F, R=R, up=up, along=along, across=across, proj=proj,
+                 q=q, beta=beta, beta32=beta.astype(np.float32), k=2.0 * np.pi * f / U, mags=mags,
+                 m_ref=mags(np.array([height]))[..., 0], rwf_key=key, n_cut=n_cut, scale=scale,
+                 n_cross=n_cross)
 
-    # -- reference - reference
-    m_ref = mags(np.array([height]))[..., 0]  # (3, nf)
-    C[:, 0, 0] = m_ref[0] ** 2
-    C[:, 1, 1] = m_ref[1] ** 2
 
-    # -- same beam: 2 Re ∫_0^∞ A(Δ) exp(κΔ) dΔ, A the autocorrelation of G = F m
-    A = _autocorrelation(F, h, mags, z_line)
+def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma: np.ndarray,
+               cnr_gradient: float, duration: float, n_cross: int, sel: np.ndarray):
+    """Compute the matrix at the positive frequencies ``sel`` (0-based).
+
+    Also returns the signals' gate-centre along-wind positions (m) and the reference's magnitudes
+    ``m_c(f, h)`` (3, n_f) at every frequency.
+    """
+    nt = int(round(duration / model.beam_period))
+    df = 1.0 / duration
+    n_f_all = nt // 2
+    f_all = np.arange(n_f_all + 1) * df
+    g = _gate(model, height, U, wind_from_direction, sigma, cnr_gradient, f_all, nt, n_cross, sel)
+    C = np.zeros((g.f.size, 6, 6), dtype=complex)
+    C[:, 0, 0] = g.m_ref[0] ** 2  # reference - reference (u ⊥ v)
+    C[:, 1, 1] = g.m_ref[1] ** 2
+    _same_beam(g, C)
+    _beam_reference(g, C)
+    _beam_beam(g, C)
+    if g.mags.uniform:  # the tabulated column (60 m) is the spectrum at every height above 60 m
+        m_ref_all = g.mags.m_all[:, :, 0]
+    else:
+        m_ref_all = spectral_magnitudes(f_all, np.array([float(height)]), U, sigma, nt)[:, 1:, 0]  # (3, n_f)
+    return C, np.concatenate([[0.0, 0.0], g.R * g.along]), m_ref_all
+
+
+def _same_beam(g: _Gate, C: np.ndarray) -> None:
+    """Fill the same-beam entries: ``2 Re ∫_0^∞ A(Δ) exp(κΔ) dΔ``, ``A`` the autocorrelation of ``F m``."""
+    F, h, q, along, beta, k, mags, m_ref = g.F, g.h, g.q, g.along, g.beta, g.k, g.mags, g.m_ref
+    A = _autocorrelation(F, h, mags, (g.R + g.s) * g.up)
     peak = np.max(np.abs(A), axis=(1, 2))
     A = A[:int(np.flatnonzero(peak > 1e-10 * peak.max())[-1]) + 2]
     # A is real, so the real part depends on q and |along| only: opposite beams share one integral
@@ -508,30 +494,21 @@ def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma
                   and abs(als[r] - als[b]) <= 1e-12) for b in range(4)]
     reps = sorted(set(first))
     kap = (-beta[None] * q[reps, None, None] + 1j * k[None, None, :] * along[reps, None, None]) * h
-    same = 2.0 * np.real(_side_integral(A, h, kap))  # (len(reps), 3, nf)
+    same = 2.0 * np.real(side_integral(A, h, kap))  # (len(reps), 3, nf)
     if mags.uniform:
         same = same * (m_ref**2)[None]
     for b in range(4):
-        C[:, 2 + b, 2 + b] = np.einsum("c,cf->f", proj[b] ** 2, same[reps.index(first[b])])
+        C[:, 2 + b, 2 + b] = np.einsum("c,cf->f", g.proj[b] ** 2, same[reps.index(first[b])])
 
-    # Gauss nodes of the CNR-weighted RWF, weights x magnitudes x frozen-turbulence phases, per rule size
-    node_cache: dict[int, tuple] = {}
 
-    def gauss(n):
-        if n not in node_cache:
-            nodes, node_w = _line_nodes(*key, n_cut, n)
-            wn = node_w * 10.0 ** (scale * nodes)
-            wn /= wn.sum()
-            rn = R + nodes
-            ph = _phases(rn[None, :] * along[:, None], U, f)  # (4, n, nf)
-            Ub = wn * mags(rn * up)[None] * np.swapaxes(ph, 1, 2)[:, None]  # (4, 3, nf, n)
-            node_cache[n] = (rn[None, :] * across[:, None], rn * up, Ub)
-        return node_cache[n]
+def _beam_reference(g: _Gate, C: np.ndarray) -> None:
+    """Fill the beam - reference entries (and their conjugates).
 
-    def rule(r0):
-        return N_FINE if r0 < R_FINE else n_cross if r0 < R_FAR else min(n_cross, N_FAR)
-
-    # -- beam - reference: r² = q² (s - s0)² + d², d the reference's distance from the beam's y-z line
+    ``r² = q² (s - s0)² + d²``, ``d`` the reference's distance from the beam's y-z line: the cusp
+    at ``s0`` is integrated exactly for beams within :data:`R_COLLINEAR`, the rest by Gauss quadrature.
+    """
+    F, s, h, R, up, q, along, across, proj = g.F, g.s, g.h, g.R, g.up, g.q, g.along, g.across, g.proj
+    beta, beta32, k, mags, m_ref, height, n_f = g.beta, g.beta32, g.k, g.mags, g.m_ref, g.height, g.f.size
     s0 = height * up / q**2 - R  # (4,)
     d = height * np.abs(across) / q
     near = np.flatnonzero(d < R_COLLINEAR)
@@ -545,13 +522,13 @@ def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma
         excess = (np.hypot(q[near, None] * D, d[near, None]) - q[near, None] * np.abs(D)).T  # r - q|D| >= 0
         P = Fd.T[:, :, None, None] * md * np.exp(-beta32[None, None, :2]
                                                   * excess[:, :, None, None].astype(np.float32))
-        val = _cusp_integral(P, j0, h, beta[None, :2] * q[near, None, None],
+        val = cusp_integral(P, j0, h, beta[None, :2] * q[near, None, None],
                              (k[None, :] * along[near, None])[:, None])  # (B, 2, nf)
         val *= np.exp(1j * k[None, :] * (along[near] * (R + s0[near]))[:, None])[:, None]
         for i, b in enumerate(near):
             C[:, :2, 2 + b] = (val[i] * m_ref[:2] * proj[b, :2, None]).T
     for b in np.flatnonzero(d >= R_COLLINEAR):  # smooth kernel: Gauss quadrature
-        yw, zw, Ub = gauss(rule(d[b]))
+        yw, zw, Ub = g.nodes(g.rule(d[b]))
         r = np.hypot(yw[b], zw - height)
         m = _coherent_frequencies(beta, float(r.min()))
         E = np.exp(-beta32[:2, :m, None] * r.astype(np.float32))  # (2, m, n)
@@ -559,8 +536,11 @@ def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma
                             * proj[b, :2, None]).T
     C[:, 2:, :2] = np.conj(np.swapaxes(C[:, :2, 2:], 1, 2))
 
-    # -- beam - beam
-    rho_c = R * q  # y-z distance of each gate centre from the lidar
+
+def _beam_beam(g: _Gate, C: np.ndarray) -> None:
+    """Fill the beam - beam entries: near-collinear pairs cusp-exact, the others by Gauss quadrature."""
+    q, across, up, proj, beta, beta32 = g.q, g.across, g.up, g.proj, g.beta, g.beta32
+    rho_c = g.R * q  # y-z distance of each gate centre from the lidar
     groups: dict[int, list] = {}
     for b in range(4):
         for b2 in range(b + 1, 4):
@@ -568,14 +548,15 @@ def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma
             eps = 2.0 * np.sin(0.5 * np.arccos(cos_g))
             r0 = eps * 0.5 * (rho_c[b] + rho_c[b2])
             if r0 < R_COLLINEAR:
-                total = _collinear_pair(F, s, h, R, up, q[b], q[b2], along[b] / q[b], along[b2] / q[b2], eps,
-                                        beta, k, mags, U, f, proj[b] * proj[b2])
+                total = _collinear_pair(g.F, g.s, g.h, g.R, up, q[b], q[b2], g.along[b] / q[b],
+                                        g.along[b2] / q[b2], eps, beta, g.k, g.mags, g.U, g.f,
+                                        proj[b] * proj[b2])
                 C[:, 2 + b, 2 + b2] = total
                 C[:, 2 + b2, 2 + b] = np.conj(total)
             else:
-                groups.setdefault(rule(r0), []).append((b, b2))
+                groups.setdefault(g.rule(r0), []).append((b, b2))
     for n, pairs in groups.items():
-        yw, zw, Ub = gauss(n)
+        yw, zw, Ub = g.nodes(n)
         for ia, ib in pairs:
             r = np.hypot(yw[ia][:, None] - yw[ib][None, :], zw[:, None] - zw[None, :])  # (n, n)
             m = _coherent_frequencies(beta, float(r.min()))
@@ -587,11 +568,6 @@ def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma
             total = proj[ia] * proj[ib] @ np.sum(Ub[ia, :, :m] * t, axis=-1)  # (m,)
             C[:m, 2 + ia, 2 + ib] = total
             C[:m, 2 + ib, 2 + ia] = np.conj(total)
-    if mags.uniform:  # the tabulated column (60 m) is the spectrum at every height above 60 m
-        m_ref_all = mags.m_all[:, :, 0]
-    else:
-        m_ref_all = spectral_magnitudes(f_all, np.array([float(height)]), U, sigma, nt)[:, 1:, 0]  # (3, n_f)
-    return C, np.concatenate([[0.0, 0.0], R * along]), m_ref_all
 
 
 #: Coherence below which a cross-spectral entry is set to zero (far below the 2 % accuracy of the
@@ -607,59 +583,3 @@ def _coherent_frequencies(beta: np.ndarray, r_min: float) -> int:
     """
     live = np.exp(-beta.min(axis=0) * r_min) > COHERENCE_FLOOR  # (nf,), monotone: True then False
     return int(np.count_nonzero(live))
-
-
-def draw_coefficients(C: np.ndarray, rng: np.random.Generator, amplitudes: str = "deterministic",
-                      nt: int | None = None, jitter: float = 1e-10) -> np.ndarray:
-    """Fourier coefficients ``(n_signals, n_f)`` with cross-spectra ``C`` (PyConTurb's scheme).
-
-    ``C`` has shape ``(n_f, n, n)`` (positive frequencies).  ``c = D L ξ`` with ``D = sqrt(diag C)``,
-    ``L L^H = D⁻¹ C D⁻¹ (+ jitter I)``; ``ξ`` unit-modulus with uniform phase (``"deterministic"``),
-    circular complex Gaussian, ``E|ξ|² = 1`` (``"rayleigh"``), or Gaussian but for the first
-    signal's, normalised to unit modulus (``"first_fixed"``: the same draws as ``"rayleigh"``).
-    With ``nt`` even the last (Nyquist) phasor is real as in ``gen_turb`` (``±1``, resp. real
-    Gaussian of variance 1).
-    """
-    n_f, n, _ = C.shape
-    d = np.sqrt(np.clip(np.real(np.einsum("fii->fi", C)), 0.0, None))
-    inv = np.where(d > 0, 1.0 / np.where(d > 0, d, 1.0), 0.0)
-    gam = C * inv[:, :, None] * inv[:, None, :]
-    idx = np.arange(n)
-    gam[:, idx, idx] = np.where(d > 0, 1.0, 0.0) + jitter
-    try:
-        L = np.linalg.cholesky(gam)
-    except np.linalg.LinAlgError:
-        gam[:, idx, idx] -= jitter
-        lam, vec = np.linalg.eigh(gam)
-        L = vec * np.sqrt(np.clip(lam, 0.0, None))[:, None, :]
-    if amplitudes == "deterministic":
-        phase = 2.0 * np.pi * rng.random((n_f, n))
-        if nt is not None and nt % 2 == 0:
-            phase[-1] = np.pi * (np.round(np.cos(phase[-1])) != 0.0)
-        xi = np.exp(1j * phase)
-    elif amplitudes in ("rayleigh", "first_fixed", "first_rescaled"):
-        xi = (rng.standard_normal((n_f, n)) + 1j * rng.standard_normal((n_f, n))) * np.sqrt(0.5)
-        if nt is not None and nt % 2 == 0:
-            xi[-1] = np.real(xi[-1]) * np.sqrt(2.0)
-        if amplitudes == "first_fixed":  # a circular Gaussian's phase is uniform: keep it, drop the modulus
-            a = np.abs(xi[:, 0])
-            xi[:, 0] = np.where(a > 0, xi[:, 0] / np.where(a > 0, a, 1.0), 1.0)
-    else:
-        raise ValueError(f"amplitudes must be one of {AMPLITUDES}; got {amplitudes!r}")
-    coef = (d * np.einsum("fij,fj->fi", L, xi)).T
-    if amplitudes == "first_rescaled":  # all signals x the factor giving signal 0 its expected variance
-        want, got = _realised_power(d[:, 0], nt), _realised_power(np.abs(coef[0]), nt)
-        coef *= np.sqrt(want / got) if got > 0 else 1.0
-    return coef
-
-
-def _realised_power(m: np.ndarray, nt: int | None) -> float:
-    """``2 Σ |m|² − |m_Nyquist|²`` (nt even): the realised variance of a series, up to ``nt/(nt-1)``."""
-    return float(2.0 * np.sum(m**2) - (m[-1] ** 2 if nt is not None and nt % 2 == 0 else 0.0))
-
-
-def synthesise(coef: np.ndarray, nt: int) -> np.ndarray:
-    """Time series ``(n_signals, nt)`` from positive-frequency coefficients (DC = 0), as ``gen_turb``."""
-    full = np.zeros(coef.shape[:-1] + (nt // 2 + 1,), dtype=complex)
-    full[..., 1:coef.shape[-1] + 1] = coef
-    return np.fft.irfft(full, n=nt, axis=-1) * nt

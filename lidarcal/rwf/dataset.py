@@ -54,10 +54,10 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.cf import var_attrs
 from lidarcal.errors import InputError, MissingVariableError, UnitError
 from lidarcal.provenance import stamp
 from lidarcal.rwf import kernels as k
+from lidarcal.schema import output_attrs
 from lidarcal.units import cf_units, convert_values, to_magnitude
 
 __all__ = [
@@ -341,37 +341,16 @@ def range_weighting_function(
 def _to_dataset(out: dict, cfg: RwfConfig, measured: PulseSamples | None, pulse_file: Any,
                 call: str) -> xr.Dataset:
     dr = k.range_sample_spacing(cfg.sampling_frequency)
-    pulse_kind = "physicalMeasurement" if measured is not None else "modelResult"
+    context = dict(pulse_content="physicalMeasurement" if measured is not None else "modelResult",
+                   pulse_shape=cfg.pulse_shape, fft_size=np.int32(cfg.fft_size),
+                   window_std_fraction=cfg.window_std_fraction, window_length_m=cfg.fft_size * dr)
+    dims = {"rwf": ("range_offset", "cnr_gradient"), "pulse": "range_offset", "apodization": "range_offset",
+            "barycenter": "cnr_gradient", "zero_distance": (), "rwf_fwhm": ()}
     ds = xr.Dataset(
-        {
-            "rwf": (("range_offset", "cnr_gradient"), out["rwf"], var_attrs(
-                "range-weighting function, pulse convolved with squared apodization, CNR-weighted (Eqs. 1-2)",
-                "m-1", comment="unit integral over range_offset for every cnr_gradient; "
-                "the cnr_gradient = 0 column is Eq. 1")),
-            "pulse": ("range_offset", out["pulse"], var_attrs(
-                "pulse intensity envelope in range (peak 1)", "1", coverage_content_type=pulse_kind,
-                pulse_shape=cfg.pulse_shape)),
-            "apodization": ("range_offset", out["apodization"], var_attrs(
-                "Gaussian apodization window over the FFT length (peak 1; Eq. 1 uses its square)", "1",
-                fft_size=np.int32(cfg.fft_size), window_std_fraction=cfg.window_std_fraction,
-                window_length_m=cfg.fft_size * dr)),
-            "barycenter": ("cnr_gradient", out["barycenter"], var_attrs(
-                "barycenter of the CNR-weighted RWF beyond the nominal range-gate centre", "m")),
-            "zero_distance": ((), out["zero_distance"], var_attrs(
-                "zero distance Zd: RWF barycenter at zero CNR gradient beyond the nominal gate centre", "m",
-                comment="positive = the lidar effectively measures further out than nominal; "
-                "subtract it from the nominal ranges")),
-            "rwf_fwhm": ((), out["rwf_fwhm"], var_attrs(
-                "full width at half maximum of the RWF at zero CNR gradient", "m")),
-        },
-        coords={
-            "range_offset": ("range_offset", out["range_offset"], {
-                "long_name": "along-beam distance from the nominal range-gate centre, "
-                             "positive away from the lidar",
-                "units": "m"}),
-            "cnr_gradient": ("cnr_gradient", out["cnr_gradient"], {
-                "long_name": "gradient of carrier-to-noise ratio along the beam", "units": "dB m-1"}),
-        },
+        {name: (var_dims, out[name], output_attrs("rwf", name, **context))
+         for name, var_dims in dims.items()},
+        coords={name: (name, out[name], output_attrs("rwf", name))
+                for name in ("range_offset", "cnr_gradient")},
     )
     ds.attrs.update({
         "pulse_shape": cfg.pulse_shape,

@@ -14,9 +14,9 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.cf import var_attrs
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
+from lidarcal.schema import output_attrs
 from lidarcal.turbulence.kernels import L_C, cell_size, generate_points, sigma_components
 from lidarcal.turbulence.pyconturb_backend import generate_points_pyconturb
 from lidarcal.units import to_magnitude
@@ -37,6 +37,19 @@ def _generate(generator: str, wind: np.ndarray, U: float, sigma: np.ndarray,
         return generate_points_pyconturb(x, y, z, wind_speed=U, sigma=sigma, seed=seed_seq, duration=duration,
                                          dt=dt)
     raise InputError(f"generator must be one of {GENERATORS}; got {generator!r}")
+
+
+def _coords(points: np.ndarray, labels: list[str], nt: int, dt: float) -> dict:
+    """Coordinates of a turbulence box: time (from the nominal epoch), elapsed time, x, y, z, labels."""
+    values = {
+        "time": ("time", _EPOCH + np.round(np.arange(nt) * dt * 1e9).astype("timedelta64[ns]")),
+        "elapsed_time": ("time", np.arange(nt) * dt),
+        "x": ("point", points[:, 0]),
+        "y": ("point", points[:, 1]),
+        "z": ("point", points[:, 2]),
+        "point_label": ("point", np.array(labels, dtype=object)),
+    }
+    return {name: (dim, data, output_attrs("turbulence_box", name)) for name, (dim, data) in values.items()}
 
 
 def turbulence_box(
@@ -98,35 +111,19 @@ def turbulence_box(
         raise InputError(f"turbulence_box: {exc}") from None
     nt = series.shape[-1]
     labels = [f"p{i}" for i in range(points.shape[0])] if labels is None else [str(s) for s in labels]
-    names = ("u", "v", "w")
-    long = ("along-wind", "cross-wind (positive to the left of the downwind direction)", "vertical (upward)")
-    data = {
-        name: (("point", "time"), series[k],  # canonical order: other dims, then time (CF 2.4)
-               var_attrs(f"{long[k]} turbulent velocity fluctuation", "m s-1",
-                         sigma_target=float(sigma[k])))
-        for k, name in enumerate(names)
+    sigmas = {f"sigma_{name}": float(sigma[k]) for k, name in enumerate("uvw")}
+    data = {  # canonical order: other dims, then time (CF 2.4)
+        name: (("point", "time"), series[k], output_attrs("turbulence_box", name, **sigmas))
+        for k, name in enumerate("uvw")
     }
     data["mean_wind_speed"] = (("point",), U * (points[:, 2] / z_ref) ** alpha,
-                               var_attrs("mean along-wind speed (power-law profile)", "m s-1", "wind_speed"))
-    coords = {
-        "time": ("time", _EPOCH + np.round(np.arange(nt) * dt * 1e9).astype("timedelta64[ns]"),
-                 {"standard_name": "time", "axis": "T",
-                  "long_name": "simulation time (nominal period start 2000-01-01T00:00:00Z)"}),
-        "elapsed_time": ("time", np.arange(nt) * dt, {"long_name": "time since the start of the period",
-                                                      "units": "s"}),
-        "x": ("point", points[:, 0], {"long_name": "along-wind position (downwind positive)", "units": "m"}),
-        "y": ("point", points[:, 1], {"long_name": "cross-wind position (left of downwind positive)",
-                                      "units": "m"}),
-        "z": ("point", points[:, 2], {"long_name": "height above ground level", "units": "m",
-                                      "standard_name": "height", "positive": "up"}),
-        "point_label": ("point", np.array(labels, dtype=object), {"long_name": "point label"}),
-    }
-    ds = xr.Dataset(data, coords=coords)
+                               output_attrs("turbulence_box", "mean_wind_speed"))
+    ds = xr.Dataset(data, coords=_coords(points, labels, nt, dt))
     attrs = {
         "wind_speed": U, "turbulence_intensity": ti, "wind_shear_exponent": alpha,
         "reference_height": z_ref, "generator": generator, "coherence_model": "iec3d",
         "coherence_length": L_C, "spectral_model": "Kaimal (PyConTurb kaimal_spectrum)",
-        "sigma_u": float(sigma[0]), "sigma_v": float(sigma[1]), "sigma_w": float(sigma[2]),
+        **sigmas,
     }
     if cone_angle is not None and sampling_period is not None:
         a, b, longitudinal = cell_size(z_ref, float(to_magnitude(cone_angle, "degree", name="cone_angle")), U,

@@ -50,8 +50,9 @@ import pandas as pd
 import xarray as xr
 
 from lidarcal.conditions import cnr_model, conditions_dataset, shear_exponent
-from lidarcal.conditions.kernels import DEFAULT_CONE_ANGLE, cnr_gradient_along_beam
+from lidarcal.conditions.kernels import cnr_gradient_along_beam
 from lidarcal.io import write_artefact
+from lidarcal.lidar import LidarModel
 from lidarcal.provenance import sha256, stamp
 
 HEIGHTS = np.array([40.0, 60.0, 80.0])
@@ -115,7 +116,7 @@ def build(csv: Path) -> xr.Dataset:
     rng = np.random.default_rng(np.random.SeedSequence([SEED, 0x5C0D]))
     cnr = cnr_model(hours, HEIGHTS, rng)
     # along the beam (the contract's meaning): dCNR/ds = dCNR/dz cos(phi), phi = 28 deg
-    cnr_grad = cnr_gradient_along_beam(cnr, HEIGHTS, DEFAULT_CONE_ANGLE)
+    cnr_grad = cnr_gradient_along_beam(cnr, HEIGHTS, LidarModel.cone_angle)
     values = {
         "wind_speed": speed,
         "wind_from_direction": direction,

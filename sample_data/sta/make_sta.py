@@ -1,6 +1,6 @@
 """Write the synthetic WindCube ``.sta`` examples of this folder (one per dialect) and a mast CSV.
 
-The files follow the format as described in lidarcal's STA reader (``lidarcal.conditions.sta``):
+The files follow the format as described in lidarcal's STA reader (``lidarcal.conditions.stafile``):
 Latin-1 text, tab-separated, a ``HeaderSize=N`` / ``HeaderLength=N`` first line, ``key=value``
 header lines with ``****`` separators and a section title, the column names on line N + 2.
 Values are made up (seeded power-law profiles, CNR decreasing with height): they are examples

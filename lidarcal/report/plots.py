@@ -1,9 +1,6 @@
-"""Offline HTML report of a calibration (interactive bokeh plots) and the certificate document.
+"""The HTML report's interactive figures: one plain bokeh model each, built when the page is written.
 
-The page embeds BokehJS inline (``resources=INLINE``), so it opens without network access.
-It opens with the calibration status, the headline sentence and the certified result (per
-height and wind-speed bin, U for k = 2), then the certificate's administrative data, and
-shows, as available:
+As available (:func:`report_figures`, in page order):
 
 - the expanded (k = 2) uncertainty vs wind speed (paper Figure 9), the axes set by the
   certified bins (4-16 m/s, enough periods), a menu choosing all heights or one, thin bins
@@ -18,68 +15,35 @@ shows, as available:
   LOS standard deviation, one per line of sight on one colour scale, set by the CNR bins the
   simulation draws from;
 - the range-weighting function (Figure 6): pulse, apodization and RWF, and the RWF for a few
-  CNR gradients, with the zero distance Zd;
+  CNR gradients, with the zero distance Zd.
 
-and last the inputs with their SHA-256.  The plots are plain bokeh models (one plot per
-figure; a menu shows one height's renderers), which keeps the page cheap to write.  Beside
-the page, :func:`write_report` writes the certificate document (:mod:`lidarcal.document`,
-``<stem>.pdf``) and, on request, a PNG of each of its figures.
+A menu shows one height's renderers of a single plot (or copies its columns into the drawn
+ones), which keeps the page cheap to write.  Numbers and words are those of the PDF
+(:mod:`lidarcal.document.facts`).
 """
 
 from __future__ import annotations
 
 import html
-import json
-import os
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import (
-    HEADLINE_WIND_SPEEDS,
-    components,
-    extract_component,
-    invalid_seal_banner,
-    require_valid_seal,
-)
-from lidarcal.document import (
-    A4,
-    NOT_STATED,
-    STYLE,
-    VARIABLE_NAMES,
-    certificate_facts,
-    certificate_id,
-    certified_grid,
-    confidence_band,
-    cube_colour_limits,
-    draw,
-    drawn_cnr_range,
-    figure_names,
-    fmt,
-    headline_sentence,
-    units_suffix,
-    write_document,
-)
+from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
+from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, fmt, units_suffix
+from lidarcal.document.figures import bin_means, confidence_band, cube_colour_limits, rwf_window
 from lidarcal.errors import InputError
-from lidarcal.htmlpage import offline_html, write_text
-from lidarcal.io import atomic_path, check_writable
+from lidarcal.htmlpage import html_table
 
-__all__ = ["Figure", "confidence_band", "fmt", "report_figures", "write_report"]
+__all__ = ["Figure", "report_figures"]
 
 _WIDTH, _HEIGHT = 900, 380
-_PNG_DPI = 150  # static figures: at least 150 dpi, written into the PNG's pHYs chunk
 _THIN = "#d62728"  # marker colour of thin bins (fewer periods than min_samples)
 _COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
            "#17becf", "#000000"]
-def _table(header: list[str], rows: list[list[str]], caption: str) -> str:
-    head = "".join(f"<th>{html.escape(h)}</th>" for h in header)
-    body = "\n".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows)
-    return (f'<table class="numbers"><caption>{html.escape(caption)}</caption>'
-            f"<tr>{head}</tr>\n{body}</table>")
 
 
 @dataclass
@@ -148,20 +112,25 @@ def _by_name(p: Any) -> dict[str, list]:
     return groups
 
 
-def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
-    """Plot U (k = 2) per height on the certified range (menu: all heights or one) and the contributors."""
+def _wind_speed_axis(budget: xr.Dataset) -> tuple[str, np.ndarray, float, tuple[float, float]]:
+    """Label, bin centres, bin width and x range (the certified range) of the budget's plots."""
+    ws = budget.wind_speed.values
+    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
+    xlim = (DEFAULT_CERTIFIED_RANGE[0] - step / 2, DEFAULT_CERTIFIED_RANGE[1] + step / 2)
+    return f"reference wind speed bin{units_suffix(budget.wind_speed)}", ws, step, xlim
+
+
+def _budget_figure(budget: xr.Dataset) -> Figure:
+    """Plot U (k = 2) per height on the certified range (menu: all heights or one), thin bins marked."""
     k = float(budget.attrs.get("coverage_factor", 2.0))
-    xl = f"reference wind speed bin{units_suffix(budget.wind_speed)}"
+    xl, ws, _, xlim = _wind_speed_axis(budget)
     rel = budget["relative_expanded_uncertainty"]
     flag = budget["bin_flag"]
-    ws = budget.wind_speed.values
     heights = budget.height.values
     # the axes show the certified bins (flag ok, 4-16 m/s); the others stay reachable by panning
     g = certified_grid(budget)
     certified = g["value"][g["certified"]]
     ylim = (0.0, float(certified.max()) * 1.15) if certified.size else (0.0, 1.0)
-    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
-    xlim = (HEADLINE_WIND_SPEEDS[0] - step / 2, HEADLINE_WIND_SPEEDS[1] + step / 2)
     yl = f"relative expanded uncertainty, k = {fmt(k)} (%)"
     title = f"Expanded uncertainty (k = {fmt(k)}), {budget.attrs.get('approach', '')} approach".rstrip(", ")
     labels = ["all heights", *[f"{fmt(h)} m" for h in heights]]
@@ -184,19 +153,25 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
         groups = {"all heights": list(p.renderers), **_by_name(p)}
         return _menu(p, groups, "all heights", {lab: f"{title}, {lab}" for lab in labels})
 
-    out = {"budget": Figure(
+    return Figure(
         f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", build,
         note="<p>The axes show the certified bins (enough periods, 4 to 16 m/s); pan or zoom out for the "
              "others. Red crosses: thin bins (fewer periods than the minimum); they are kept in the budget "
              "but left out of the certificate's headline range. Empty bins are not drawn.</p>",
-    )}
+    )
+
+
+def _contributors_figure(budget: xr.Dataset) -> Figure:
+    """Plot the contributors as grouped bars per certified wind-speed bin (menu: the height)."""
+    xl, ws, step, xlim = _wind_speed_axis(budget)
+    g = certified_grid(budget)
     contrib = budget["relative_contribution"].transpose("wind_speed", "height", "contributor")
     names = [str(c).replace("_", " ") for c in budget.contributor.values] + ["combined"]
     combined = budget["relative_uncertainty"].transpose("wind_speed", "height").values
     default = f"{fmt(float(budget.height.sel(height=120.0, method='nearest')))} m"
-    hlabels = [f"{fmt(h)} m" for h in heights]
+    hlabels = [f"{fmt(h)} m" for h in budget.height.values]
 
-    def build_contributors() -> Any:
+    def build() -> Any:
         from bokeh.layouts import column
         from bokeh.models import ColumnDataSource, CustomJS, Select
 
@@ -222,12 +197,11 @@ def _budget_plots(budget: xr.Dataset) -> dict[str, Figure]:
                  "plot.title.text = 'Standard uncertainty contributors at ' + cb_obj.value;"))
         return column(select, p)
 
-    out["budget_contributors"] = Figure(
-        "Uncertainty contributors per height", build_contributors,
+    return Figure(
+        "Uncertainty contributors per height", build,
         note="<p>Relative standard uncertainty (k = 1) of each contributor per certified wind-speed bin "
              "(enough periods, 4 to 16 m/s); <em>combined</em> is their root sum of squares.</p>",
     )
-    return out
 
 
 def _sensitivity_figure(ds: xr.Dataset) -> Figure:
@@ -239,24 +213,22 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
     rows, titles, layers = [], {}, []
     for h in ds.height.values:
         one = ds.sel(height=h)
-        used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
-        xb = one["bin"].values
-        sem = one["std_difference"].values / np.sqrt(np.maximum(one["sample_count"].values, 1))
+        xb, yb, sem = bin_means(one)
         slope, se, r = (float(one[k]) if k in one else np.nan
                         for k in ("slope", "slope_standard_error", "correlation"))
         label = f"{fmt(h)} m"
         line = None
-        if used.sum() >= 2 and np.isfinite(slope):
-            x = np.linspace(xb[used].min(), xb[used].max(), 60)
+        if xb.size >= 2 and np.isfinite(slope):
+            x = np.linspace(xb.min(), xb.max(), 60)
             line = (x, *confidence_band(ds, h, x))
-        layers.append((label, xb[used], one["mean_difference"].values[used], sem[used], line))
+        layers.append((label, xb, yb, sem, line))
         titles[label] = f"{fmt(h)} m: m = {fmt(slope)} ± {fmt(se)} {units}, R = {fmt(r, 2)}"
         sig = [name for name, key in (("Eq. 12", "significant_eq12"), ("Eq. 13", "significant_eq13"))
                if key in one and int(one[key]) == 1]
         rows.append([fmt(h), f"{fmt(slope)} ± {fmt(se)}", fmt(r, 2),
                      fmt(float(one["slope_times_std"])) if "slope_times_std" in one else "–",
                      fmt(float(one["slope_times_std_times_r"])) if "slope_times_std_times_r" in one else "–",
-                     str(int(one["bins_used"])) if "bins_used" in one else str(int(used.sum())),
+                     str(int(one["bins_used"])) if "bins_used" in one else str(int(xb.size)),
                      ", ".join(sig) or "no"])
 
     def build() -> Any:
@@ -307,9 +279,10 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
         "(standard deviation / √periods); bins with fewer periods than the minimum are left out of "
         "the regression and not drawn. Line: least-squares fit of the bin means on the bin centres; "
         "band: its 95 % confidence band (from the slope's standard error).</p>"
-        + _table(["height (m)", f"slope m ({units})", "R", "m·std (%)", "m·std·R (%)", "bins", "significant"],
-                 rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
-                       "Eq. 13: |m·std·R| > 0.1 %)")
+        + html_table(["height (m)", f"slope m ({units})", "R", "m·std (%)", "m·std·R (%)", "bins",
+                      "significant"],
+                     rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
+                           "Eq. 13: |m·std·R| > 0.1 %)")
     )
     return Figure(f"Sensitivity to {readable}", build, note=note)
 
@@ -406,20 +379,14 @@ def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) 
 
 def _rwf_plots(rwf: xr.Dataset) -> dict[str, Figure]:
     zd = float(rwf["zero_distance"]) if "zero_distance" in rwf else float("nan")
-    column = rwf["rwf"].sel(cnr_gradient=0.0, method="nearest")
-    curves = {"RWF": (column / float(column.max())).values}
+    norm, sl, pick = rwf_window(rwf)
+    curves = {"RWF": norm}
     for name in ("pulse", "apodization"):
         if name in rwf:
             curves[name] = (rwf[name] / float(rwf[name].max())).values
-    support = np.flatnonzero(curves["RWF"] > 1e-3)
-    n = rwf.sizes["range_offset"]
-    lo, hi = (support.min(), support.max()) if support.size else (0, n - 1)
-    pad = max(5, (hi - lo) // 4)
-    sl = slice(max(lo - pad, 0), min(hi + pad, n - 1) + 1)
     x = rwf["range_offset"].values[sl]
     xl = "range offset from gate centre (m)"
     g = rwf["cnr_gradient"].values
-    pick = sorted(set(np.linspace(0, len(g) - 1, min(5, len(g))).round().astype(int).tolist()))
 
     def shape() -> Any:
         p = _plot(f"Pulse, apodization and RWF (normalised), Zd = {fmt(zd)} m", xl, "normalised amplitude")
@@ -456,7 +423,7 @@ def report_figures(
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     figs: dict[str, Figure] = {}
     if budget is not None:
-        figs.update(_budget_plots(budget))
+        figs.update({"budget": _budget_figure(budget), "budget_contributors": _contributors_figure(budget)})
     if sens:
         figs.update(_sensitivity_plots(sens))
     if cube is not None:
@@ -466,152 +433,3 @@ def report_figures(
     if not figs:
         raise InputError("nothing to report: give a certificate, a budget, sensitivities, a cube or an RWF")
     return figs
-
-
-def _from_certificate(cert: xr.Dataset) -> dict[str, Any]:
-    parts: dict[str, Any] = {"sensitivities": []}
-    for comp in components(cert):
-        ds = extract_component(cert, comp["name"])
-        if comp["name"].startswith("sensitivity_"):
-            parts["sensitivities"].append(ds)
-        elif comp["name"] in ("budget", "cube", "rwf"):
-            parts[comp["name"]] = ds
-    return parts
-
-
-def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None = None) -> str:
-    """Return the top of the page: status, headline, certified result, then the certificate's facts."""
-    out = []
-    if cert is not None:
-        status = cert.attrs.get("calibration_status", NOT_STATED)
-        cid = html.escape(certificate_id(cert.attrs))
-        out.append(f'<p class="status status-{html.escape(str(status))}"><strong>Calibration status: '
-                   f"{html.escape(str(status))}</strong> · certificate {cid}</p>")
-    if budget is not None:
-        out.append(f'<p class="headline"><strong>{html.escape(headline_sentence(budget))}</strong></p>')
-        g = certified_grid(budget)
-        rows = []
-        for i in np.flatnonzero(g["inside"]):
-            cells = []
-            for j in range(g["height"].size):
-                v = g["value"][i, j]
-                text = f"{v:.2f}" if g["certified"][i, j] else "–"
-                if g["certified"][i, j] and g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]):
-                    text += f" ± {g['tolerance'][i, j]:.2g}"
-                cells.append(text)
-            rows.append([fmt(g["wind_speed"][i]), *cells])
-        k = float(budget.attrs.get("coverage_factor", 2.0))
-        out.append(_table(["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]], rows,
-                          f"Certified result: relative expanded uncertainty U (%), k = {k:g}, per height and "
-                          "wind-speed bin; – : not certified (too few periods or no data)"))
-    if cert is not None:
-        facts = "\n".join(
-            f"<tr><th>{html.escape(section if n == 0 else '')}</th><td>{html.escape(label)}</td>"
-            f"<td>{html.escape(value).replace(chr(10), '<br>')}</td></tr>"
-            for section, items in certificate_facts(cert.attrs, seal)
-            for n, (label, value) in enumerate(items))
-        out.append(f'<table class="facts">\n{facts}\n</table>')
-    return "\n".join(out)
-
-
-def _provenance(cert: xr.Dataset | None) -> str:
-    """Return the end of the page: the certificate's components and inputs with their SHA-256."""
-    if cert is None:
-        return ""
-    rows = []
-    for key, label in (("title", "Title"), ("id", "Id"), ("date_created", "Created"),
-                       ("lidarcal_version", "lidarcal version"), ("certificate_components", "Components"),
-                       ("zero_distance_m", "Zero distance Zd (m)")):
-        if key in cert.attrs:
-            rows.append((label, fmt(cert.attrs[key]) if key.endswith("_m") else str(cert.attrs[key])))
-    chain = cert.attrs.get("lidarcal_provenance_chain")
-    for item in json.loads(chain) if chain else []:
-        rows.append((f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}"))
-    body = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
-    return f'<div id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></div>'
-
-
-def write_report(
-    path: str | os.PathLike,
-    *,
-    certificate: xr.Dataset | None = None,
-    budget: xr.Dataset | None = None,
-    sensitivities: Iterable[xr.Dataset] | Mapping[str, xr.Dataset] = (),
-    cube: xr.Dataset | None = None,
-    rwf: xr.Dataset | None = None,
-    title: str | None = None,
-    png: bool = False,
-    pdf: bool = True,
-    overwrite: bool = False,
-    allow_invalid: bool = False,
-    seal: str | None = None,
-) -> dict[str, Any]:
-    """Write the offline HTML report, and beside it the certificate document (PDF) and PNGs.
-
-    With ``certificate`` the components are taken from it; explicit arguments override them.
-    The page opens with the status, the headline and the certified result; the inputs'
-    SHA-256 come last.  With ``certificate`` and ``pdf`` the certificate document
-    (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``; ``seal``
-    (:func:`lidarcal.document.seal_statement`) states the seal of a certificate written after
-    its report.  With ``png`` every figure of the document is also written as
-    ``<stem>_<figure>.png`` (150 dpi).
-
-    A certificate read from a file has its seal checked first
-    (:func:`lidarcal.seal.require_valid_seal`): an altered one is refused
-    (:class:`~lidarcal.errors.SealError`), or with ``allow_invalid`` reported under a
-    warning banner (on the page and on every page of the document).
-
-    Returns
-    -------
-    dict
-        ``{"html": Path, "figures": [names], "png": [Paths], "pdf": Path or None}``.
-    """
-    check = require_valid_seal(certificate, allow_invalid=allow_invalid) if certificate is not None else None
-    banner = invalid_seal_banner(check) if check is not None and not check.ok else None
-    parts: dict[str, Any] = (
-        _from_certificate(certificate) if certificate is not None else {"sensitivities": []}
-    )
-    for name, value in (("budget", budget), ("cube", cube), ("rwf", rwf)):
-        if value is not None:
-            parts[name] = value
-    sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
-    if sens:
-        parts["sensitivities"] = sens
-    summary = certificate.attrs.get("lidarcal_records_summary") if certificate is not None else None
-    if summary and parts.get("cube") is not None:
-        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], json.loads(summary))
-    figs = report_figures(**parts)
-    path = Path(path)
-    pdf_path = path.with_suffix(".pdf") if pdf and certificate is not None else None
-    pngs = {name: path.with_name(f"{path.stem}_{name}.png") for name in figure_names(parts)} if png else {}
-    for p in [path, *([pdf_path] if pdf_path else []), *pngs.values()]:
-        check_writable(p, overwrite=overwrite)
-
-    title = title or (
-        certificate.attrs.get("title") if certificate is not None else "lidarcal calibration report"
-    )
-    models = {name: fig.bokeh() for name, fig in figs.items()}
-    after = {name: fig.note for name, fig in figs.items()}
-    warning = f'<p class="invalid"><strong>{html.escape(banner)}</strong></p>\n' if banner else ""
-    page = offline_html(models, title=title, header=warning + _header(certificate, parts.get("budget"), seal),
-                        after=after, titles={name: fig.heading for name, fig in figs.items()},
-                        footer=_provenance(certificate))
-    written = []
-    if pngs:
-        import matplotlib
-        from matplotlib.figure import Figure as MplFigure
-
-        with matplotlib.rc_context(STYLE):
-            for name, target in pngs.items():
-                fig = MplFigure(figsize=A4)
-                draw(fig, name, parts)
-                with atomic_path(target, overwrite=overwrite) as tmp:
-                    fig.savefig(tmp, dpi=_PNG_DPI, format="png")
-                written.append(target)
-    document = None
-    if pdf_path:
-        document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
-                                  warning=banner)
-    write_text(path, page, overwrite=overwrite)
-    return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
-            "pages": document["pages"] if document else 0}

@@ -1,0 +1,241 @@
+"""What the certificate's documents state: page 1's facts, the headline, the certified grid, number formats.
+
+The PDF (:mod:`lidarcal.document.pages`) and the HTML report (:mod:`lidarcal.report`) print the
+same words and numbers, taken from here: :func:`certificate_facts` turns the certificate's global
+attributes into page 1's sections (an attribute it does not carry is shown as
+:data:`NOT_STATED`), :func:`signature_status` says what its seal attributes state,
+:func:`headline_text` is the certified range in one sentence, :func:`certified_grid` the
+certified relative expanded uncertainty per wind-speed bin and height, and :func:`fmt`,
+:func:`units_suffix` and :data:`VARIABLE_NAMES` the one way numbers, units and variables are
+written.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
+from lidarcal.certificate import certified_rule, headline_range, not_settled
+from lidarcal.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
+
+__all__ = [
+    "NOT_STATED",
+    "VARIABLE_NAMES",
+    "fmt",
+    "units_suffix",
+    "stated",
+    "seal_statement",
+    "signature_status",
+    "certificate_facts",
+    "certificate_id",
+    "headline_text",
+    "certified_grid",
+]
+
+NOT_STATED = "not stated"
+VARIABLE_NAMES = {  # readable names of the environmental variables
+    "wind_shear_exponent": "wind shear exponent",
+    "turbulence_intensity": "turbulence intensity",
+    "cnr_gradient": "CNR gradient",
+    "cnr": "CNR",
+}
+
+
+def fmt(value: Any, digits: int = 3) -> str:
+    """``value`` with ``digits`` significant digits (``-1.93``, ``0.000123``, ``1230``, ``3.09e-16``)."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        return str(value)
+    if not np.isfinite(x):
+        return "–" if np.isnan(x) else str(x)
+    if x == int(x) and abs(x) < 10**digits:
+        return f"{int(x):d}"
+    if abs(x) < 1e-4 or abs(x) >= 1e6:
+        return f"{x:.{digits - 1}e}"
+    return np.format_float_positional(x, precision=digits, unique=False, fractional=False, trim="-")
+
+
+def units_suffix(da: xr.DataArray) -> str:
+    """`` (unit)`` for a label, nothing for a dimensionless variable."""
+    u = da.attrs.get("units", "")
+    return f" ({u})" if u and u != "1" else ""
+
+
+def stated(attrs: Mapping[str, Any], *names: str) -> str:
+    """Return the first of the attributes ``names`` that is set and not blank, else :data:`NOT_STATED`."""
+    for name in names:
+        value = attrs.get(name)
+        if value is not None and str(value).strip():
+            return str(value)
+    return NOT_STATED
+
+
+def seal_statement(signed_by: str | None) -> str:
+    """Describe the seal of a certificate signed by key ``signed_by`` (fingerprint), or unsigned."""
+    if signed_by:
+        return f"signed (Ed25519) by key {signed_by}; check with lidarcal verify CERT.nc --public-key KEY.pub"
+    return (
+        "sealed, unsigned: SHA-256 integrity record only (whoever can rewrite the file can "
+        "re-seal it); check with lidarcal verify CERT.nc"
+    )
+
+
+def signature_status(attrs: Mapping[str, Any], seal: str | None = None) -> str:
+    """Say what the certificate's seal and signature attributes say (not a verification).
+
+    ``seal`` (:func:`seal_statement`) stands for a certificate not yet written, whose seal
+    and signature are added when it is.
+    """
+    if SIGNATURE_ATTR in attrs:
+        return seal_statement(str(attrs.get(SIGNATURE_KEY_ATTR, NOT_STATED)))
+    if INTEGRITY_ATTR in attrs:
+        return seal_statement(None)
+    return seal or "not sealed (this document was made from a certificate not yet written)"
+
+
+def certificate_facts(
+    attrs: Mapping[str, Any], seal: str | None = None
+) -> list[tuple[str, list[tuple[str, str]]]]:
+    """Page 1's administrative data as (section, [(label, value)]) from the global attributes."""
+    persons = stated(attrs, "responsible_persons")
+    bench_start = stated(attrs, "bench_run_start", "bench_time_coverage_start")
+    bench_end = stated(attrs, "bench_run_end", "bench_time_coverage_end")
+    bench = bench_start if bench_end in (NOT_STATED, bench_start) else f"{bench_start} to\n{bench_end}"
+    version = attrs.get("lidarcal_version")
+    return [
+        (
+            "Status",
+            [
+                ("Calibration status", stated(attrs, "calibration_status")),
+                *(
+                    [("Why", str(attrs["calibration_status_reason"]))]
+                    if attrs.get("calibration_status_reason")
+                    else []
+                ),
+                ("Certificate id", certificate_id(attrs)),
+                ("Date of issue", stated(attrs, "date_issued", "date_created")),
+            ],
+        ),
+        (
+            "Issuer",
+            [
+                ("Laboratory", stated(attrs, "laboratory_name", "institution")),
+                ("Address", stated(attrs, "laboratory_address")),
+                ("Responsible", persons.replace("; ", "\n") if persons != NOT_STATED else persons),
+                ("Created by", stated(attrs, "creator_name")),
+            ],
+        ),
+        (
+            "Customer",
+            [("Name", stated(attrs, "customer_name")), ("Address", stated(attrs, "customer_address"))],
+        ),
+        (
+            "Calibrated item",
+            [
+                ("Manufacturer", stated(attrs, "item_manufacturer")),
+                ("Model", stated(attrs, "item_model")),
+                ("Serial number", stated(attrs, "item_serial_number", "lidar_serial")),
+                ("Firmware", stated(attrs, "item_firmware")),
+            ],
+        ),
+        (
+            "Dates and place",
+            [
+                ("Bench run", bench),
+                ("Simulation", stated(attrs, "simulation_date")),
+                ("Place", stated(attrs, "calibration_location")),
+            ],
+        ),
+        (
+            "Method",
+            [
+                ("Method", stated(attrs, "method_reference", "references")),
+                ("Software", f"lidarcal {version}" if version else NOT_STATED),
+                ("Approach", stated(attrs, "budget_approach")),
+            ],
+        ),
+        (
+            "Traceability of the bench",
+            [
+                ("Bench", stated(attrs, "bench_id")),
+                ("Bench run", stated(attrs, "bench_run_id")),
+                ("Operator", stated(attrs, "bench_operator")),
+                ("RF driver cal.", stated(attrs, "rf_driver_calibration_reference")),
+            ],
+        ),
+        ("Signature", [("Seal", signature_status(attrs, seal))]),
+    ]
+
+
+def certificate_id(attrs: Mapping[str, Any]) -> str:
+    """Return the certificate id (``certificate_id``, else the ACDD ``id``)."""
+    return stated(attrs, "certificate_id", "id")
+
+
+def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE) -> str:
+    """Return the headline: the range of the certified relative expanded uncertainty (k = 2)."""
+    k = float(budget.attrs.get("coverage_factor", 2.0))
+    lo, hi = wind_speeds
+    where = f"bins flagged ok with centres {lo:g} to {hi:g} m/s"
+    if "certified" in str(budget["bin_flag"].attrs.get("flag_meanings", "")).split():
+        where, wind_speeds = f"certified bins ({certified_rule(budget)})", None  # the budget's own rule
+    rng = headline_range(budget, wind_speeds=wind_speeds)
+    if rng is None:
+        return f"Relative expanded uncertainty (k = {k:g}): no {where}, nothing is certified."
+    text = (
+        f"Relative expanded uncertainty (k = {k:g}) of the lidar's horizontal wind speed, {where}: "
+        f"{rng[0]:.2f} % to {rng[1]:.2f} %."
+    )
+    missed = not_settled(budget)
+    if missed:  # JCGM 101 7.9: the Monte Carlo stopped at --max-replicas before these settled
+        text += (f" {len(missed)} certified value(s) did not settle to "
+                 f"{int(budget.attrs['monte_carlo_significant_digits'])} significant digits within "
+                 f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas.")
+    return text
+
+
+def certified_grid(
+    budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE
+) -> dict[str, Any]:
+    """Return the certified result: per (wind speed, height) bin the relative U (k = 2) and its tolerance.
+
+    ``certified`` marks the bins of the headline (flag ok, centre in ``wind_speeds``), or the
+    bins the budget's ``bin_flag`` itself calls ``certified`` when its ``flag_meanings`` have
+    that meaning; ``tolerance`` is the budget's ``numerical_tolerance`` (same units) or None.
+    """
+    b = budget.transpose("wind_speed", "height", ...)
+    rel = b["relative_expanded_uncertainty"].values
+    inside = (b["wind_speed"].values >= wind_speeds[0]) & (b["wind_speed"].values <= wind_speeds[1])
+    flag = b["bin_flag"]
+    meanings = dict(
+        zip(
+            str(flag.attrs.get("flag_meanings", "")).split(),
+            np.atleast_1d(flag.attrs.get("flag_values", [])).tolist(),
+            strict=False,
+        )
+    )
+    good = (
+        flag.values == meanings["certified"]
+        if "certified" in meanings
+        else (flag.values == 0) & inside[:, None]
+    )
+    certified = good & np.isfinite(rel)
+    tol = (
+        b["numerical_tolerance"].transpose("wind_speed", "height").values
+        if "numerical_tolerance" in b
+        else None
+    )
+    return {
+        "wind_speed": b["wind_speed"].values,
+        "height": b["height"].values,
+        "value": rel,
+        "tolerance": tol,
+        "certified": certified,
+        "inside": inside,
+        "flag": b["bin_flag"].values,
+    }

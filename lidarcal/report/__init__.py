@@ -1,0 +1,11 @@
+"""Offline HTML report of a calibration (interactive bokeh plots) and the certificate document.
+
+- :mod:`lidarcal.report.plots` — the page's figures (:class:`Figure`, :func:`report_figures`).
+- :mod:`lidarcal.report.page` — :func:`write_report`: the page (status, headline, certified
+  result, the certificate's facts, the figures, the inputs), the PDF and the PNGs beside it.
+"""
+
+from lidarcal.report.page import write_report
+from lidarcal.report.plots import Figure, report_figures
+
+__all__ = ["write_report", "report_figures", "Figure"]

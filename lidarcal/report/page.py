@@ -1,0 +1,176 @@
+"""The offline HTML report of a calibration, and beside it the certificate document and PNGs.
+
+The page embeds BokehJS inline (:mod:`lidarcal.htmlpage`), so it opens without network access.
+It opens with the calibration status, the headline sentence and the certified result (per
+height and wind-speed bin, U for k = 2), then the certificate's administrative data, the
+figures (:mod:`lidarcal.report.plots`), and last the inputs with their SHA-256.  Beside the
+page, :func:`write_report` writes the certificate document (:mod:`lidarcal.document`,
+``<stem>.pdf``) and, on request, a PNG of each of its figures.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import xarray as xr
+
+from lidarcal.document.facts import (
+    NOT_STATED,
+    certificate_facts,
+    certificate_id,
+    certified_grid,
+    fmt,
+    headline_text,
+)
+from lidarcal.document.figures import A4, STYLE, draw, drawn_cnr_range, figure_names, parts_of
+from lidarcal.document.pages import write_document
+from lidarcal.htmlpage import html_table, offline_html, write_text
+from lidarcal.io import atomic_path, check_writable
+from lidarcal.report.plots import report_figures
+from lidarcal.seal import invalid_seal_banner, require_valid_seal
+
+__all__ = ["write_report"]
+
+_PNG_DPI = 150  # static figures: at least 150 dpi, written into the PNG's pHYs chunk
+
+
+def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None = None) -> str:
+    """Return the top of the page: status, headline, certified result, then the certificate's facts."""
+    out = []
+    if cert is not None:
+        status = cert.attrs.get("calibration_status", NOT_STATED)
+        cid = html.escape(certificate_id(cert.attrs))
+        out.append(f'<p class="status status-{html.escape(str(status))}"><strong>Calibration status: '
+                   f"{html.escape(str(status))}</strong> · certificate {cid}</p>")
+    if budget is not None:
+        out.append(f'<p class="headline"><strong>{html.escape(headline_text(budget))}</strong></p>')
+        g = certified_grid(budget)
+        rows = []
+        for i in np.flatnonzero(g["inside"]):
+            cells = []
+            for j in range(g["height"].size):
+                v = g["value"][i, j]
+                text = f"{v:.2f}" if g["certified"][i, j] else "–"
+                if g["certified"][i, j] and g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]):
+                    text += f" ± {g['tolerance'][i, j]:.2g}"
+                cells.append(text)
+            rows.append([fmt(g["wind_speed"][i]), *cells])
+        k = float(budget.attrs.get("coverage_factor", 2.0))
+        out.append(html_table(["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]], rows,
+                          f"Certified result: relative expanded uncertainty U (%), k = {k:g}, per height and "
+                          "wind-speed bin; – : not certified (too few periods or no data)"))
+    if cert is not None:
+        facts = "\n".join(
+            f"<tr><th>{html.escape(section if n == 0 else '')}</th><td>{html.escape(label)}</td>"
+            f"<td>{html.escape(value).replace(chr(10), '<br>')}</td></tr>"
+            for section, items in certificate_facts(cert.attrs, seal)
+            for n, (label, value) in enumerate(items))
+        out.append(f'<table class="facts">\n{facts}\n</table>')
+    return "\n".join(out)
+
+
+def _provenance(cert: xr.Dataset | None) -> str:
+    """Return the end of the page: the certificate's components and inputs with their SHA-256."""
+    if cert is None:
+        return ""
+    rows = []
+    for key, label in (("title", "Title"), ("id", "Id"), ("date_created", "Created"),
+                       ("lidarcal_version", "lidarcal version"), ("certificate_components", "Components"),
+                       ("zero_distance_m", "Zero distance Zd (m)")):
+        if key in cert.attrs:
+            rows.append((label, fmt(cert.attrs[key]) if key.endswith("_m") else str(cert.attrs[key])))
+    chain = cert.attrs.get("lidarcal_provenance_chain")
+    for item in json.loads(chain) if chain else []:
+        rows.append((f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}"))
+    body = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
+    return f'<div id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></div>'
+
+
+def write_report(
+    path: str | os.PathLike,
+    *,
+    certificate: xr.Dataset | None = None,
+    budget: xr.Dataset | None = None,
+    sensitivities: Iterable[xr.Dataset] | Mapping[str, xr.Dataset] = (),
+    cube: xr.Dataset | None = None,
+    rwf: xr.Dataset | None = None,
+    title: str | None = None,
+    png: bool = False,
+    pdf: bool = True,
+    overwrite: bool = False,
+    allow_invalid: bool = False,
+    seal: str | None = None,
+) -> dict[str, Any]:
+    """Write the offline HTML report, and beside it the certificate document (PDF) and PNGs.
+
+    With ``certificate`` the components are taken from it; explicit arguments override them.
+    The page opens with the status, the headline and the certified result; the inputs'
+    SHA-256 come last.  With ``certificate`` and ``pdf`` the certificate document
+    (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``; ``seal``
+    (:func:`lidarcal.document.seal_statement`) states the seal of a certificate written after
+    its report.  With ``png`` every figure of the document is also written as
+    ``<stem>_<figure>.png`` (150 dpi).
+
+    A certificate read from a file has its seal checked first
+    (:func:`lidarcal.seal.require_valid_seal`): an altered one is refused
+    (:class:`~lidarcal.errors.SealError`), or with ``allow_invalid`` reported under a
+    warning banner (on the page and on every page of the document).
+
+    Returns
+    -------
+    dict
+        ``{"html": Path, "figures": [names], "png": [Paths], "pdf": Path or None}``.
+    """
+    check = require_valid_seal(certificate, allow_invalid=allow_invalid) if certificate is not None else None
+    banner = invalid_seal_banner(check) if check is not None and not check.ok else None
+    parts: dict[str, Any] = parts_of(certificate) if certificate is not None else {"sensitivities": []}
+    for name, value in (("budget", budget), ("cube", cube), ("rwf", rwf)):
+        if value is not None:
+            parts[name] = value
+    sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
+    if sens:
+        parts["sensitivities"] = sens
+    summary = certificate.attrs.get("lidarcal_records_summary") if certificate is not None else None
+    if summary and parts.get("cube") is not None:
+        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], json.loads(summary))
+    figs = report_figures(**parts)
+    path = Path(path)
+    pdf_path = path.with_suffix(".pdf") if pdf and certificate is not None else None
+    pngs = {name: path.with_name(f"{path.stem}_{name}.png") for name in figure_names(parts)} if png else {}
+    for p in [path, *([pdf_path] if pdf_path else []), *pngs.values()]:
+        check_writable(p, overwrite=overwrite)
+
+    title = title or (
+        certificate.attrs.get("title") if certificate is not None else "lidarcal calibration report"
+    )
+    models = {name: fig.bokeh() for name, fig in figs.items()}
+    after = {name: fig.note for name, fig in figs.items()}
+    warning = f'<p class="invalid"><strong>{html.escape(banner)}</strong></p>\n' if banner else ""
+    page = offline_html(models, title=title, header=warning + _header(certificate, parts.get("budget"), seal),
+                        after=after, titles={name: fig.heading for name, fig in figs.items()},
+                        footer=_provenance(certificate))
+    written = []
+    if pngs:
+        import matplotlib
+        from matplotlib.figure import Figure as MplFigure
+
+        with matplotlib.rc_context(STYLE):
+            for name, target in pngs.items():
+                fig = MplFigure(figsize=A4)
+                draw(fig, name, parts)
+                with atomic_path(target, overwrite=overwrite) as tmp:
+                    fig.savefig(tmp, dpi=_PNG_DPI, format="png")
+                written.append(target)
+    document = None
+    if pdf_path:
+        document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
+                                  warning=banner)
+    write_text(path, page, overwrite=overwrite)
+    return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
+            "pages": document["pages"] if document else 0}
