@@ -1,0 +1,11 @@
+"""The method pages whose figures come from lidarcal or the paper's equations run here.
+
+Every number these pages quote is printed by a ``pycon`` block on the page (see
+:func:`test_walkthroughs.run_page`), so a change of lidarcal that moves one fails its page.
+"""
+
+from test_walkthroughs import run_page
+
+
+def test_noise_terms_page(tmp_path, monkeypatch):
+    assert run_page("noise_terms.md", tmp_path, monkeypatch) >= 6
