@@ -9,3 +9,7 @@ from test_walkthroughs import run_page
 
 def test_noise_terms_page(tmp_path, monkeypatch):
     assert run_page("noise_terms.md", tmp_path, monkeypatch) >= 6
+
+
+def test_wfr_page(tmp_path, monkeypatch):
+    assert run_page("wfr.md", tmp_path, monkeypatch) >= 2
