@@ -13,3 +13,7 @@ def test_noise_terms_page(tmp_path, monkeypatch):
 
 def test_wfr_page(tmp_path, monkeypatch):
     assert run_page("wfr.md", tmp_path, monkeypatch) >= 2
+
+
+def test_units_page(tmp_path, monkeypatch):
+    assert run_page("units.md", tmp_path, monkeypatch) >= 5
