@@ -17,3 +17,7 @@ def test_wfr_page(tmp_path, monkeypatch):
 
 def test_units_page(tmp_path, monkeypatch):
     assert run_page("units.md", tmp_path, monkeypatch) >= 5
+
+
+def test_sensitivity_page(tmp_path, monkeypatch):
+    assert run_page("sensitivity.md", tmp_path, monkeypatch) >= 3
