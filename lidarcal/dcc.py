@@ -49,13 +49,12 @@ from lidarcal.errors import InputError, ValidationError
 from lidarcal.io import atomic_path, check_writable, open_artefact
 from lidarcal.provenance import sha256
 
-__all__ = ["DCC_NS", "SI_NS", "DCC_SCHEMA_VERSION", "SI_SCHEMA_VERSION", "SI_SCHEMA_URL", "dcc_tree",
+__all__ = ["DCC_NS", "SI_NS", "DCC_SCHEMA_VERSION", "SI_SCHEMA_URL", "dcc_tree",
            "write_dcc", "validate_dcc", "dcc_attributes", "si_unit", "COVERAGE_PROBABILITY"]
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
 DCC_SCHEMA_VERSION = "3.1.2"
-SI_SCHEMA_VERSION = "2.1.0"
 #: Where ``dcc.xsd`` 3.1.2 imports the D-SI schema from (resolved to a local file by :func:`validate_dcc`).
 SI_SCHEMA_URL = "https://ptb.de/si/v2.1.0/SI_Format.xsd"
 _XSI = "http://www.w3.org/2001/XMLSchema-instance"
