@@ -9,8 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lidarcal.analysis import compare_slopes, kernels, sensitivity
-from lidarcal.analysis.kernels import bin_statistics, edges_from_width, linear_regression, significance
+from lidarcal.analysis.kernels import edges_from_width, linear_regression, significance
 from lidarcal.analysis.sensitivity import per_unit, sensitivity_fit
+from lidarcal.binning import binned_statistics
 from lidarcal.campaign import simulate_campaign
 from lidarcal.cf import height_coord, time_coord, var_attrs
 from lidarcal.cli import main
@@ -28,7 +29,7 @@ def test_bin_statistics_matches_brute_force():
     y = rng.normal(0, 1, (3, 200))
     y[0, :5] = np.nan
     edges = np.linspace(0, 1, 6)
-    n, m, s, mx = bin_statistics(x, y, edges)
+    n, m, s, mx = binned_statistics(x, y, edges)
     for row in range(3):
         for b in range(5):
             sel = (x[row] >= edges[b]) & (x[row] < edges[b + 1]) & np.isfinite(y[row])
