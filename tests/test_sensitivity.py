@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.stats
 import xarray as xr
-from analysis_factories import make_records
+from analysis_factories import make_records, var_attrs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -13,7 +13,7 @@ from lidarcal.analysis.kernels import edges_from_width, linear_regression, signi
 from lidarcal.analysis.sensitivity import per_unit, sensitivity_fit
 from lidarcal.binning import binned_statistics
 from lidarcal.campaign import simulate_campaign
-from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.cf import height_coord, time_coord
 from lidarcal.cli import main
 from lidarcal.errors import InputError, MissingVariableError, UnitError
 from lidarcal.io import open_artefact, write_artefact
