@@ -51,8 +51,8 @@ from lidarcal.data import packaged_dir
 from lidarcal.errors import InputError, ValidationError
 from lidarcal.units import LOG_UNITS, parse_unit
 
-__all__ = ["load_schema", "declared_variables", "list_kinds", "validate_dataset", "output_attrs",
-           "with_output_attrs", "COMMON_ATTRIBUTES"]
+__all__ = ["load_schema", "declared_variables", "declared_spec", "list_kinds", "validate_dataset",
+           "output_attrs", "with_output_attrs", "COMMON_ATTRIBUTES"]
 
 #: Global attributes every artefact written by lidarcal must carry.
 COMMON_ATTRIBUTES = (
@@ -176,7 +176,7 @@ def _name_pattern(template: str) -> re.Pattern:
     return re.compile("".join(parts))
 
 
-def _spec_for(kind: str, name: str) -> tuple[dict[str, Any], dict[str, str]]:
+def declared_spec(kind: str, name: str) -> tuple[dict[str, Any], dict[str, str]]:
     """Return the spec ``kind`` writes itself for ``name`` and the parts a name template matched.
 
     An exact entry wins over a name template.  When ``name`` is also included from another
@@ -223,7 +223,7 @@ def output_attrs(kind: str, name: str, **context: Any) -> dict[str, Any]:
     as declared.  A template that fills to ``""`` (no standard name, no comment) is left out, and so
     is a key declared ``null`` (``coverage_content_type: null``: a label coordinate that has none).
     """
-    spec, parts = _spec_for(kind, name)
+    spec, parts = declared_spec(kind, name)
     context = {**parts, **context}
     declared = {k: v for k, v in spec.items() if k not in _CHECK_KEYS or k == "units"}
     declared.update(spec.get("attributes") or {})

@@ -14,8 +14,10 @@ from lidarcal.certificate import provenance_chain
 from lidarcal.cli import main
 from lidarcal.compliance import ComplianceReport, check_compliance, exception_kind, summary_lines
 from lidarcal.data import sample_file
+from lidarcal.errors import InputError
 from lidarcal.io import write_artefact
 from lidarcal.provenance import contact, merge_history, stamp
+from lidarcal.schema import declared_spec, load_schema
 
 CONTACT = ["--creator", "A. Steward", "--creator-email", "steward@example.org", "--institution", "Test Lab",
            "--publisher", "Test Archive", "--publisher-email", "archive@example.org",
@@ -310,3 +312,33 @@ def test_pint_quantifies_every_artefact_after_import_lidarcal(run_dir):
                  "uncertainty_budget", "certificate"):
         assert repr(kind) in kinds
     assert unit.strip() == "kilometer / hour"
+
+
+def test_every_variable_of_a_run_is_described_by_its_schema(run_dir):
+    """Output metadata is declared once: each variable a run writes is in its kind's schema, with its words.
+
+    A variable lidarcal writes but no schema declares (or one whose long name was written by hand
+    and drifted from the schema's) fails here; the certificate is made of its components' variables.
+    """
+    checked = 0
+    for path in sorted(run_dir.glob("*.nc")):
+        with netCDF4.Dataset(path) as nc:
+            kind = nc.getncattr("lidarcal_artefact")
+            if kind == "certificate":
+                continue
+            bounds = {str(v.getncattr("bounds")) for v in nc.variables.values() if "bounds" in v.ncattrs()}
+            resolved = load_schema(kind)
+            for name, var in nc.variables.items():
+                # bounds, and the site point stamp() adds to any kind
+                if name in bounds or name in ("latitude", "longitude"):
+                    continue
+                try:
+                    spec, _ = declared_spec(kind, name)
+                except InputError:  # copied from another schema by an include
+                    assert name in {**resolved["coordinates"], **resolved["variables"]}, (path.name, name)
+                    continue
+                declared = spec.get("long_name")
+                if isinstance(declared, str) and "{" not in declared:
+                    assert var.getncattr("long_name") == declared, (path.name, name)
+                    checked += 1
+    assert checked > 50
