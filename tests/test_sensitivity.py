@@ -23,7 +23,7 @@ from lidarcal.schema import validate_dataset
 # ---------------------------------------------------------------- kernels
 
 
-def test_bin_statistics_matches_brute_force():
+def test_binned_statistics_matches_brute_force():
     rng = np.random.default_rng(np.random.SeedSequence([7, 1]))
     x = rng.uniform(0, 1, (3, 200))
     y = rng.normal(0, 1, (3, 200))
