@@ -10,7 +10,7 @@ laboratory (``--institution`` or ``laboratory.name``) and a responsible person
 
 The administrative data (docs/certificate.md) are read from one YAML file
 (:func:`load_admin`) and/or given as options; they are stored as plain string global
-attributes (:data:`ADMIN_ATTRIBUTES`), sealed with the rest of the certificate, and are what
+attributes (named by :data:`ADMIN_FILE_KEYS`), sealed with the rest of the certificate, and are what
 the report and the Digital Calibration Certificate (:mod:`lidarcal.dcc`) show.
 """
 
@@ -32,7 +32,7 @@ from lidarcal.data import sample_data_dir
 from lidarcal.errors import InputError
 from lidarcal.provenance import REFERENCES, sha256
 
-__all__ = ["ADMIN_FILE_KEYS", "ADMIN_ATTRIBUTES", "DATE_ATTRIBUTES", "STATUS_ATTR", "STATUS_REASON_ATTR",
+__all__ = ["ADMIN_FILE_KEYS", "DATE_ATTRIBUTES", "STATUS_ATTR", "STATUS_REASON_ATTR",
            "DEMONSTRATION", "ISSUED", "SIMULATED_ORIGIN", "load_admin", "parse_admin", "sample_digests",
            "demonstration_reasons", "new_certificate_id", "merge_admin", "issuer_problem",
            "certificate_attributes", "default_method_reference", "status_line"]
@@ -70,8 +70,6 @@ ADMIN_FILE_KEYS: dict[str, str] = {
     "simulation_date": "simulation_date",
     "method_reference": "method_reference",
 }
-#: Every administrative attribute a certificate may carry, with the status.
-ADMIN_ATTRIBUTES = (STATUS_ATTR, *ADMIN_FILE_KEYS.values())
 DATE_ATTRIBUTES = ("bench_run_start", "bench_run_end", "simulation_date")
 _GROUPS = {key.split(".")[0] for key in ADMIN_FILE_KEYS if "." in key}
 

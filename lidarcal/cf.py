@@ -1,4 +1,4 @@
-"""Small helpers that give variables complete CF/ACDD attributes in one call."""
+"""CF helpers: the height and time coordinates, cell bounds and the canonical dimension order."""
 
 from __future__ import annotations
 
@@ -7,26 +7,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-__all__ = ["var_attrs", "with_bounds", "height_coord", "time_coord", "canonical_dims", "canonical_order"]
-
-
-def var_attrs(
-    long_name: str,
-    units: str,
-    standard_name: str | None = None,
-    coverage_content_type: str = "modelResult",
-    **extra: Any,
-) -> dict[str, Any]:
-    """Attributes for a data variable: ``long_name``, ``units``, ACDD content type.
-
-    ``coverage_content_type`` is one of ISO 19115-1's codes (``physicalMeasurement``,
-    ``modelResult``, ``qualityInformation``, ``auxiliaryInformation``, ``coordinate`` ...).
-    """
-    attrs = {"long_name": long_name, "units": units, "coverage_content_type": coverage_content_type}
-    if standard_name:
-        attrs["standard_name"] = standard_name
-    attrs.update(extra)
-    return attrs
+__all__ = ["with_bounds", "height_coord", "time_coord", "canonical_dims", "canonical_order"]
 
 
 def height_coord(values: Any) -> xr.DataArray:

@@ -48,52 +48,20 @@ from lidarcal.certificate import components, extract_component
 from lidarcal.errors import InputError, ValidationError
 from lidarcal.io import atomic_path, check_writable, open_artefact
 from lidarcal.provenance import sha256
+from lidarcal.units import si_unit
 
-__all__ = ["DCC_NS", "SI_NS", "DCC_SCHEMA_VERSION", "SI_SCHEMA_VERSION", "SI_SCHEMA_URL", "dcc_tree",
-           "write_dcc", "validate_dcc", "dcc_attributes", "si_unit", "COVERAGE_PROBABILITY"]
+__all__ = ["DCC_NS", "SI_NS", "DCC_SCHEMA_VERSION", "SI_SCHEMA_URL", "dcc_tree",
+           "write_dcc", "validate_dcc", "dcc_attributes", "COVERAGE_PROBABILITY"]
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
 DCC_SCHEMA_VERSION = "3.1.2"
-SI_SCHEMA_VERSION = "2.1.0"
 #: Where ``dcc.xsd`` 3.1.2 imports the D-SI schema from (resolved to a local file by :func:`validate_dcc`).
 SI_SCHEMA_URL = "https://ptb.de/si/v2.1.0/SI_Format.xsd"
 _XSI = "http://www.w3.org/2001/XMLSchema-instance"
 #: Coverage probability stated with the k = 2 expanded uncertainty (normal distribution).
 COVERAGE_PROBABILITY = 0.95
 _NOT_STATED = "not stated"
-
-# ------------------------------------------------------------------ units
-
-
-#: UDUNITS symbol -> D-SI (BIPM SI brochure) unit macro.
-_SI_UNITS = {"m": r"\metre", "s": r"\second", "%": r"\percent", "1": r"\one", "dB": r"\decibel",
-             "K": r"\kelvin", "kg": r"\kilogram", "rad": r"\radian", "degree": r"\degree", "Hz": r"\hertz",
-             "W": r"\watt", "Pa": r"\pascal", "hPa": r"\hecto\pascal", "km": r"\kilo\metre", "h": r"\hour",
-             "min": r"\minute", "degC": r"\degreecelsius"}
-
-
-def si_unit(units: str) -> str:
-    """D-SI unit text of a UDUNITS unit string such as ``"m s-1"``, ``"%"`` or ``"% dB-1 m"``.
-
-    Raises
-    ------
-    InputError
-        For a unit symbol lidarcal does not know how to write in D-SI.
-    """
-    text = str(units).strip()
-    if text in ("", "1"):
-        return r"\one"
-    out = []
-    for token in text.split():
-        m = re.fullmatch(r"([A-Za-z%]+)(\^?[-+]?\d+)?", token)
-        if not m or m.group(1) not in _SI_UNITS:
-            raise InputError(f"unit {units!r}: no D-SI form known for {token!r}; known symbols "
-                             f"{sorted(_SI_UNITS)}")
-        power = int(m.group(2).lstrip("^")) if m.group(2) else 1
-        out.append(_SI_UNITS[m.group(1)] + (rf"\tothe{{{power}}}" if power != 1 else ""))
-    return "".join(out)
-
 
 # ------------------------------------------------------------------ XML helpers
 

@@ -228,6 +228,164 @@ def _retire_previous(paths: Mapping[str, Path], *, overwrite: bool) -> None:
                     "was not built from them (this run's certificate is written last)", key, path, digest)
 
 
+@dataclass(frozen=True)
+class _Run:
+    """What every stage of one :func:`calibrate` run shares: its settings, files and clock."""
+
+    cfg: CalibrationConfig
+    paths: dict[str, Path]
+    overwrite: bool
+    t0: float
+
+    def done(self, key: str, what: str) -> None:
+        """Log a finished stage: elapsed time, what it made, where."""
+        log.info("[%6.1f s] %s: %s", time.perf_counter() - self.t0, what, self.paths[key])
+
+    def publish(self, ds: xr.Dataset, key: str, kind: str) -> xr.Dataset:
+        """Write ``ds`` as artefact ``key``; return it read back (its checksum then chains on)."""
+        write_artefact(ds, self.paths[key], overwrite=self.overwrite)
+        return open_artefact(self.paths[key], kind)
+
+    @property
+    def rule(self) -> dict[str, Any]:
+        """The certification rule shared by the adaptive replicas and the budget."""
+        return dict(min_periods=self.cfg.min_periods, certified_range=tuple(self.cfg.certified_range),
+                    significant_digits=self.cfg.significant_digits)
+
+
+def _output_paths(outdir: Path, *, overwrite: bool) -> dict[str, Path]:
+    """Create ``outdir``; return every artefact's path, refusing existing ones unless ``overwrite``."""
+    if outdir.exists() and not outdir.is_dir():
+        raise InputError(f"{outdir}: output directory is a file; expected a directory (or a new name)")
+    try:
+        outdir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise InputError(f"{outdir}: cannot create the output directory ({exc.strerror})") from None
+    paths = {key: outdir / name for key, name in OUTPUT_NAMES.items()}
+    for var in SENSITIVITY_VARIABLES:
+        paths[f"sensitivity_{var}"] = outdir / f"sensitivity_{var}.nc"
+    for path in paths.values():  # refuse before doing an hour of work
+        check_writable(path, overwrite=overwrite)
+    return paths
+
+
+def _bench_cube(run: _Run) -> xr.Dataset:
+    """Stage 1: the bench cube, the user's artefact or ingested from the bench files."""
+    cfg = run.cfg
+    if cfg.cube is not None:
+        cube = open_artefact(cfg.cube, "bench_cube")
+    else:
+        rtd = cfg.bench_rtd or sample_file("bench/rtd.csv.gz")
+        control = cfg.bench_control or sample_file("bench/control_log.csv")
+        cube = ingest(rtd, control, call=f"lidarcal calibrate (bench ingest {Path(rtd).name})")
+    cube = run.publish(cube, "cube", "bench_cube")
+    serial = cube.attrs.get("lidar_serial")
+    run.done("cube", f"bench cube ({int(cube.sample_count.sum())} samples, lidar {serial})")
+    return cube
+
+
+def _rwf(run: _Run) -> xr.Dataset:
+    """Stage 2: the range-weighting function and zero distance, given or from the pulse file."""
+    cfg = run.cfg
+    if cfg.rwf is not None:
+        rwf = open_artefact(cfg.rwf, "rwf")
+    else:
+        pulse = cfg.pulse_file or sample_file("rwf/pulse_example.csv")
+        rwf = range_weighting_function(pulse_file=pulse, fft_size=cfg.fft_size,
+                                       call=f"lidarcal calibrate (rwf from {Path(pulse).name})")
+    rwf = run.publish(rwf, "rwf", "rwf")
+    run.done("rwf", f"range-weighting function (Zd = {float(rwf.zero_distance):+.3f} m)")
+    return rwf
+
+
+def _write_conditions(run: _Run) -> None:
+    """Stage 3: the conditions the Monte Carlo runs on."""
+    cond, cond_inputs = _conditions(run.cfg)
+    if cond.attrs.get("lidarcal_artefact") != "conditions":
+        # a user's file that is not a lidarcal conditions artefact (a field campaign, a plain
+        # input): stamped as this run's file, with the file in its provenance chain
+        cond = stamp(cond, "conditions", title="Conditions simulated by lidarcal calibrate",
+                     summary="10-minute conditions (lidarcal docs/contracts.md) used as Monte Carlo input.",
+                     call="lidarcal calibrate",
+                     input_datasets={role: open_artefact(p) for role, p in cond_inputs.items()})
+    write_artefact(cond, run.paths["conditions"], overwrite=run.overwrite)
+    run.done("conditions", f"conditions ({cond.sizes['time']} periods x {cond.sizes['height']} heights)")
+
+
+def _simulate(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, *,
+              progress: bool) -> tuple[xr.Dataset, xr.Dataset]:
+    """Stage 4: the Monte Carlo records, with replicas until every certified value settles.
+
+    Returns the records (read back) and the Table 4 terms (not yet written) the budget needs.
+    """
+    cfg, paths = run.cfg, run.paths
+    model = LidarModel.from_artefacts(cube=cube, rwf=rwf, los_noise_model=cfg.los_noise_model)
+    if cfg.reference_turbulence:
+        model = model.replace(reference_turbulence=cfg.reference_turbulence)
+    # finished chunks are kept here until the simulation completes, so a killed run re-started
+    # with --overwrite resumes instead of starting again (chunk files are keyed by their inputs)
+    workdir = paths["simulated"].parent / CHUNK_DIR
+    workdir.mkdir(exist_ok=True)
+    records = simulate_campaign(
+        paths["conditions"], model, base_seed=cfg.base_seed, chunk=cfg.chunk,
+        scheduler=cfg.scheduler, workers=cfg.workers, progress=progress, workdir=workdir,
+        call="lidarcal calibrate (simulate)",
+        inputs={"conditions": paths["conditions"], "cube": paths["cube"], "rwf": paths["rwf"]},
+    )
+    if cube.attrs.get("lidar_serial"):
+        records.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
+    # replicas until every certified value settles (JCGM 101 7.9): the budget needs the terms
+    terms = _terms_per_height(records, cfg.terms)
+    records, _ = adaptive_replicas(
+        records, paths["conditions"], model, terms=terms, max_replicas=cfg.max_replicas,
+        base_seed=cfg.base_seed, chunk=cfg.chunk, scheduler=cfg.scheduler, workers=cfg.workers,
+        workdir=workdir, progress=progress, **run.rule)
+    write_artefact(records, paths["simulated"], overwrite=run.overwrite)
+    shutil.rmtree(workdir)
+    records = open_artefact(paths["simulated"], "simulated_rtd")
+    replicas = 1 + (int(records["trial_replica"].max()) if "trial_replica" in records else 0)
+    run.done("simulated", f"simulated records ({replicas} Monte Carlo replica(s), "
+             f"{records.sizes.get('trial', 0)} further trials)")
+    return records, terms
+
+
+def _sensitivities(run: _Run, records: xr.Dataset) -> dict[str, xr.Dataset]:
+    """Stage 5b: the sensitivity to each variable (Eqs. 12-13) a regression can be fitted for."""
+    sens = {}
+    for var in SENSITIVITY_VARIABLES:
+        key = f"sensitivity_{var}"
+        try:
+            ds = sensitivity(records, var, min_periods=run.cfg.min_periods,
+                             call=f"lidarcal calibrate (sensitivity {var})")
+        except InputError as exc:
+            # a short run, or a site where the variable hardly varies, leaves too few full bins
+            # for a regression: the certificate then carries no sensitivity to this variable
+            log.warning("sensitivity to %s not computed, so the certificate has none: %s", var, exc)
+            path = run.paths.pop(key)
+            if run.overwrite and path.exists():
+                path.unlink()  # a previous run's file would contradict this certificate
+            continue
+        sens[var] = run.publish(ds, key, "sensitivity")
+        run.done(key, f"sensitivity to {var}")
+    return sens
+
+
+def _issue(run: _Run, cert: xr.Dataset, signer: Any, signing_key: str | os.PathLike | None) -> None:
+    """Stage 6: the report, then the certificate.
+
+    The certificate is the last file written, so that one present always belongs to the
+    artefacts beside it.
+    """
+    # the document states the seal the certificate gets when it is written, just below
+    written = write_report(run.paths["report"], certificate=cert, overwrite=run.overwrite,
+                           seal=seal_statement(fingerprint(signer) if signer else None))
+    run.done("report", "HTML report (interactive plots)")
+    run.done("report_pdf", f"certificate document ({written['pages']} pages, A4)")
+    write_certificate(cert, run.paths["certificate"], overwrite=run.overwrite, signing_key=signer)
+    run.done("certificate", "calibration certificate (check with: lidarcal verify"
+             + (f" --public-key {signing_key}.pub)" if signer else ")"))
+
+
 def calibrate(
     outdir: str | os.PathLike = "lidarcal-output",
     config: CalibrationConfig | None = None,
@@ -267,25 +425,10 @@ def calibrate(
         INFO level on the ``lidarcal.pipeline`` logger.
     """
     cfg = config or CalibrationConfig()
-    outdir = Path(outdir)
-    if outdir.exists() and not outdir.is_dir():
-        raise InputError(f"{outdir}: output directory is a file; expected a directory (or a new name)")
-    try:
-        outdir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise InputError(f"{outdir}: cannot create the output directory ({exc.strerror})") from None
-    paths = {key: outdir / name for key, name in OUTPUT_NAMES.items()}
-    for var in SENSITIVITY_VARIABLES:
-        paths[f"sensitivity_{var}"] = outdir / f"sensitivity_{var}.nc"
-    for path in paths.values():  # refuse before doing an hour of work
-        check_writable(path, overwrite=overwrite)
+    paths = _output_paths(Path(outdir), overwrite=overwrite)
     signer = load_private_key(signing_key) if signing_key is not None else None
     _check_issuer(cfg, admin or {}, demonstration)
-    t0 = time.perf_counter()
-
-    def done(key: str, what: str) -> None:
-        log.info("[%6.1f s] %s: %s", time.perf_counter() - t0, what, paths[key])
-
+    run = _Run(cfg, paths, overwrite, time.perf_counter())
     # A certificate (and the report showing it) from an earlier run in this directory would sit
     # beside artefacts it was not built from, still verifying, if this run stopped half-way:
     # remove it before the first new artefact is published; this run's is written last.
@@ -293,113 +436,22 @@ def calibrate(
 
     # Each artefact is written, then read back with open_artefact: downstream stages then
     # record the checksum of the file on disk as their input (the certificate's chain).
-    # 1. bench cube
-    if cfg.cube is not None:
-        cube = open_artefact(cfg.cube, "bench_cube")
-        write_artefact(cube, paths["cube"], overwrite=overwrite)
-    else:
-        rtd = cfg.bench_rtd or sample_file("bench/rtd.csv.gz")
-        control = cfg.bench_control or sample_file("bench/control_log.csv")
-        cube = ingest(rtd, control, call=f"lidarcal calibrate (bench ingest {Path(rtd).name})")
-        write_artefact(cube, paths["cube"], overwrite=overwrite)
-    cube = open_artefact(paths["cube"], "bench_cube")
-    serial = cube.attrs.get("lidar_serial")
-    done("cube", f"bench cube ({int(cube.sample_count.sum())} samples, lidar {serial})")
-
-    # 2. range-weighting function and zero distance
-    if cfg.rwf is not None:
-        rwf = open_artefact(cfg.rwf, "rwf")
-        write_artefact(rwf, paths["rwf"], overwrite=overwrite)
-    else:
-        pulse = cfg.pulse_file or sample_file("rwf/pulse_example.csv")
-        rwf = range_weighting_function(pulse_file=pulse, fft_size=cfg.fft_size,
-                                       call=f"lidarcal calibrate (rwf from {Path(pulse).name})")
-        write_artefact(rwf, paths["rwf"], overwrite=overwrite)
-    rwf = open_artefact(paths["rwf"], "rwf")
-    done("rwf", f"range-weighting function (Zd = {float(rwf.zero_distance):+.3f} m)")
-
-    # 3. conditions
-    cond, cond_inputs = _conditions(cfg)
-    if cond.attrs.get("lidarcal_artefact") != "conditions":
-        # a user's file that is not a lidarcal conditions artefact (a field campaign, a plain
-        # input): stamped as this run's file, with the file in its provenance chain
-        cond = stamp(cond, "conditions", title="Conditions simulated by lidarcal calibrate",
-                     summary="10-minute conditions (lidarcal docs/contracts.md) used as Monte Carlo input.",
-                     call="lidarcal calibrate",
-                     input_datasets={role: open_artefact(p) for role, p in cond_inputs.items()})
-    write_artefact(cond, paths["conditions"], overwrite=overwrite)
-    done("conditions", f"conditions ({cond.sizes['time']} periods x {cond.sizes['height']} heights)")
-
-    # 4. Monte Carlo simulation
-    model = LidarModel.from_artefacts(cube=cube, rwf=rwf, los_noise_model=cfg.los_noise_model)
-    if cfg.reference_turbulence:
-        model = model.replace(reference_turbulence=cfg.reference_turbulence)
-    # finished chunks are kept here until the simulation completes, so a killed run re-started
-    # with --overwrite resumes instead of starting again (chunk files are keyed by their inputs)
-    workdir = outdir / CHUNK_DIR
-    workdir.mkdir(exist_ok=True)
-    records = simulate_campaign(
-        paths["conditions"], model, base_seed=cfg.base_seed, chunk=cfg.chunk,
-        scheduler=cfg.scheduler, workers=cfg.workers, progress=progress, workdir=workdir,
-        call="lidarcal calibrate (simulate)",
-        inputs={"conditions": paths["conditions"], "cube": paths["cube"], "rwf": paths["rwf"]},
-    )
-    if cube.attrs.get("lidar_serial"):
-        records.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
-    # 4b. replicas until every certified value settles (JCGM 101 7.9): the budget needs the terms
-    terms = _terms_per_height(records, cfg.terms)
-    rule = dict(min_periods=cfg.min_periods, certified_range=tuple(cfg.certified_range),
-                significant_digits=cfg.significant_digits)
-    records, _ = adaptive_replicas(
-        records, paths["conditions"], model, terms=terms, max_replicas=cfg.max_replicas,
-        base_seed=cfg.base_seed, chunk=cfg.chunk, scheduler=cfg.scheduler, workers=cfg.workers,
-        workdir=workdir, progress=progress, **rule)
-    write_artefact(records, paths["simulated"], overwrite=overwrite)
-    shutil.rmtree(workdir)
-    records = open_artefact(paths["simulated"], "simulated_rtd")
-    replicas = 1 + (int(records["trial_replica"].max()) if "trial_replica" in records else 0)
-    done("simulated", f"simulated records ({replicas} Monte Carlo replica(s), "
-         f"{records.sizes.get('trial', 0)} further trials)")
-
+    cube = _bench_cube(run)  # 1. bench cube
+    rwf = _rwf(run)  # 2. range-weighting function and zero distance
+    _write_conditions(run)  # 3. conditions
+    records, terms = _simulate(run, cube, rwf, progress=progress)  # 4. Monte Carlo
     # 5. Table 4 terms, sensitivities, budget
-    write_artefact(terms, paths["terms"], overwrite=overwrite)
-    terms = open_artefact(paths["terms"], "uncertainty_terms")
-    done("terms", "uncertainty terms not modelled by Monte Carlo (Table 4)")
-    sens = {}
-    for var in SENSITIVITY_VARIABLES:
-        key = f"sensitivity_{var}"
-        try:
-            ds = sensitivity(records, var, min_periods=cfg.min_periods,
-                             call=f"lidarcal calibrate (sensitivity {var})")
-        except InputError as exc:
-            # a short run, or a site where the variable hardly varies, leaves too few full bins
-            # for a regression: the certificate then carries no sensitivity to this variable
-            log.warning("sensitivity to %s not computed, so the certificate has none: %s", var, exc)
-            path = paths.pop(key)
-            if overwrite and path.exists():
-                path.unlink()  # a previous run's file would contradict this certificate
-            continue
-        write_artefact(ds, paths[key], overwrite=overwrite)
-        sens[var] = open_artefact(paths[key], "sensitivity")
-        done(key, f"sensitivity to {var}")
-    bud = budget(records, terms=terms, call="lidarcal calibrate (budget)", **rule)
-    write_artefact(bud, paths["budget"], overwrite=overwrite)
-    bud = open_artefact(paths["budget"], "uncertainty_budget")
-    done("budget", "uncertainty budget (Monte Carlo approach)")
-
-    # 6. report, then the certificate: the last file written, so that one present always
-    # belongs to the artefacts beside it
+    terms = run.publish(terms, "terms", "uncertainty_terms")
+    run.done("terms", "uncertainty terms not modelled by Monte Carlo (Table 4)")
+    sens = _sensitivities(run, records)
+    bud = run.publish(budget(records, terms=terms, call="lidarcal calibrate (budget)", **run.rule),
+                      "budget", "uncertainty_budget")
+    run.done("budget", "uncertainty budget (Monte Carlo approach)")
+    # 6. report, then the certificate
     cert = make_certificate(budget=bud, sensitivities=sens, cube=cube, rwf=rwf, terms=terms,
                             records=records, config=cfg.to_dict(), call="lidarcal calibrate",
                             admin=admin, demonstration=demonstration)
-    # the document states the seal the certificate gets when it is written, just below
-    written = write_report(paths["report"], certificate=cert, overwrite=overwrite,
-                           seal=seal_statement(fingerprint(signer) if signer else None))
-    done("report", "HTML report (interactive plots)")
-    done("report_pdf", f"certificate document ({written['pages']} pages, A4)")
-    write_certificate(cert, paths["certificate"], overwrite=overwrite, signing_key=signer)
-    done("certificate", "calibration certificate (check with: lidarcal verify"
-         + (f" --public-key {signing_key}.pub)" if signer else ")"))
+    _issue(run, cert, signer, signing_key)
     datasets = {"cube": cube, "rwf": rwf, "conditions": open_artefact(paths["conditions"], "conditions"),
                 "simulated": records, "terms": terms, **{f"sensitivity_{v}": d for v, d in sens.items()},
                 "budget": bud, "certificate": open_artefact(paths["certificate"], "certificate")}

@@ -2,12 +2,14 @@
 
 The registry is cf-xarray's, so UDUNITS/CF strings such as ``m s-1`` parse.  Pint treats
 ``dB`` as a logarithmic (offset) unit, so CNR quantities are checked by their unit string
-and then handled as plain floats.
+and then handled as plain floats.  :func:`si_unit` writes a UDUNITS string in the D-SI form
+of a Digital Calibration Certificate (:mod:`lidarcal.dcc`).
 """
 
 from __future__ import annotations
 
 import numbers
+import re
 from typing import Any
 
 import numpy as np
@@ -27,6 +29,7 @@ __all__ = [
     "to_magnitude",
     "parse_unit",
     "register_units",
+    "si_unit",
 ]
 
 Q_ = ureg.Quantity
@@ -146,3 +149,31 @@ def to_magnitude(value: Any, expected: str, *, name: str) -> float | np.ndarray:
         f"convertible to {expected!r}, e.g. ureg.Quantity({value!r}, {expected!r})"
     )
 
+
+#: UDUNITS symbol -> D-SI (BIPM SI brochure) unit macro.
+_SI_UNITS = {"m": r"\metre", "s": r"\second", "%": r"\percent", "1": r"\one", "dB": r"\decibel",
+             "K": r"\kelvin", "kg": r"\kilogram", "rad": r"\radian", "degree": r"\degree", "Hz": r"\hertz",
+             "W": r"\watt", "Pa": r"\pascal", "hPa": r"\hecto\pascal", "km": r"\kilo\metre", "h": r"\hour",
+             "min": r"\minute", "degC": r"\degreecelsius"}
+
+
+def si_unit(units: str) -> str:
+    """D-SI unit text of a UDUNITS unit string such as ``"m s-1"``, ``"%"`` or ``"% dB-1 m"``.
+
+    Raises
+    ------
+    UnitError
+        For a unit symbol lidarcal does not know how to write in D-SI.
+    """
+    text = str(units).strip()
+    if text in ("", "1"):
+        return r"\one"
+    out = []
+    for token in text.split():
+        m = re.fullmatch(r"([A-Za-z%]+)(\^?[-+]?\d+)?", token)
+        if not m or m.group(1) not in _SI_UNITS:
+            raise UnitError(f"unit {units!r}: no D-SI form known for {token!r}; known symbols "
+                             f"{sorted(_SI_UNITS)}")
+        power = int(m.group(2).lstrip("^")) if m.group(2) else 1
+        out.append(_SI_UNITS[m.group(1)] + (rf"\tothe{{{power}}}" if power != 1 else ""))
+    return "".join(out)

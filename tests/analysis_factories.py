@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.cf import height_coord, time_coord
 
 CONDITION_UNITS = {
     "wind_speed": "m s-1",
@@ -15,6 +15,12 @@ CONDITION_UNITS = {
     "cnr": "dB",
     "cnr_gradient": "dB m-1",
 }
+
+
+def var_attrs(long_name: str, units: str, standard_name: str | None = None) -> dict[str, str]:
+    """Attributes of a hand-made input variable: ``long_name``, ``units``, ACDD content type (and CF name)."""
+    attrs = {"long_name": long_name, "units": units, "coverage_content_type": "modelResult"}
+    return {**attrs, "standard_name": standard_name} if standard_name else attrs
 
 
 def make_records(

@@ -17,9 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 import xarray as xr
+from analysis_factories import var_attrs
 
 from lidarcal.bench.simulator import simulate_run
-from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.cf import height_coord, time_coord
 from lidarcal.cli import main
 from lidarcal.units import ureg
 

@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+from analysis_factories import var_attrs
 from scipy.special import gammaln
 
 from lidarcal.bench import kernels
@@ -11,7 +12,6 @@ from lidarcal.bench.ingest import build_cube, cube_template
 from lidarcal.bench.repeatability import repeatability
 from lidarcal.bench.response import TrueResponse
 from lidarcal.bench.simulator import simulate_run
-from lidarcal.cf import var_attrs
 from lidarcal.cli import main
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, write_artefact

@@ -5,11 +5,11 @@ import math
 import numpy as np
 import pytest
 import xarray as xr
-from analysis_factories import make_records
+from analysis_factories import make_records, var_attrs
 
 from lidarcal.analysis import budget
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
-from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.cf import height_coord, time_coord
 from lidarcal.cli import main
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, write_artefact

@@ -85,7 +85,7 @@ def field_file(tmp_path_factory):
     return path
 
 
-ARGS = ["--json", "--scheduler", "synchronous", "--min-samples", "5", "--no-progress"]
+ARGS = ["--json", "--scheduler", "synchronous", "--min-periods", "5", "--no-progress"]
 
 
 def _run(argv: list[str]) -> tuple[int, str]:
@@ -132,6 +132,7 @@ def test_compare_command_writes_one_json_object_and_the_artefact(run, field_file
     assert sorted(js["budgets"]["heights"]) == ["120.0", "40.0"]
     ds = open_artefact(out, "comparison")  # written through the schema: validated
     assert ds.attrs["lidarcal_artefact"] == "comparison" and json.loads(ds.attrs["comparison_json"]) == js
+    assert json.loads(ds.attrs["lidarcal_config"])["min_periods"] == 5  # --min-periods, the budget's name
     assert ds["turbulence_intensity_measured_slope"].attrs["units"] == "%"
     assert ds["cnr_gradient_simulated_slope"].attrs["units"] == "% m dB-1"
     assert ds["measured_contribution"].attrs["units"] == "m s-1"

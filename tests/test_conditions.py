@@ -7,8 +7,9 @@ import warnings
 import numpy as np
 import pytest
 import xarray as xr
+from analysis_factories import var_attrs
 
-from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.cf import height_coord, time_coord
 from lidarcal.conditions import (
     SkippedPeriodsWarning,
     cnr_gradient_along_beam,

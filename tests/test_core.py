@@ -6,8 +6,9 @@ import numpy as np
 import pint_xarray  # noqa: F401  (registers the .pint accessor)
 import pytest
 import xarray as xr
+from analysis_factories import var_attrs
 
-from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.cf import height_coord, time_coord
 from lidarcal.compliance import check_compliance
 from lidarcal.errors import InputError, OutputExistsError, UnitError, ValidationError
 from lidarcal.io import open_artefact, write_artefact

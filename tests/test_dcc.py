@@ -23,10 +23,11 @@ from lidarcal.analysis import budget, sensitivity
 from lidarcal.bench import build_cube, simulate_run
 from lidarcal.certificate import make_certificate
 from lidarcal.cli import main
-from lidarcal.dcc import dcc_tree, si_unit, validate_dcc
+from lidarcal.dcc import dcc_tree, validate_dcc
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.provenance import stamp
+from lidarcal.units import si_unit
 
 NS = {"dcc": "https://ptb.de/dcc", "si": "https://ptb.de/si"}
 SERIAL = "WLS7-DCC"

@@ -9,8 +9,9 @@ import re
 import numpy as np
 import pytest
 import xarray as xr
+from analysis_factories import var_attrs
 
-from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.cf import height_coord, time_coord
 from lidarcal.cli import main
 from lidarcal.conditions.variables import CANONICAL_UNITS, CONDITION_NAMES
 from lidarcal.diagnose import EFFECTS, diagnose, fit, stats

@@ -4,15 +4,16 @@ import numpy as np
 import pytest
 import scipy.stats
 import xarray as xr
-from analysis_factories import make_records
+from analysis_factories import make_records, var_attrs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from lidarcal.analysis import compare_slopes, kernels, sensitivity
-from lidarcal.analysis.kernels import bin_statistics, edges_from_width, linear_regression, significance
+from lidarcal.analysis.kernels import edges_from_width, linear_regression, significance
 from lidarcal.analysis.sensitivity import per_unit, sensitivity_fit
+from lidarcal.binning import binned_statistics
 from lidarcal.campaign import simulate_campaign
-from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.cf import height_coord, time_coord
 from lidarcal.cli import main
 from lidarcal.errors import InputError, MissingVariableError, UnitError
 from lidarcal.io import open_artefact, write_artefact
@@ -22,13 +23,13 @@ from lidarcal.schema import validate_dataset
 # ---------------------------------------------------------------- kernels
 
 
-def test_bin_statistics_matches_brute_force():
+def test_binned_statistics_matches_brute_force():
     rng = np.random.default_rng(np.random.SeedSequence([7, 1]))
     x = rng.uniform(0, 1, (3, 200))
     y = rng.normal(0, 1, (3, 200))
     y[0, :5] = np.nan
     edges = np.linspace(0, 1, 6)
-    n, m, s, mx = bin_statistics(x, y, edges)
+    n, m, s, mx = binned_statistics(x, y, edges)
     for row in range(3):
         for b in range(5):
             sel = (x[row] >= edges[b]) & (x[row] < edges[b + 1]) & np.isfinite(y[row])

@@ -6,6 +6,7 @@ from decimal import ROUND_HALF_UP, Decimal
 import numpy as np
 import pytest
 import xarray as xr
+from analysis_factories import var_attrs
 
 from lidarcal.analysis.terms import (
     CONTRIBUTORS,
@@ -19,7 +20,7 @@ from lidarcal.analysis.terms import (
 )
 from lidarcal.bench.ingest import ingest
 from lidarcal.campaign import simulate_campaign
-from lidarcal.cf import height_coord, time_coord, var_attrs
+from lidarcal.cf import height_coord, time_coord
 from lidarcal.cli import main
 from lidarcal.compliance import check_compliance
 from lidarcal.data import sample_file

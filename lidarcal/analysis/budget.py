@@ -50,7 +50,7 @@ import xarray as xr
 from lidarcal.analysis import kernels
 from lidarcal.analysis._records import checked, select_heights
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
-from lidarcal.binning import bin_index
+from lidarcal.binning import bin_index, binned_statistics
 from lidarcal.cf import with_bounds
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import source_name
@@ -360,8 +360,8 @@ def _binned(records: xr.Dataset, width: float, source: str) -> tuple[np.ndarray,
     nb = len(edges) - 1
 
     def _stats(x, y, z):
-        n, md, sd, mref = kernels.bin_statistics(x, y, edges)
-        _, mlid, _, _ = kernels.bin_statistics(x, z, edges)
+        n, md, sd, mref = binned_statistics(x, y, edges)
+        _, mlid, _, _ = binned_statistics(x, z, edges)
         return n, md, sd, mref, mlid
 
     outs = xr.apply_ufunc(
@@ -438,8 +438,8 @@ def _binned_replicas(records: xr.Dataset, lidar: xr.DataArray, ref: xr.DataArray
         lid = np.concatenate([lid0[ok0[:, i], i], tr["trial_lidar_wind_speed"][sel]])
         keys = np.concatenate([key0[ok0[:, i]], tr["period_key"][sel]])
         rep = np.concatenate([np.zeros(int(ok0[:, i].sum()), dtype=np.int64), tr["replica"][sel]])
-        n, md, sd, mref = kernels.bin_statistics(x, lid - x, edges)
-        _, mlid, _, _ = kernels.bin_statistics(x, lid, edges)
+        n, md, sd, mref = binned_statistics(x, lid - x, edges)
+        _, mlid, _, _ = binned_statistics(x, lid, edges)
         pooled["n"][i], pooled["mean_difference"][i], pooled["std_difference"][i] = n, md, sd
         pooled["mean_reference"][i], pooled["mean_lidar"][i] = mref, mlid
         b = bin_index(x, edges)
@@ -451,7 +451,7 @@ def _binned_replicas(records: xr.Dataset, lidar: xr.DataArray, ref: xr.DataArray
         k0 = key0[has_ref0]
         for r in replicas:
             mine = rep == r
-            rn, rmd, rsd, rmref = kernels.bin_statistics(x[mine], (lid - x)[mine], edges)
+            rn, rmd, rsd, rmref = binned_statistics(x[mine], (lid - x)[mine], edges)
             d = per[pos[r]]
             d["n"][i], d["mean_difference"][i] = rn, rmd
             d["std_difference"][i], d["mean_reference"][i] = rsd, rmref

@@ -1,7 +1,7 @@
 """Pure numpy kernels of the analysis stage: bin edges, regression, significance, quadrature.
 
-Binning itself (``bin_statistics``) is :func:`lidarcal.binning.binned_statistics`, the engine
-shared with the bench and diagnose stages, re-exported here under the analysis stage's name.
+Binning itself is :func:`lidarcal.binning.binned_statistics`, the engine shared with the
+bench and diagnose stages.
 
 Nothing here knows about files, xarray or units: arguments are plain float arrays in SI
 (or the caller's) units.  Functions that take data arrays work over the **last** axis and
@@ -14,12 +14,10 @@ import numpy as np
 from scipy import stats
 
 from lidarcal.binning import bin_index
-from lidarcal.binning import binned_statistics as bin_statistics  # the one binning engine
 
 __all__ = [
     "edges_from_width",
     "centred_edges",
-    "bin_statistics",
     "linear_regression",
     "bin_mean_weights",
     "weighted_linear_regression",

@@ -54,6 +54,7 @@ from scipy import stats
 from lidarcal.analysis import kernels
 from lidarcal.analysis._records import checked, select_heights
 from lidarcal.analysis.budget import DEFAULT_MIN_PERIODS
+from lidarcal.binning import binned_statistics
 from lidarcal.cf import with_bounds
 from lidarcal.conditions.variables import STANDARD_NAMES
 from lidarcal.errors import InputError
@@ -286,7 +287,7 @@ def _fit(records: xr.Dataset, x: xr.DataArray, diff: xr.DataArray, edges: np.nda
     nb = len(edges) - 1
 
     def _stats(xv, yv):
-        return kernels.bin_statistics(xv, yv, edges)
+        return binned_statistics(xv, yv, edges)
 
     count, mean, std, mean_x = xr.apply_ufunc(
         _stats, x, diff, input_core_dims=[["time"], ["time"]], output_core_dims=[["bin"]] * 4,

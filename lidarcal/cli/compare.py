@@ -85,8 +85,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         f"{' '.join(DEFAULT_VARIABLES)}; any of {', '.join(VARIABLES)})",
     )
     p.add_argument(
-        "--min-samples",
-        type=positive_int("--min-samples"),
+        "--min-periods",
+        type=positive_int("--min-periods"),
         default=10,
         help="periods a sensitivity bin needs (both sides; default %(default)s)",
     )
@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
         alpha=args.alpha,
         reference_uncertainty=args.reference_uncertainty,
         base_seed=args.seed,
-        min_samples=args.min_samples,
+        min_periods=args.min_periods,
         los_noise_model=args.los_noise,
         progress=progress_enabled(args),
         simulate_options={k: v for k, v in opts.items() if v is not None},

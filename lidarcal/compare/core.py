@@ -114,7 +114,7 @@ def slope_test(slope_a, se_a, slope_b, se_b) -> dict[str, np.ndarray]:
     return {"difference": diff + nan, "stderr": se + nan, "z": z + nan, "p_value": p}
 
 
-def _load(field: str | os.PathLike | xr.Dataset, min_samples: int) -> tuple[xr.Dataset, np.ndarray, str]:
+def _load(field: str | os.PathLike | xr.Dataset, min_periods: int) -> tuple[xr.Dataset, np.ndarray, str]:
     """Open and check a field campaign; return (dataset, usable mask (time, height), source)."""
     source = source_name(field, "<field campaign>")
     raw = field if isinstance(field, xr.Dataset) else open_artefact(field)
@@ -129,12 +129,12 @@ def _load(field: str | os.PathLike | xr.Dataset, min_samples: int) -> tuple[xr.D
     usable = np.asarray(ds["input_complete"].transpose("time", "height").values, dtype=bool)
     for name in MEASURED:
         usable &= np.isfinite(np.asarray(ds[name].transpose("time", "height").values, dtype=float))
-    need = 3 * int(min_samples)
+    need = 3 * int(min_periods)
     if usable.sum(axis=0).max(initial=0) < need:
         raise InputError(
             f"{source}: too few usable periods: at most {int(usable.sum(axis=0).max(initial=0))} per height "
             f"have the measured pair and all six conditions; a slope needs three bins of at least "
-            f"{min_samples} periods ({need} periods at one height at least)"
+            f"{min_periods} periods ({need} periods at one height at least)"
         )
     return ds, usable, source
 
@@ -199,7 +199,7 @@ def compare(
     alpha: float = DEFAULT_ALPHA,
     reference_uncertainty: Any = DEFAULT_REFERENCE_UNCERTAINTY,
     base_seed: int = DEFAULT_BASE_SEED,
-    min_samples: int = DEFAULT_MIN_PERIODS,
+    min_periods: int = DEFAULT_MIN_PERIODS,
     regression: str = "weighted",
     bin_widths: Mapping[str, Any] | None = None,
     reference_range: tuple[float, float] = DEFAULT_REFERENCE_RANGE,
@@ -232,7 +232,7 @@ def compare(
         Standard uncertainty of the reference anemometer in the IEC budget (a float is m s-1).
     base_seed : int
         Base seed of the simulation (``docs/seeds.md``).
-    min_samples, regression, bin_widths
+    min_periods, regression, bin_widths
         Of the sensitivities (:func:`lidarcal.analysis.sensitivity`); the same on both sides.
         ``bin_widths`` maps a variable to its bin width (default the IEC widths).
     reference_range : (float, float)
@@ -251,11 +251,11 @@ def compare(
         The files behind ``field``/``cube``/``rwf``/``diagnosis``: recorded with their checksums,
         and used to write the ``lidarcal diagnose`` command of ``next``.
     """
-    variables, u_ref, (lo, hi) = _checked(variables, regression, alpha, min_samples, reference_uncertainty,
+    variables, u_ref, (lo, hi) = _checked(variables, regression, alpha, min_periods, reference_uncertainty,
                                           reference_range)
 
     # 1. the campaign and the lidar to simulate
-    ds, usable, source = _load(field, int(min_samples))
+    ds, usable, source = _load(field, int(min_periods))
     sim_model, origin = lidar_to_simulate(
         ds, source, cube=cube, rwf=rwf, model=model, diagnosis=diagnosis, los_noise_model=los_noise_model
     )
@@ -282,7 +282,7 @@ def compare(
     log.info(f"{int(keep.sum())} period-heights with the measured reference in ({lo:g}, {hi:g}] m s-1")
 
     # 3. sensitivities on the same bins, and the cell tests
-    opts = {"min_periods": int(min_samples), "regression": regression, "reference_range": None,
+    opts = {"min_periods": int(min_periods), "regression": regression, "reference_range": None,
             "source": source}
     sens = _sensitivities(measured, simulated, variables, bin_widths, opts)
     cells = _cells(sens, variables, ds.sizes["height"], float(alpha))
@@ -294,13 +294,13 @@ def compare(
         "simulated": budget(simulated, approach="monte_carlo", terms=terms, **common),
     }
 
-    verdict = _verdict(cells, variables, ds.height.values, source, int(min_samples), float(alpha), (lo, hi))
+    verdict = _verdict(cells, variables, ds.height.values, source, int(min_periods), float(alpha), (lo, hi))
     settings = {
         "base_seed": int(base_seed),
         "alpha": float(alpha),
         "correction": CORRECTION,
         "variables": variables,
-        "min_samples": int(min_samples),
+        "min_periods": int(min_periods),
         "regression": regression,
         "bin_widths": {
             v: (None if (bin_widths or {}).get(v) is None else str(bin_widths[v])) for v in variables
@@ -327,7 +327,7 @@ def compare(
     )
 
 
-def _checked(variables: Sequence[str], regression: str, alpha: float, min_samples: int,
+def _checked(variables: Sequence[str], regression: str, alpha: float, min_periods: int,
              reference_uncertainty: Any, reference_range: tuple[float, float]
              ) -> tuple[list[str], float, tuple[float, float]]:
     """Check :func:`compare`'s arguments; return the variables (once each), u_ref (m s-1) and the range."""
@@ -340,8 +340,8 @@ def _checked(variables: Sequence[str], regression: str, alpha: float, min_sample
         )
     if not 0.0 < float(alpha) < 1.0:
         raise InputError(f"argument 'alpha': expected a probability in (0, 1); found {alpha!r}")
-    if int(min_samples) < 2:
-        raise InputError(f"argument 'min_samples': expected at least 2 (a bin's spread); found {min_samples}")
+    if int(min_periods) < 2:
+        raise InputError(f"argument 'min_periods': expected at least 2 (a bin's spread); found {min_periods}")
     u_ref = float(
         to_magnitude(reference_uncertainty, "m s-1", name="reference_uncertainty")
         if not isinstance(reference_uncertainty, int | float)
@@ -381,15 +381,15 @@ def _sensitivities(measured: xr.Dataset, simulated: xr.Dataset, variables: Seque
 
 
 def _verdict(cells: Mapping[str, np.ndarray], variables: Sequence[str], heights: np.ndarray, source: str,
-             min_samples: int, alpha: float, reference_range: tuple[float, float]) -> str:
+             min_periods: int, alpha: float, reference_range: tuple[float, float]) -> str:
     """Return ``agree`` or ``disagree``; refuse a comparison without one tested cell; log the untested."""
     lo, hi = reference_range
     tested = np.isfinite(cells["p_adjusted"])
     if not tested.any():
         raise InputError(
-            f"{source}: no (height, variable) has three bins with at least {min_samples} periods on both "
+            f"{source}: no (height, variable) has three bins with at least {min_periods} periods on both "
             f"sides, so no slope can be compared (variables {variables}, measured reference in "
-            f"({lo:g}, {hi:g}] m s-1); supply more periods or lower min_samples (--min-samples)"
+            f"({lo:g}, {hi:g}] m s-1); supply more periods or lower min_periods (--min-periods)"
         )
     if not tested.all():
         skipped = [
@@ -398,7 +398,7 @@ def _verdict(cells: Mapping[str, np.ndarray], variables: Sequence[str], heights:
             for j, h in enumerate(heights)
             if not tested[i, j]
         ]
-        log.warning(f"not tested (fewer than three bins of {min_samples} periods): {', '.join(skipped)}")
+        log.warning(f"not tested (fewer than three bins of {min_periods} periods): {', '.join(skipped)}")
     disagree = int((cells["agree"] == 0).sum())
     verdict = "disagree" if disagree else "agree"
     log.info(

@@ -431,7 +431,7 @@ def read_sta(path: str | os.PathLike, *, allow_gaps: bool = False) -> StaFile:
         )
     end = end.to_numpy(dtype="datetime64[ns]")
     row_lines = first_line + np.arange(n_rows)
-    uniq, inverse, counts = np.unique(end, return_inverse=True, return_counts=True)
+    _, inverse, counts = np.unique(end, return_inverse=True, return_counts=True)
     if (counts > 1).any():
         dup = np.flatnonzero(counts[inverse] > 1)
         a, b = dup[0], dup[1:][end[dup[1:]] == end[dup[0]]][0]

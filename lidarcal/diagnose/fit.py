@@ -153,8 +153,6 @@ class FitResult:
     stderr: np.ndarray      # cluster-robust standard error per parameter
     rss: float              # weighted residual sum of squares with the fit
     rss0: float             # ... without it (the `none` model)
-    n_obs: int
-    n_clusters: int
     clipped: bool           # some parameter is held at a bound (``at_bound``)
     delta_free: np.ndarray | None = None   # unconstrained θ − θ₀
     stderr_free: np.ndarray | None = None  # its cluster-robust standard error
@@ -226,8 +224,7 @@ def fit_linear(r: np.ndarray, J: np.ndarray | list[np.ndarray], w: np.ndarray,
     A = X.T @ (ww[:, None] * X)
     if y.size <= X.shape[1] or np.linalg.cond(A) > 1e12:
         k = X.shape[1]
-        return FitResult(np.zeros(k), np.full(k, np.inf), rss0, rss0, int(y.size),
-                         int(np.unique(rows).size), False)
+        return FitResult(np.zeros(k), np.full(k, np.inf), rss0, rss0, False)
     b = X.T @ (ww * y)
     free = np.linalg.solve(A, b)
     delta, held = free, np.zeros(free.size, dtype=bool)
@@ -250,7 +247,7 @@ def fit_linear(r: np.ndarray, J: np.ndarray | list[np.ndarray], w: np.ndarray,
 
     rss_free, se_free = sandwich(free)
     rss, se = sandwich(delta) if held.any() else (rss_free, se_free)
-    return FitResult(delta, se, rss, rss0, int(y.size), G, bool(held.any()), delta_free=free,
+    return FitResult(delta, se, rss, rss0, bool(held.any()), delta_free=free,
                      stderr_free=se_free, rss_free=rss_free, at_bound=held)
 
 

@@ -43,7 +43,6 @@ class CandidateFit:
     delta_bic: float
     explained: float            # 1 − RSS/RSS_none
     probe: dict[str, float]
-    refined: bool = False
     clipped: bool = False
     response: list[np.ndarray] = field(default_factory=list, repr=False)  # ∂d/∂θ per parameter
     interval: dict[str, tuple[float, float]] = field(default_factory=dict)  # 95 % bootstrap interval

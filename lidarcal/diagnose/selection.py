@@ -284,7 +284,6 @@ def refine(problem: Problem, chosen: list[CandidateFit]) -> tuple[Any, dict[str,
             res = joint_fit(problem, [c])
             c.delta_bic = fit.delta_bic(res.rss_free, res.rss0, 1, problem.n_eff)
             c.explained = 1.0 - res.rss_free / res.rss0 if res.rss0 > 0 else 0.0
-            c.refined = True
         bootstrap(problem, [c])
     else:
         r1 = np.where(problem.valid, problem.d_measured - records_difference(rec1), np.nan)
@@ -297,7 +296,6 @@ def refine(problem: Problem, chosen: list[CandidateFit]) -> tuple[Any, dict[str,
                 c.free[p.name] = c.estimate[p.name] + step  # the linear model's unconstrained optimum
                 c.estimate[p.name] = float(np.clip(c.estimate[p.name] + step, lo, hi))
                 k += 1
-            c.refined = True
         bootstrap(problem, chosen, r=np.where(problem.valid, problem.r, np.nan))
     moved = any(abs(c.estimate[p.name] - b[p.name]) > 0.5 * c.stderr[p.name]
                 for c, b in zip(chosen, before, strict=True) for p in c.effect.linear_parameters)

@@ -78,6 +78,12 @@ class RwfProfileDigest:
 
     sha256: str
     count: int
+    #: What error messages call the record holding it; not part of the record.
+    origin: str = dataclasses.field(default="lidar model", compare=False, repr=False)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the attribute form: ``{"sha256": ..., "count": ...}``."""
+        return {"sha256": self.sha256, "count": self.count}
 
 
 def rwf_profile_digest(profile: Any) -> str:
@@ -323,7 +329,8 @@ class LidarModel:
             value = getattr(self, f.name)
             if isinstance(value, NoiseTable):
                 value = value if residuals else value.attribute_form()
-                value = {g.name: listify(getattr(value, g.name)) for g in dataclasses.fields(value)}
+                value = {g.name: listify(getattr(value, g.name)) for g in dataclasses.fields(value)
+                         if g.name != "origin"}
                 for name in ("residual_count", "residuals", "bias", "std"):
                     if value[name] is None:
                         del value[name]
@@ -332,9 +339,9 @@ class LidarModel:
             elif f.name == "rwf_profile" and value is not None and not residuals:
                 if not isinstance(value, RwfProfileDigest):
                     value = RwfProfileDigest(rwf_profile_digest(value), len(value[0]))
-                value = dataclasses.asdict(value)
+                value = value.to_dict()
             elif isinstance(value, RwfProfileDigest):
-                value = dataclasses.asdict(value)
+                value = value.to_dict()
             out[f.name] = listify(value)
         return out
 
@@ -366,11 +373,11 @@ class LidarModel:
         if unknown:
             raise InputError(f"LidarModel.from_dict: unknown field(s) {sorted(unknown)}; "
                              f"known {sorted(known)}")
-        model = cls(**dict(data))
-        if model.noise_table is not None and source:
-            object.__setattr__(model.noise_table, "_origin", source)
-        if isinstance(model.rwf_profile, RwfProfileDigest) and source:
-            object.__setattr__(model.rwf_profile, "_origin", source)
+        if source:  # the noise table and the RWF digest name the record in their messages
+            for key in ("noise_table", "rwf_profile"):
+                if isinstance(data.get(key), Mapping):
+                    data[key] = {**data[key], "origin": source}
+        model = cls(**data)
         if cube is not None:
             model = model.with_residuals(cube, source=source)
         if rwf is not None:
@@ -388,7 +395,7 @@ class LidarModel:
         table = self.noise_table
         if table is None or not table.needs_values:
             return self
-        origin = source or table._origin
+        origin = source or table.origin
         restored = table
         if table.needs_table:
             built = noise_table_from_cube(cube, self.azimuths)
@@ -412,7 +419,6 @@ class LidarModel:
                     f"its residuals ({values.size} values) have sha256 {found}; expected sha256 "
                     f"{table.residuals_sha256} ({table.residuals_total} values)")
             restored = dataclasses.replace(restored, residual_count=count, residuals=values)
-        object.__setattr__(restored, "_origin", table._origin)
         return dataclasses.replace(self, noise_table=restored)
 
     def with_rwf(self, rwf: xr.Dataset, *, source: str | None = None) -> LidarModel:
@@ -428,7 +434,7 @@ class LidarModel:
         _, _, profile = _rwf_nodes(rwf, len(self.rwf_offsets))
         found = rwf_profile_digest(profile)
         if found != pending.sha256:
-            origin = source or getattr(pending, "_origin", "lidar model")
+            origin = source or pending.origin
             raise InputError(
                 f"{origin}: the RWF {source_name(rwf)} is not the "
                 f"one the model was built from: its profile ({len(profile[0])} points) has sha256 {found}; "
@@ -438,8 +444,7 @@ class LidarModel:
     def missing_rwf_message(self) -> str:
         """Why a model whose RWF profile is known only by digest cannot simulate, and how to restore it."""
         pending = self.rwf_profile
-        origin = getattr(pending, "_origin", "lidar model")
-        return (f"{origin} records the RWF profile only by digest: no RWF "
+        return (f"{pending.origin} records the RWF profile only by digest: no RWF "
                 f"given; pass the RWF artefact the model was built from (--rwf), its profile has sha256 "
                 f"{pending.sha256} ({pending.count} points)")
 

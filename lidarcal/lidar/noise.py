@@ -85,6 +85,8 @@ class NoiseTable:
     residuals_sha256: str | None = None
     residuals_total: int | None = None
     table_sha256: str | None = None
+    #: What error messages call the table (the record it was read from); not part of the record.
+    origin: str = dataclasses.field(default="noise table", compare=False, repr=False)
 
     def __post_init__(self) -> None:
         for name in ("cnr", "velocity", "bias", "std", "residual_count"):
@@ -151,7 +153,6 @@ class NoiseTable:
             object.__setattr__(self, "residuals_total", int(self.residuals_total))
         elif self.residuals_total is not None:
             raise InputError("noise table: residuals_total without residuals_sha256")
-        object.__setattr__(self, "_origin", "noise table")
 
     @property
     def needs_table(self) -> bool:
@@ -187,13 +188,13 @@ class NoiseTable:
         """Why a digest-only table cannot draw, and how to restore it."""
         if not self.needs_residuals:
             return self.missing_table_message()
-        return (f"{self._origin} records the bench residuals only by digest: no bench cube given; pass the "
+        return (f"{self.origin} records the bench residuals only by digest: no bench cube given; pass the "
                 f"cube the model was built from (--cube), its residuals have sha256 {self.residuals_sha256} "
                 f"({self.residuals_total} values); or use los_noise_model 'gaussian'")
 
     def missing_table_message(self) -> str:
         """Why a table known by digest cannot look up its bias and std, and how to restore it."""
-        return (f"{self._origin} records the bench noise table (los_bias, los_std) only by digest: no bench "
+        return (f"{self.origin} records the bench noise table (los_bias, los_std) only by digest: no bench "
                 f"cube given; pass the cube the model was built from (--cube), its table has sha256 "
                 f"{self.table_sha256}")
 
