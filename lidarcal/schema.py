@@ -29,7 +29,7 @@ filled from the writer's context (``"sensitivity slope m of the difference to {x
 value that is one placeholder alone (``"{coverage_factor}"``) takes the context value as it is.
 A variable name may be a template too (``"sensitivity_{variable}"``): it stands for every
 variable whose name matches, the matched parts join the context, and the validator checks each
-match (none is required).  A template in ``units`` or in a checked attribute is not checked.
+match that has no exact spec of its own (none is required).  A template in ``units`` or in a checked attribute is not checked.
 
 Keeping ``standard_name`` in an include turns it into a required ``standard_name`` attribute;
 other metadata is not copied by an include.  A spec the including schema writes itself under the
@@ -347,13 +347,15 @@ def validate_dataset(
         for dim in schema["dims"]:
             if dim not in ds.dims:
                 problems.append(f"dimension {dim!r} is missing; found {sorted(map(str, ds.dims))}")
+        exact = {n for section in ("coordinates", "variables") for n in schema.get(section) or {}
+                 if not _is_template(n)}
         for section, role in (("coordinates", "coordinate"), ("variables", "variable")):
             for name, spec in (schema.get(section) or {}).items():
                 if not _is_template(name):
                     _check_variable(ds, name, spec or {}, role, problems, stackable)
                     continue
                 for found in sorted(map(str, ds.variables)):  # a name template checks every match
-                    if _name_pattern(name).fullmatch(found):
+                    if found not in exact and _name_pattern(name).fullmatch(found):  # exact specs win
                         _check_variable(ds, found, spec or {}, role, problems, stackable)
         attrs = list(schema.get("attributes") or [])
         if schema.get("provenance", True):

@@ -227,3 +227,22 @@ def test_output_attrs_fill_templates_from_the_writers_context(tmp_path, monkeypa
     filled = schema.with_output_attrs(ds.drop_vars("slope"), "toy")
     assert filled["sensitivity_cnr"].attrs["units"] == "%"
     assert filled["sensitivity_cnr"].attrs["long_name"] == "sensitivity to cnr"
+
+
+def test_an_exact_spec_wins_over_a_name_template_in_the_validator():
+    """diagnosis.yaml includes cnr_bin_mean (NaN allowed: an empty bin) and describes {name}_bin_mean.
+
+    The template carries the words; the checks of the included exact entry apply, so a diagnosis of
+    a short campaign with an empty bin is valid (it was refused as 'NaN is not allowed here').
+    """
+    import numpy as np
+    import xarray as xr
+
+    from lidarcal.schema import output_attrs, validate_dataset
+
+    attrs = output_attrs("diagnosis", "cnr_bin_mean", label="carrier-to-noise ratio")
+    ds = xr.Dataset({"cnr_bin_mean": (("bin", "height"), np.array([[1.0], [np.nan]]), attrs)},
+                    coords={"height": ("height", [80.0], {"units": "m", "standard_name": "height",
+                                                         "positive": "up"})})
+    problems = validate_dataset(ds, "diagnosis")
+    assert not [p for p in problems if "cnr_bin_mean" in p], problems
