@@ -29,7 +29,8 @@ filled from the writer's context (``"sensitivity slope m of the difference to {x
 value that is one placeholder alone (``"{coverage_factor}"``) takes the context value as it is.
 A variable name may be a template too (``"sensitivity_{variable}"``): it stands for every
 variable whose name matches, the matched parts join the context, and the validator checks each
-match that has no exact spec of its own (none is required).  A template in ``units`` or in a checked attribute is not checked.
+match that has no exact spec of its own (none is required).  A template in ``units`` or in a
+checked attribute is not checked.
 
 Keeping ``standard_name`` in an include turns it into a required ``standard_name`` attribute;
 other metadata is not copied by an include.  A spec the including schema writes itself under the
