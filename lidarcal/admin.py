@@ -271,7 +271,7 @@ _IDENTITY = ("item_serial_number", "bench_id", "bench_run_id", "bench_operator")
 def default_method_reference(approach: str, config: Mapping[str, Any] | None = None) -> str:
     """Describe the method: the paper, lidarcal's version and the options that change the numbers."""
     cfg = {k: v for k, v in (config or {}).items()
-           if k in ("periods", "base_seed", "seed", "min_samples", "los_noise_model", "los_noise", "terms",
+           if k in ("periods", "base_seed", "seed", "min_periods", "los_noise_model", "los_noise", "terms",
                     "noise_terms", "fft_size", "heights") and v not in (None, {}, [])}
     options = ", ".join(f"{k}={v}" for k, v in cfg.items())
     return (f"{REFERENCES}; lidarcal {__version__}; uncertainty budget approach {approach}"

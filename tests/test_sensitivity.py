@@ -270,7 +270,7 @@ def test_too_few_samples_for_any_bin_is_a_clear_error(tmp_path):
     recs.to_netcdf(path)
     out = tmp_path / "sens.nc"
     rc = main(
-        ["sensitivity", str(path), "--variable", "wind_shear_exponent", "--min-samples", "5", "-o", str(out)]
+        ["sensitivity", str(path), "--variable", "wind_shear_exponent", "--min-periods", "5", "-o", str(out)]
     )
     assert rc == 2 and not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["tiny.nc"]
 

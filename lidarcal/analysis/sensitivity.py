@@ -32,7 +32,7 @@ documented choice: with ``n ≥ 10`` the bin's ``s²`` has 9 degrees of freedom,
 (the weight) has a finite mean and variance (``E[σ²/s²] = ν/(ν − 2) = 1.29``, relative
 spread ≈ 0.6; with ``n = 3`` the mean of ``1/s²`` is infinite and one lucky bin can take
 all the weight) and the bin mean of a skewed difference is close to normal.  The count is
-a parameter (``min_periods``; ``--min-samples`` on the command line) and recorded in the
+a parameter (``min_periods``; ``--min-periods`` on the command line) and recorded in the
 artefact (attribute ``min_samples``, the file's name for it).  ``docs/sensitivity.md`` has
 the derivation.
 
@@ -300,7 +300,7 @@ def _fit(records: xr.Dataset, x: xr.DataArray, diff: xr.DataArray, edges: np.nda
         raise InputError(
             f"{source}: variable {variable!r}: no bin has at least min_periods={min_periods} periods "
             f"(largest bin count {int(count.max())}, {int(count.sum())} usable periods in {nb} bins); "
-            "lower --min-samples, widen the bins or supply more records"
+            "lower --min-periods, widen the bins or supply more records"
         )
     centres = 0.5 * (edges[:-1] + edges[1:])
     mean_kept = mean.where(keep)

@@ -54,8 +54,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         "canonical units); default per variable",
     )
     p.add_argument(
-        "--min-samples",
-        type=positive_int("--min-samples"),
+        "--min-periods",
+        type=positive_int("--min-periods"),
         default=DEFAULT_MIN_PERIODS,
         help=f"minimum periods per bin used in the regression (default {DEFAULT_MIN_PERIODS})",
     )
@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
             records,
             v,
             bin_width=widths.get(v),
-            min_periods=args.min_samples,
+            min_periods=args.min_periods,
             regression=args.regression,
             relative=not args.absolute,
             heights=args.height,

@@ -4,7 +4,7 @@ As available (:func:`report_figures`, in page order):
 
 - the expanded (k = 2) uncertainty vs wind speed (paper Figure 9), the axes set by the
   certified bins (4-16 m/s, enough periods), a menu choosing all heights or one, thin bins
-  (fewer periods than ``min_samples``) marked with red crosses;
+  (fewer periods than ``min_periods``) marked with red crosses;
 - the uncertainty contributors as grouped bars per certified wind-speed bin, a menu choosing
   the height;
 - the sensitivities (Figure 7): per height (menu) the bin means with the standard error of
@@ -41,7 +41,7 @@ from lidarcal.htmlpage import html_table
 __all__ = ["Figure", "report_figures"]
 
 _WIDTH, _HEIGHT = 900, 380
-_THIN = "#d62728"  # marker colour of thin bins (fewer periods than min_samples)
+_THIN = "#d62728"  # marker colour of thin bins (fewer periods than min_periods)
 _COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
            "#17becf", "#000000"]
 
