@@ -45,10 +45,10 @@ from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.conditions import load_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.diagnose.dataset import corrected_model
-from lidarcal.diagnose.inputs import MEASURED
+from lidarcal.diagnose.inputs import MEASURED, open_field
 from lidarcal.diagnose.stats import holm
-from lidarcal.errors import InputError, MissingVariableError
-from lidarcal.io import open_artefact, source_name
+from lidarcal.errors import InputError
+from lidarcal.io import source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 from lidarcal.lidar.model import RwfProfileDigest
@@ -116,15 +116,7 @@ def slope_test(slope_a, se_a, slope_b, se_b) -> dict[str, np.ndarray]:
 
 def _load(field: str | os.PathLike | xr.Dataset, min_periods: int) -> tuple[xr.Dataset, np.ndarray, str]:
     """Open and check a field campaign; return (dataset, usable mask (time, height), source)."""
-    source = source_name(field, "<field campaign>")
-    raw = field if isinstance(field, xr.Dataset) else open_artefact(field)
-    missing = [n for n in MEASURED if n not in raw.variables]
-    if missing:
-        raise MissingVariableError(
-            f"{source}: the measured pair is incomplete: variable(s) {missing} missing; a field_campaign "
-            f"needs 'lidar_wind_speed' and 'reference_wind_speed' (m s-1) on (time, height); found "
-            f"{sorted(map(str, raw.data_vars))}"
-        )
+    raw, source = open_field(field)
     ds = load_conditions(raw, kind="field_campaign", warn=False)
     usable = np.asarray(ds["input_complete"].transpose("time", "height").values, dtype=bool)
     for name in MEASURED:

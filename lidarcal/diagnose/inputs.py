@@ -1,6 +1,7 @@
 """What ``lidarcal diagnose`` accepts: a field campaign and the nominal lidar it describes.
 
-:func:`load_field` opens and checks a ``field_campaign`` and keeps the heights and periods a
+:func:`open_field` opens a ``field_campaign`` and requires its measured pair (``compare`` uses it
+too); :func:`load_field` checks it and keeps the heights and periods a
 diagnosis can use; :func:`check_field` is the same check for ``lidarcal conditions check``;
 :func:`nominal_model` is the lidar the file's ``lidar_*`` attributes (and an optional bench cube
 or RWF) describe.
@@ -21,7 +22,7 @@ from lidarcal.io import open_artefact, source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 
-__all__ = ["MEASURED", "check_field", "load_field", "min_periods", "nominal_model"]
+__all__ = ["MEASURED", "check_field", "load_field", "min_periods", "nominal_model", "open_field"]
 
 log = logging.getLogger("lidarcal.diagnose")
 
@@ -34,14 +35,8 @@ def min_periods(n_bins: int, min_bin_count: int) -> int:
     return int(n_bins) * int(min_bin_count)
 
 
-def load_field(field: str | os.PathLike | xr.Dataset, *, n_bins: int, min_bin_count: int,
-               min_wind_speed: float) -> tuple[xr.Dataset, np.ndarray, str]:
-    """Open and check a field campaign; return (dataset, usable mask (time, height), source).
-
-    A period is usable at a height when the measured pair and all six conditions are finite
-    and the reference is at least ``min_wind_speed``.  Heights with fewer than
-    :func:`min_periods` usable periods are dropped (with a log message); none left is an error.
-    """
+def open_field(field: str | os.PathLike | xr.Dataset) -> tuple[xr.Dataset, str]:
+    """Open a field campaign (a path or a dataset) and require its measured pair; return (dataset, source)."""
     source = source_name(field, "<field campaign>")
     raw = field if isinstance(field, xr.Dataset) else open_artefact(field)
     missing = [n for n in MEASURED if n not in raw.variables]
@@ -50,6 +45,18 @@ def load_field(field: str | os.PathLike | xr.Dataset, *, n_bins: int, min_bin_co
             f"{source}: the measured pair is incomplete: variable(s) {missing} missing; a field_campaign "
             f"needs 'lidar_wind_speed' and 'reference_wind_speed' (m s-1) on (time, height); found "
             f"{sorted(map(str, raw.data_vars))}")
+    return raw, source
+
+
+def load_field(field: str | os.PathLike | xr.Dataset, *, n_bins: int, min_bin_count: int,
+               min_wind_speed: float) -> tuple[xr.Dataset, np.ndarray, str]:
+    """Open and check a field campaign; return (dataset, usable mask (time, height), source).
+
+    A period is usable at a height when the measured pair and all six conditions are finite
+    and the reference is at least ``min_wind_speed``.  Heights with fewer than
+    :func:`min_periods` usable periods are dropped (with a log message); none left is an error.
+    """
+    raw, source = open_field(field)
     for name in MEASURED:
         if not np.isfinite(np.asarray(raw[name].values, dtype=float)).any():
             raise InputError(f"{source}: variable {name!r} is NaN everywhere; expected measured 10-minute "
