@@ -11,12 +11,14 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import os
 import re
 import shutil
 import socket
 import stat
 import tempfile
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -30,6 +32,7 @@ from lidarcal.schema import validate_dataset
 __all__ = [
     "write_artefact", "open_artefact", "atomic_path", "check_writable", "source_name",
     "part_path", "publish", "remove_stale_parts", "write_into", "disk_full", "LOW_SPACE_BYTES",
+    "read_image", "open_image",
 ]
 
 
@@ -353,17 +356,23 @@ def open_artefact(
     *,
     chunks: dict | None = None,
     load: bool = True,
+    image: bytes | None = None,
 ) -> xr.Dataset:
     """Open a lidarcal artefact (or input file) with clear errors.
 
     The file's SHA-256 and name are attached as ``lidarcal_source_sha256`` and
-    ``lidarcal_source_file`` so that downstream artefacts can record their inputs.
+    ``lidarcal_source_file`` so that downstream artefacts can record their inputs.  With
+    ``image`` (the file's bytes, :func:`read_image`) the dataset is read from that copy in
+    memory, never from the file on disk (:func:`open_image` says why).
     """
     path = check_input_file(path, "netCDF file")
-    if path.stat().st_size == 0:
+    if (len(image) if image is not None else path.stat().st_size) == 0:
         raise InputError(f"{path}: file is empty")
     try:
-        ds = xr.open_dataset(path, engine="netcdf4", chunks=chunks)
+        if image is None:
+            ds = xr.open_dataset(path, engine="netcdf4", chunks=chunks)
+        else:
+            ds = xr.open_dataset(xr.backends.NetCDF4DataStore(open_image(path, image)), chunks=chunks)
         if load and chunks is None:
             ds = ds.load()
             ds.close()
@@ -381,6 +390,46 @@ def open_artefact(
     if not _has_time(ds):
         ds.attrs = {(k[len("source_"):] if k[len("source_"):] in _COVERAGE and k.startswith("source_")
                      and k[len("source_"):] not in ds.attrs else k): v for k, v in ds.attrs.items()}
-    ds.attrs["lidarcal_source_sha256"] = sha256(path)
+    ds.attrs["lidarcal_source_sha256"] = sha256(path) if image is None else hashlib.sha256(image).hexdigest()
     ds.attrs["lidarcal_source_file"] = path.name
+    if image is not None:
+        ds.encoding["source"] = str(path)
     return ds
+
+
+def read_image(path: str | os.PathLike, what: str = "netCDF file") -> bytes:
+    """Return the bytes of the input ``path`` (refused as :func:`check_input_file` does), for an image.
+
+    Raises
+    ------
+    InputError
+        If ``path`` is missing, not a regular file or unreadable.
+    """
+    path = check_input_file(path, what)
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: {what} cannot be read ({exc.strerror})") from None
+
+
+def open_image(path: str | os.PathLike, image: bytes):
+    """Open the bytes ``image`` of the netCDF file ``path`` as a ``netCDF4.Dataset`` held in memory.
+
+    netCDF-C/HDF5 share one file object among every open of the same file in a process; a
+    variable-length string read through a second open of a file, while a first one stays open
+    (a Dataset the caller still holds, xarray's cached handle), corrupts that shared object,
+    and a later open of the file dies with SIGSEGV.  An image in memory under a name of its
+    own is a file of its own: whatever the caller has open, reading it never touches theirs.
+    It is also exactly the bytes checked, however the file on disk changes meanwhile.
+
+    Raises
+    ------
+    InputError
+        If ``image`` is not a netCDF file.
+    """
+    import netCDF4
+
+    try:
+        return netCDF4.Dataset(f"{os.fspath(path)}#memory-{uuid.uuid4().hex}", mode="r", memory=image)
+    except OSError as exc:
+        raise InputError(f"{path}: not a readable netCDF file: {exc}") from None

@@ -24,7 +24,15 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey,
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
 
 from lidarcal.errors import InputError, SealError
-from lidarcal.io import atomic_path, check_input_file, check_writable, open_artefact, write_into
+from lidarcal.io import (
+    atomic_path,
+    check_input_file,
+    check_writable,
+    open_artefact,
+    open_image,
+    read_image,
+    write_into,
+)
 from lidarcal.schema import validate_dataset
 from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign, verify_signature
 
@@ -111,16 +119,21 @@ def integrity_record(path: str | os.PathLike) -> dict[str, Any]:
     import netCDF4
 
     with netCDF4.Dataset(path, "r") as nc:
-        if nc.groups:
-            raise InputError(f"{path}: has netCDF groups; a lidarcal certificate is flat")
-        variables = {
-            name: {"data": _data_digest(var),
-                   "attributes": _attrs_digest(var, [n for n in var.ncattrs() if n not in _DIGEST_ATTRS])}
-            for name, var in nc.variables.items()
-        }
-        unsealed = (INTEGRITY_ATTR, SIGNATURE_ATTR, ATTRIBUTE_DIGESTS_ATTR)
-        glob = {n: _attrs_digest(nc, [n]) for n in nc.ncattrs() if n not in unsealed}
-        dims = {name: len(d) for name, d in nc.dimensions.items()}
+        return _record(nc, path)
+
+
+def _record(nc, path: str | os.PathLike) -> dict[str, Any]:
+    """Compute the integrity record of the open netCDF file ``nc`` (read from ``path``)."""
+    if nc.groups:
+        raise InputError(f"{path}: has netCDF groups; a lidarcal certificate is flat")
+    variables = {
+        name: {"data": _data_digest(var),
+               "attributes": _attrs_digest(var, [n for n in var.ncattrs() if n not in _DIGEST_ATTRS])}
+        for name, var in nc.variables.items()
+    }
+    unsealed = (INTEGRITY_ATTR, SIGNATURE_ATTR, ATTRIBUTE_DIGESTS_ATTR)
+    glob = {n: _attrs_digest(nc, [n]) for n in nc.ncattrs() if n not in unsealed}
+    dims = {name: len(d) for name, d in nc.dimensions.items()}
     return {
         "algorithm": "sha256",
         "canonical_form": CANONICAL_FORM,
@@ -270,23 +283,23 @@ def _changes(exp_vars: Mapping[str, Any], exp_glob: Mapping[str, Any], found: Ma
     return problems
 
 
-def _changes_against_root(path: Path, expected: Mapping[str, Any], found: Mapping[str, Any]) -> list[str]:
-    """Check a second-form seal: the root decides; the stored per-item digests say what changed."""
-    import netCDF4
+def _changes_against_root(nc, expected: Mapping[str, Any], found: Mapping[str, Any]) -> list[str]:
+    """Check a second-form seal of the open file ``nc``.
 
+    The root decides; the stored per-item digests say what changed.
+    """
     if seal_root(found) == expected["root"]:
         return []
     exp_vars: dict[str, Any] = {}
-    with netCDF4.Dataset(path, "r") as nc:
-        parents = _bounds_parents(nc)
-        for name, var in nc.variables.items():
-            holder, attr = ((nc[parents[name]], BOUNDS_DIGEST_ATTR) if name in parents
-                            else (var, VARIABLE_DIGEST_ATTR))
-            text = str(holder.getncattr(attr)) if attr in holder.ncattrs() else ""
-            parts = text.split()
-            if len(parts) == 4 and parts[0] == "data" and parts[2] == "attributes":
-                exp_vars[name] = {"data": parts[1], "attributes": parts[3]}
-        listed = str(nc.getncattr(ATTRIBUTE_DIGESTS_ATTR)) if ATTRIBUTE_DIGESTS_ATTR in nc.ncattrs() else ""
+    parents = _bounds_parents(nc)
+    for name, var in nc.variables.items():
+        holder, attr = ((nc[parents[name]], BOUNDS_DIGEST_ATTR) if name in parents
+                        else (var, VARIABLE_DIGEST_ATTR))
+        text = str(holder.getncattr(attr)) if attr in holder.ncattrs() else ""
+        parts = text.split()
+        if len(parts) == 4 and parts[0] == "data" and parts[2] == "attributes":
+            exp_vars[name] = {"data": parts[1], "attributes": parts[3]}
+    listed = str(nc.getncattr(ATTRIBUTE_DIGESTS_ATTR)) if ATTRIBUTE_DIGESTS_ATTR in nc.ncattrs() else ""
     exp_glob = dict(item.rsplit(" ", 1) for item in listed.split("; ") if " " in item)
     found_glob = {name: digest[:_PREFIX] for name, digest in found["global_attributes"].items()}
     problems = _changes(exp_vars, exp_glob,
@@ -316,21 +329,32 @@ def verify_certificate(path: str | os.PathLike, *,
     InputError
         If ``path`` is missing, unreadable or not a lidarcal certificate.
     """
-    import netCDF4
-
     path = check_input_file(path, "certificate file")  # missing, a directory, a FIFO: refused here
-    try:
-        with netCDF4.Dataset(path, "r") as nc:
-            kind = nc.getncattr("lidarcal_artefact") if "lidarcal_artefact" in nc.ncattrs() else None
-            stored = nc.getncattr(INTEGRITY_ATTR) if INTEGRITY_ATTR in nc.ncattrs() else None
-            signature_attrs = {n: nc.getncattr(n) for n in nc.ncattrs() if n.startswith(SIGNATURE_ATTR)}
-    except OSError as exc:
-        raise InputError(f"{path}: not a readable netCDF file: {exc}") from None
-    if kind != "certificate":
-        what = (
-            f"a {kind!r} artefact" if kind else "not a lidarcal artefact (no 'lidarcal_artefact' attribute)"
-        )
-        raise InputError(f"{path}: not a lidarcal certificate: it is {what}")
+    # one read of the file, every check on those bytes in memory: a second open of the file on
+    # disk while the caller holds one (open_certificate, a Dataset passed to result_table) can
+    # crash netCDF-C (io.open_image), and the bytes checked are the bytes read
+    image = read_image(path, "certificate file")
+    with open_image(path, image) as nc:
+        kind = nc.getncattr("lidarcal_artefact") if "lidarcal_artefact" in nc.ncattrs() else None
+        if kind != "certificate":
+            what = (f"a {kind!r} artefact" if kind
+                    else "not a lidarcal artefact (no 'lidarcal_artefact' attribute)")
+            raise InputError(f"{path}: not a lidarcal certificate: it is {what}")
+        report = _verify_open(nc, path, public_key)
+    if report.variables_checked:  # the seal could be read: the schema too
+        ds = open_artefact(path, load=False, chunks={}, image=image)
+        try:
+            report.problems.extend(f"schema: {p}" for p in validate_dataset(ds, "certificate",
+                                                                              source=str(path)))
+        finally:
+            ds.close()
+    return report
+
+
+def _verify_open(nc, path: Path, public_key) -> VerificationReport:
+    """Check the seal and signature of the open file ``nc`` (:func:`verify_certificate`)."""
+    stored = nc.getncattr(INTEGRITY_ATTR) if INTEGRITY_ATTR in nc.ncattrs() else None
+    signature_attrs = {n: nc.getncattr(n) for n in nc.ncattrs() if n.startswith(SIGNATURE_ATTR)}
     trusted = public_key
     if trusted is not None and not isinstance(trusted, Ed25519PublicKey):
         trusted = load_public_key(trusted)
@@ -352,9 +376,9 @@ def verify_certificate(path: str | os.PathLike, *,
     except (ValueError, KeyError, TypeError):
         report.problems.append(f"global attribute {INTEGRITY_ATTR!r} is not a valid integrity record")
         return report
-    found = integrity_record(path)
+    found = _record(nc, path)
     if expected.get("format") == SEAL_FORMAT:
-        report.problems.extend(_changes_against_root(path, expected, found))
+        report.problems.extend(_changes_against_root(nc, expected, found))
     else:
         report.problems.extend(_changes(exp_vars, exp_glob, found))
     if expected.get("dimensions") not in (None, found["dimensions"]):
@@ -362,11 +386,6 @@ def verify_certificate(path: str | os.PathLike, *,
     report.variables_checked = len(found["variables"])
     report.attributes_checked = len(found["global_attributes"])
     _check_signature(report, {**signature_attrs, INTEGRITY_ATTR: stored}, trusted)
-    ds = open_artefact(path, load=False, chunks={})
-    try:
-        report.problems.extend(f"schema: {p}" for p in validate_dataset(ds, "certificate", source=str(path)))
-    finally:
-        ds.close()
     return report
 
 

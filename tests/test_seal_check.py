@@ -20,6 +20,7 @@ from analysis_factories import make_records
 
 import lidarcal
 from lidarcal.analysis import budget, sensitivity
+from lidarcal.analysis.terms import PAPER_INPUTS, TABLE4_WIND_SPEEDS, uncertainty_terms
 from lidarcal.certificate import make_certificate, result_table
 from lidarcal.cli import main
 from lidarcal.errors import InputError, SealError
@@ -36,9 +37,12 @@ def sealed(tmp_path_factory):
     make_records(n=300).to_netcdf(d / "records.nc")
     records = open_artefact(d / "records.nc")
     out = {"budget": write_artefact(budget(records), d / "budget.nc"),
-           "sens": write_artefact(sensitivity(records, "wind_shear_exponent"), d / "sens.nc")}
+           "sens": write_artefact(sensitivity(records, "wind_shear_exponent"), d / "sens.nc"),
+           # Table 4 terms: text variables stored as netCDF variable-length strings, which the
+           # SIGSEGV of issue 27 needed (a second open reading them while a first was open)
+           "terms": write_artefact(uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS), d / "terms.nc")}
     cert = make_certificate(budget=open_artefact(out["budget"]), sensitivities=[open_artefact(out["sens"])],
-                            demonstration=True)  # test data: no issuer
+                            terms=open_artefact(out["terms"]), demonstration=True)  # test data: no issuer
     out["cert"] = write_certificate(cert, d / "cert.nc")
     return out
 
@@ -143,3 +147,89 @@ def test_signing_key_readable_by_others_is_refused(sealed, tmp_path, capsys):
     code, _, err = _run(capsys, "certificate", "--budget", sealed["budget"], "--sensitivity", sealed["sens"],
                         "-o", out, "--sign", key, "--demonstration")
     assert code == 0, err
+
+
+# ------------------------------------------------------------------ issue 27: no crash, trees accepted
+
+
+def _child(code: str, *args: str, cwd):
+    """Run ``code`` in a new Python with this lidarcal (the one under test), so a crash is an exit code."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    here = str(Path(lidarcal.__file__).resolve().parents[1])
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([here, os.environ.get("PYTHONPATH", "")])}
+    return subprocess.run([sys.executable, "-c", code, *args], capture_output=True, text=True, timeout=300,
+                          cwd=cwd, env=env)
+
+
+_OPEN_IN_A_CHILD = """
+import sys
+import lidarcal
+path, allow = sys.argv[1], sys.argv[2] == "allow"
+try:
+    tree = lidarcal.open_certificate(path, allow_invalid=allow)
+except lidarcal.errors.SealError as exc:
+    print("SealError", exc)
+    sys.exit(3)
+print("opened", "lidarcal_seal_problems" in tree.attrs, float(tree["budget"]["expanded_uncertainty"].max()))
+"""
+
+
+@pytest.mark.parametrize("allow", ["allow", "refuse"])
+@pytest.mark.parametrize("how", ["halved", "attribute"])
+def test_open_certificate_on_a_broken_seal_refuses_or_opens_never_crashes(sealed, tampered, tmp_path, how,
+                                                                          allow):
+    """Issue 27: SIGSEGV (exit -11) on a seal that exists but does not match, with or without allow_invalid.
+
+    The cause: verifying reopened the file through netCDF-C while open_certificate held it open,
+    and a variable-length string (``terms_equation``) read through the second open corrupted
+    the file object HDF5 shares between the opens; the next open died.  Run in a child process,
+    so a crash fails this test instead of killing pytest.
+    """
+    if how == "attribute":
+        path = tmp_path / "serial.nc"
+        path.write_bytes(sealed["cert"].read_bytes())
+        with netCDF4.Dataset(path, "a") as nc:
+            nc.setncattr("item_serial_number", "FORGED-1")
+    else:
+        path = tampered
+    assert "terms_equation" in xr.open_dataset(path).variables  # the variable-length strings are there
+    done = _child(_OPEN_IN_A_CHILD, str(path), allow, cwd=tmp_path)
+    assert done.returncode in (0, 3), f"exit {done.returncode} (negative: killed by a signal)\n{done.stderr}"
+    if allow == "allow":
+        assert done.returncode == 0 and done.stdout.startswith("opened True"), done.stdout
+    else:
+        what = ("'item_serial_number' altered" if how == "attribute"
+                else "'budget_expanded_uncertainty': values altered")
+        assert done.returncode == 3 and what in done.stdout, done.stdout
+
+
+def test_a_reader_holding_the_certificate_open_does_not_crash_the_check(tampered, tmp_path):
+    """A Dataset the caller keeps open on the same file (its text read) does not crash verification."""
+    code = (f"import xarray as xr, lidarcal\nheld = xr.open_dataset({str(tampered)!r})\n"
+            "held['terms_equation'].values\n"
+            f"for _ in range(3):\n    print(len(lidarcal.verify({str(tampered)!r}).problems))\n"
+            f"print(float(xr.open_dataset({str(tampered)!r})['budget_expanded_uncertainty'].max()))")
+    done = _child(code, cwd=tmp_path)
+    assert done.returncode == 0, f"exit {done.returncode}\n{done.stderr}"
+    assert done.stdout.split()[:3] == ["3", "3", "3"]  # the three halved variables, every time
+
+
+def test_result_table_accepts_what_open_certificate_returns(sealed, tampered):
+    """Issue 27: ``result_table(open_certificate(path))`` raised a SealError naming ``<dataset>``."""
+    import pandas as pd
+
+    tree = lidarcal.open_certificate(sealed["cert"])
+    from_tree = lidarcal.result_table(tree)
+    from_flat = lidarcal.result_table(xr.open_dataset(sealed["cert"]))
+    pd.testing.assert_frame_equal(from_tree, from_flat)  # the same table either way
+    assert len(from_tree) == tree["budget"].sizes["height"] * tree["budget"].sizes["wind_speed"]
+    # a tree opened with allow_invalid is still refused by a reader not told to allow it
+    bad = lidarcal.open_certificate(tampered, allow_invalid=True)
+    with pytest.raises(SealError, match=f"{tampered}: refusing .* values altered"):
+        lidarcal.result_table(bad)
+    shown = lidarcal.result_table(bad, allow_invalid=True)
+    col = [c for c in shown.columns if c.startswith("expanded_uncertainty_k") and c.endswith("_m_s")][0]
+    np.testing.assert_allclose(shown[col], from_flat[col] / 2)
