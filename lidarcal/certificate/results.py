@@ -121,7 +121,7 @@ def _flag_names(var: xr.DataArray) -> dict[int, str]:
 
 
 def _sensitivities(cert: xr.Dataset | xr.DataTree) -> dict[str, xr.Dataset]:
-    """Return the sensitivity components by name (``sensitivity_<variable>``) of a flat certificate or a tree."""
+    """Return the sensitivity components (``sensitivity_<variable>``) of a flat certificate or a tree."""
     if isinstance(cert, xr.DataTree):
         return {str(name): node.to_dataset() for name, node in cert.children.items()
                 if str(name).startswith("sensitivity_")}
