@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from lidarcal.errors import DiskFullError, InputError, OutputExistsError
-from lidarcal.provenance import sha256
+from lidarcal.errors import DiskFullError, InputError, OutputExistsError, ValidationError
+from lidarcal.provenance import sha256, text_problems
 from lidarcal.schema import validate_dataset
 
 __all__ = [
@@ -171,7 +171,12 @@ def disk_full(exc: BaseException, path: str | os.PathLike) -> DiskFullError | No
     holds is part of the shortage.
     """
     path = Path(path)
-    if not isinstance(exc, OSError | RuntimeError) or isinstance(exc, DiskFullError):
+    if isinstance(exc, DiskFullError):
+        return None
+    cause = _enospc_in_chain(exc)
+    if cause is not None:  # e.g. matplotlib's zlib.error while closing a PDF its ENOSPC broke
+        exc = cause
+    if not isinstance(exc, OSError | RuntimeError):
         return None
     free = _free_bytes(path.parent)
     code = getattr(exc, "errno", None)
@@ -180,6 +185,17 @@ def disk_full(exc: BaseException, path: str | os.PathLike) -> DiskFullError | No
     left = f"{free} bytes free in {path.parent}" if free is not None else f"in {path.parent}"
     return DiskFullError(f"no space left on device writing {path} ({left}; {type(exc).__name__}: {exc}); "
                          "nothing was written: free some space and run again")
+
+
+def _enospc_in_chain(exc: BaseException) -> OSError | None:
+    """Return the ENOSPC/EDQUOT ``OSError`` that ``exc`` is, or was raised while handling, if any."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None
 
 
 def part_path(path: str | os.PathLike) -> Path:
@@ -239,7 +255,7 @@ def atomic_path(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator
     try:
         yield tmp
         publish(tmp, path, overwrite=overwrite)
-    except (OSError, RuntimeError) as exc:
+    except Exception as exc:
         full = disk_full(exc, path)  # checked while the temporary still takes its space
         if full is None:
             raise
@@ -314,6 +330,9 @@ def _ready(ds: xr.Dataset, path: str | os.PathLike, *, validate: bool) -> xr.Dat
     ds.attrs = {k: v for k, v in ds.attrs.items() if not k.startswith("lidarcal_source_")}
     if validate:
         validate_dataset(ds, source=str(path), raise_on_error=True)
+    problems = text_problems(ds)  # whatever the entry points let through: never written
+    if problems:
+        raise ValidationError(problems, source=str(path))
     return _cf_ready(ds)
 
 

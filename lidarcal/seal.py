@@ -222,6 +222,14 @@ class VerificationReport:
     signed_by: str | None = None
     #: True when that key is the public key the caller gave (not only the one in the file)
     key_trusted: bool = False
+    #: True when a public key was given but the certificate carries no signature at all (the
+    #: one problem then: its seal may match its contents)
+    unsigned: bool = False
+
+    @property
+    def intact_but_unsigned(self) -> bool:
+        """True when the only problem is the missing signature a public key asked for: the seal holds."""
+        return self.unsigned and len(self.problems) == 1
 
     @property
     def ok(self) -> bool:
@@ -238,6 +246,7 @@ def _check_signature(report: VerificationReport, attrs: Mapping[str, Any],
             report.problems.append(f"global attribute {SIGNATURE_ATTR!r} is missing, but the certificate "
                                    f"names a signing key ({claimed}): the signature was removed")
         elif trusted is not None:
+            report.unsigned = True
             report.problems.append(f"unsigned (integrity only), but a public key was given: expected a "
                                    f"signature by {fingerprint(trusted)}")
         return
@@ -315,14 +324,17 @@ def _changes_against_root(nc, expected: Mapping[str, Any], found: Mapping[str, A
 
 
 def verify_certificate(path: str | os.PathLike, *,
-                       public_key: str | os.PathLike | Ed25519PublicKey | None = None) -> VerificationReport:
+                       public_key: str | os.PathLike | Ed25519PublicKey | None = None,
+                       image: bytes | None = None) -> VerificationReport:
     """Recompute a certificate's checksums, signature and schema; list everything that changed.
 
     An unsigned certificate is checked for integrity only (a re-sealed file passes).  A signed
     one is checked against ``public_key`` (a path or key) when given -- the only check a
     forger cannot pass -- else against the public key stored in the file, which shows the
     file is as that key's holder sealed it but not who that is (compare ``signed_by`` with a
-    fingerprint you trust).  With ``public_key`` an unsigned file is a problem.
+    fingerprint you trust).  With ``public_key`` an unsigned file is a problem.  ``image``: the
+    file's bytes when the caller has read them already (:func:`lidarcal.io.read_image`), so the
+    bytes checked are the bytes it uses.
 
     Raises
     ------
@@ -333,7 +345,7 @@ def verify_certificate(path: str | os.PathLike, *,
     # one read of the file, every check on those bytes in memory: a second open of the file on
     # disk while the caller holds one (open_certificate, a Dataset passed to result_table) can
     # crash netCDF-C (io.open_image), and the bytes checked are the bytes read
-    image = read_image(path, "certificate file")
+    image = read_image(path, "certificate file") if image is None else image
     with open_image(path, image) as nc:
         kind = nc.getncattr("lidarcal_artefact") if "lidarcal_artefact" in nc.ncattrs() else None
         if kind != "certificate":
@@ -403,7 +415,7 @@ def _certificate_file(obj: str | os.PathLike | xr.Dataset, source: str | os.Path
 
 def require_valid_seal(obj: str | os.PathLike | xr.Dataset, *, source: str | os.PathLike | None = None,
                        public_key: str | os.PathLike | Ed25519PublicKey | None = None,
-                       allow_invalid: bool = False) -> VerificationReport | None:
+                       allow_invalid: bool = False, image: bytes | None = None) -> VerificationReport | None:
     """Check a certificate's seal before any of its numbers are shown; refuse a broken one.
 
     Every command and function that displays a certificate's values (``lidarcal table``, the
@@ -411,7 +423,8 @@ def require_valid_seal(obj: str | os.PathLike | xr.Dataset, *, source: str | os.
     from one (its file is ``source``, else the path xarray opened it from); the file is checked
     as :func:`verify_certificate` does (with ``public_key`` when given).  A Dataset that was
     never sealed and came from no file (a certificate being built, before
-    :func:`write_certificate`) has nothing to check: None is returned.
+    :func:`write_certificate`) has nothing to check: None is returned.  ``image``: the file's
+    bytes, already read by the caller (:func:`verify_certificate`).
 
     Returns
     -------
@@ -434,15 +447,19 @@ def require_valid_seal(obj: str | os.PathLike | xr.Dataset, *, source: str | os.
         report = VerificationReport(path="<dataset>", problems=[
             "sealed certificate read from no known file: its seal cannot be checked (pass source=)"])
     else:
-        report = verify_certificate(path, public_key=public_key)
+        report = verify_certificate(path, public_key=public_key, image=image)
     if report.ok or allow_invalid:
         return report
+    raise SealError(f"{report.path}: refusing to show this certificate's numbers: {seal_problems(report)}; "
+                    "to show them anyway, marked as invalid, pass --allow-invalid (allow_invalid=True)")
+
+
+def seal_problems(report: VerificationReport) -> str:
+    """Say in one sentence what is wrong with a seal (the first five problems) and how to see them all."""
     shown = "; ".join(report.problems[:5]) + (f"; and {len(report.problems) - 5} more"
                                               if len(report.problems) > 5 else "")
-    raise SealError(f"{report.path}: refusing to show this certificate's numbers: its seal does not match "
-                    f"its contents ({len(report.problems)} problem(s): {shown}); it was altered after it was "
-                    f"sealed, or never sealed. See lidarcal verify {report.path}; to show them anyway, "
-                    "marked as invalid, pass --allow-invalid (allow_invalid=True)")
+    return (f"its seal does not match its contents ({len(report.problems)} problem(s): {shown}); it was "
+            f"altered after it was sealed, or never sealed. See lidarcal verify {report.path}")
 
 
 def invalid_seal_banner(report: VerificationReport) -> str:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from pathlib import Path
 
 from lidarcal.admin import load_admin, status_line
 from lidarcal.cli.options import add_overwrite_option
@@ -38,12 +39,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Build, (validate) and write the DCC."""
+    """Check the certificate's seal, then build, (validate) and write the DCC."""
     admin = load_admin(args.admin) if args.admin else None
-    cert = open_artefact(args.certificate, "certificate")
-    print(f"{args.output}: {status_line(dcc_attributes(cert, admin=admin))}")
     path = write_dcc(args.certificate, args.output, admin=admin, overwrite=args.overwrite, xsd=args.xsd)
+    cert = open_artefact(args.certificate, "certificate")  # its seal checked by write_dcc
+    name = Path(args.certificate).name
+    print(f"{path}: {status_line(dcc_attributes(cert, admin=admin, certificate_file=name))}")
     checked = f"valid against {args.xsd}" if args.xsd else "not validated (no --xsd / LIDARCAL_DCC_XSD)"
     digest = sha256(args.certificate)
-    print(f"{path}: DCC {DCC_SCHEMA_VERSION} of {args.certificate} (sha256 {digest}); {checked}")
+    print(f"{path}: DCC {DCC_SCHEMA_VERSION} of {args.certificate} (sha256 {digest}, its seal checked); "
+          f"{checked}")
     return 0

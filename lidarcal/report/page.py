@@ -115,7 +115,8 @@ def write_report(
     (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``; ``seal``
     (:func:`lidarcal.document.seal_statement`) states the seal of a certificate written after
     its report.  With ``png`` every figure of the document is also written as
-    ``<stem>_<figure>.png`` (150 dpi).
+    ``<stem>_<figure>.png`` (150 dpi).  The files are published whole or not at all: when one
+    cannot be written (a full disk), those this call had published are removed again.
 
     A certificate read from a file has its seal checked first
     (:func:`lidarcal.seal.require_valid_seal`): an altered one is refused
@@ -156,21 +157,27 @@ def write_report(
                         after=after, titles={name: fig.heading for name, fig in figs.items()},
                         footer=_provenance(certificate))
     written = []
-    if pngs:
-        import matplotlib
-        from matplotlib.figure import Figure as MplFigure
+    try:  # the set (PNGs, PDF, HTML) is whole or absent: a failure removes what this call published
+        if pngs:
+            import matplotlib
+            from matplotlib.figure import Figure as MplFigure
 
-        with matplotlib.rc_context(STYLE):
-            for name, target in pngs.items():
-                fig = MplFigure(figsize=A4)
-                draw(fig, name, parts)
-                with atomic_path(target, overwrite=overwrite) as tmp:
-                    fig.savefig(tmp, dpi=_PNG_DPI, format="png")
-                written.append(target)
-    document = None
-    if pdf_path:
-        document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
-                                  warning=banner)
-    write_text(path, page, overwrite=overwrite)
+            with matplotlib.rc_context(STYLE):
+                for name, target in pngs.items():
+                    fig = MplFigure(figsize=A4)
+                    draw(fig, name, parts)
+                    with atomic_path(target, overwrite=overwrite) as tmp:
+                        fig.savefig(tmp, dpi=_PNG_DPI, format="png")
+                    written.append(target)
+        document = None
+        if pdf_path:
+            document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
+                                      warning=banner)
+            written.append(pdf_path)
+        write_text(path, page, overwrite=overwrite)
+    except BaseException:
+        for done in written:
+            done.unlink(missing_ok=True)
+        raise
     return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
             "pages": document["pages"] if document else 0}
