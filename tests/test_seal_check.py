@@ -233,3 +233,151 @@ def test_result_table_accepts_what_open_certificate_returns(sealed, tampered):
     shown = lidarcal.result_table(bad, allow_invalid=True)
     col = [c for c in shown.columns if c.startswith("expanded_uncertainty_k") and c.endswith("_m_s")][0]
     np.testing.assert_allclose(shown[col], from_flat[col] / 2)
+
+
+# ------------------------------------------------------------------ the promise, enumerated (issue 27)
+#
+# docs/reliability.md: every command and public function that shows a certificate's numbers
+# checks its seal first.  The commands are read from the argparse parser and the functions from
+# the public modules' ``__all__``: a new one fails here until it is placed in one of the tables.
+
+
+def _leaf_commands(parser, prefix=()):
+    """Yield ``(("bench", "simulate"), parser)`` for every runnable subcommand of the parser."""
+    import argparse
+
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield prefix, parser
+        return
+    for action in subs:
+        for name, sub in action.choices.items():
+            yield from _leaf_commands(sub, (*prefix, name))
+
+
+#: Commands that read a certificate: argv on the tampered file, the exit status, what it must say.
+SHOWS_A_CERTIFICATE = {
+    ("table",): (lambda cert, tmp: ["table", cert], 2, "refusing to show this certificate's numbers"),
+    ("dcc",): (lambda cert, tmp: ["dcc", cert, "-o", tmp / "x.xml"], 2, "refusing to export this"),
+    ("verify",): (lambda cert, tmp: ["verify", cert], 1, "ALTERED or invalid"),
+}
+#: Commands that take no certificate, or show none of its numbers, and why.
+NO_CERTIFICATE_SHOWN = {
+    ("calibrate",): "writes a certificate, reads none",
+    ("bench", "simulate"): "bench data only",
+    ("bench", "ingest"): "bench data only",
+    ("bench", "repeatability"): "bench cubes only",
+    ("rwf",): "a pulse recording only",
+    ("terms",): "numbers given on the command line",
+    ("conditions", "check"): "a conditions file only",
+    ("conditions", "synthetic"): "writes conditions",
+    ("conditions", "from-sta"): ".sta files only",
+    ("field", "from-sta"): ".sta files and a mast record",
+    ("turbulence",): "writes a turbulence box",
+    ("simulate",): "conditions, cube and RWF",
+    ("sensitivity",): "simulated or field records",
+    ("budget",): "simulated or field records",
+    ("sweep",): "writes a sweep",
+    ("certificate",): "writes and seals a certificate from its components; reads none",
+    ("keygen",): "writes keys",
+    ("diagnose",): "a field campaign",
+    ("diagnose-generate",): "writes a field campaign",
+    ("compare",): "a field campaign and a lidar's components",
+    ("validate",): "prints a file's schema and CF/ACDD problems, none of its numbers (lidarcal verify "
+                   "checks a seal)",
+}
+
+
+def test_every_command_that_shows_a_certificate_checks_its_seal(tampered, tmp_path, capsys):
+    from lidarcal.cli import build_parser
+
+    leaves = dict(_leaf_commands(build_parser()))
+    unclassified = sorted(set(leaves) - set(SHOWS_A_CERTIFICATE) - set(NO_CERTIFICATE_SHOWN))
+    assert unclassified == [], (f"new command(s) {unclassified}: does it show a certificate's numbers? "
+                                "Call lidarcal.seal.require_valid_seal first and add it to "
+                                "SHOWS_A_CERTIFICATE, or say why not in NO_CERTIFICATE_SHOWN")
+    assert sorted(set(SHOWS_A_CERTIFICATE) | set(NO_CERTIFICATE_SHOWN)) == sorted(leaves)  # none gone
+    # an input named like a certificate (not the -o of the command that writes one) is read
+    for name, parser in leaves.items():
+        for action in parser._actions:
+            meta = action.metavar
+            meta = " ".join(meta) if isinstance(meta, tuple) else str(meta or "")
+            if meta.upper().startswith("CERT") and meta.endswith(".nc") and action.dest != "output":
+                assert name in SHOWS_A_CERTIFICATE, f"{' '.join(name)} reads {meta}: it must check the seal"
+    outputs = tmp_path / "outputs"
+    outputs.mkdir()
+    for name, (argv, status, says) in SHOWS_A_CERTIFICATE.items():
+        code, out, err = _run(capsys, *argv(tampered, outputs))
+        assert code == status, (name, err)
+        assert says in out + err, (name, out, err)
+        assert "'budget_expanded_uncertainty': values altered" in out + err, (name, out, err)
+        if status == 2:
+            assert out == "" and list(outputs.iterdir()) == [], name  # not one number, no file
+
+
+def _readers():
+    """Public functions that show a certificate's numbers: how to call each on a certificate file."""
+    from lidarcal.dcc import dcc_tree, write_dcc
+
+    return {
+        "lidarcal.open_certificate": lambda p, tmp: lidarcal.open_certificate(p),
+        "lidarcal.result_table": lambda p, tmp: lidarcal.result_table(xr.open_dataset(p)),
+        "lidarcal.certificate.open_certificate": lambda p, tmp: lidarcal.certificate.open_certificate(p),
+        "lidarcal.certificate.result_table": lambda p, tmp: result_table(open_artefact(p)),
+        "lidarcal.dcc.write_dcc": lambda p, tmp: write_dcc(p, tmp / "x.xml"),
+        "lidarcal.dcc.dcc_tree": lambda p, tmp: dcc_tree(open_artefact(p), certificate_sha256="0" * 64),
+        "lidarcal.report.write_report": lambda p, tmp: write_report(tmp / "r.html",
+                                                                   certificate=open_artefact(p)),
+    }
+
+
+#: Public names that show no certificate's numbers on their own, and why.
+NOT_READERS = {
+    "lidarcal.verify": "the check itself (VerificationReport lists what changed)",
+    "lidarcal.calibrate": "writes a certificate", "lidarcal.CalibrationConfig": "configuration",
+    "lidarcal.CalibrationResult": "a run's result (its certificate built in that run)",
+    "lidarcal.open_artefact": "any artefact; numbers of a certificate go through the readers",
+    "lidarcal.LidarModel": "lidar model", "lidarcal.simulate_campaign": "simulation",
+    "lidarcal.sensitivity": "analysis", "lidarcal.budget": "analysis",
+    "lidarcal.diagnose_campaign": "analysis",
+    "lidarcal.make_certificate": "builds one (in memory, unsealed)",
+    "lidarcal.certificate.make_certificate": "builds one (in memory, unsealed)",
+    "lidarcal.certificate.extract_component": "the flat layout's accessor on a Dataset the caller opened "
+                                              "through a reader",
+    "lidarcal.certificate.components": "the list of components (names and files), no numbers",
+    "lidarcal.certificate.container_attributes": "a provenance variable's attributes",
+    "lidarcal.certificate.provenance_chain": "provenance (files, SHA-256), no numbers",
+    "lidarcal.certificate.records_summary": "how many periods, which heights",
+    "lidarcal.certificate.PROVENANCE_PREFIX": "a constant",
+    "lidarcal.certificate.headline_range": "a budget's helper, called by the readers after their check",
+    "lidarcal.certificate.headline_sentence": "a budget's helper, called by the readers after their check",
+    "lidarcal.certificate.certified_rule": "the rule in words",
+    "lidarcal.certificate.not_settled": "a budget's helper, called by the readers after their check",
+    "lidarcal.dcc.validate_dcc": "checks an XML against the XSD",
+    "lidarcal.dcc.dcc_attributes": "the attributes dcc_tree states, after dcc_tree's check",
+    "lidarcal.dcc.DCC_NS": "a constant", "lidarcal.dcc.SI_NS": "a constant",
+    "lidarcal.dcc.DCC_SCHEMA_VERSION": "a constant", "lidarcal.dcc.SI_SCHEMA_URL": "a constant",
+    "lidarcal.dcc.COVERAGE_PROBABILITY": "a constant",
+    "lidarcal.report.report_figures": "figures of components the caller passes",
+    "lidarcal.report.Figure": "a class",
+}
+
+
+def test_every_public_reader_checks_the_seal(tampered, tmp_path):
+    import importlib
+
+    public = {f"lidarcal.{n}" for n in lidarcal.__all__ if n != "__version__"}
+    for module in ("lidarcal.certificate", "lidarcal.dcc", "lidarcal.report"):
+        public |= {f"{module}.{n}" for n in importlib.import_module(module).__all__}
+    readers = _readers()
+    unclassified = sorted(public - set(readers) - set(NOT_READERS))
+    assert unclassified == [], (f"new public name(s) {unclassified}: if it shows a certificate's numbers, "
+                                "call require_valid_seal and add it to _readers(); else say why in "
+                                "NOT_READERS")
+    assert sorted(set(readers) | set(NOT_READERS)) == sorted(public)  # nothing listed that is gone
+    outputs = tmp_path / "outputs"
+    outputs.mkdir()
+    for name, call in readers.items():
+        with pytest.raises(SealError, match="values altered"):
+            call(tampered, outputs)
+        assert list(outputs.iterdir()) == [], name  # nothing written
