@@ -73,6 +73,9 @@ def check_input_file(path: str | os.PathLike, what: str = "file") -> Path:
 def check_writable(path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Fail early (before any work) if ``path`` exists and may not be replaced."""
     path = Path(path)
+    if path.parent.is_dir() and len(path.name.encode()) > _name_max(path.parent):
+        raise InputError(f"{path}: file name of {len(path.name.encode())} bytes; the file system of "
+                         f"{path.parent} allows at most {_name_max(path.parent)}")
     if path.is_dir():
         raise InputError(f"{path}: output is a directory; expected the path of a file")
     if path.exists() and not overwrite:
@@ -139,7 +142,7 @@ def remove_stale_parts(path: str | os.PathLike) -> list[Path]:
     never touched.
     """
     path = Path(path)
-    prefixes, host, removed = (f".{path.name}.", f"..{path.name}."), _host(), []
+    prefixes, host, removed = (_part_prefix(path), f"..{path.name}."), _host(), []
     try:
         candidates = [p for p in path.parent.iterdir() if p.name.startswith(prefixes)]
     except OSError:
@@ -198,10 +201,43 @@ def _enospc_in_chain(exc: BaseException) -> OSError | None:
     return None
 
 
+def _name_max(directory: Path) -> int:
+    """Longest file name (bytes) the file system of ``directory`` allows (255 where it cannot say)."""
+    try:
+        return int(os.pathconf(directory, "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):
+        return 255
+
+
+def _tail_bytes() -> int:
+    """Return the bytes a temporary's name adds after its prefix: ``<host>-<pid>.<random>.part``.
+
+    The pid counted at its widest (Linux's pid_max is at most 4194304: 7 digits), the random part 8.
+    """
+    return len(_host().encode()) + len("-4194304.") + 8 + len(".part")
+
+
+def _part_prefix(path: Path) -> str:
+    """Return the start of every temporary of ``path``: ``.<name>.``, or a shortened form that fits.
+
+    A name of up to NAME_MAX bytes is legal for the destination, but ``.<name>.<host>-<pid>.<random>.part``
+    would not be: then the name is cut (at a character boundary) and ``~`` and the first 8 hex digits
+    of its SHA-256 are appended, so the prefix still belongs to this one destination (what
+    :func:`remove_stale_parts` recognises).
+    """
+    full = f".{path.name}."
+    room = _name_max(path.parent) - _tail_bytes()
+    if len(full.encode()) <= room:
+        return full
+    digest = hashlib.sha256(path.name.encode()).hexdigest()[:8]
+    keep = path.name.encode()[: max(room - len(f"..~{digest}"), 1)].decode("utf-8", "ignore")
+    return f".{keep}~{digest}."
+
+
 def part_path(path: str | os.PathLike) -> Path:
     """Create and return a new empty temporary file for ``path``, next to it (mode 0600)."""
     path = Path(path)
-    prefix = f".{path.name}.{_host()}-{os.getpid()}."
+    prefix = f"{_part_prefix(path)}{_host()}-{os.getpid()}."
     fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".part", dir=path.parent)
     os.close(fd)
     return Path(tmp)
