@@ -517,11 +517,13 @@ def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str
 
 def write_dcc(certificate: str | os.PathLike, output: str | os.PathLike, *,
               admin: Mapping[str, str] | None = None, overwrite: bool = False,
-              xsd: str | os.PathLike | None = None) -> Path:
+              xsd: str | os.PathLike | None = None, signer: Any = None) -> Path:
     """Write the DCC XML of the netCDF certificate file ``certificate`` to ``output`` (atomically).
 
     With ``xsd`` (PTB's ``dcc.xsd``, ``SI_Format.xsd`` beside it) the document is validated
-    first and nothing is written when it is invalid.
+    first and nothing is written when it is invalid.  With ``signer`` (a
+    :class:`lidarcal.dccsign.Signer`, from :func:`lidarcal.dccsign.load_signer`) it is signed as a
+    laboratory signs a DCC: an enveloped XAdES-BES signature with its X.509 key and chain.
 
     The certificate's seal (and signature) is checked first
     (:func:`lidarcal.seal.require_valid_seal`): an altered, unsealed or wrongly signed one is
@@ -551,6 +553,9 @@ def write_dcc(certificate: str | os.PathLike, output: str | os.PathLike, *,
         if problems:
             raise ValidationError(problems, source=f"{output} (against {xsd})")
     data = etree.tostring(tree, xml_declaration=True, encoding="UTF-8", pretty_print=True)
+    if signer is not None:  # the laid-out text is what is signed: never re-indented after
+        signed = signer.sign(etree.fromstring(data, etree.XMLParser(resolve_entities=False)))
+        data = etree.tostring(signed, xml_declaration=True, encoding="UTF-8")
     with atomic_path(output, overwrite=overwrite) as tmp:
         tmp.write_bytes(data)  # an OSError (ENOSPC) atomic_path reports as a full disk; lxml's own
         # writer raised SerialisationError IO_ENOSPC instead
