@@ -10,10 +10,11 @@ page, :func:`write_report` writes the certificate document (:mod:`lidarcal.docum
 
 from __future__ import annotations
 
+import contextlib
 import html
 import json
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -92,6 +93,17 @@ def _provenance(cert: xr.Dataset | None) -> str:
     return f'<div id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></div>'
 
 
+@contextlib.contextmanager
+def _all_or_nothing(published: list[Path]) -> Iterator[None]:
+    """On a failure inside, remove the files of this report already published, then re-raise."""
+    try:
+        yield
+    except BaseException:
+        for done in published:
+            done.unlink(missing_ok=True)
+        raise
+
+
 def write_report(
     path: str | os.PathLike,
     *,
@@ -157,27 +169,24 @@ def write_report(
                         after=after, titles={name: fig.heading for name, fig in figs.items()},
                         footer=_provenance(certificate))
     written = []
-    try:  # the set (PNGs, PDF, HTML) is whole or absent: a failure removes what this call published
-        if pngs:
-            import matplotlib
-            from matplotlib.figure import Figure as MplFigure
+    if pngs:
+        import matplotlib
+        from matplotlib.figure import Figure as MplFigure
 
-            with matplotlib.rc_context(STYLE):
-                for name, target in pngs.items():
-                    fig = MplFigure(figsize=A4)
-                    draw(fig, name, parts)
-                    with atomic_path(target, overwrite=overwrite) as tmp:
-                        fig.savefig(tmp, dpi=_PNG_DPI, format="png")
-                    written.append(target)
-        document = None
-        if pdf_path:
+        with matplotlib.rc_context(STYLE):
+            for name, target in pngs.items():
+                fig = MplFigure(figsize=A4)
+                draw(fig, name, parts)
+                with _all_or_nothing(written), atomic_path(target, overwrite=overwrite) as tmp:
+                    fig.savefig(tmp, dpi=_PNG_DPI, format="png")
+                written.append(target)
+    document = None
+    if pdf_path:
+        with _all_or_nothing(written):
             document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
                                       warning=banner)
-            written.append(pdf_path)
+        written.append(pdf_path)
+    with _all_or_nothing(written):
         write_text(path, page, overwrite=overwrite)
-    except BaseException:
-        for done in written:
-            done.unlink(missing_ok=True)
-        raise
     return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
             "pages": document["pages"] if document else 0}
