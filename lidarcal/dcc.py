@@ -500,6 +500,10 @@ def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str
         If ``cert`` was read from a file whose seal does not match its contents (or is missing).
     """
     require_valid_seal(cert)  # a certificate read from a file: its seal first (None: built here, unsealed)
+    return _tree(cert, certificate_sha256, certificate_file, admin)
+
+
+def _tree(cert: xr.Dataset, certificate_sha256: str, certificate_file: str, admin) -> etree._ElementTree:
     attrs = dcc_attributes(cert, admin=admin, certificate_file=certificate_file)
     etree.register_namespace("dcc", DCC_NS)
     etree.register_namespace("si", SI_NS)
@@ -520,23 +524,16 @@ def write_dcc(certificate: str | os.PathLike, output: str | os.PathLike, *,
               xsd: str | os.PathLike | None = None, signer: Any = None) -> Path:
     """Write the DCC XML of the netCDF certificate file ``certificate`` to ``output`` (atomically).
 
-    With ``xsd`` (PTB's ``dcc.xsd``, ``SI_Format.xsd`` beside it) the document is validated
-    first and nothing is written when it is invalid.  With ``signer`` (a
-    :class:`lidarcal.dccsign.Signer`, from :func:`lidarcal.dccsign.load_signer`) it is signed as a
-    laboratory signs a DCC: an enveloped XAdES-BES signature with its X.509 key and chain.
-
-    The certificate's seal (and signature) is checked first
-    (:func:`lidarcal.seal.require_valid_seal`): an altered, unsealed or wrongly signed one is
-    never exported, since the XML would present its numbers as the sealed record.
+    The certificate's seal is checked first (:func:`lidarcal.seal.require_valid_seal`; an altered
+    or unsealed one raises :class:`~lidarcal.errors.SealError`).  With ``xsd`` (PTB's ``dcc.xsd``,
+    ``SI_Format.xsd`` beside it) the document is validated first and nothing is written when it
+    is invalid.  With ``signer`` (:func:`lidarcal.dccsign.load_signer`) it is signed with the
+    laboratory's X.509 key and chain (enveloped XAdES-BES).
 
     Raises
     ------
     InputError
         Bad certificate or administrative data, or the document does not validate.
-    SealError
-        The certificate's seal does not match its contents, or it has none.
-    DiskFullError
-        No space left for the XML (nothing is written).
     """
     check_writable(output, overwrite=overwrite)
     image = read_image(certificate, "certificate file")  # the bytes checked, read and named by SHA-256
@@ -546,8 +543,7 @@ def write_dcc(certificate: str | os.PathLike, output: str | os.PathLike, *,
                         f"{seal_problems(report)}. A DCC is written only from a certificate whose seal "
                         "holds: it names the netCDF as the sealed original of its numbers")
     cert = open_artefact(certificate, "certificate", image=image)
-    tree = dcc_tree(cert, certificate_sha256=hashlib.sha256(image).hexdigest(),
-                    certificate_file=Path(certificate).name, admin=admin)
+    tree = _tree(cert, hashlib.sha256(image).hexdigest(), Path(certificate).name, admin)  # checked above
     if xsd is not None:
         problems = validate_dcc(tree, xsd)
         if problems:
