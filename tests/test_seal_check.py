@@ -42,8 +42,12 @@ def sealed(tmp_path_factory):
            # SIGSEGV of issue 27 needed (a second open reading them while a first was open)
            "terms": write_artefact(uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS), d / "terms.nc")}
     cert = make_certificate(budget=open_artefact(out["budget"]), sensitivities=[open_artefact(out["sens"])],
-                            terms=open_artefact(out["terms"]), demonstration=True)  # test data: no issuer
+                            demonstration=True)  # test data: no issuer
     out["cert"] = write_certificate(cert, d / "cert.nc")
+    # with the terms: opened only in child processes below, so that a crash fails a test, not pytest
+    parts = {"budget": open_artefact(out["budget"]), "sensitivities": [open_artefact(out["sens"])]}
+    with_terms = make_certificate(**parts, terms=open_artefact(out["terms"]), demonstration=True)
+    out["cert_terms"] = write_certificate(with_terms, d / "cert_terms.nc")
     return out
 
 
@@ -179,8 +183,7 @@ print("opened", "lidarcal_seal_problems" in tree.attrs, float(tree["budget"]["ex
 
 @pytest.mark.parametrize("allow", ["allow", "refuse"])
 @pytest.mark.parametrize("how", ["halved", "attribute"])
-def test_open_certificate_on_a_broken_seal_refuses_or_opens_never_crashes(sealed, tampered, tmp_path, how,
-                                                                          allow):
+def test_open_certificate_on_a_broken_seal_refuses_or_opens_never_crashes(sealed, tmp_path, how, allow):
     """Issue 27: SIGSEGV (exit -11) on a seal that exists but does not match, with or without allow_invalid.
 
     The cause: verifying reopened the file through netCDF-C while open_certificate held it open,
@@ -188,14 +191,15 @@ def test_open_certificate_on_a_broken_seal_refuses_or_opens_never_crashes(sealed
     the file object HDF5 shares between the opens; the next open died.  Run in a child process,
     so a crash fails this test instead of killing pytest.
     """
-    if how == "attribute":
-        path = tmp_path / "serial.nc"
-        path.write_bytes(sealed["cert"].read_bytes())
-        with netCDF4.Dataset(path, "a") as nc:
+    path = tmp_path / f"{how}.nc"
+    path.write_bytes(sealed["cert_terms"].read_bytes())
+    with netCDF4.Dataset(path, "a") as nc:
+        if how == "attribute":
             nc.setncattr("item_serial_number", "FORGED-1")
-    else:
-        path = tampered
-    assert "terms_equation" in xr.open_dataset(path).variables  # the variable-length strings are there
+        else:
+            for name in HALVED:
+                nc[name][...] = nc[name][...] / 2
+        assert nc["terms_equation"].dtype is str  # the variable-length strings are there
     done = _child(_OPEN_IN_A_CHILD, str(path), allow, cwd=tmp_path)
     assert done.returncode in (0, 3), f"exit {done.returncode} (negative: killed by a signal)\n{done.stderr}"
     if allow == "allow":
@@ -206,8 +210,13 @@ def test_open_certificate_on_a_broken_seal_refuses_or_opens_never_crashes(sealed
         assert done.returncode == 3 and what in done.stdout, done.stdout
 
 
-def test_a_reader_holding_the_certificate_open_does_not_crash_the_check(tampered, tmp_path):
+def test_a_reader_holding_the_certificate_open_does_not_crash_the_check(sealed, tmp_path):
     """A Dataset the caller keeps open on the same file (its text read) does not crash verification."""
+    tampered = tmp_path / "tampered.nc"
+    tampered.write_bytes(sealed["cert_terms"].read_bytes())
+    with netCDF4.Dataset(tampered, "a") as nc:
+        for name in HALVED:
+            nc[name][...] = nc[name][...] / 2
     code = (f"import xarray as xr, lidarcal\nheld = xr.open_dataset({str(tampered)!r})\n"
             "held['terms_equation'].values\n"
             f"for _ in range(3):\n    print(len(lidarcal.verify({str(tampered)!r}).problems))\n"
