@@ -243,8 +243,12 @@ def verify_dcc(path: str | os.PathLike, *, ca: str | os.PathLike | None = None) 
         return report
     xades = signatures[0].find(".//xades:QualifyingProperties", _NS) is not None
     report.form = "XAdES-BES" if xades else "XML-DSig"
-    carried = [x509.load_der_x509_certificate(_b64(e.text))
-               for e in signatures[0].findall("ds:KeyInfo/ds:X509Data/ds:X509Certificate", _NS) if e.text]
+    try:
+        carried = [x509.load_der_x509_certificate(_b64(e.text))
+                   for e in signatures[0].findall("ds:KeyInfo/ds:X509Data/ds:X509Certificate", _NS) if e.text]
+    except ValueError as exc:  # binascii.Error is a ValueError too
+        report.problems.append(f"a ds:X509Certificate of the signature is not a certificate ({exc})")
+        return report
     with tempfile.TemporaryDirectory() as scratch:
         if ca is not None:
             ca_file = check_input_file(ca, "file of trusted root certificates (PEM)")
@@ -272,6 +276,9 @@ def verify_dcc(path: str | os.PathLike, *, ca: str | os.PathLike | None = None) 
             return report
         except SignXMLException as exc:  # InvalidSignature, InvalidDigest, InvalidCertificate
             report.problems.append(f"{type(exc).__name__}: {exc}")
+            return report
+        except ValueError as exc:  # a certificate or key in the signature that does not parse
+            report.problems.append(f"the signature holds something that is not a certificate or key: {exc}")
             return report
     whole = [r for r in results if r.signed_xml is not None and r.signed_xml.tag == _DCC_ROOT]
     if not whole:
@@ -315,4 +322,4 @@ def same_results(document: etree._Element, certificate: str | os.PathLike) -> bo
 def _b64(text: str) -> bytes:
     import base64
 
-    return base64.b64decode("".join(text.split()))
+    return base64.b64decode("".join(text.split()), validate=True)

@@ -176,7 +176,7 @@ def test_a_signed_dcc_verifies_with_an_independent_xml_dsig_implementation(lab, 
     assert f"checked against the roots in {lab[pki]['ca']}" in out and "whose seal holds" in out
 
 
-@pytest.mark.parametrize("how", ["value", "unit", "netcdf digest", "signer swapped"])
+@pytest.mark.parametrize("how", ["value", "unit", "netcdf digest", "signer swapped", "garbled certificate"])
 def test_a_tampered_signed_dcc_fails(lab, tmp_path, capsys, how):
     signed = _sign(lab, "rsa", tmp_path / "signed.xml")
     tree = etree.parse(str(signed))
@@ -188,6 +188,9 @@ def test_a_tampered_signed_dcc_fails(lab, tmp_path, capsys, how):
     elif how == "netcdf digest":
         ident = tree.find(".//dcc:identification[@refType='lidarcal_netcdfCertificateSha256']/dcc:value", NS)
         ident.text = "sha256:" + "0" * 64
+    elif how == "garbled certificate":  # refused as such, never a traceback
+        leaf = tree.find(".//ds:X509Certificate", NS)
+        leaf.text = "!!" + leaf.text
     else:  # the attacker's certificate in place of the signer's
         leaf = tree.find(".//ds:X509Certificate", NS)
         leaf.text = __import__("base64").b64encode(
