@@ -10,10 +10,11 @@ page, :func:`write_report` writes the certificate document (:mod:`lidarcal.docum
 
 from __future__ import annotations
 
+import contextlib
 import html
 import json
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -92,6 +93,17 @@ def _provenance(cert: xr.Dataset | None) -> str:
     return f'<div id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></div>'
 
 
+@contextlib.contextmanager
+def _all_or_nothing(published: list[Path]) -> Iterator[None]:
+    """On a failure inside, remove the files of this report already published, then re-raise."""
+    try:
+        yield
+    except BaseException:
+        for done in published:
+            done.unlink(missing_ok=True)
+        raise
+
+
 def write_report(
     path: str | os.PathLike,
     *,
@@ -115,7 +127,8 @@ def write_report(
     (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``; ``seal``
     (:func:`lidarcal.document.seal_statement`) states the seal of a certificate written after
     its report.  With ``png`` every figure of the document is also written as
-    ``<stem>_<figure>.png`` (150 dpi).
+    ``<stem>_<figure>.png`` (150 dpi).  The files are published whole or not at all: when one
+    cannot be written (a full disk), those this call had published are removed again.
 
     A certificate read from a file has its seal checked first
     (:func:`lidarcal.seal.require_valid_seal`): an altered one is refused
@@ -164,13 +177,16 @@ def write_report(
             for name, target in pngs.items():
                 fig = MplFigure(figsize=A4)
                 draw(fig, name, parts)
-                with atomic_path(target, overwrite=overwrite) as tmp:
+                with _all_or_nothing(written), atomic_path(target, overwrite=overwrite) as tmp:
                     fig.savefig(tmp, dpi=_PNG_DPI, format="png")
                 written.append(target)
     document = None
     if pdf_path:
-        document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
-                                  warning=banner)
-    write_text(path, page, overwrite=overwrite)
+        with _all_or_nothing(written):
+            document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
+                                      warning=banner)
+        written.append(pdf_path)
+    with _all_or_nothing(written):
+        write_text(path, page, overwrite=overwrite)
     return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
             "pages": document["pages"] if document else 0}
