@@ -163,6 +163,23 @@ def test_sample_lidar_reproduces_the_papers_findings(tmp_path):
         assert f"{quoted.lstrip('+')} ± {se:.2f}" in section, (h, quoted, se)
     replicas = int(budget.attrs["monte_carlo_replicas"])
     assert f"{replicas} replicas, {int(budget.attrs['monte_carlo_trials']):,} trials" in section
+    # its before/after table (benchmarks/certified_table.py): the "after" column is this run's
+    table = doc.split("<!-- certified-table:begin -->", 1)[1].split("<!-- certified-table:end -->", 1)[0]
+    rows = [[c.strip() for c in line.split("|")[1:-1]] for line in table.splitlines()
+            if line.startswith("| ") and line[2].isdigit()]
+    listed = set()
+    for z, u, _, _, after, _ in rows:
+        one = budget.sel(height=float(z), wind_speed=float(u))
+        if after == "—":
+            assert int(one.bin_flag) != 0, (z, u)
+        else:
+            value = float(one.relative_expanded_uncertainty)
+            assert int(one.bin_flag) == 0 and after.startswith(f"{value:.2f} ± "), (z, u, after, value)
+            listed.add((float(z), float(u)))
+    top = budget.sel(height=[160.0, 200.0])
+    certified = {(float(z), float(u)) for z in top.height.values for u in top.wind_speed.values
+                 if int(top.bin_flag.sel(height=z, wind_speed=u)) == 0}
+    assert listed == certified
 
 
 def _running(proc) -> bool:
