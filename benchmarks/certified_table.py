@@ -1,6 +1,6 @@
 """The certified values of two default runs side by side, bin by bin (docs/validation.md).
 
-``python benchmarks/certified_table.py BEFORE_DIR AFTER_DIR [--heights 160 200] [--update PAGE]``
+``python benchmarks/certified_table.py BEFORE AFTER [--heights 160 200] [--update PAGE]``
 reads each run directory's ``budget.nc`` and ``simulated.nc`` and prints, per height and
 wind-speed bin certified in either run, the relative expanded uncertainty (k = 2, %) with its
 Monte Carlo numerical tolerance (``numerical_tolerance``, JCGM 101 §7.9; "not settled" when
@@ -8,9 +8,11 @@ Monte Carlo numerical tolerance (``numerical_tolerance``, JCGM 101 §7.9; "not s
 of the bin's trials' (L − R)/R (replica 0 and every further replica, binned by each trial's
 own reference speed, as the budget bins them); then each run's headline range, its number of
 values that did not settle (``monte_carlo_not_settled``), replicas and trials, and the range of
-the excess kurtosis over the certified bins of each height.  ``--update PAGE`` writes the
-output between the page's ``<!-- certified-table:begin -->`` and ``<!-- certified-table:end -->``
-lines instead, so the table in the documentation is this script's output and nothing else.
+the excess kurtosis over the certified bins of each height; then, per height and band of the
+period's CNR, the number of trials and the mean and standard deviation of their (L − R)/R.
+``--update PAGE`` writes the output between the page's ``<!-- certified-table:begin -->`` and
+``<!-- certified-table:end -->`` lines instead, so the table in the documentation is this
+script's output and nothing else.
 """
 
 import argparse
@@ -24,19 +26,43 @@ from scipy import stats
 BEGIN, END = "<!-- certified-table:begin -->", "<!-- certified-table:end -->"
 
 
-def trial_deviations(sim: xr.Dataset, height: float, edges: np.ndarray) -> list[np.ndarray]:
-    """(L − R)/R (%) of every trial at ``height``, per wind-speed bin of ``edges`` (reference speed)."""
+#: CNR bands (dB) of the second table: the filter's neighbourhood in 1-dB steps, then wider.
+CNR_BANDS = ((-23, -22), (-22, -21), (-21, -20), (-20, -19), (-19, -18), (-18, -16), (-16, -10), (-10, 0))
+
+
+def trials(sim: xr.Dataset, height: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Lidar and reference speed (m/s) and period CNR (dB) of every trial at ``height`` (replica 0 first)."""
     lid = sim["lidar_wind_speed"].sel(height=height).values
     ref = sim["reference_wind_speed"].sel(height=height).values
+    cnr = sim["cnr"].sel(height=height).values
     if "trial_height" in sim.variables:
         at = sim["trial_height"].values == height
+        of_key = dict(zip(sim["period_key"].values.tolist(), cnr.tolist(), strict=True))
         lid = np.concatenate([lid, sim["trial_lidar_wind_speed"].values[at]])
         ref = np.concatenate([ref, sim["trial_reference_wind_speed"].values[at]])
+        cnr = np.concatenate([cnr, [of_key[k] for k in sim["trial_period_key"].values[at].tolist()]])
     ok = np.isfinite(lid) & np.isfinite(ref)
-    lid, ref = lid[ok], ref[ok]
+    return lid[ok], ref[ok], cnr[ok]
+
+
+def trial_deviations(sim: xr.Dataset, height: float, edges: np.ndarray) -> list[np.ndarray]:
+    """(L − R)/R (%) of every trial at ``height``, per wind-speed bin of ``edges`` (reference speed)."""
+    lid, ref, _ = trials(sim, height)
     idx = np.searchsorted(edges, ref, side="right") - 1
     idx[ref == edges[-1]] = edges.size - 2
     return [100.0 * (lid[idx == b] / ref[idx == b] - 1.0) for b in range(edges.size - 1)]
+
+
+def by_cnr(sim: xr.Dataset, height: float) -> list[tuple[int, float, float]]:
+    """Per CNR band: trials, mean and standard deviation of (L − R)/R (%) at ``height``."""
+    lid, ref, cnr = trials(sim, height)
+    dev = 100.0 * (lid / ref - 1.0)
+    out = []
+    for lo, hi in CNR_BANDS:
+        sel = (cnr >= lo) & (cnr < hi)
+        out.append((int(sel.sum()), float(dev[sel].mean()) if sel.any() else np.nan,
+                    float(dev[sel].std()) if sel.any() else np.nan))
+    return out
 
 
 def run_summary(path: Path, heights: list[float]) -> dict:
@@ -49,7 +75,8 @@ def run_summary(path: Path, heights: list[float]) -> dict:
     out = {"headline": (float(rel.min()), float(rel.max())),
            "not_settled": int(budget.attrs.get("monte_carlo_not_settled", 0)),
            "replicas": int(budget.attrs.get("monte_carlo_replicas", 1)),
-           "trials": int(budget.attrs.get("monte_carlo_trials", 0)), "bins": {}}
+           "trials": int(budget.attrs.get("monte_carlo_trials", 0)), "bins": {},
+           "cnr": {z: by_cnr(sim, z) for z in heights}}
     for z in heights:
         devs = trial_deviations(sim, z, edges)
         for j, u in enumerate(budget["wind_speed"].values):
@@ -88,6 +115,14 @@ def table(before: dict, after: dict, heights: list[float]) -> str:
         lines.append(f"- **{name}:** headline {run['headline'][0]:.2f} % to {run['headline'][1]:.2f} % "
                      f"(k = 2); {run['not_settled']} certified value(s) not settled; {run['replicas']} "
                      f"replicas, {run['trials']:,} trials; excess kurtosis of the certified bins {spread}")
+    lines += ["", "| height (m) | period CNR (dB) | before: trials | before: mean, sd of (L − R)/R (%) "
+              "| after: trials | after: mean, sd of (L − R)/R (%) |", "|---|---|---|---|---|---|"]
+    for z in heights:
+        for (lo, hi), b, a in zip(CNR_BANDS, before["cnr"][z], after["cnr"][z], strict=True):
+            if b[0] == a[0] == 0:
+                continue
+            lines.append(f"| {z:g} | [{lo}, {hi}) | {b[0]:,} | {b[1]:+.2f}, {b[2]:.2f} | {a[0]:,} "
+                         f"| {a[1]:+.2f}, {a[2]:.2f} |")
     return "\n".join(lines) + "\n"
 
 
