@@ -145,10 +145,10 @@ def test_sample_lidar_reproduces_the_papers_findings(tmp_path):
     assert float(budget.wind_speed.where(ok.any("height")).max()) <= 16.0
     assert budget.attrs["monte_carlo_significant_digits"] == 2 and budget.attrs["monte_carlo_replicas"] >= 4
     rel = budget.relative_uncertainty.where(ok & (budget.sample_count >= 20)).sel(wind_speed=slice(4, 16))
-    # resampled bench residuals bring bad estimates into periods at -23...-18 dB (10 % of the 200-m
-    # periods, 0.1-2 % at the other heights, there mostly above -20 dB where under 1 % of estimates
-    # are bad): a few of them widen their wind-speed bins beyond the paper's 2 % at 160-200 m
-    # (3.2 % measured; README)
+    # bad estimates at the bench's CNR rate (0.2 % at -18 dB to 11 % at -24 dB, docs/method.md) make
+    # periods at -23...-18 dB read high (10 % of the 200-m periods, 0.1-2 % at the other heights, there
+    # mostly above -20 dB): a few of them widen their wind-speed bins beyond the paper's 2 % at 200 m
+    # (3.6 % measured; docs/validation.md)
     assert float(rel.min()) >= 0.4 and float(rel.sel(height=slice(None, 140)).max()) <= 2.0
     assert float(rel.max()) <= 5.0
     assert os.path.exists(tmp_path / "report.html")
