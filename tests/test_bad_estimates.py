@@ -349,3 +349,16 @@ def test_bad_estimate_records_are_checked():
         BadEstimates(**{**fields, "rate_covariance": [[0.1, 0.5], [0.5, 0.01]]})
     with pytest.raises(ValueError, match="one value per CNR"):
         BadEstimates(**{**fields, "flagged": [1]})
+
+
+def test_a_cnr_without_residuals_takes_the_nearest_cnrs_scale(clean):
+    cube, _ = clean
+    holes = cube.copy(deep=True)
+    holes["los_residual"].values[:, [2, 4]] = np.nan  # no residual at -24 and -20 dB
+    model = LidarModel.from_artefacts(cube=holes, cnr_threshold=None)
+    bad, full = model.bad_estimates, LidarModel.from_artefacts(cube=cube, cnr_threshold=None).bad_estimates
+    assert bad.total[2] == bad.total[4] == 0
+    # -24 dB is one step from -26 and -22: the lower index (-26 dB) wins the tie; -20 dB likewise takes -22 dB
+    assert bad.scale[2] == bad.scale[1] and bad.scale[4] == bad.scale[3]
+    assert bad.scale[1] == full.scale[1] and np.all(np.isfinite(bad.scale))
+    assert LidarModel.from_dict(model.to_json(), cube=holes) == model  # no NaN in the record

@@ -90,7 +90,7 @@ def classify(residuals: np.ndarray, k: float = CLASSIFY_K) -> dict[str, np.ndarr
 
     ``residuals`` (m s-1) has shape ``(beam, cnr, velocity, sample)``, NaN-padded.  Returns
     ``centre`` (beam, cnr, velocity: each bin's median, NaN when empty), ``scale`` (cnr: the
-    pooled robust scale s_c, NaN for a CNR without residuals), ``threshold`` (cnr:
+    pooled robust scale s_c; a CNR without residuals takes the nearest CNR's), ``threshold`` (cnr:
     ``k · max(s_c, MIN_SCALE)``) and ``bad`` (the residuals' shape, False where NaN).
     """
     res = np.asarray(residuals, dtype=float)
@@ -104,6 +104,13 @@ def classify(residuals: np.ndarray, k: float = CLASSIFY_K) -> dict[str, np.ndarr
         d = dev[:, c][finite[:, c]]
         if d.size:
             scale[c] = 1.4826 * np.median(d)
+    known = np.flatnonzero(np.isfinite(scale))
+    if known.size == 0:
+        raise ValueError("no residual at any CNR")
+    # a CNR without residuals: the scale of the nearest CNR with some (the noise table fills its
+    # empty bins from the nearest populated ones); ties go to the lower CNR index
+    nearest = known[np.argmin(np.abs(np.arange(scale.size)[:, None] - known[None, :]), axis=1)]
+    scale = scale[nearest]
     threshold = k * np.maximum(scale, MIN_SCALE)
     with np.errstate(invalid="ignore"):
         bad = finite & (dev > threshold[None, :, None, None])
