@@ -122,7 +122,7 @@ class CalibrationConfig:
     certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE
     significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS
     max_replicas: int = DEFAULT_MAX_REPLICAS
-    #: LOS error model (``LidarModel.los_noise_model``); None: residuals when the cube has them
+    #: LOS error model (``LidarModel.los_noise_model``); None: the mixture when the cube has residuals
     los_noise_model: str | None = None
     #: ``LidarModel.reference_turbulence``; None: the model's default (``"pinned_u"``)
     reference_turbulence: str | None = None

@@ -26,6 +26,7 @@ import numpy as np
 from lidarcal.admin import load_admin, merge_admin
 from lidarcal.campaign import DEFAULT_BASE_SEED
 from lidarcal.lidar.model import REFERENCE_TURBULENCE
+from lidarcal.lidar.noise import LOS_NOISE_MODELS
 from lidarcal.provenance import USER_ATTRIBUTES
 from lidarcal.units import ureg
 
@@ -195,15 +196,17 @@ def add_lidar_options(parser: argparse.ArgumentParser, *,
 
 
 def add_los_noise_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
-    """``--los-noise residuals|gaussian``: the bench-calibrated lidar's LOS error model.
+    """``--los-noise mixture|residuals|gaussian``: the bench-calibrated lidar's LOS error model.
 
-    Unset (``None``) means resample the cube's measured residuals when it has them, Gaussian
-    otherwise (``LidarModel.from_artefacts``).
+    Unset (``None``) means the mixture when the cube has measured residuals, Gaussian otherwise
+    (``LidarModel.from_artefacts``).
     """
-    parser.add_argument("--los-noise", choices=("residuals", "gaussian"), default=None,
-                        help="LOS error of the bench-calibrated lidar: resample each bench bin's measured "
-                        "residuals, bad estimates included, or draw N(los_bias, los_std) after the outlier "
-                        "rule (default: residuals when the cube has them; docs/contracts.md)")
+    parser.add_argument("--los-noise", choices=LOS_NOISE_MODELS, default=None,
+                        help="LOS error of the bench-calibrated lidar: 'mixture' bad estimates at the rate "
+                        "p_bad(CNR) fitted to the bench, otherwise a good residual of the bench bin; "
+                        "'residuals' every residual of the bin resampled, bad estimates included (runs "
+                        "before the mixture existed); 'gaussian' N(los_bias, los_std) after the outlier "
+                        "rule (default: mixture when the cube has residuals; docs/method.md)")
 
 
 def add_reference_turbulence_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
