@@ -73,6 +73,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise-terms", choices=("printed", "derived"), default="printed",
                    help="Eqs. 6-7 as printed (reproduces Table 4, default) or as propagated through the "
                    "10-minute average (docs/noise_terms.md)")
+    p.add_argument("--table4", choices=("corrected", "printed"), default="corrected",
+                   help="Table 4 terms: corrected (default: dv_SAFO / 2, Eq. 11 with dz cos(phi)) or as the "
+                   "paper prints them (lidarcal terms --table4)")
     add_los_noise_option(p)
     add_reference_turbulence_option(p)
     add_certification_options(p)  # --min-periods also sets the sensitivities' bins (one rule)
@@ -100,7 +103,8 @@ def run(args: argparse.Namespace) -> int:
         significant_digits=args.significant_digits, max_replicas=args.max_replicas,
         los_noise_model=args.los_noise,
         reference_turbulence=args.reference_turbulence,
-        terms={} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms},
+        terms={**({} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms}),
+               **({"paper_table4": True} if args.table4 == "printed" else {})},
     )
     result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args),
                        signing_key=args.sign, admin=admin_from_args(args), demonstration=args.demonstration)
