@@ -50,8 +50,9 @@ def to_printed(value, printed):
 
 @pytest.fixture(scope="module")
 def table4():
-    # the one switch for the printed choices (dv_SAFO at k = 1, Eq. 11 without cos phi) and Eq. 9's coefficient
-    return uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, beam_angle_coefficient=0.00248, paper_table4=True)
+    # the one switch for the printed choices (dv_SAFO at k = 1, Eq. 11 without cos phi), Eq. 9's coefficient
+    return uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, beam_angle_coefficient=0.00248,
+                             paper_table4=True)
 
 
 def test_table4_rows_reproduced_to_printed_digits(table4):

@@ -293,7 +293,8 @@ def uncertainty_terms(
         bench_coverage_factor=bench_coverage_factor, beam_angle_uncertainty=beam_angle_uncertainty,
         zero_distance_uncertainty=zero_distance_uncertainty, cone_angle=cone_angle)
     # Eq. 11: the range error of Zd moves an oblique beam's gate by dz cos(phi) in height
-    inputs["zero_distance_projection"] = 1.0 if paper_table4 else float(np.cos(np.deg2rad(inputs["cone_angle"])))
+    cos_phi = float(np.cos(np.deg2rad(inputs["cone_angle"])))
+    inputs["zero_distance_projection"] = 1.0 if paper_table4 else cos_phi
     if bias_repeatability_n not in ("los_samples", "runs"):
         raise InputError(f"argument 'bias_repeatability_n': expected 'los_samples' or 'runs'; "
                          f"found {bias_repeatability_n!r}")

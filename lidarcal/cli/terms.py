@@ -70,7 +70,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    metavar="M_S",
                    help="dv_SAFO as stated, m/s (0.0145)")
     p.add_argument("--bench-coverage-factor", type=positive("--bench-coverage-factor"), metavar="K",
-                   help="k dividing dv_SAFO (default 2: the value is stated at k = 2; 1 with --table4 printed)")
+                   help="k dividing dv_SAFO (default 2: it is stated at k = 2; 1 with --table4 printed)")
     p.add_argument("--table4", choices=("corrected", "printed"), default="corrected",
                    help="corrected (default): dv_SAFO / 2 and Eq. 11 with the height error dz cos(phi); "
                         "printed: both as Table 4 uses them (with --beam-angle-coefficient 0.00248 the "
