@@ -340,11 +340,12 @@ def _simulate(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, *,
         records.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
     if cfg.model_form_periods:  # the alternatives with replica 0's seeds: the budget's model_form term
         records = model_form_runs(records, paths["conditions"], model, per_bin=cfg.model_form_periods,
-                                  base_seed=cfg.base_seed, chunk=cfg.chunk, scheduler=cfg.scheduler,
+                                  wind_speeds=tuple(cfg.certified_range), base_seed=cfg.base_seed,
+                                  chunk=cfg.chunk, scheduler=cfg.scheduler,
                                   workers=cfg.workers, workdir=workdir, progress=progress)
-        sizes = records.sizes
-        run.done("simulated", f"model-form runs ({sizes.get('model_form_alternative', 0)} alternatives, "
-                 f"{sizes.get('model_form_sample', 0)} (period, height) samples each) for")
+        log.info("[%6.1f s] model-form runs: %d alternatives, %d (period, height) samples each",
+                 time.perf_counter() - run.t0, records.sizes.get("model_form_alternative", 0),
+                 records.sizes.get("model_form_sample", 0))
     # replicas until every certified value settles (JCGM 101 7.9): the budget needs the terms
     terms = _terms_per_height(records, cfg.terms)
     records, _ = adaptive_replicas(

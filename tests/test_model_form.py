@@ -290,6 +290,9 @@ def test_select_periods_takes_at_most_per_bin_evenly_in_time():
             assert chosen.size == min(5, mine.size)
             if mine.size > 5:  # the first and the last period of the bin, the rest between
                 assert chosen[0] == mine[0] and chosen[-1] == mine[-1]
+    inside = select_periods(rec, per_bin=5, wind_speeds=(6.0, 9.0))  # only bins centred in 6-9 m/s
+    centres = np.floor(ref / 0.5 + 0.5) * 0.5
+    assert np.array_equal(inside, cells & (centres >= 6.0) & (centres <= 9.0))
     with pytest.raises(InputError, match="per_bin must be >= 2"):
         select_periods(rec, per_bin=1)
 

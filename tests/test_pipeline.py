@@ -72,7 +72,14 @@ def test_calibrate_records_its_configuration_and_chain(small_run):
     out, _, _ = small_run
     cert = xr.open_dataset(out / "certificate.nc")
     sim = xr.open_dataset(out / "simulated.nc")
-    assert dict(sim.sizes, trial=0) == {"time": 48, "height": 2, "trial": 0}  # + the replicas' trials
+    sizes = dict(sim.sizes, trial=0, model_form_sample=0)  # + the replicas' trials and model-form samples
+    assert sizes == {"time": 48, "height": 2, "trial": 0, "model_form_alternative": 4, "model_form_sample": 0}
+    # the model-form runs (at most 16 periods per height and bin, of the 96 (period, height) cells) and the
+    # budget's model_form contributor made from them
+    assert 0 < sim.sizes["model_form_sample"] <= 96
+    assert list(sim.model_form_alternative.values) == ["reference_level", "coherence", "length_scale",
+                                                       "rwf_shape"]
+    assert "budget_model_form_standard_error" in cert and "model_form" in cert.budget_contributor.values
     assert set(np.unique(sim.trial_replica.values)) == {1, 2}  # max_replicas=3: replicas 1 and 2
     np.testing.assert_array_equal(sim.height.values, [60.0, 120.0])
     config = json.loads(cert.attrs["lidarcal_config"])
@@ -80,7 +87,7 @@ def test_calibrate_records_its_configuration_and_chain(small_run):
     assert config["min_periods"] == 3 and config["max_replicas"] == 3 and config["significant_digits"] == 2
     assert cert.attrs["monte_carlo_replicas"] == 3 and cert.attrs["monte_carlo_significant_digits"] == 2
     assert "budget_numerical_tolerance" in cert and "budget_period_count" in cert
-    assert config["base_seed"] == 20240101
+    assert config["base_seed"] == 20240101 and config["model_form_periods"] == 16
     roles = {r["role"] for r in json.loads(sim.attrs["lidarcal_inputs"])}
     assert {"conditions", "cube", "rwf"} <= roles
     # the budget is in the paper's units and selection works as an analyst expects

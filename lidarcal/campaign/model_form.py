@@ -11,7 +11,9 @@ nominal run is then free of most of the sampling noise a fresh draw would add.
 Which periods: at each height, the replica-0 periods are binned by their reference wind speed on
 the budget's lattice (bins of ``bin_width`` centred on its multiples); a bin's periods are all
 taken when it holds at most ``per_bin`` of them, otherwise ``per_bin`` of them evenly spaced in
-time.  The runs are added to the ``simulated_rtd`` records as ``model_form_*`` variables (dims
+time.  With ``wind_speeds`` only the bins whose centre lies in that range (the certified range)
+are re-simulated; the budget gives the others the term of the nearest bin at their height.  The
+runs are added to the ``simulated_rtd`` records as ``model_form_*`` variables (dims
 ``model_form_alternative``, ``model_form_sample``), beside the Monte Carlo replicas' ``trial_*``.
 Everything depends only on the records, the model and the seeds: any workers, scheduler or chunk
 size give the same numbers.
@@ -46,13 +48,14 @@ MODEL_FORM_VARIABLES = ("model_form_alternative", "model_form_description", "mod
                         "model_form_reference_wind_speed")
 
 
-def select_periods(records: xr.Dataset, per_bin: int = DEFAULT_PER_BIN, bin_width: Any = "0.5 m s-1"
-                   ) -> np.ndarray:
+def select_periods(records: xr.Dataset, per_bin: int = DEFAULT_PER_BIN, bin_width: Any = "0.5 m s-1",
+                   wind_speeds: tuple[float, float] | None = None) -> np.ndarray:
     """(time, height) bool: the replica-0 periods the alternatives re-simulate.
 
     Per height and reference wind-speed bin (``bin_width`` wide, centred on its multiples, as the
     budget bins), every period with a finite lidar and reference speed when the bin holds at most
-    ``per_bin``, otherwise ``per_bin`` of them evenly spaced in time order.
+    ``per_bin``, otherwise ``per_bin`` of them evenly spaced in time order; with ``wind_speeds``
+    (m s-1, inclusive) only the bins whose centre lies in that range.
     """
     per_bin = int(per_bin)
     if per_bin < 2:
@@ -65,10 +68,15 @@ def select_periods(records: xr.Dataset, per_bin: int = DEFAULT_PER_BIN, bin_widt
     if not ok.any():
         return out
     edges = centred_edges(float(ref[ok].min()), float(ref[ok].max()), width)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    wanted = np.ones(centres.size, dtype=bool) if wind_speeds is None else (
+        (centres >= float(wind_speeds[0]) - 1e-9) & (centres <= float(wind_speeds[1]) + 1e-9))
     for i in range(ref.shape[1]):
         rows = np.flatnonzero(ok[:, i])
         b = bin_index(ref[rows, i], edges)
         for cell in np.unique(b[b >= 0]):
+            if not wanted[cell]:
+                continue
             mine = rows[b == cell]  # in time order
             if mine.size > per_bin:
                 mine = mine[np.unique(np.round(np.linspace(0, mine.size - 1, per_bin)).astype(int))]
@@ -83,6 +91,7 @@ def model_form_runs(
     *,
     per_bin: int = DEFAULT_PER_BIN,
     bin_width: Any = "0.5 m s-1",
+    wind_speeds: tuple[float, float] | None = None,
     base_seed: int = DEFAULT_BASE_SEED,
     chunk: int = 64,
     scheduler: Any = None,
@@ -100,8 +109,9 @@ def model_form_runs(
         ``base_seed`` (the runs reuse its seeds: common random numbers).
     conditions, model, base_seed, chunk, scheduler, workers, workdir, progress, duration
         As for :func:`~lidarcal.campaign.simulate_campaign`.
-    per_bin, bin_width
-        At most ``per_bin`` periods per (height, reference wind-speed bin) (:func:`select_periods`).
+    per_bin, bin_width, wind_speeds
+        At most ``per_bin`` periods per (height, reference wind-speed bin), only the bins with
+        centres in ``wind_speeds`` when given (:func:`select_periods`).
 
     Returns
     -------
@@ -115,7 +125,7 @@ def model_form_runs(
     models = alternative_models(model)
     if not models:
         return records
-    cells = select_periods(records, per_bin, bin_width)
+    cells = select_periods(records, per_bin, bin_width, wind_speeds)
     heights = [float(z) for z in records["height"].values]
     log.info("model form: %d alternative(s) (%s) on %d (period, height) cells, at most %d per bin, with the "
              "nominal run's seeds", len(models), ", ".join(models), int(cells.sum()), int(per_bin))
