@@ -222,15 +222,17 @@ def test_the_direction_dependence_at_120_m_is_gen_turbs_fixed_amplitudes():
     gen_turb scheme (tests/bruteforce_points.py, 1,200 periods per case) with both amplitude
     conventions from the same draws:
 
-    * with gen_turb's fixed amplitudes the spread at 45° is ≥ 8 % below the one at 0° (gen_turb
-      itself: 12 %); with Gaussian amplitudes (the point-level form of the engine's ``pinned_u``)
-      the two directions agree within three standard errors of their ratio;
-    * at 45° fixed amplitudes lower the spread by ≥ 5 % against Gaussian ones from the same draws;
+    * at 45° fixed amplitudes lower the spread by 8 % against Gaussian ones from the same draws
+      (0.920 ± 0.016 by bootstrap; asserted < 0.97), at 0° by 2.4 % (0.976 ± 0.015);
+    * with Gaussian amplitudes (the point-level form of the engine's ``pinned_u``) the two
+      directions agree within three standard errors of their ratio (2.9 % for 1,200 periods each);
     * the engine (1,500 periods per direction, seeds of its own) agrees with the Gaussian brute
       force within 5 % or three standard errors;
     * the brute forces' 41-point discretisation itself raises the spread by 0.3-1.5 % (the engine's
       synthesis fed with the exact matrix of the 41 points against its own continuous-RWF matrix,
-      same seeds, 300 periods).
+      same seeds, 300 periods; measured 0.9 %);
+    * the model-form term spans more than the conventions' difference: the ``reference_level``
+      alternative, same seeds, moves the spread at 0° by 15-30 % (measured 23 %).
     """
     import bruteforce_points as bp
 
@@ -244,28 +246,34 @@ def test_the_direction_dependence_at_120_m_is_gen_turbs_fixed_amplitudes():
            for a in ("gaussian", "fixed")}
     n = len(stored[bp.case_name(0.2, 120.0, 0.0)]["gaussian"])
     se_ratio = np.sqrt(2.0 / (2 * n))  # two independent stds of n periods each
-    assert std[45.0, "fixed"] / std[0.0, "fixed"] < 0.92, std
+    assert std[45.0, "fixed"] / std[45.0, "gaussian"] < 0.97, std
     assert abs(std[45.0, "gaussian"] / std[0.0, "gaussian"] - 1.0) < 3.0 * se_ratio, std
-    assert std[45.0, "fixed"] / std[45.0, "gaussian"] < 0.95, std
     for d in (0.0, 45.0):
         ours = engine_ratios(0.2, 120.0, d, N_ENGINE)
         rel = ours.std(ddof=1) / std[d, "gaussian"] - 1.0
         print(f"\n120 m {d:g} deg: engine {100 * ours.std(ddof=1):.4f} %, gaussian points "
               f"{100 * std[d, 'gaussian']:.4f} %, fixed {100 * std[d, 'fixed']:.4f} % ({100 * rel:+.1f} %)")
         assert abs(rel) < max(0.05, 3.0 * np.sqrt(1 / (2 * n) + 1 / (2 * N_ENGINE))), (d, rel)
+    own = {}
     for d in (0.0, 45.0):
-        own = _engine_with_matrix(d, None)
+        own[d] = _engine_with_matrix(d, None)
         exact = _engine_with_matrix(d, _point_matrix(120.0, d, 0.2))
-        ratio = exact.std(ddof=1) / own.std(ddof=1)
+        ratio = exact.std(ddof=1) / own[d].std(ddof=1)
         print(f"120 m {d:g} deg: 41-point matrix / engine matrix, same seeds: {ratio:.4f}")
         assert 1.003 < ratio < 1.015, (d, ratio)
+    from lidarcal.lidar.model_form import alternative_models
+
+    level = alternative_models(LidarModel.ideal(reference_turbulence="pinned_u"))["reference_level"]
+    ratio = _engine_with_matrix(0.0, None, model=level).std(ddof=1) / own[0.0].std(ddof=1)
+    print(f"120 m 0 deg: reference_level / nominal spread, same seeds: {ratio:.4f}")
+    assert 1.15 < ratio < 1.30, ratio
 
 
-def _engine_with_matrix(direction: float, matrix: np.ndarray | None, n: int = 300) -> np.ndarray:
+def _engine_with_matrix(direction: float, matrix: np.ndarray | None, n: int = 300, model=None) -> np.ndarray:
     """(L − R)/R of the engine at 120 m, TI 0.2, with its own matrix or ``matrix`` (seeds (18, k))."""
     import lidarcal.lidar.simulate as engine
 
-    model = LidarModel.ideal(reference_turbulence="pinned_u")
+    model = model or LidarModel.ideal(reference_turbulence="pinned_u")
     original = engine.cross_spectral_matrix
     if matrix is not None:
         engine.cross_spectral_matrix = lambda *args, **kw: matrix
