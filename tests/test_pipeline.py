@@ -164,7 +164,20 @@ def test_sample_lidar_reproduces_the_papers_findings(tmp_path):
     section = " ".join(doc.split("### The default run beside Figures 8 and 9", 1)[1].split())
     with netCDF4.Dataset(tmp_path / "certificate.nc") as nc:
         headline = str(nc.getncattr("expanded_uncertainty_headline"))
+        model_form = str(nc.getncattr("model_form"))
     assert f"**Headline:** {headline.split(' (k = ')[0]} (k = 2)" in section, headline
+    # the model-form contributor over the certified bins, its standard error and how much it raises U
+    spread = model_form.split("; over the certified bins ")[1].split(" of the wind speed")[0]
+    error = model_form.split("standard error up to ")[1].split(")")[0]
+    raised = model_form.split("raising U by ")[1].split(" percentage points")[0]
+    assert f"`model_form` contributor is {spread} of the wind speed (k = 1)" in section, model_form
+    assert f"standard error up to {error}" in section and f"raises U by {raised} percentage points" in section
+    shift = abs(budget.model_form_shift.where(ok))  # the alternative moving U most: median bin, worst bin
+    median, largest = shift.median(["wind_speed", "height"]), shift.max(["wind_speed", "height"])
+    assert str(median.idxmax().item()) == "coherence" and str(largest.idxmax().item()) == "reference_level"
+    worst = budget.model_form_shift.sel(model_form_alternative="reference_level").where(ok)
+    assert f"(+{float(worst.max()):.2f} points at {float(worst.max('wind_speed').idxmax()):g} m)" in section
+    assert float(largest.sel(model_form_alternative="rwf_shape")) < 0.005
     for h, s, se in zip(shear.height.values, slope, shear.slope_standard_error.values, strict=True):
         quoted = f"{s:+.2f}".replace("-", "−") if s < 0 else f"{s:+.2f}"
         assert f"{quoted.lstrip('+')} ± {se:.2f}" in section, (h, quoted, se)
