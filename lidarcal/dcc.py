@@ -45,7 +45,13 @@ from lidarcal.admin import (
     certificate_attributes,
     status_line,
 )
-from lidarcal.certificate import components, extract_component
+from lidarcal.certificate import (
+    MEASURAND,
+    components,
+    extract_component,
+    model_form_summary,
+    model_form_values,
+)
 from lidarcal.errors import InputError, SealError, ValidationError
 from lidarcal.io import atomic_path, check_writable, open_artefact, read_image
 from lidarcal.provenance import check_text
@@ -242,6 +248,8 @@ def _statements(admin: etree._Element, attrs: Mapping[str, Any], digest: str, fi
     if attrs.get("expanded_uncertainty_headline"):
         head = _sub(statements, _d("statement"), refType="lidarcal_headline")
         _text(head, "declaration", f"Expanded uncertainty: {attrs['expanded_uncertainty_headline']}")
+    measurand = _sub(statements, _d("statement"), refType="lidarcal_measurand")  # docs/certificate.md
+    _text(measurand, "declaration", str(attrs.get("measurand") or MEASURAND))
 
 
 def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:
@@ -347,6 +355,7 @@ def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, 
           + "); bins without a value (no period) are left out. " + status_line(attrs))
     _methods(result_el, attrs)
     results = _sub(result_el, _d("results"))
+    model_form = model_form_values(budget)  # (wind_speed, height), or None
     budget = budget.transpose("height", "wind_speed", ...)
     tolerance = budget.get("numerical_tolerance")
     for i, z in enumerate(np.atleast_1d(budget["height"].values)):
@@ -375,6 +384,10 @@ def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, 
                 _real_list(lst, "Numerical tolerance of the relative expanded uncertainty (Monte Carlo)", tol,
                            si_unit(str(tolerance.attrs.get("units", "%"))), labels=labels,
                            ref_type="lidarcal_numericalTolerance")
+        if model_form is not None:  # the simulation's model-form contributor (docs/method.md)
+            _real_list(lst, "Model-form standard uncertainty (k = 1), relative to the bin's mean reference "
+                       "wind speed", model_form["value"][:, i][keep], r"\percent", labels=labels,
+                       ref_type="lidarcal_modelFormUncertainty", description=model_form_summary(budget))
         _real_list(lst, "10-minute periods in the bin", budget["sample_count"].values[i][keep].astype(float),
                    r"\one", labels=labels, ref_type="lidarcal_sampleCount")
     meta = _sub(result_el, _d("measurementMetaData"))

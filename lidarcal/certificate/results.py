@@ -165,7 +165,8 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
     ``outside_certified_range``), ``certified`` (counted in :func:`headline_range`),
     ``not_certified_reason``, the k = 2 expanded uncertainty in m/s and in % of the bin's mean
     reference wind speed, ``numerical_tolerance_pct`` (the Monte Carlo's tolerance on that %,
-    JCGM 101 7.9) and ``numerically_settled``, ``main_contributors`` (the largest
+    JCGM 101 7.9) and ``numerically_settled``, ``model_form_pct`` (the simulation's model-form
+    contributor, k = 1, in %; NaN without it), ``main_contributors`` (the largest
     ``contributors`` standard-uncertainty contributions, in %) and ``significant_sensitivities``
     (per height, Eqs. 12-13).  Numbers are the certificate's own values, not rounded.
 
@@ -193,6 +194,7 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
     budget = budget.transpose("height", "wind_speed", ...)
     sens = _significant_sensitivities(cert) if is_certificate else {}
     names = [str(c) for c in budget["contributor"].values]
+    mf = names.index("model_form") if "model_form" in names else None
     bounds = budget["wind_speed_bounds"].values if "wind_speed_bounds" in budget else None
     rows = []
     for i, z in enumerate(budget["height"].values):
@@ -220,6 +222,7 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
                     budget["relative_expanded_uncertainty"].values[i, j]),
                 "numerical_tolerance_pct": tol,
                 "numerically_settled": {0: "yes", 1: "no"}.get(nflag, ""),
+                "model_form_pct": float(rel_c[mf]) if mf is not None else np.nan,
                 "main_contributors": main,
                 "significant_sensitivities": sens.get(float(z), ""),
             })

@@ -47,7 +47,7 @@ from lidarcal.lidar.noise import (
 )
 from lidarcal.lidar.quadrature import gauss_hermite_rwf
 from lidarcal.lidar.rwf_profile import RwfProfileDigest, rwf_nodes, rwf_profile_digest
-from lidarcal.turbulence.kernels import SIGMA_RATIOS
+from lidarcal.turbulence.kernels import COHERENCE_DECAY, L_C, LAMBDA_1, SIGMA_RATIOS
 
 __all__ = ["LidarModel", "DEFAULT_CNR_THRESHOLD", "flow_distortion_factor", "direction_spread",
            "RwfProfileDigest",
@@ -116,6 +116,12 @@ class LidarModel:
     #: the continuous RWF ``(offsets (m), values)`` that filters turbulence; ``None``: the Gaussian with
     #: the quadrature nodes' mean and variance (exact for the ideal lidar)
     rwf_profile: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    #: the turbulence model's form (``lidarcal.turbulence.kernels``; defaults IEC 61400-1 Ed. 3 as
+    #: PyConTurb): decay a and u coherence length L_c (m) of exp(-a r sqrt((f/U)² + (0.12/L_c)²)),
+    #: and the Kaimal Lambda_1 (m), Lambda(z) = min(0.7 z, Lambda_1)
+    coherence_decay: float = COHERENCE_DECAY
+    coherence_length: float = L_C
+    turbulence_length_scale: float = LAMBDA_1
     description: str = "ideal"  #: free text: where the configuration came from
 
     def __post_init__(self) -> None:
@@ -184,6 +190,10 @@ class LidarModel:
                 problems.append(f"bad_estimates' CNR bins {list(self.bad_estimates.cnr)} dB are not the "
                                 "noise "
                                 f"table's {list(table.cnr)} dB")
+        for name in ("coherence_decay", "coherence_length", "turbulence_length_scale"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                problems.append(f"{name} must be a finite number > 0; got {value!r}")
         if self.reference_turbulence not in REFERENCE_TURBULENCE:
             problems.append(f"reference_turbulence must be one of {list(REFERENCE_TURBULENCE)}; got "
                             f"{self.reference_turbulence!r}")

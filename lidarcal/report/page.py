@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.certificate import MEASURAND, model_form_summary
 from lidarcal.document.facts import (
     NOT_STATED,
     certificate_facts,
@@ -28,6 +29,7 @@ from lidarcal.document.facts import (
     certified_grid,
     fmt,
     headline_text,
+    model_form_grid,
 )
 from lidarcal.document.figures import A4, STYLE, draw, drawn_cnr_range, figure_names, parts_of
 from lidarcal.document.pages import write_document
@@ -66,6 +68,8 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None
         out.append(html_table(["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]], rows,
                           f"Certified result: relative expanded uncertainty U (%), k = {k:g}, per height and "
                           "wind-speed bin; – : not certified (too few periods or no data)"))
+        out.append(f'<p class="measurand">{html.escape(MEASURAND)}</p>')
+        out.append(_model_form_table(budget))
     if cert is not None:
         facts = "\n".join(
             f"<tr><th>{html.escape(section if n == 0 else '')}</th><td>{html.escape(label)}</td>"
@@ -74,6 +78,25 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None
             for n, (label, value) in enumerate(items))
         out.append(f'<table class="facts">\n{facts}\n</table>')
     return "\n".join(out)
+
+
+def _model_form_table(budget: xr.Dataset) -> str:
+    """Return the model-form contributor per certified bin (%, k = 1, ± standard error) as HTML."""
+    g = model_form_grid(budget)
+    if g is None:
+        return ""
+    rows = []
+    for i in np.flatnonzero(g["inside"]):
+        cells = []
+        for j in range(g["height"].size):
+            v, se = g["value"][i, j], g["tolerance"][i, j]
+            ok = g["certified"][i, j] and np.isfinite(v)
+            cells.append((f"{v:.2f}" + (f" ± {se:.2g}" if np.isfinite(se) else "")) if ok else "–")
+        rows.append([fmt(g["wind_speed"][i]), *cells])
+    return (f'<p class="model-form">{html.escape(model_form_summary(budget) or "")}</p>\n'
+            + html_table(["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]], rows,
+                         "Model form of the simulation: contributor model_form (%, k = 1) ± its standard "
+                         "error, per height and certified wind-speed bin; – : not certified"))
 
 
 def _provenance(cert: xr.Dataset | None) -> str:
