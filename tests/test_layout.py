@@ -52,6 +52,7 @@ STAGES = (
     "report",
     "diagnose",
     "compare",
+    "smc",
     "pipeline",
     "cli",
 )
