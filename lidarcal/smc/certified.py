@@ -97,9 +97,23 @@ class Certified:
 
     @property
     def cone_angle(self) -> float | None:
-        """The calibrated lidar's nominal cone angle (degree from vertical), from its recorded model."""
+        """The calibrated lidar's nominal cone angle (degree from vertical), see :attr:`cone_angle_origin`."""
         rec = self.model_record
-        return None if rec is None or "cone_angle" not in rec else float(rec["cone_angle"])
+        if rec is not None and "cone_angle" in rec:
+            return float(rec["cone_angle"])
+        if self.terms is not None and "cone_angle" in self.terms:
+            found = np.unique(np.asarray(self.terms["cone_angle"].values, dtype=float))
+            if found.size == 1 and self.terms["cone_angle"].attrs.get("units") in ("degree", "degrees"):
+                return float(found[0])
+        return None
+
+    @property
+    def cone_angle_origin(self) -> str:
+        """Where :attr:`cone_angle` comes from: the lidar model, else the Table 4 terms' cone angle."""
+        rec = self.model_record
+        if rec is not None and "cone_angle" in rec:
+            return f"the certificate's lidar model ({self.path.name})"
+        return f"the certificate's Table 4 terms ({self.path.name}, terms_cone_angle)"
 
     @property
     def hybrid_weight(self) -> float | None:

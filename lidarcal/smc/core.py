@@ -94,10 +94,10 @@ def _from_sta(
 ) -> tuple[xr.Dataset, dict[str, Path], str]:
     if cert.cone_angle is None:
         raise InputError(
-            f"{cert.path}: the certificate cannot check the files' cone angle: "
-            f"{cert.missing.get('lidar_model', 'it records no lidar model')}"
+            f"{cert.path}: the certificate states no cone angle (no lidar model, no Table 4 terms), so the "
+            f"files' cone angle cannot be checked against the calibrated one"
         )
-    given_by = f"the certificate's lidar model ({cert.path.name})"
+    given_by = cert.cone_angle_origin
     parsed = read_lidar_files(
         files, allow_gaps=allow_gaps, cone_angle=cert.cone_angle, cone_angle_from=given_by
     )
@@ -132,14 +132,25 @@ def _from_conditions(cert: Certified, path: str | os.PathLike) -> tuple[xr.Datas
                 f"{name}: global attribute 'lidar_hybrid_weight': expected {cert.hybrid_weight:.6g} "
                 f"(the certificate's lidar model); found {p:.6g}"
             )
-    return load_conditions(raw, warn=False), {"conditions": Path(path)}, Path(path).name
+    return raw, {"conditions": Path(path)}, Path(path).name
+
+
+def _with_time_bounds(ds: xr.Dataset, raw: xr.Dataset) -> xr.Dataset:
+    """Return ``ds`` with the interval bounds of ``raw`` if it has them, else without ``bounds``."""
+    if "time_bounds" in raw.variables and raw["time_bounds"].shape == (ds.sizes["time"], 2):
+        bounds = raw["time_bounds"]
+        ds = ds.assign_coords(time_bounds=(("time", "nv"), bounds.values, dict(bounds.attrs)))
+        ds["time"].attrs["bounds"] = "time_bounds"
+    else:
+        ds["time"].attrs.pop("bounds", None)
+    return ds
 
 
 def _cone_check(cert: Certified, found: float, where: str) -> None:
     if cert.cone_angle is None:
         raise InputError(
-            f"{cert.path}: the certificate cannot check the campaign's cone angle: "
-            f"{cert.missing.get('lidar_model', 'it records no lidar model')}"
+            f"{cert.path}: the certificate states no cone angle (no lidar model, no Table 4 terms), so the "
+            f"campaign's cone angle cannot be checked against the calibrated one"
         )
     if abs(found - cert.cone_angle) > CONE_ANGLE_TOLERANCE:
         raise InputError(
@@ -169,7 +180,7 @@ def campaign_conditions(
         ds, inputs, source = _from_conditions(cert, conditions)
     else:
         ds, inputs, source = _from_sta(cert, list(files), min_availability, allow_gaps)
-        ds = load_conditions(ds, warn=False)
+    ds = _with_time_bounds(load_conditions(ds, warn=False), ds)
     if ds.sizes["time"] < 2:
         raise InputError(
             f"{source}: dimension 'time': expected at least 2 ten-minute periods (a campaign); "

@@ -16,6 +16,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.admin import DEMONSTRATION
+from lidarcal.analysis.sensitivity import per_unit
 from lidarcal.binning import bin_index
 from lidarcal.cf import with_bounds
 from lidarcal.conditions.variables import CONDITION_NAMES
@@ -207,7 +208,7 @@ def _binned_values(c: Campaign, per: dict, contribution: np.ndarray, edges: np.n
 
 def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
     """Assemble the stamped ``smc`` artefact of a :class:`~lidarcal.smc.core.Campaign`."""
-    cert, cond = c.cert, c.conditions.transpose("time", "height")
+    cert, cond = c.cert, c.conditions.transpose("time", "height", ...)
     per, contribution, names = _per_period(c)
     route = "monte_carlo" if c.monte_carlo is not None else "iec"
     speed = cond["wind_speed"].values
@@ -252,6 +253,8 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
     )
     ds["combined"] = ("contributor", combined, output_attrs("smc", "combined", **context))
     ds["outside_envelope"] = (dims, outside, output_attrs("smc", "outside_envelope", **context))
+    masks = ds["outside_envelope"].attrs["flag_masks"]
+    ds["outside_envelope"].attrs["flag_masks"] = np.asarray(masks, np.int8)  # the variable's type (CF 3.5)
     for v, lo_v, hi_v in zip(env_names, low, high, strict=True):
         ctx = {**context, "variable": v, "xname": v.replace("_", " "), "units": cond[v].attrs["units"]}
         ds[f"envelope_low_{v}"] = ("height", lo_v, output_attrs("smc", f"envelope_low_{v}", **ctx))
@@ -275,12 +278,8 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
             units = cond[v].attrs["units"]
             slope = np.full(cond.sizes["height"], np.nan)
             slope[c.height_index >= 0] = c.monte_carlo.slopes[:, i]
-            ctx = {
-                **context,
-                "variable": v,
-                "xname": v.replace("_", " "),
-                "slope_units": "m s-1" if units == "1" else f"m s-1 ({units})-1",
-            }
+            ctx = {**context, "variable": v, "xname": v.replace("_", " ")}
+            ctx["slope_units"] = per_unit("m s-1", units)
             ds[f"monte_carlo_slope_{v}"] = (
                 "height",
                 slope,
