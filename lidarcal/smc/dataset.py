@@ -28,7 +28,14 @@ from lidarcal.smc.certified import flag_meanings
 from lidarcal.smc.core import Campaign
 from lidarcal.smc.kernels import quadrature
 from lidarcal.smc.montecarlo import REGRESSORS
-from lidarcal.smc.routes import COVERAGE, budget_edges, envelope, table_edges
+from lidarcal.smc.routes import (
+    COVERAGE,
+    QUANTILES,
+    budget_edges,
+    calibration_quantiles,
+    envelope,
+    table_edges,
+)
 
 __all__ = ["smc_dataset", "binned", "binned_table", "CONTRIBUTORS", "ROUTES"]
 
@@ -233,6 +240,7 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
             "height": cond["height"].variable.copy(),
             "contributor": ("contributor", np.array(names, dtype=object)),
             "wind_speed_bin": ("wind_speed_bin", 0.5 * (edges[:-1] + edges[1:])),
+            "quantile": ("quantile", np.asarray(QUANTILES)),
         }
     )
     for name in CONDITION_NAMES:
@@ -255,10 +263,13 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
     ds["outside_envelope"] = (dims, outside, output_attrs("smc", "outside_envelope", **context))
     masks = ds["outside_envelope"].attrs["flag_masks"]
     ds["outside_envelope"].attrs["flag_masks"] = np.asarray(masks, np.int8)  # the variable's type (CF 3.5)
+    quantiles = calibration_quantiles(cert, c.height_index)
     for v, lo_v, hi_v in zip(env_names, low, high, strict=True):
         ctx = {**context, "variable": v, "xname": v.replace("_", " "), "units": cond[v].attrs["units"]}
         ds[f"envelope_low_{v}"] = ("height", lo_v, output_attrs("smc", f"envelope_low_{v}", **ctx))
         ds[f"envelope_high_{v}"] = ("height", hi_v, output_attrs("smc", f"envelope_high_{v}", **ctx))
+        ds[f"calibration_quantiles_{v}"] = (("quantile", "height"), quantiles[v],
+                                            output_attrs("smc", f"calibration_quantiles_{v}", **ctx))
     for i, v in enumerate(c.iec.variables):
         ctx = {
             **context,
@@ -292,7 +303,7 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
             values,
             output_attrs("smc", name, **context),
         )
-    for name in ("time", "height", "contributor", "wind_speed_bin"):
+    for name in ("time", "height", "contributor", "wind_speed_bin", "quantile"):
         ds[name].attrs.update(output_attrs("smc", name, **context))
     ds["height"].attrs.update(dict(cond["height"].attrs))
     ds = with_bounds(ds, "wind_speed_bin", edges)

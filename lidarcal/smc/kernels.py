@@ -20,6 +20,7 @@ import numpy as np
 from lidarcal.binning import bin_index
 
 __all__ = [
+    "binned_quantiles",
     "quadrature",
     "iec_deviations",
     "within_bin_fit",
@@ -139,3 +140,25 @@ def group_of(period_key: np.ndarray, replica: np.ndarray, sequences: int = SEQUE
     """
     k = np.asarray(period_key, dtype=np.int64) // 600
     return np.asarray((k + np.asarray(replica, dtype=np.int64)) % int(sequences), dtype=np.int64)
+
+
+def binned_quantiles(bounds: np.ndarray, counts: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Quantiles ``q`` of a distribution known by its bin table, linear inside each bin.
+
+    ``bounds`` (bin, 2) the bins' edges, ``counts`` (bin,) the values in each.  NaN without any
+    value.
+
+    >>> b = np.array([[-1.0, 0.0], [0.0, 1.0], [1.0, 2.0], [2.0, 3.0]])
+    >>> binned_quantiles(b, np.array([0, 1, 3, 0]), np.array([0.0, 0.25, 0.5, 1.0])).tolist()
+    [0.0, 1.0, 1.3333333333333333, 2.0]
+    """
+    bounds = np.asarray(bounds, dtype=float)
+    counts = np.asarray(counts, dtype=float)
+    filled = np.flatnonzero(counts > 0)
+    if not filled.size:
+        return np.full(np.shape(q), np.nan)
+    bounds, counts = bounds[filled[0]:filled[-1] + 1], counts[filled[0]:filled[-1] + 1]  # no empty ends
+    edges = np.append(bounds[:, 0], bounds[-1, 1])
+    cdf = np.append(0.0, np.cumsum(counts)) / counts.sum()
+    keep = np.append(True, np.diff(cdf) > 0)  # an empty bin inside has no inverse: its start stands
+    return np.interp(np.asarray(q, dtype=float), cdf[keep], edges[keep])

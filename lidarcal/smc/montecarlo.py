@@ -50,6 +50,8 @@ __all__ = ["MonteCarloRoute", "monte_carlo_route", "REGRESSORS"]
 
 log = logging.getLogger(__name__)
 
+#: Monte Carlo budget contributors computed from the trials (recomputed per JCGM 101 sequence).
+_FROM_TRIALS = ("mean_difference", "std_difference", "statistical")
 #: Conditions the expected deviation of a period is regressed on inside its wind-speed bin.
 REGRESSORS = ("turbulence_intensity", "wind_shear_exponent", "cnr", "cnr_gradient")
 
@@ -112,17 +114,18 @@ def _sequence_estimates(
 ) -> np.ndarray:
     """Each sequence's estimate of every bin's relative expanded uncertainty (%): (height, bin, sequence).
 
-    The budget's Monte Carlo combination (``lidarcal.analysis.budget``):
-    k·√(u_vref² + mean_diff² + std_diff² + std_diff²/n) / mean reference · 100.
+    The budget's Monte Carlo combination (``lidarcal.analysis.budget``) with the parts the trials
+    give recomputed from each sequence's trials (|mean difference|, its spread, spread/√n) and
+    every other contributor (the virtual reference's Table 4 terms, and any a later budget adds)
+    taken from the pooled budget: k·√(fixed² + mean_diff² + std_diff² + std_diff²/n) / mean
+    reference · 100.
     """
     bounds = bud["wind_speed_bounds"].values
     edges = np.append(bounds[:, 0], bounds[-1, 1])
     names = [str(c) for c in bud["contributor"].values]
-    vref = (
-        bud["contribution"]
-        .transpose("height", "wind_speed", "contributor")
-        .values[:, :, names.index("virtual_reference")]
-    )
+    parts = bud["contribution"].transpose("height", "wind_speed", "contributor").values
+    fixed = [j for j, n in enumerate(names) if n not in _FROM_TRIALS]
+    vref = np.sqrt(np.sum(parts[:, :, fixed] ** 2, axis=-1))  # NaN where a fixed part is
     nh, nb = vref.shape
     group = group_of(keys[trials["period"]], trials["replica"])
     out = np.full((nh, nb, SEQUENCES), np.nan)

@@ -163,20 +163,35 @@ def _conditions_figure(fig, ds: xr.Dataset) -> None:
     ).ravel()
     z = np.asarray(ds["height"].values, dtype=float)
     bits = ds["outside_envelope"].transpose("time", "height").values
+    dz = 0.18 * (np.min(np.diff(z)) if z.size > 1 else 10.0)
     for k, (ax, v) in enumerate(zip(axes, ENVELOPE, strict=True)):
         x = ds[v].transpose("time", "height").values
         lo, hi = ds[f"envelope_low_{v}"].values, ds[f"envelope_high_{v}"].values
-        dz = 0.18 * (np.min(np.diff(z)) if z.size > 1 else 10.0)
+        name = f"calibration_quantiles_{v}"
+        q = (
+            ds[name].sel(quantile=[0.05, 0.5, 0.95]).transpose("quantile", "height").values
+            if name in ds
+            else None
+        )
         for j, h in enumerate(z):
+            first = j == 0
             if np.isfinite(lo[j]):
                 ax.plot(
                     [lo[j], hi[j]],
                     [h - dz, h - dz],
                     color="0.6",
-                    lw=5,
-                    solid_capstyle="butt",
-                    label="calibration's envelope" if j == 0 else None,
+                    lw=0.8,
+                    label="calibration: envelope" if first else None,
                 )
+            if q is not None and np.isfinite(q[:, j]).all():
+                ax.plot(
+                    [q[0, j], q[2, j]],
+                    [h - dz, h - dz],
+                    color="0.55",
+                    lw=3,
+                    label="calibration: 5-95 %" if first else None,
+                )
+                ax.plot([q[1, j]], [h - dz], "o", color="0.4", ms=3)
             xs = x[:, j][np.isfinite(x[:, j])]
             if xs.size:
                 p5, p50, p95 = np.percentile(xs, [5, 50, 95])
@@ -185,14 +200,14 @@ def _conditions_figure(fig, ds: xr.Dataset) -> None:
                     [h + dz, h + dz],
                     color="#1f77b4",
                     lw=0.8,
-                    label="campaign: range" if j == 0 else None,
+                    label="campaign: range" if first else None,
                 )
                 ax.plot(
                     [p5, p95],
                     [h + dz, h + dz],
                     color="#1f77b4",
                     lw=3,
-                    label="campaign: 5-95 %" if j == 0 else None,
+                    label="campaign: 5-95 %" if first else None,
                 )
                 ax.plot([p50], [h + dz], "o", color="#1f77b4", ms=3)
                 outside = int(((bits[:, j] >> k) & 1).sum())
@@ -211,7 +226,7 @@ def _conditions_figure(fig, ds: xr.Dataset) -> None:
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=FONT - 1.5, loc="lower right")
     fig.suptitle(
-        "The campaign's conditions against the calibration's envelope (grey): where it leaves it",
+        "Campaign (blue) against calibration (grey): median, 5-95 %, range / envelope",
         fontsize=FONT + 2,
     )
 

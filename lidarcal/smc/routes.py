@@ -25,7 +25,7 @@ import xarray as xr
 from lidarcal.analysis.kernels import centred_edges
 from lidarcal.errors import InputError
 from lidarcal.smc.certified import Certified, flag_meanings
-from lidarcal.smc.kernels import bin_index, iec_deviations, quadrature
+from lidarcal.smc.kernels import bin_index, binned_quantiles, iec_deviations, quadrature
 
 __all__ = [
     "COVERAGE",
@@ -37,6 +37,8 @@ __all__ = [
     "budget_edges",
     "envelope",
     "table_edges",
+    "calibration_quantiles",
+    "QUANTILES",
     "SLOPE_VARIABLES",
 ]
 
@@ -242,3 +244,29 @@ def envelope(
         lows.append(lo)
         highs.append(hi)
     return lows, highs, bits, ENVELOPE
+
+
+#: Quantile levels of the calibration's distribution of each variable kept in the ``smc`` artefact.
+QUANTILES = (0.05, 0.25, 0.5, 0.75, 0.95)
+
+
+def calibration_quantiles(cert: Certified, height_index: np.ndarray) -> dict[str, np.ndarray]:
+    """Return the calibration's distribution of each :data:`ENVELOPE` variable: :data:`QUANTILES` per height.
+
+    From the bin table of the variable's sensitivity (its regression's periods; linear inside a
+    bin, :func:`lidarcal.smc.kernels.binned_quantiles`); (quantile, height), NaN where the
+    certificate has no such sensitivity or the height is not certified.
+    """
+    out = {}
+    for v in ENVELOPE:
+        q = np.full((len(QUANTILES), height_index.size), np.nan)
+        sens = cert.sensitivities.get(v)
+        if sens is not None:
+            s = sens.transpose("height", "bin", ...)
+            bounds = np.asarray(s["bin_bounds"].values, dtype=float)
+            for j, i in enumerate(height_index):
+                if i >= 0:
+                    counts = np.asarray(s["sample_count"].values[i])
+                    q[:, j] = binned_quantiles(bounds, counts, np.array(QUANTILES))
+        out[v] = q
+    return out
