@@ -368,3 +368,20 @@ def test_smc_refuses_both_or_neither_input(tmp_path, cert):
         smc(cert, monte_carlo=False)
     ds = xr.Dataset()
     assert ds is not None
+
+
+def test_report_without_the_monte_carlo_route(tmp_path, cert):
+    code, out = run_smc(
+        tmp_path,
+        cert,
+        sample_file("sta/example_firmware2.sta"),
+        "--no-monte-carlo",
+        "--report",
+        tmp_path / "smc.html",
+    )
+    assert code == 0
+    page = (tmp_path / "smc.html").read_text(encoding="utf-8")
+    assert page.count("data:image/png;base64,") == 3 and "DEMONSTRATION result" in page
+    assert "<th>Quoted route</th><td>iec (Monte Carlo route: not run" in page
+    pdf = (tmp_path / "smc.pdf").read_bytes()
+    assert pdf.startswith(b"%PDF") and len(pdf) > 20_000  # a text page and three figures (pages: slow test)

@@ -158,6 +158,7 @@ def test_sta_files_of_both_dialects_end_to_end_to_a_report(calibrated, tmp_path,
     ds = lidarcal.open_artefact(out)
     assert ds.sizes["time"] == 12 and ds.attrs["environmental_route"] == "monte_carlo"
     assert json.loads(ds.attrs["heights_not_covered_m"]) == [60.0, 100.0]
+    assert main(["validate", str(out)]) == 0  # schema, CF-1.11 and ACDD-1.3
     files = {r["file"] for r in json.loads(ds.attrs["lidarcal_inputs"])}
     assert {"day1.sta", "day2.sta", "certificate.nc"} <= files
     html = (tmp_path / "smc.html").read_text(encoding="utf-8")
