@@ -81,9 +81,12 @@ def test_the_calibrations_own_conditions_give_the_certificates_budget_back(calib
     )
     assert int(both.sum()) >= 20  # most certified bins of both heights are compared
     diff = np.abs(b.simulated_relative_expanded_uncertainty - b.certified_relative_expanded_uncertainty)
-    # each tolerance is at least twice the standard deviation of its value's mean (JCGM 101 7.9.4,
-    # rounded up to half a decade): two independent estimates differ by less than their sum
-    allowed = b.simulated_numerical_tolerance + b.certified_numerical_tolerance
+    # each tolerance is at least twice the standard deviation of its value (JCGM 101 7.9.4: 2 s/sqrt(h),
+    # rounded up to half a decade), so their sum is at least 2 sqrt(2) = 2.8 standard deviations of
+    # the difference of the two independent estimates.  A family of ~25 bins at a family-wise 1 %
+    # needs 3.2 (Bonferroni), and each s comes from only 4 to 8 sequences or replicas (its 95 % upper
+    # bound is 1.5 to 2.5 s): 1.5 times the sum
+    allowed = 1.5 * (b.simulated_numerical_tolerance + b.certified_numerical_tolerance)
     assert bool((diff <= allowed).where(both, True).all()), (diff.where(both), allowed.where(both))
     # and the environmental term is small beside the calibration's where nothing changed
     ok = c.coverage == 0
