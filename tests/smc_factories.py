@@ -36,7 +36,13 @@ SHEAR_SLOPE = (3.0, 0.0)
 
 
 def small_certificate(
-    d: Path, *, name: str = "cert.nc", flags=None, with_model: bool = True, signing_key=None
+    d: Path,
+    *,
+    name: str = "cert.nc",
+    flags=None,
+    with_model: bool = True,
+    signing_key=None,
+    sensitivities: bool = True,
 ) -> Path:
     """Write and seal a small certificate in ``d``; ``flags(budget) -> budget`` may edit its bin flags."""
     d.mkdir(parents=True, exist_ok=True)
@@ -76,6 +82,7 @@ def small_certificate(
     if flags is not None:
         bud = flags(bud)
     sens = [sensitivity(records, v) for v in ("turbulence_intensity", "wind_shear_exponent", "cnr_gradient")]
+    sens = sens if sensitivities else []
     parts = {"cube": cube, "rwf": rwf} if with_model else {}
     cert = make_certificate(
         budget=bud, sensitivities=sens, terms=terms, records=records, demonstration=True, **parts

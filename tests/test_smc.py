@@ -311,13 +311,25 @@ def test_tampered_unsigned_and_unsealed_certificates_are_refused(tmp_path, cert,
 def test_what_an_old_certificate_cannot_give_is_named(tmp_path, capsys):
     old = small_certificate(tmp_path / "old", with_model=False)  # no cube, no RWF, no lidar model
     sta = sample_file("sta/example_firmware2.sta")
-    code, _ = run_smc(tmp_path, old, sta)
+    code, out = run_smc(tmp_path, old, sta)
     err = capsys.readouterr().err
-    assert code == 2 and "lidarcal_lidar_model" in err and "Monte Carlo route" in err
-    # the 50-2 route needs no model; the cone angle is the Table 4 terms' (the certificate says so)
-    code, out = run_smc(tmp_path, old, sta, "--no-monte-carlo")
-    assert code == 0
-    assert "Table 4 terms" in lidarcal.open_artefact(out).attrs["lidar_cone_angle_source"]
+    # the Monte Carlo route is named as not computed, with what the certificate lacks; 50-2 quoted
+    assert code == 0 and "lidarcal_lidar_model" in err and "Monte Carlo route" in err
+    ds = lidarcal.open_artefact(out)
+    assert (
+        ds.attrs["environmental_route"] == "iec" and "lidarcal_lidar_model" in ds.attrs["monte_carlo_route"]
+    )
+    assert np.isnan(ds.contribution.sel(contributor="environmental_monte_carlo")).all()
+    assert (ds.coverage_flag == 0).sum() > 0 and np.isfinite(
+        ds.uncertainty.where(ds.coverage_flag == 0)
+    ).any()
+    # the cone angle is the Table 4 terms' (the certificate says so)
+    assert "Table 4 terms" in ds.attrs["lidar_cone_angle_source"]
+    # without the Monte Carlo route and without sensitivities nothing can be quoted: refused
+    bare = small_certificate(tmp_path / "bare", with_model=False, sensitivities=False)
+    code, out = run_smc(tmp_path, bare, sta, out="bare.nc")
+    err = capsys.readouterr().err
+    assert code == 2 and "neither environmental route" in err and "sensitivity" in err and not out.exists()
 
 
 def test_conditions_file_needs_unit_and_cone_angle(tmp_path, cert, capsys):

@@ -286,9 +286,15 @@ def smc(
     replicas = (
         max(4, int(cert.attrs.get("monte_carlo_replicas", 4))) if max_replicas is None else int(max_replicas)
     )
+    lacking = [cert.missing[k] for k in ("lidar_model", "terms") if k in cert.missing]
+    if monte_carlo and lacking:  # an older certificate: say what it lacks, quote the 50-2 route
+        note = f"not computed: the certificate cannot give it: {'; '.join(lacking)}"
+        log.warning("%s: the Monte Carlo route is %s; the 50-2 route is quoted", cert.path, note)
+        monte_carlo = False
+    if not monte_carlo and iec.note != "computed":
+        raise InputError(f"{cert.path}: neither environmental route can be computed: 50-2 route {iec.note}; "
+                         f"Monte Carlo route {note}")
     if monte_carlo:
-        cert.require("lidar_model", "Monte Carlo route")
-        cert.require("terms", "Monte Carlo route")
         model = cert.lidar_model()
         cov = _covered_centres(cert, height_index)
         mc = monte_carlo_route(

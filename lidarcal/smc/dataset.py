@@ -335,6 +335,7 @@ def _stamped(ds: xr.Dataset, c: Campaign, route: str, call: str | None) -> xr.Da
         "lidar_serial": str(cert.serial),
         "environmental_route": route,
         "monte_carlo_route": c.monte_carlo_note,
+        "iec_route": c.iec.note,
         "lidar_cone_angle": float(cond.attrs.get("lidar_cone_angle", cert.cone_angle)),
         "lidar_cone_angle_source": str(cond.attrs.get("lidar_cone_angle_source", "conditions file")),
         "user_terms": json.dumps([t.describe() for t in c.user_terms]),

@@ -137,6 +137,7 @@ class IecRoute:
     units: tuple[str, ...]  #: each variable's units
     slope_units: tuple[str, ...]  #: each slope's units
     significant: np.ndarray  #: (variable, height) 1 where the slope is applied
+    note: str = "computed"  #: or why not
 
 
 def iec_route(cert: Certified, conditions: xr.Dataset, height_index: np.ndarray) -> IecRoute:
@@ -145,9 +146,14 @@ def iec_route(cert: Certified, conditions: xr.Dataset, height_index: np.ndarray)
     ``conditions`` are the campaign's (time, height) in canonical units, ``height_index`` as for
     :func:`calibration_part`.
     """
-    cert.require("sensitivities", "50-2 route (sensitivity slopes)")
-    variables = tuple(v for v in SLOPE_VARIABLES if v in cert.sensitivities)
     nt, nh = conditions.sizes["time"], conditions.sizes["height"]
+    if "sensitivities" in cert.missing:  # an older certificate: the route cannot be computed, no number
+        nan = np.full((nt, nh), np.nan)
+        return IecRoute(contribution=nan, deviation=nan, variables=(), slope=np.zeros((0, nh)),
+                        calibration_mean=np.zeros((0, nh)), units=(), slope_units=(),
+                        significant=np.zeros((0, nh), dtype=np.int8),
+                        note=f"not computed: {cert.missing['sensitivities']}")
+    variables = tuple(v for v in SLOPE_VARIABLES if v in cert.sensitivities)
     speed = conditions["wind_speed"].transpose("time", "height").values
     slope = np.full((len(variables), nh), np.nan)
     mean = np.full((len(variables), nh), np.nan)
