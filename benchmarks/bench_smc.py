@@ -143,19 +143,27 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def run(cert: Path, cond: Path, out: Path, *, monte_carlo: bool, opts: dict) -> tuple[float, object, float]:
-    """Time ``smc`` + the artefact + its file; return (seconds, campaign, traced peak MB)."""
+def cpu_seconds() -> float:
+    """CPU time (user + system) of this process and of its finished children (the pool's workers)."""
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def run(
+    cert: Path, cond: Path, out: Path, *, monte_carlo: bool, opts: dict
+) -> tuple[float, object, float, float]:
+    """Time ``smc`` + the artefact + its file; return (seconds, campaign, traced peak MB, CPU seconds)."""
     from lidarcal.io import write_artefact
     from lidarcal.smc import smc, smc_dataset
 
     tracemalloc.start()
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), cpu_seconds()
     c = smc(cert, conditions=cond, monte_carlo=monte_carlo, simulate_options=opts)
     write_artefact(smc_dataset(c), out, overwrite=True)
-    elapsed = time.perf_counter() - t0
+    elapsed, cpu = time.perf_counter() - t0, cpu_seconds() - c0
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    return elapsed, c, peak / 2**20
+    return elapsed, c, peak / 2**20, cpu
 
 
 def main() -> None:
@@ -198,41 +206,47 @@ def main() -> None:
             f"{args.workers}; heights {heights}"
         )
         year = campaign(d, args.periods, heights, "year")
-        t, c, traced = run(cert, year, d / "smc-year-iec.nc", monte_carlo=False, opts=opts)
+        t, c, traced, cpu = run(cert, year, d / "smc-year-iec.nc", monte_carlo=False, opts=opts)
         cells = args.periods * len(heights)
         print(
-            f"50-2 route, {args.periods} periods x {len(heights)} heights: {t:7.1f} s (target: seconds); "
-            f"traced peak {traced:.0f} MB, process peak RSS {peak_rss_mb():.0f} MB; "
+            f"50-2 route, {args.periods} periods x {len(heights)} heights: {t:7.1f} s wall, {cpu:7.1f} s CPU "
+            f"(target: seconds); traced peak {traced:.0f} MB, process peak RSS {peak_rss_mb():.0f} MB; "
             f"{int((c.coverage == 0).sum())} of {cells} period-heights covered"
         )
-        per_cell = cells_per_period = None
+        last = None
         for n in sorted(args.mc_periods):
             cond = campaign(d, n, heights, f"mc{n}")
-            t, c, traced = run(cert, cond, d / f"smc-mc{n}.nc", monte_carlo=True, opts=opts)
+            t, c, traced, cpu = run(cert, cond, d / f"smc-mc{n}.nc", monte_carlo=True, opts=opts)
             simulated = int(c.monte_carlo.trials.sum())
-            per_cell = t / simulated * args.workers
-            cells_per_period = simulated / n
+            last = (n, t, cpu, simulated)
             print(
-                f"Monte Carlo route, {n} periods x {len(heights)} heights: {t:7.1f} s, "
-                f"{c.monte_carlo.replicas} replica(s), {simulated} cells simulated "
+                f"Monte Carlo route, {n} periods x {len(heights)} heights: {t:7.1f} s wall, "
+                f"{cpu:7.1f} s CPU, {c.monte_carlo.replicas} replica(s), {simulated} cells simulated "
                 f"({simulated / (n * len(heights)):.2f} per period-height), "
-                f"{1000 * per_cell:.2f} ms per cell per worker; traced peak {traced:.0f} MB, "
-                f"process peak RSS "
-                f"{peak_rss_mb():.0f} MB"
+                f"{1000 * cpu / simulated:.2f} ms CPU per cell; traced peak {traced:.0f} MB, "
+                f"process peak RSS {peak_rss_mb():.0f} MB"
             )
-        if per_cell is not None:
-            projected = per_cell * cells_per_period * args.periods / args.workers
+        if last is not None:
+            n, t, cpu, simulated = last
+            # the year's cells: replica 0 of every period-height, plus replicas at the longest run's
+            # rate (an upper bound: a longer campaign fills its bins better and needs fewer)
+            year_cells = cells * simulated / (n * len(heights))
+            by_cpu = cpu / simulated * year_cells / args.workers
+            by_wall = t / simulated * year_cells
             print(
-                f"Monte Carlo route, {args.periods} periods projected from the "
-                f"{max(args.mc_periods)}-period run: "
-                f"{projected / 60:6.1f} min on {args.workers} workers (target <= 15 min on 2 cores)"
+                f"Monte Carlo route, {args.periods} periods projected from the {n}-period run: "
+                f"{by_cpu / 60:6.1f} min on {args.workers} idle cores (CPU time / {args.workers}), "
+                f"{by_wall / 60:6.1f} min at this run's wall rate (load {os.getloadavg()[0]:.1f}); "
+                "target <= 15 min on 2 cores"
             )
         if args.full_monte_carlo:
-            t, c, traced = run(cert, year, d / "smc-year-mc.nc", monte_carlo=True, opts=opts)
+            t, c, traced, cpu = run(cert, year, d / "smc-year-mc.nc", monte_carlo=True, opts=opts)
             print(
-                f"Monte Carlo route, {args.periods} periods x {len(heights)} heights: {t / 60:6.1f} min, "
-                f"{c.monte_carlo.replicas} replica(s), {int(c.monte_carlo.trials.sum())} cells; traced peak "
-                f"{traced:.0f} MB, process peak RSS {peak_rss_mb():.0f} MB"
+                f"Monte Carlo route, {args.periods} periods x {len(heights)} heights: "
+                f"{t / 60:6.1f} min wall, "
+                f"{cpu / 60:6.1f} min CPU, {c.monte_carlo.replicas} replica(s), "
+                f"{int(c.monte_carlo.trials.sum())} cells; traced peak {traced:.0f} MB, process peak RSS "
+                f"{peak_rss_mb():.0f} MB"
             )
 
 
