@@ -13,7 +13,6 @@ import shutil
 import netCDF4
 import numpy as np
 import pytest
-import xarray as xr
 from smc_factories import HEIGHTS, SERIAL, campaign_values, conditions_file, small_certificate
 from test_sta import ends, make_values, write_newer, write_older
 
@@ -378,8 +377,9 @@ def test_within_bin_fit_recovers_known_slopes():
 def test_smc_refuses_both_or_neither_input(tmp_path, cert):
     with pytest.raises(InputError, match="one of the two"):
         smc(cert, monte_carlo=False)
-    ds = xr.Dataset()
-    assert ds is not None
+    path = conditions_file(tmp_path / "c.nc", campaign_values(4, HEIGHTS), HEIGHTS)
+    with pytest.raises(InputError, match="one of the two"):
+        smc(cert, [sample_file("sta/example_firmware2.sta")], conditions=path, monte_carlo=False)
 
 
 def test_report_without_the_monte_carlo_route(tmp_path, cert):
