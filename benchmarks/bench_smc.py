@@ -32,6 +32,8 @@ for _var in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
 SERIAL = "WLS866-0195"
+#: A WindCube's usual twelve heights (m): 10 m steps to 100 m, then 20 m steps to 200 m.
+TYPICAL_HEIGHTS = (40.0, 50.0, 60.0, 70.0, 80.0, 90.0, 100.0, 120.0, 140.0, 160.0, 180.0, 200.0)
 
 
 def certificate(d: Path, heights) -> Path:
@@ -173,7 +175,12 @@ def main() -> None:
 
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--periods", type=int, default=52560, help="periods of the campaign (default: one year)")
-    p.add_argument("--heights", type=int, default=12, help="heights of the campaign (default 12)")
+    p.add_argument(
+        "--heights",
+        type=int,
+        default=12,
+        help="heights of the campaign (default 12: 40 to 100 m every 10 m, then to 200 m every 20 m)",
+    )
     p.add_argument(
         "--mc-periods",
         type=int,
@@ -199,7 +206,11 @@ def main() -> None:
             cert = Path(args.certificate)
             heights = [float(h) for h in lidarcal.open_artefact(cert)["budget_height"].values]
         else:
-            heights = [40.0 + 20.0 * k for k in range(args.heights)]
+            heights = (
+                list(TYPICAL_HEIGHTS[: args.heights])
+                if args.heights <= len(TYPICAL_HEIGHTS)
+                else [40.0 + 20.0 * k for k in range(args.heights)]
+            )
             cert = certificate(d, heights)
         print(
             f"load: {os.getloadavg()[0]:.1f} (1 min), {os.cpu_count()} CPUs; scheduler {args.scheduler} x "
