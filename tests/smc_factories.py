@@ -90,6 +90,32 @@ def small_certificate(
     return write_certificate(cert, d / name, overwrite=True, signing_key=signing_key)
 
 
+def add_model_form(bud: xr.Dataset, percent: float = 0.8) -> xr.Dataset:
+    """The budget with a ``model_form`` contributor of ``percent`` of each bin's mean reference speed.
+
+    As a calibration with the model-form runs states it (``lidarcal.analysis.model_form``); the
+    totals are recombined here with numpy, in quadrature over every contributor.
+    """
+    b = bud.transpose("height", "wind_speed", "contributor", ...)
+    mref = b["mean_reference_wind_speed"].values
+    contribution = np.concatenate([b["contribution"].values, percent / 100.0 * mref[..., None]], axis=-1)
+    combined = np.sqrt((contribution**2).sum(axis=-1))
+    k = float(b.attrs["coverage_factor"])
+    out = b.drop_vars(["contribution", "relative_contribution"]).drop_dims("contributor")
+    names = [*map(str, b["contributor"].values), "model_form"]
+    out = out.assign_coords(contributor=("contributor", np.array(names, dtype=object),
+                                         b["contributor"].attrs))
+    hwc = ("height", "wind_speed", "contributor")
+    out["contribution"] = (hwc, contribution, b["contribution"].attrs)
+    out["relative_contribution"] = (hwc, 100 * contribution / mref[..., None],
+                                    b["relative_contribution"].attrs)
+    for name, value in (("uncertainty", combined), ("relative_uncertainty", 100 * combined / mref),
+                        ("expanded_uncertainty", k * combined),
+                        ("relative_expanded_uncertainty", 100 * k * combined / mref)):
+        out[name] = (("height", "wind_speed"), value, b[name].attrs)
+    return out
+
+
 def conditions_file(
     path: Path,
     values: dict[str, np.ndarray],

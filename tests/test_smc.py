@@ -124,6 +124,9 @@ def test_iec_route_and_calibration_against_hand_computation(tmp_path, cert):
         60.0
     ]
     assert ds.combined.sel(contributor="environmental_monte_carlo").item() == 0
+    # a certificate whose budget has no model_form contributor: said, with its measurand
+    assert ds.attrs["certificate_model_form"].startswith("not stated")
+    assert "fully correlated" in ds.attrs["certificate_measurand"]
 
 
 def test_only_bins_whose_flag_means_certified_count(tmp_path):

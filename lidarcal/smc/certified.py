@@ -25,7 +25,7 @@ import xarray as xr
 from lidarcal.admin import DEMONSTRATION, STATUS_ATTR, STATUS_REASON_ATTR
 from lidarcal.certificate.layout import components, extract_component, records_summary
 from lidarcal.errors import InputError
-from lidarcal.io import open_artefact
+from lidarcal.io import open_artefact, read_image
 from lidarcal.lidar import LidarModel
 from lidarcal.seal import require_valid_seal
 
@@ -155,8 +155,11 @@ def read_certified(path: str | os.PathLike, *, public_key: str | os.PathLike | N
         Not a certificate, or a budget without the ``certified`` meaning.
     """
     path = Path(path)
-    report = require_valid_seal(path, public_key=public_key)  # before any number is read
-    cert = open_artefact(path, "certificate")
+    # the seal first, before any number is read, on the file's bytes read once; the numbers are
+    # read from that same image (lidarcal.io.open_image): exactly the bytes checked
+    image = read_image(path, "certificate file")
+    report = require_valid_seal(path, public_key=public_key, image=image)
+    cert = open_artefact(path, "certificate", image=image)
     if cert.attrs.get("lidarcal_artefact") != "certificate":
         raise InputError(
             f"{path}: not a lidarcal certificate (global attribute 'lidarcal_artefact' is "

@@ -54,6 +54,9 @@ log = logging.getLogger(__name__)
 
 #: A campaign height within this distance (m) of a certified height is that height.
 HEIGHT_TOLERANCE = 1e-3
+#: Budget contributors the Monte Carlo route carries over from the certificate (its trials cannot
+#: give them: the model-form term needs the alternative models' runs of the calibration).
+CARRIED = ("model_form",)
 
 
 @dataclass
@@ -228,6 +231,20 @@ def _covered_centres(cert: Certified, height_index: np.ndarray):
     return covered
 
 
+def _carried(cert: Certified, height_index: np.ndarray) -> xr.Dataset | None:
+    """Return the certificate's relative contributions the trials cannot give, at the simulated heights.
+
+    Today the ``model_form`` contributor (the alternative models' runs are the calibration's);
+    None when the certificate's budget has none.
+    """
+    have = [str(c) for c in cert.budget["contributor"].values]
+    names = [c for c in CARRIED if c in have]
+    if not names:
+        return None
+    rows = height_index[height_index >= 0]
+    return cert.budget[["relative_contribution"]].sel(contributor=names).isel(height=rows)
+
+
 def smc(
     certificate: str | os.PathLike,
     files: Sequence[str | os.PathLike] | None = None,
@@ -311,6 +328,7 @@ def smc(
             max_replicas=replicas,
             base_seed=int(base_seed),
             simulate_options=dict(simulate_options or {}),
+            carried=_carried(cert, height_index),
         )
         note = f"run: {mc.replicas} replica(s), base seed {int(base_seed)}"
     settings = {

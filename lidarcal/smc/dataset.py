@@ -37,11 +37,20 @@ from lidarcal.smc.routes import (
     table_edges,
 )
 
-__all__ = ["smc_dataset", "binned", "binned_table", "CONTRIBUTORS", "ROUTES"]
+__all__ = ["smc_dataset", "binned", "binned_table", "CONTRIBUTORS", "ROUTES", "MEASURAND"]
 
 #: The contributors lidarcal computes, in order; the user's terms follow.
 CONTRIBUTORS = ("calibration", "environmental_iec", "environmental_monte_carlo")
 ROUTES = ("monte_carlo", "iec")
+#: What ``uncertainty`` and the bin values are (global attribute ``measurand``; docs/smc.md).
+MEASURAND = (
+    "uncertainty is the combined standard uncertainty (k = 1) of a single 10-minute mean of the lidar's "
+    "horizontal wind speed at that height, the certificate's measurand applied period by period. The bin_* "
+    "uncertainties are root mean squares of these single-period values, not the uncertainty of a bin's mean: "
+    "the calibration contributor's Table 4 terms, mean difference and model form are fully correlated across "
+    "periods, bins and heights, so whoever averages periods must not divide them by the square root of the "
+    "number of periods."
+)
 _DESCRIPTION = {
     "calibration": "the certificate's certified standard uncertainty at the period's height and speed bin",
     "environmental_iec": "IEC 61400-50-2 route: significant slopes times the difference from the "
@@ -349,6 +358,11 @@ def _stamped(ds: xr.Dataset, c: Campaign, route: str, call: str | None) -> xr.Da
         ),
         "lidar_site": str(cond.attrs.get("lidar_site", "not given")),
         "lidarcal_smc_settings": json.dumps(c.settings, sort_keys=True),
+        "measurand": MEASURAND,
+        "certificate_measurand": str(cert.attrs.get("measurand", "not stated (a certificate older than the "
+                                                                  "measurand statement)")),
+        "certificate_model_form": str(cert.attrs.get("model_form", "not stated: the certificate's budget has "
+                                                                    "no model_form contributor")),
     }
     title = f"Campaign wind-speed uncertainty of lidar {cert.serial} from certificate {cert.path.name}"
     summary = (

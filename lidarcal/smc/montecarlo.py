@@ -10,7 +10,11 @@ and then:
   (:func:`lidarcal.analysis.budget.budget` with the certificate's Table 4 terms, coverage factor
   and certified range): mean deviation (lidar − reference), its spread, trials, and the
   relative expanded uncertainty, so that a campaign in the calibration's own conditions gives
-  the certificate's budget back;
+  the certificate's budget back.  A contributor the campaign's trials cannot give (the
+  simulation's ``model_form``, which needs the alternative models' runs) is carried over from
+  the certificate: its relative value at the same height and bin (the nearest certified-range
+  bin outside it, as the budget fills its own) times the campaign bin's mean reference speed
+  (:func:`with_carried`);
 * **per period** the deviation expected of the virtual lidar given its conditions: the bin's
   mean deviation plus pooled within-bin least-squares slopes on TI, shear, CNR and CNR gradient
   (:func:`lidarcal.smc.kernels.within_bin_fit`), so one period's turbulence draw does not pass
@@ -46,7 +50,7 @@ from lidarcal.campaign.adaptive import BATCH_SCHEDULE, with_trials
 from lidarcal.campaign.run import simulate_replicas
 from lidarcal.smc.kernels import SEQUENCES, bin_index, expected_deviation, group_of, within_bin_fit
 
-__all__ = ["MonteCarloRoute", "monte_carlo_route", "REGRESSORS"]
+__all__ = ["MonteCarloRoute", "monte_carlo_route", "with_carried", "REGRESSORS"]
 
 log = logging.getLogger(__name__)
 
@@ -68,6 +72,47 @@ class MonteCarloRoute:
     slopes: np.ndarray  #: (height, regressor) within-bin slopes of the deviation (m s-1 per unit)
     trials: np.ndarray  #: (time, height) trials simulated of each period (0: not simulated)
     replicas: int  #: replicas run, replica 0 included
+
+
+def with_carried(bud: xr.Dataset, carried: xr.Dataset | None) -> xr.Dataset:
+    """Add to a budget the contributors ``carried`` holds that it lacks; recombine its totals.
+
+    ``carried`` holds relative contributions (%) on (height, wind_speed, contributor) at the
+    budget's heights and the certificate's bin centres; each budget bin takes the nearest centre's
+    value times its own mean reference wind speed.  The combined, expanded and relative
+    uncertainties are recomputed in quadrature over every contributor, as the budget combines them.
+    """
+    if carried is None:
+        return bud
+    have = [str(c) for c in bud["contributor"].values]
+    extra = [str(c) for c in carried["contributor"].values if str(c) not in have]
+    if not extra:
+        return bud
+    b = bud.transpose("height", "wind_speed", "contributor", ...)
+    centres = np.asarray(carried["wind_speed"].values, dtype=float)
+    at = np.asarray(b["wind_speed"].values, dtype=float)
+    nearest = np.abs(at[:, None] - centres[None, :]).argmin(axis=1)
+    rel = carried.transpose("height", "wind_speed", "contributor")["relative_contribution"].sel(
+        contributor=extra).values[:, nearest, :]  # (height, budget bin, extra), %
+    mean_ref = b["mean_reference_wind_speed"].values
+    contribution = np.concatenate([b["contribution"].values, rel * mean_ref[..., None] / 100.0], axis=-1)
+    combined = np.sqrt(np.sum(contribution**2, axis=-1))
+    k = float(b.attrs.get("coverage_factor", 2.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        pct = 100.0 / mean_ref
+    out = b.drop_vars(["contribution", "relative_contribution"]).drop_dims("contributor")
+    hwc = ("height", "wind_speed", "contributor")
+    out = out.assign_coords(contributor=("contributor", np.array(have + extra, dtype=object),
+                                         dict(b["contributor"].attrs)))
+    out["contribution"] = (hwc, contribution, dict(b["contribution"].attrs))
+    out["relative_contribution"] = (hwc, contribution * pct[..., None],
+                                    dict(b["relative_contribution"].attrs))
+    for name, value in (("uncertainty", combined), ("relative_uncertainty", combined * pct),
+                        ("expanded_uncertainty", k * combined),
+                        ("relative_expanded_uncertainty", k * combined * pct)):
+        out[name] = (("height", "wind_speed"), value, dict(b[name].attrs))
+    out.attrs["carried_from_certificate"] = ", ".join(extra)
+    return out
 
 
 def _batches(max_replicas: int) -> list[list[int]]:
@@ -188,6 +233,7 @@ def monte_carlo_route(
     max_replicas: int = 30,
     base_seed: int,
     simulate_options: dict[str, Any] | None = None,
+    carried: xr.Dataset | None = None,
 ) -> MonteCarloRoute:
     """Simulate the campaign with the calibrated lidar; per bin its budget, per period its expected deviation.
 
@@ -213,6 +259,9 @@ def monte_carlo_route(
     simulate_options : mapping
         ``chunk``, ``scheduler``, ``workers``, ``workdir``, ``progress`` of
         :func:`lidarcal.campaign.simulate_campaign`.
+    carried : xarray.Dataset, optional
+        The certificate's relative contributions (%) of the contributors the trials cannot give,
+        on (height, wind_speed, contributor) at the simulated heights (:func:`with_carried`).
     """
     opts = dict(simulate_options or {})
     workdir = opts.pop("workdir", None)
@@ -234,7 +283,7 @@ def monte_carlo_route(
     )
     trials: list[dict[str, np.ndarray]] = []
     current = records
-    bud = budget(current, **rule)
+    bud = with_carried(budget(current, **rule), carried)
     targets = _targets(bud, covered)
     tol, flag = _assess(current, bud, targets, int(significant_digits), float(coverage_factor))
     replicas = 1
@@ -263,7 +312,7 @@ def monte_carlo_route(
         trials += [{"replica": r, **done[r]} for r in batch]
         replicas = batch[-1] + 1
         current = with_trials(records, trials)
-        bud = budget(current, **rule)
+        bud = with_carried(budget(current, **rule), carried)
         targets = _targets(bud, covered)
         tol, flag = _assess(current, bud, targets, int(significant_digits), float(coverage_factor))
     expected, slopes, count = _expected(current, conditions, lookup_edges)
