@@ -398,5 +398,6 @@ def test_report_without_the_monte_carlo_route(tmp_path, cert):
     page = (tmp_path / "smc.html").read_text(encoding="utf-8")
     assert page.count("data:image/png;base64,") == 3 and "DEMONSTRATION result" in page
     assert "<th>Quoted route</th><td>iec (Monte Carlo route: not run" in page
+    assert "<th>What u is</th>" in page and "must not divide them by the square root" in page
     pdf = (tmp_path / "smc.pdf").read_bytes()
     assert pdf.startswith(b"%PDF") and len(pdf) > 20_000  # a text page and three figures (pages: slow test)

@@ -96,6 +96,8 @@ def facts(ds: xr.Dataset) -> list[tuple[str, str]]:
             )
             or "none",
         ),
+        ("What u is", str(a.get("measurand", "not stated"))),
+        ("Model form", str(a.get("certificate_model_form", "not stated"))),
     ]
     return out
 
