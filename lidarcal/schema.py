@@ -233,7 +233,8 @@ def output_attrs(kind: str, name: str, **context: Any) -> dict[str, Any]:
     filled = {key: _fill(value, context, where) for key, value in declared.items()}
     if "flag_values" in filled:
         filled["flag_values"] = np.asarray(filled["flag_values"], dtype=np.int8)
-    for key in [k for k, v in declared.items() if (_is_template(v) and filled[k] == "") or v is None]:
+    for key in [k for k, v in declared.items()
+                if (_is_template(v) and isinstance(filled[k], str) and filled[k] == "") or v is None]:
         del filled[key]  # a template that fills to nothing, or a key declared null, is left out
     return {**{k: filled.pop(k) for k in _LEADING_ATTRS if k in filled}, **filled}
 

@@ -53,6 +53,7 @@ STAGES = (
     "report",
     "diagnose",
     "compare",
+    "smc",
     "pipeline",
     "cli",
 )

@@ -11,6 +11,7 @@ readable by others (item 10) are refused too.
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import netCDF4
 import numpy as np
@@ -160,7 +161,6 @@ def _child(code: str, *args: str, cwd):
     """Run ``code`` in a new Python with this lidarcal (the one under test), so a crash is an exit code."""
     import subprocess
     import sys
-    from pathlib import Path
 
     here = str(Path(lidarcal.__file__).resolve().parents[1])
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([here, os.environ.get("PYTHONPATH", "")])}
@@ -264,11 +264,17 @@ def _leaf_commands(parser, prefix=()):
             yield from _leaf_commands(sub, (*prefix, name))
 
 
+_SAMPLE_STA = Path(__file__).resolve().parents[1] / "sample_data" / "sta" / "example_newer.sta"
+
 #: Commands that read a certificate: argv on the tampered file, the exit status, what it must say.
 SHOWS_A_CERTIFICATE = {
     ("table",): (lambda cert, tmp: ["table", cert], 2, "refusing to show this certificate's numbers"),
     ("dcc",): (lambda cert, tmp: ["dcc", cert, "-o", tmp / "x.xml"], 2, "refusing to export this"),
     ("verify",): (lambda cert, tmp: ["verify", cert], 1, "ALTERED or invalid"),
+    # the campaign's files are never read: the seal is checked before anything else
+    ("smc",): (lambda cert, tmp: ["smc", cert, _SAMPLE_STA, "-o", tmp / "s.nc", "--no-monte-carlo",
+                                  "--report", tmp / "s.html"],
+               2, "refusing to show this certificate's numbers"),
 }
 #: Commands that take no certificate, or show none of its numbers, and why.
 NO_CERTIFICATE_SHOWN = {
@@ -327,6 +333,7 @@ def test_every_command_that_shows_a_certificate_checks_its_seal(tampered, tmp_pa
 def _readers():
     """Public functions that show a certificate's numbers: how to call each on a certificate file."""
     from lidarcal.dcc import dcc_tree, write_dcc
+    from lidarcal.smc import smc
 
     return {
         "lidarcal.open_certificate": lambda p, tmp: lidarcal.open_certificate(p),
@@ -337,6 +344,7 @@ def _readers():
         "lidarcal.dcc.dcc_tree": lambda p, tmp: dcc_tree(open_artefact(p), certificate_sha256="0" * 64),
         "lidarcal.report.write_report": lambda p, tmp: write_report(tmp / "r.html",
                                                                    certificate=open_artefact(p)),
+        "lidarcal.smc.smc": lambda p, tmp: smc(p, [_SAMPLE_STA], monte_carlo=False),
     }
 
 
@@ -372,6 +380,9 @@ NOT_READERS = {
     "lidarcal.dcc.COVERAGE_PROBABILITY": "a constant",
     "lidarcal.report.report_figures": "figures of components the caller passes",
     "lidarcal.report.Figure": "a class",
+    "lidarcal.smc.smc_dataset": "the artefact of what smc computed (after smc's check)",
+    "lidarcal.smc.binned": "an smc artefact's per-bin view, no certificate read",
+    "lidarcal.smc.binned_table": "an smc artefact's table, no certificate read",
 }
 
 
@@ -379,7 +390,7 @@ def test_every_public_reader_checks_the_seal(tampered, tmp_path):
     import importlib
 
     public = {f"lidarcal.{n}" for n in lidarcal.__all__ if n != "__version__"}
-    for module in ("lidarcal.certificate", "lidarcal.dcc", "lidarcal.report"):
+    for module in ("lidarcal.certificate", "lidarcal.dcc", "lidarcal.report", "lidarcal.smc"):
         public |= {f"{module}.{n}" for n in importlib.import_module(module).__all__}
     readers = _readers()
     unclassified = sorted(public - set(readers) - set(NOT_READERS))

@@ -44,6 +44,7 @@ COMMANDS = (
     "table",
     "diagnose",
     "compare",
+    "smc",
     "validate",
 )
 

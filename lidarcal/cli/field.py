@@ -26,6 +26,11 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--allow-gaps", action="store_true",
                    help="read rows cut short (truncated files) as missing periods, with a warning naming "
                         "them, instead of refusing the file")
+    p.add_argument("--cone-angle", type=number("--cone-angle", lo=0, hi=90, lo_open=True, hi_open=True),
+                   metavar="DEGREES",
+                   help="the lidar's cone angle from vertical where a file's header says ScanAngle=NA "
+                        "(WindCube firmware 2.x); a file stating another angle is refused (default: the "
+                        "files' own; never guessed)")
     p.add_argument("--overwrite", action="store_true", help="replace an existing output file")
     add_contact_options(p)
 
@@ -71,7 +76,7 @@ def run_conditions(args: argparse.Namespace) -> int:
     """Read the ``.sta`` files and write a ``conditions`` artefact."""
     check_writable(args.output, overwrite=args.overwrite)
     ds = sta_conditions(args.files, args.min_availability, allow_gaps=args.allow_gaps,
-                        call=command_line(args))
+                        cone_angle=args.cone_angle, call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: {ds.sizes['time']} periods at heights {ds.height.values.tolist()} m")
     return 0
@@ -85,7 +90,8 @@ def run_field(args: argparse.Namespace) -> int:
     ds = sta_field_campaign(args.files, args.reference, columns, std, timestamp=args.reference_timestamp,
                             time_column=args.reference_time_column, min_availability=args.min_availability,
                             allow_gaps=args.allow_gaps, units=args.reference_units,
-                            check_ratio=not args.skip_ratio_check, call=command_line(args))
+                            check_ratio=not args.skip_ratio_check, cone_angle=args.cone_angle,
+                            call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: {ds.sizes['time']} periods at heights {ds.height.values.tolist()} m, "
           f"{ds.attrs['reference_matched_periods']} with a mast record")

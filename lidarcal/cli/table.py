@@ -1,5 +1,9 @@
 """``lidarcal table CERT.nc [--format csv|md|html] [-o FILE]``: the certificate's result table.
 
+Given an ``smc`` artefact (``lidarcal smc``) instead, the campaign's per-bin table
+(:func:`lidarcal.smc.binned_table`): one row per height and wind-speed bin holding campaign
+periods, with the combined standard uncertainty, both routes and every contributor.
+
 One row per height and wind-speed bin: the k = 2 expanded uncertainty in m/s and in % of the
 bin's mean reference wind speed with the Monte Carlo's numerical tolerance beside it (JCGM 101
 7.9), the largest standard-uncertainty contributors, the number of Monte Carlo trials and of
@@ -36,7 +40,7 @@ _SUFFIXES = {".csv": "csv", ".md": "md", ".markdown": "md", ".html": "html", ".h
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``table`` subcommand."""
-    p = sub.add_parser("table", help="IEC-style result table of a certificate (CSV, Markdown, HTML)",
+    p = sub.add_parser("table", help="IEC-style result table of a certificate or an smc artefact",
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("certificate", metavar="CERT.nc")
     p.add_argument("--format", choices=FORMATS,
@@ -134,11 +138,42 @@ def render(table, fmt: str, *, banner: str | None = None) -> str:
     return page
 
 
+def _smc_text(ds, fmt: str) -> str:
+    """Return the per-bin table of an ``smc`` artefact as csv, md or html (the status first)."""
+    from lidarcal.smc import binned_table  # deferred: only for smc artefacts
+
+    table = binned_table(ds)
+    status = ("DEMONSTRATION result (from a demonstration certificate)" if table.attrs["demonstration"]
+              else f"certificate status: {table.attrs['status']}")
+    head = f"{table.attrs['title']}. {status}; environmental route quoted: {table.attrs['route']}"
+    if fmt == "csv":
+        return f"# {head}\n" + table.to_csv(index=False, lineterminator="\n")
+    if fmt == "md":
+        cells = table.round(4)
+        lines = [f"**{head}**", "", "| " + " | ".join(cells.columns) + " |",
+                 "|" + "---|" * len(cells.columns)]
+        lines += ["| " + " | ".join(_cell(v) for v in row) + " |" for row in cells.itertuples(index=False)]
+        return "\n".join(lines) + "\n"
+    grid = table.round(4).to_html(index=False, na_rep="", border=0)
+    return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{html.escape(head)}</title></head>"
+            f"<body>\n<p><strong>{html.escape(head)}</strong></p>\n{grid}\n</body></html>\n")
+
+
 def run(args: argparse.Namespace) -> int:
     """Build the table and write it."""
     fmt = args.format or (_SUFFIXES.get(Path(args.output).suffix.lower(), "csv") if args.output else "csv")
     if args.output:
         check_writable(args.output, overwrite=args.overwrite)
+    found = open_artefact(args.certificate)
+    if found.attrs.get("lidarcal_artefact") == "smc":
+        text = _smc_text(found, fmt)
+        if not args.output:
+            sys.stdout.write(text)
+            return 0
+        with atomic_path(args.output, overwrite=args.overwrite) as tmp:
+            Path(tmp).write_text(text, encoding="utf-8")
+        print(f"{args.output}: {text.splitlines()[0].lstrip('#* ')}")
+        return 0
     cert = open_artefact(args.certificate, "certificate")
     seal = require_valid_seal(args.certificate, allow_invalid=args.allow_invalid)
     banner = invalid_seal_banner(seal) if seal is not None and not seal.ok else None

@@ -7,7 +7,8 @@
   ``schemas/conditions.yaml`` and ``schemas/field_campaign.yaml``.
 - :mod:`lidarcal.conditions.sta` / :mod:`~lidarcal.conditions.stafile` /
   :mod:`~lidarcal.conditions.mast` — WindCube ``.sta`` files and met-mast CSV records in, with
-  the value rules of :mod:`lidarcal.conditions.readings`.
+  the value rules of :mod:`lidarcal.conditions.readings`; every lidar file is read through the
+  registry of formats of :mod:`lidarcal.conditions.formats`.
 - :mod:`lidarcal.conditions.kernels` — shear exponent and CNR gradient from neighbouring
   heights (paper §3.3), the CNR model used where no lidar CNR was measured.
 """

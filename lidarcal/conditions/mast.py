@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from lidarcal.conditions.formats import read_lidar_files
 from lidarcal.conditions.readings import (
     DERIVED_LIMITS,
     PERIOD,
@@ -32,7 +33,6 @@ from lidarcal.conditions.readings import (
     value_problem,
 )
 from lidarcal.conditions.sta import STA_COMMENTS, measured_conditions
-from lidarcal.conditions.stafile import read_sta_files
 from lidarcal.conditions.variables import variable_attrs
 from lidarcal.errors import InputError, LidarcalError, MissingVariableError
 from lidarcal.io import check_input_file
@@ -287,6 +287,7 @@ def sta_field_campaign(
     allow_gaps: bool = False,
     units: str | None = None,
     check_ratio: bool = True,
+    cone_angle: float | None = None,
     call: str | None = None,
 ) -> xr.Dataset:
     """Build a stamped ``field_campaign`` artefact (``docs/contracts.md``) from ``.sta`` files and a mast CSV.
@@ -313,6 +314,9 @@ def sta_field_campaign(
     check_ratio : bool
         Refuse a campaign whose median lidar / reference speed ratio is outside
         :data:`RATIO_LIMITS` (a unit or column mix-up); False records the ratio only.
+    cone_angle : float, optional
+        The lidar's cone angle (degree from vertical) where a file's header says ``NA``
+        (``--cone-angle``; :func:`~lidarcal.conditions.stafile.resolve_cone_angle`).
     call : str, optional
         What produced it, for the provenance (default: this function).
 
@@ -328,7 +332,7 @@ def sta_field_campaign(
             f"--reference-std: height(s) {[f'{h:g}' for h in extra]} m have no mean column in "
             f"--reference-columns ({[f'{h:g}' for h in columns]} m)"
         )
-    files = read_sta_files(sta_paths, allow_gaps=allow_gaps)
+    files = read_lidar_files(sta_paths, allow_gaps=allow_gaps, cone_angle=cone_angle)
     cond = measured_conditions(files, min_availability, warn=False,
                                comments=_comments(files[0].altitudes, columns, std))
     source = ", ".join(Path(p).name for p in sta_paths)
@@ -380,7 +384,8 @@ def sta_field_campaign(
               "columns": {f"{h:g}": c for h, c in columns.items()},
               "std": {f"{h:g}": c for h, c in std.items()},
               "timestamp": timestamp, "time_column": time_column, "min_availability": float(min_availability),
-              "allow_gaps": bool(allow_gaps), "units": units, "check_ratio": bool(check_ratio)}
+              "allow_gaps": bool(allow_gaps), "units": units, "check_ratio": bool(check_ratio),
+              "cone_angle": cone_angle}
     return stamp(
         out, "field_campaign",
         title=f"Field campaign: WindCube {out.attrs['lidar_serial_number']} against a met mast",

@@ -18,9 +18,10 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
+from lidarcal.conditions.formats import read_lidar_files
 from lidarcal.conditions.kernels import shear_exponent, vertical_gradient
 from lidarcal.conditions.readings import DERIVED_LIMITS, PERIOD, set_missing_out_of_range
-from lidarcal.conditions.stafile import ROLES, StaFile, read_sta_files
+from lidarcal.conditions.stafile import ROLES, StaFile
 from lidarcal.conditions.synthetic import conditions_dataset
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
@@ -65,6 +66,7 @@ def sta_attributes(files: list[StaFile], min_availability: float) -> dict:
     attrs = {
         "lidar_cone_angle": float(first.scan_angle),
         "lidar_scan_angle": float(first.scan_angle),
+        "lidar_cone_angle_source": first.scan_angle_source,
         "lidar_serial_number": serial or "not given",
         "lidar_site": first.get("location", "localisation") or "not given",
         "lidar_gps_location": first.get("gpslocation", "gpslocalisation") or "not given",
@@ -149,7 +151,8 @@ def measured_conditions(files: list[StaFile], min_availability: float = 80.0, *,
 
 
 def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
-                   allow_gaps: bool = False, call: str | None = None) -> xr.Dataset:
+                   allow_gaps: bool = False, cone_angle: float | None = None,
+                   cone_angle_from: str = "--cone-angle", call: str | None = None) -> xr.Dataset:
     """Read ``.sta`` files (one lidar) into a stamped ``conditions`` artefact (``docs/contracts.md``).
 
     Parameters
@@ -162,6 +165,12 @@ def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
         Warn when derived values outside the contract's range are set missing.
     allow_gaps : bool
         Read rows cut short as missing periods (with a warning naming them) instead of refusing.
+    cone_angle : float, optional
+        The lidar's cone angle (degree from vertical) where a file's header says ``NA``
+        (firmware 2.x); a file stating another one is refused
+        (:func:`~lidarcal.conditions.stafile.resolve_cone_angle`).  Where it came from
+        (``cone_angle_from``, default the option ``--cone-angle``) is the attribute
+        ``lidar_cone_angle_source``.
     call : str, optional
         What produced it, for the provenance (default: this function).
 
@@ -172,7 +181,9 @@ def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
         ``time_bounds``; global attributes from :func:`sta_attributes` and the provenance.
     """
     paths = list(paths)
-    ds = measured_conditions(read_sta_files(paths, allow_gaps=allow_gaps), min_availability, warn=warn)
+    files = read_lidar_files(paths, allow_gaps=allow_gaps, cone_angle=cone_angle,
+                             cone_angle_from=cone_angle_from)
+    ds = measured_conditions(files, min_availability, warn=warn)
     ds.attrs["license"] = "not specified: the licence of the source .sta files applies"
     return stamp(
         ds, "conditions",
@@ -183,5 +194,5 @@ def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
         call=call or "lidarcal.conditions.sta.sta_conditions(...)",
         inputs={f"sta_{k}": p for k, p in enumerate(paths, start=1)},
         config={"files": [str(p) for p in paths], "min_availability": float(min_availability),
-                "allow_gaps": bool(allow_gaps)},
+                "allow_gaps": bool(allow_gaps), "cone_angle": cone_angle},
     )

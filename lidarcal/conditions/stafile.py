@@ -16,7 +16,11 @@ Two dialects exist, both Latin-1 text with LF or CRLF line ends and tab-separate
   ``Avail.<i>`` and an empty column.
 
 Line 1 is ``HeaderSize=N`` / ``HeaderLength=N``; lines 2 ... N + 1 are the header (``key=value``
-lines, ``****`` separators, section titles); line N + 2 names the columns; data follow.  The
+lines, ``****`` separators, section titles); line N + 2 names the columns; data follow.
+Firmware 2.x writes ``NA`` for internal header parameters (``ScanAngle (°)=NA``,
+``Pulses / Line of Sight=NA`` ...): only the cone angle is needed, and a file whose header does
+not state it gets it from the caller (:func:`resolve_cone_angle`: ``--cone-angle``, or the
+certificate of ``lidarcal smc``), never a guess.  The
 dialect is recognised from the first column name.  A missing value is ``NaN`` (as the firmware
 writes it) or any missing-value marker of :mod:`lidarcal.conditions.readings`, the rule the mast
 CSV reader shares.
@@ -33,17 +37,19 @@ import io
 import os
 import re
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from lidarcal.conditions.readings import PERIOD, RAW_RANGES, read_numbers, value_problem
+from lidarcal.conditions.readings import MISSING_MARKERS, PERIOD, RAW_RANGES, read_numbers, value_problem
 from lidarcal.errors import InputError
 from lidarcal.io import check_input_file
 
-__all__ = ["StaFile", "read_sta", "read_sta_files", "check_spacing", "DIALECTS", "ROLES"]
+__all__ = ["StaFile", "read_sta", "read_sta_files", "resolve_cone_angle", "check_spacing", "DIALECTS",
+           "ROLES",
+           "CONE_ANGLE_TOLERANCE"]
 
 #: First column name -> (dialect name, timestamp format, description of the format).
 DIALECTS = {
@@ -81,12 +87,14 @@ class StaFile:
     header: dict[str, str]
     header_lines: dict[str, tuple[int, str]]  # normalised key -> (line number, key as written)
     altitudes: np.ndarray
-    scan_angle: float
+    scan_angle: float | None  # None: the header says NA (firmware 2.x); see resolve_cone_angle
     end: np.ndarray  # datetime64[ns], end-of-interval stamps as written
     lines: np.ndarray  # file line number of each row
     values: dict[str, np.ndarray]  # role -> (row, altitude)
     columns: dict[str, list[int]]  # role -> 1-based column of each altitude
     sha256: str = ""
+    #: where ``scan_angle`` came from: the file header, or what resolved an ``NA`` header value
+    scan_angle_source: str = "file header"
 
     def get(self, *keys: str) -> str | None:
         """Header value of the first normalised key present (see :func:`_norm`)."""
@@ -215,6 +223,8 @@ def _header_numbers(path: Path, n: int, header: dict, where: dict) -> tuple[np.n
     if "scanangle" not in where:
         raise InputError(f"{span}: key 'ScanAngle (°)' missing; expected the cone angle in degrees")
     line, key = where["scanangle"]
+    if header[key].strip().lower() in MISSING_MARKERS:
+        return alts, None  # firmware 2.x writes NA for internal parameters: resolved by the caller
     phi = _float(header[key], f"{path}: line {line}", f"{key!r}")
     if not 0 < phi < 90:
         raise InputError(
@@ -481,15 +491,60 @@ def _same(files: list[StaFile], what: str, key: str, get) -> None:
             )
 
 
-def read_sta_files(paths, *, allow_gaps: bool = False) -> list[StaFile]:
-    """Read several ``.sta`` files and check they can be joined along time (one lidar, one setup)."""
+#: Two cone angles closer than this (degree) are the same configuration (files write 2-3 decimals).
+CONE_ANGLE_TOLERANCE = 0.01
+
+
+def resolve_cone_angle(files: list[StaFile], cone_angle: float | None = None, *,
+                       given_by: str = "--cone-angle") -> list[StaFile]:
+    """Return ``files`` with every cone angle known: a header ``NA`` takes ``cone_angle``.
+
+    WindCube firmware 2.x writes ``NA`` for internal header parameters (``ScanAngle (°)=NA``):
+    such a file's cone angle is ``cone_angle`` (degree from vertical), and its
+    ``scan_angle_source`` says ``given_by`` (the command-line option, or the certificate that
+    supplied it); without one the file is refused with a message naming ``given_by``.  A file
+    whose header states a number must agree with ``cone_angle`` when one is given (within
+    :data:`CONE_ANGLE_TOLERANCE`): a file of another configuration is refused.  Never guessed.
+    """
+    out = []
+    for f in files:
+        line, key = f.header_lines["scanangle"]
+        written = f"{key}={f.header[key]}"
+        if f.scan_angle is None:
+            if cone_angle is None:
+                raise InputError(
+                    f"{f.path}: line {line} ({written!r}): the file does not state the lidar's cone angle "
+                    f"(WindCube firmware 2.x writes NA for internal parameters) and none was given; "
+                    f"expected the configured cone angle from vertical in degrees: pass {given_by} DEGREES "
+                    "(lidarcal never guesses it)")
+            out.append(replace(f, scan_angle=float(cone_angle),
+                               scan_angle_source=f"{given_by} (the file header says {f.header[key]!r})"))
+            continue
+        if cone_angle is not None and abs(f.scan_angle - float(cone_angle)) > CONE_ANGLE_TOLERANCE:
+            raise InputError(
+                f"{f.path}: line {line} ({written!r}): cone angle {f.scan_angle:g} degree differs from "
+                f"{float(cone_angle):g} degree given by {given_by}; expected {float(cone_angle):g} degree "
+                "(a file of another lidar configuration is refused)")
+        out.append(f)
+    return out
+
+
+def read_sta_files(paths, *, allow_gaps: bool = False, cone_angle: float | None = None,
+                   cone_angle_from: str = "--cone-angle") -> list[StaFile]:
+    """Read several ``.sta`` files and check they can be joined along time (one lidar, one setup).
+
+    ``cone_angle`` (degree) stands for a header's ``ScanAngle=NA`` and must match a stated one;
+    ``cone_angle_from`` names where it came from in messages and attributes
+    (:func:`resolve_cone_angle`).
+    """
     paths = [Path(p) for p in paths]
     if not paths:
         raise InputError("no .sta file given")
-    files = [read_sta(p, allow_gaps=allow_gaps) for p in paths]
+    files = resolve_cone_angle([read_sta(p, allow_gaps=allow_gaps) for p in paths], cone_angle,
+                               given_by=cone_angle_from)
     _same(files, "ID System (serial)", "idsystem", lambda f: f.serial)
     _same(files, "Altitudes", "altitudes", lambda f: f.altitudes.tolist())
-    _same(files, "ScanAngle", "scanangle", lambda f: f.scan_angle)
+    _same(files, "ScanAngle", "scanangle", lambda f: round(f.scan_angle, 2))
     seen: dict[np.datetime64, tuple[StaFile, int]] = {}
     for f in files:
         for t, line in zip(f.end, f.lines, strict=True):

@@ -1,4 +1,4 @@
-"""Write the synthetic WindCube ``.sta`` examples of this folder (one per dialect) and a mast CSV.
+"""Write the synthetic WindCube ``.sta`` examples of this folder (both dialects, firmware 2.x) and a mast CSV.
 
 The files follow the format as described in lidarcal's STA reader (``lidarcal.conditions.stafile``):
 Latin-1 text, tab-separated, a ``HeaderSize=N`` / ``HeaderLength=N`` first line, ``key=value``
@@ -6,7 +6,7 @@ header lines with ``****`` separators and a section title, the column names on l
 Values are made up (seeded power-law profiles, CNR decreasing with height): they are examples
 of the format, not measurements.
 
-    python sample_data/sta/make_sta.py            # rewrites the three files next to this script
+    python sample_data/sta/make_sta.py            # rewrites the four files next to this script
 """
 
 from __future__ import annotations
@@ -140,15 +140,86 @@ def mast(path: Path, rows: tuple[np.ndarray, np.ndarray], rng: np.random.Generat
     path.write_text("\n".join(out) + "\n", encoding="utf-8")
 
 
+#: The sample bench unit (sample_data/bench): the firmware-2.x example is a campaign of this lidar.
+SAMPLE_UNIT = "WLS866-0195"
+
+
+def firmware2(path: Path, rng: np.random.Generator, n: int = 144) -> None:
+    r"""Firmware 2.x newer dialect for the sample unit: ``NA`` internal parameters, one day of periods.
+
+    The header states no internal parameter (``ScanAngle (°)=NA``, ``Pulses / Line of Sight=NA``
+    ...), as firmware 2.x writes them; the altitudes follow a tab (``Altitudes (m)=\t40\t60 ...``).
+    The columns: ``Timestamp (end of interval)``, the station's environmental columns, then per
+    height the eleven quantities and an empty column.  180 m is a height the sample certificate
+    does not certify.
+    """
+    z = np.array([40.0, 60.0, 80.0, 100.0, 120.0, 140.0, 160.0, 180.0, 200.0])
+    end = np.datetime64("2024-06-01T00:10") + np.arange(n) * PERIOD
+    log_u = np.zeros(n)  # AR(1) in log speed about 8 m/s at 80 m: a day of 4-16 m/s, never negative
+    for t in range(1, n):
+        log_u[t] = 0.97 * log_u[t - 1] + rng.normal(0.0, 0.08)
+    u80 = 8.0 * np.exp(log_u + 0.15 * np.sin(2 * np.pi * np.arange(n) / n))
+    alpha = np.clip(0.2 + rng.normal(0.0, 0.05, n), 0.02, 0.45)
+    speed = u80[:, None] * (z / 80.0) ** alpha[:, None]
+    direction = np.mod(225.0 + np.cumsum(rng.normal(0, 2.5, n))[:, None] + 2.0 * np.log(z / 40.0), 360.0)
+    cnr = -10.0 - 0.06 * (z - 40.0)[None, :] + rng.normal(0.0, 0.6, speed.shape)
+    v = {"speed": speed, "disp": speed * rng.uniform(0.05, 0.16, speed.shape), "dir": direction, "cnr": cnr,
+         "avail": np.full(speed.shape, 100.0)}
+    v["avail"][:, -2:] = np.round(rng.uniform(75, 100, (n, 2)), 2)
+    header = [
+        "Version=2.1.0-example",
+        f"ID System={SAMPLE_UNIT}",
+        "ID Client=Example client (synthetic)",
+        "Location=Example campaign site (synthetic)",
+        "GPS Location=Lat:53.100000°N, Long:8.300000°E",
+        "Comments=synthetic example of the firmware 2.x format, not a measurement",
+        "Timezone=UTC+00:00",
+        "Installation height (m)=0",
+        "****************************************",
+        "Configuration",
+        "Pulse Repetition Rate (Hz)=NA",
+        "Pulses / Line of Sight=NA",
+        "Wavelength (nm)=NA",
+        "Sampling Frequency (MHz)=NA",
+        "FFT Window Width=NA",
+        "ScanAngle (°)=NA",
+        "DirectionOffset (°)=0",
+        "CNRThreshold=-22",
+        "Altitudes (m)=\t" + "\t".join(f"{h:g}" for h in z),
+        "****************************************",
+    ]
+    quantities = ["Wind Speed (m/s)", "Wind Speed Dispersion (m/s)", "Wind Speed min (m/s)",
+                  "Wind Speed max (m/s)", "Wind Direction (°)", "Z-wind (m/s)", "Z-wind Dispersion (m/s)",
+                  "CNR (dB)", "CNR min (dB)", "Dopp Spect Broad (m/s)", "Data Availability (%)"]
+    names = ["Timestamp (end of interval)", "Int Temp (°C)", "Ext Temp (°C)", "Pressure (hPa)",
+             "Rel Humidity (%)", "Wiper count", "Vbatt (V)"]
+    for h in z:
+        names += [f"{h:g}m {q}" for q in quantities] + [""]
+    lines = [f"HeaderSize={len(header)}", *header, "\t".join(names)]
+    for t in range(n):
+        stamp = str(end[t].astype("datetime64[m]")).replace("-", "/").replace("T", " ")
+        cells = [stamp, f"{24.0 + 2 * np.sin(t / 23):.1f}", f"{14.0 + 3 * np.sin(t / 23):.1f}", "1009.8",
+                 f"{70 + 10 * np.cos(t / 31):.1f}", "0", "24.0"]
+        for k in range(z.size):
+            s, d, c = v["speed"][t, k], v["disp"][t, k], v["cnr"][t, k]
+            cells += [cell(s, ".2f"), cell(d, ".2f"), cell(s - 2.2 * d, ".2f"), cell(s + 2.4 * d, ".2f"),
+                      cell(v["dir"][t, k], ".1f"), cell(0.02 * s - 0.1, ".2f"), cell(0.4 * d, ".2f"),
+                      cell(c, ".1f"), cell(c - 4.0, ".1f"), cell(1.9 + 0 * s, ".2f"),
+                      avail_cell(v["avail"][t, k]), ""]
+        lines.append("\t".join(cells))
+    path.write_bytes(("\r\n".join(lines) + "\r\n").encode("latin-1"))
+
+
 def main() -> None:
-    """Write the three example files next to this script (deterministic)."""
+    """Write the four example files next to this script (deterministic)."""
     argparse.ArgumentParser(description=__doc__).parse_args()
     ss = np.random.SeedSequence(SEED)
-    r1, r2, r3 = (np.random.default_rng(s) for s in ss.spawn(3))
+    r1, r2, r3, r4 = (np.random.default_rng(s) for s in ss.spawn(4))
     newer(HERE / "example_newer.sta", r1)
     rows = older(HERE / "example_older.sta", r2)
     mast(HERE / "example_mast.csv", rows, r3)
-    print(f"wrote {HERE}/example_newer.sta, example_older.sta, example_mast.csv")
+    firmware2(HERE / "example_firmware2.sta", r4)
+    print(f"wrote {HERE}/example_newer.sta, example_older.sta, example_mast.csv, example_firmware2.sta")
 
 
 if __name__ == "__main__":
