@@ -30,6 +30,7 @@ The synthetic versions of the same rules
 """
 
 import pytest
+from diagnose_checks import assert_note_matches_answer
 from independent_campaign import make_field_campaign
 
 from lidarcal.diagnose import diagnose, summary
@@ -47,6 +48,7 @@ def run(effects, n_periods, heights, candidates, **campaign):
           + "; ".join(f"{e['effect']} {e['parameters']} in {e['intervals']} tied {e['tied']}"
                       for e in js["effects"])
           + f"; gap {js['gap_before']:.3f} -> {js['gap_after']:.3f} %; {js['note']}")
+    assert_note_matches_answer(js)
     return js
 
 

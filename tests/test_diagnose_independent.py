@@ -21,6 +21,7 @@ Fast versions (150 periods × 3 heights) run by default; the full matrix is ``@p
 
 import numpy as np
 import pytest
+from diagnose_checks import assert_note_matches_answer
 from independent_campaign import make_field_campaign
 
 from lidarcal.diagnose import REALISTIC_STRENGTHS, diagnose, summary
@@ -42,14 +43,15 @@ CATALOGUE["hybrid_weight"] = {"p": 0.0}
 LOOK_ALIKE = [{"reference_gain", "beam_angle_offset"}, {"hybrid_weight", "reference_overspeeding"}]
 
 
-def run(effects, n_periods, heights=(40.0, 80.0, 120.0, 160.0), seed=3, candidates=None):
-    field = make_field_campaign(effects, n_periods=n_periods, heights=heights, seed=seed)
+def run(effects, n_periods, heights=(40.0, 80.0, 120.0, 160.0), seed=3, candidates=None, **campaign):
+    field = make_field_campaign(effects, n_periods=n_periods, heights=heights, seed=seed, **campaign)
     js = summary(diagnose(field, candidates=candidates, simulate_options=SIM))
     # one line per campaign (shown with `pytest -s`): the confusion-matrix row
-    print(f"\n[independent] {effects} -> {js['effect']} "
+    print(f"\n[independent] {effects} {campaign} -> {js['effect']} "
           + "; ".join(f"{e['effect']} {e['parameters']} in {e['intervals']}" for e in js["effects"])
           + f"; drivers {js['drivers']}; gap {js['gap_before']:.3f} -> {js['gap_after']:.3f} % "
           f"(floor {js['gap_noise_floor']:.3f} %); {js['note']}")
+    assert_note_matches_answer(js)  # on every campaign: the note names exactly the answer's effects
     return js
 
 

@@ -125,19 +125,33 @@ def _try(problem: Problem, chosen: list[CandidateFit], c: CandidateFit, rss_cur:
     return t
 
 
-def _indistinct(problem: Problem, a: _Trial, b: _Trial, rss_cur: float, tie_threshold: float) -> bool:
-    """Tell whether ``b`` cannot be told from ``a`` (``rss_cur``: the weighted RSS before either).
+#: A runner-up is tied with the pick when, within its model-form allowance, it fits the residual
+#: at least as well in at least this share of the day-block bootstrap resamples (one side of 95 %).
+TIE_RESAMPLE_SHARE = 0.025
 
-    Within ``tie_threshold`` BIC units, or ``b`` fitting worse than ``a`` by less than an error of
+
+def _indistinct(problem: Problem, chosen: Sequence[CandidateFit], a: _Trial, b: _Trial, rss_cur: float,
+                tie_threshold: float) -> bool:
+    """Tell whether ``b`` cannot be told from ``a`` given ``chosen`` (``rss_cur``: the RSS before either).
+
+    Within ``tie_threshold`` BIC units; or ``b`` fitting worse than ``a`` by less than an error of
     b's own response model would cost (the catalogue's responses are models: a response wrong by
-    model_uncertainty of itself adds about that share squared of the explained sum of squares; at
-    95 %, (1.96 u)² of it) — e.g. a hybrid weight and a TI-proportional cup over-speeding.  b's
-    share, not a's: an imprecise response of the pick does not make every other effect plausible,
-    an imprecise response of the runner-up can hide that it is the right one.
+    its model-form share u of itself adds about u² of the explained sum of squares; at 95 %,
+    (1.96 u)² of it) — e.g. a hybrid weight and a TI-proportional cup over-speeding; or the data
+    not deciding: in at least :data:`TIE_RESAMPLE_SHARE` of the day-block bootstrap resamples
+    ``b`` fits within that allowance of ``a``.  b's share, not a's: an imprecise response of the
+    pick does not make every other effect plausible, an imprecise response of the runner-up can
+    hide that it is the right one.
     """
-    u = problem.form_share(b.cand.effect)
-    slack = (1.96 * u) ** 2 * max(rss_cur - a.res.rss_free, 0.0)
-    return b.dbic - a.dbic < tie_threshold or b.res.rss_free - a.res.rss_free <= slack
+    allowance = (1.96 * problem.form_share(b.cand.effect)) ** 2
+    if b.dbic - a.dbic < tie_threshold or b.res.rss_free - a.res.rss_free <= allowance * max(
+            rss_cur - a.res.rss_free, 0.0):
+        return True
+    rss = fit.bootstrap_rss(problem.r, [columns(chosen)[0], columns([*chosen, a.cand])[0],
+                                        columns([*chosen, b.cand])[0]],
+                            problem.weights, problem.clusters, problem.n_boot, problem.seed)
+    within = rss[:, 2] - rss[:, 1] <= allowance * np.maximum(rss[:, 0] - rss[:, 1], 0.0)
+    return bool(np.mean(within) >= TIE_RESAMPLE_SHARE)
 
 
 def select(problem: Problem, fits: list[CandidateFit], bic_threshold: float, tie_threshold: float,
@@ -190,9 +204,12 @@ def select(problem: Problem, fits: list[CandidateFit], bic_threshold: float, tie
                     f"not added ({'; '.join(t.reasons)})")
             if t is not trials[0]:
                 steps.append(line)
-            elif _indistinct(problem, t, pick, rss_cur, tie_threshold) or extra < tolerance:
+            elif extra < tolerance:
                 steps.append(f"{line}; {pick.id} explains the gap comparably (it leaves {extra:.3f} % more, "
                              f"in quadrature, < tolerance {tolerance:g} %)")
+            elif _indistinct(problem, chosen, t, pick, rss_cur, tie_threshold):
+                steps.append(f"{line}; {pick.id} explains the gap comparably (these data cannot tell it from "
+                             f"{t.id})")
             else:
                 forced.append(t.id)
                 steps.append(f"{line}; {pick.id} explains the gap less well (it leaves {extra:.3f} % more, "
@@ -200,7 +217,8 @@ def select(problem: Problem, fits: list[CandidateFit], bic_threshold: float, tie
         best = pick.cand
         _restore(chosen + [best], pick.estimates)
         best.clipped = pick.res.clipped
-        best.tied = forced + [t.id for t in ok[1:] if _indistinct(problem, pick, t, rss_cur, tie_threshold)]
+        best.tied = forced + [t.id for t in ok[1:]
+                              if _indistinct(problem, chosen, pick, t, rss_cur, tie_threshold)]
         best.contribution, best.share = pick.contribution, pick.share
         chosen.append(best)
         steps.append(f"{best.effect.id}: ΔBIC {pick.dbic:.1f}, changes (L-R)/R by {pick.contribution:.3f} % "
@@ -370,7 +388,8 @@ def adequate(problem: Problem, chosen: list[CandidateFit], steps: list[str], gap
 
 
 def conclude(chosen: Sequence[CandidateFit], steps: list[str], significant: bool, gap: float,
-             tolerance: float, minor: Sequence[CandidateFit] = (), p_min: float = float("nan")) -> tuple[str, str]:
+             tolerance: float, minor: Sequence[CandidateFit] = (),
+             p_min: float = float("nan")) -> tuple[str, str]:
     """Return the answer (first effect, ``none`` or ``unexplained``) and its one-paragraph note.
 
     The note ends with ``named: <ids>`` (or ``named: none``): the same effects as the answer's
@@ -378,8 +397,8 @@ def conclude(chosen: Sequence[CandidateFit], steps: list[str], significant: bool
     ``minor: <id> (...)`` with the reason (``tests/test_diagnose.py`` parses both).
     """
     p_text = f"min Holm p = {p_min:.3g}" if np.isfinite(p_min) else "Holm-corrected"
-    lines = [f"minor: {c.effect.id} (ΔBIC {c.minor_score:.1f}, changes (L-R)/R by {c.contribution:.3f} % rms: "
-             f"{c.minor})" for c in minor]
+    lines = [f"minor: {c.effect.id} (ΔBIC {c.minor_score:.1f}, changes (L-R)/R by {c.contribution:.3f} % "
+             f"rms: {c.minor})" for c in minor]
     if not significant:
         return "none", ("no significant disagreement between measurement and nominal model in any height or "
                         f"environmental bin ({p_text}); named: none")
@@ -387,9 +406,10 @@ def conclude(chosen: Sequence[CandidateFit], steps: list[str], significant: bool
         named = ", ".join(c.effect.id for c in chosen)
         return chosen[0].effect.id, "; ".join([*steps, *lines, f"named: {named}"])
     if not gap > tolerance:
-        return "none", "; ".join([f"the disagreement is significant ({p_text}) but the gap {gap:.3f} % is within "
-                                  f"the tolerance {tolerance:g} %: no effect is material", *lines, "named: none"])
+        return "none", "; ".join([f"the disagreement is significant ({p_text}) but the gap {gap:.3f} % is "
+                                  f"within the tolerance {tolerance:g} %: no effect is material", *lines,
+                                  "named: none"])
     return "unexplained", "; ".join(
-        [f"the disagreement is significant ({p_text}) and material (gap {gap:.3f} % > tolerance {tolerance:g} %) "
-         f"but no catalogue effect explains it", *steps[-1:], "drivers lists where the residual lies",
-         "named: none"])
+        [f"the disagreement is significant ({p_text}) and material (gap {gap:.3f} % > tolerance "
+         f"{tolerance:g} %) but no catalogue effect explains it", *steps[-1:],
+         "drivers lists where the residual lies", "named: none"])
