@@ -41,18 +41,24 @@ def test_the_campaign_follows_the_field_campaign_contract():
 
 
 def test_realised_turbulence_intensity_matches_the_request():
-    ds, truth = make_field_campaign_with_truth({}, n_periods=N, seed=SEED)
+    # Its own campaign (120 periods, 2 heights): the continuous simulator draws Gaussian Fourier
+    # coefficients, so the 10-minute variance of a period scatters by ~20 % about the requested
+    # one (fixed amplitudes, as the 3-point one, pin it), and 40 periods resolve a mean to ~3 %.
+    n = 120
+    ds, truth = make_field_campaign_with_truth({}, n_periods=n, heights=(40.0, 160.0), seed=SEED)
     ratio = ds.turbulence_intensity.values / truth["turbulence_intensity_requested"]
-    # Expected 1 − (σ_v/U)²/2 ≈ 0.99 (a cup reads the horizontal magnitude); the 10-minute
-    # sampling scatter of σ is ~10-15 % per period, so the mean of 40 periods has a standard
-    # error of ~2 %: 5 % is 2.5 standard errors.
-    assert np.all(np.abs(ratio.mean(axis=0) - 1.0) < 0.05), ratio.mean(axis=0)
+    # The variance is unbiased (no mean term in the series), so E[ratio^2] = 1 - (sigma_v/U)^2, the
+    # cup reading the horizontal magnitude (sigma_v = 0.8 sigma_u, the requested TI); allowed:
+    # 3 standard errors of the mean over the periods.
+    expected = 1.0 - np.mean((0.8 * truth["turbulence_intensity_requested"]) ** 2, axis=0)
+    mean2, se = (ratio**2).mean(axis=0), (ratio**2).std(axis=0, ddof=1) / np.sqrt(n)
+    assert np.all(np.abs(mean2 - expected) < 3.0 * se), (mean2, expected, se)
     # a measured, not a copied, quantity: per-period scatter of the ratio is real
     assert np.all(ratio.std(axis=0) > 0.02)
     # the shear is measured from the cup means: close to the true exponent (turbulence in the
-    # 10-minute means spreads it by a few hundredths)
+    # 10-minute means spreads it by a few hundredths; two heights 120 m apart)
     err = ds.wind_shear_exponent.values - truth["alpha"][:, None]
-    assert abs(np.mean(err)) < 0.02 and np.std(err) < 0.06
+    assert abs(np.mean(err)) < 0.02 and np.std(err) < 0.06, (np.mean(err), np.std(err))
 
 
 def test_zero_distance_offset_gives_the_shear_bias():
@@ -243,29 +249,48 @@ def test_the_continuous_rwf_is_the_limit_of_point_quadratures():
 def test_the_hybrid_response_converges_and_matches_lidarcals_engine():
     # issue 26: at 100 m, 8 m/s, TI 0.2 (no shear, wind along a beam) the hybrid response
     # (V_scalar - V_vector)/R of the continuous-RWF simulator agrees with lidarcal's engine, and the
-    # 3-point simulator's is far off (0.90 % against 0.75 %).  800 periods each: the mean of each is
-    # known to 0.7 %, so the two converged ones must agree within 3 combined standard errors (~3 %)
+    # 3-point simulator's is far off (0.90 % against 0.75 %).  800 periods each: each mean is known
+    # to 0.7 %, so the converged two must agree within 3 combined standard errors (~3 %).  The TI^2
+    # slope of the mean (L - R)/R (TI 0.1 and 0.2), printed for docs/validation.md, is known to
+    # +-0.5 %/TI^2: the converged one must agree with the engine's within 3 combined standard errors
     from independent_campaign import fixed_conditions
 
     from lidarcal.lidar import LidarModel, simulate_period
 
-    n = 800
+    n, model = 800, LidarModel.ideal()
 
-    def response(scalar, vector, reference):
-        h = 100 * (scalar - vector) / reference
-        return h.mean(), h.std(ddof=1) / np.sqrt(len(h))
+    def engine(ti):
+        rec = {k: np.empty(n) for k in ("scalar", "vector", "reference")}
+        for k in range(n):
+            o = simulate_period(model, heights=[100.0], wind_speed=8.0, wind_from_direction=0.0,
+                                turbulence_intensity=ti, wind_shear_exponent=0.0, cnr=-10.0, cnr_gradient=0.0,
+                                seed=(26, k))
+            for name, var in (("scalar", "lidar_wind_speed_scalar"), ("vector", "lidar_wind_speed_vector"),
+                              ("reference", "reference_wind_speed")):
+                rec[name][k] = o[var][0]
+        return rec
 
-    names = ("scalar", "vector", "reference")
-    cont = response(*(fixed_conditions(n, seed=26)[k] for k in names))
-    three = response(*(fixed_conditions(n, seed=26, rwf="three_point")[k] for k in names))
-    model, rec = LidarModel.ideal(), np.empty((3, n))
-    for k in range(n):
-        o = simulate_period(model, heights=[100.0], wind_speed=8.0, wind_from_direction=0.0,
-                            turbulence_intensity=0.2, wind_shear_exponent=0.0, cnr=-10.0, cnr_gradient=0.0,
-                            seed=(26, k))
-        rec[:, k] = [o[f"lidar_wind_speed_{v}"][0] for v in names[:2]] + [o["reference_wind_speed"][0]]
-    engine = response(*rec)
-    print(f"\nhybrid response at TI 0.2: continuous {cont[0]:.4f} +- {cont[1]:.4f} %, three-point "
-          f"{three[0]:.4f} +- {three[1]:.4f} %, engine {engine[0]:.4f} +- {engine[1]:.4f} %")
-    assert abs(cont[0] - engine[0]) < 3 * np.hypot(cont[1], engine[1]), (cont, engine)
-    assert three[0] > 1.1 * cont[0] and three[0] > 1.1 * engine[0], (three, cont, engine)
+    def mean_se(x):
+        return x.mean(), x.std(ddof=1) / np.sqrt(len(x))
+
+    out, slopes = {}, {}
+    for label, make in (("continuous", lambda ti: fixed_conditions(n, ti=ti, seed=26)),
+                        ("three-point", lambda ti: fixed_conditions(n, ti=ti, seed=26, rwf="three_point")),
+                        ("engine", engine)):
+        recs = {ti: make(ti) for ti in (0.1, 0.2)}
+        rec = recs[0.2]
+        hybrid = mean_se(100 * (rec["scalar"] - rec["vector"]) / rec["reference"])
+        means = [mean_se(100 * ((2 * r["scalar"] + r["vector"]) / 3 / r["reference"] - 1))
+                 for r in recs.values()]
+        slope = ((means[1][0] - means[0][0]) / 0.03, np.hypot(means[0][1], means[1][1]) / 0.03)
+        out[label], slopes[label] = hybrid, slope
+        print(f"\n{label}: hybrid response at TI 0.2 {hybrid[0]:.4f} +- {hybrid[1]:.4f} %, mean (L-R)/R "
+              f"{means[0][0]:+.4f} (TI 0.1) {means[1][0]:+.4f} (TI 0.2) %, TI^2 slope {slope[0]:.2f} +- "
+              f"{slope[1]:.2f} %/TI^2")
+    cont, three, eng = out["continuous"], out["three-point"], out["engine"]
+    assert abs(cont[0] - eng[0]) < 3 * np.hypot(cont[1], eng[1]), (cont, eng)
+    assert three[0] > 1.1 * cont[0] and three[0] > 1.1 * eng[0], (three, cont, eng)
+    # the converged simulator's TI^2 slope agrees with the engine's (issue 26: the 3-point one's is
+    # ~10 % flatter, which 800 periods resolve to only ~3 standard errors, so it is printed only)
+    (sc, uc), (se_, ue) = slopes["continuous"], slopes["engine"]
+    assert abs(sc - se_) < 3 * np.hypot(uc, ue), slopes

@@ -28,7 +28,7 @@ from lidarcal.diagnose.candidates import (
 from lidarcal.diagnose.problem import CandidateFit, Problem, records_difference
 
 __all__ = ["select", "adequate", "refine", "range_notes", "minor_effects", "conclude", "DEFAULT_TOLERANCE",
-           "DEFAULT_MIN_SHARE"]
+           "DEFAULT_MIN_SHARE", "TIE_RESAMPLE_SHARE"]
 
 log = logging.getLogger("lidarcal.diagnose")
 
