@@ -201,7 +201,19 @@ def test_dcc_cli_refusals(certs, xml, tmp_path, capsys):
     assert "certificate" in capsys.readouterr().err and not (tmp_path / "y.xml").exists()
 
 
-def test_dcc_passes_ptb_schematron_rules(xml, certs, tmp_path):
+@pytest.fixture
+def keep_locale():
+    """dcclib's Schematron engine sets the process locale from the environment (LANG=C.UTF-8 here);
+    Python 3.11 then reports LC_NUMERIC as 'en_US.UTF-8', which cf_units (imported later by the
+    compliance checker) fails to restore on machines without that locale. Put it back."""
+    import locale
+
+    saved = locale.setlocale(locale.LC_ALL)
+    yield
+    locale.setlocale(locale.LC_ALL, saved)
+
+
+def test_dcc_passes_ptb_schematron_rules(xml, certs, tmp_path, keep_locale):
     try:
         from dcclib import validation
     except ImportError:  # part of the test extra: CI must not pass by skipping the only offline rule check
