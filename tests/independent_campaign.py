@@ -28,8 +28,8 @@ Per ten-minute period (1 Hz, 600 s):
   tests that want one). PyConTurb's spectra and coherence at 3 points along each beam per
   height (−1.5 σ, 0, +1.5 σ of the RWF), linearly interpolated under the RWF, fixed-amplitude
   random phases and a batched Cholesky per component (``gen_turb``'s algorithm). Its hybrid
-  response is 19 % too large at TI 0.2 (0.90 % against 0.75 %) and its TI² slope of the mean
-  (L − R)/R 7 % flatter: a model-form difference of the kind real data have.
+  response is 20 % too large at TI 0.2 (0.90 % against 0.75 %) and its TI² slope of the mean
+  (L − R)/R 8-10 % flatter (``docs/validation.md``): a model-form difference of the kind real data have.
 * **Lidar.** Four beams (azimuths 0, 90, 180, 270°) at the true cone angle, one line of sight
   per second in turn; each LOS is the mean power-law profile's radial velocity under a
   Gaussian RWF (±3 σ, a 41-node quadrature) plus the turbulence above, the RWF optionally

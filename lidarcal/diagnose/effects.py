@@ -298,10 +298,10 @@ EFFECTS: dict[str, Effect] = {
         # TI-proportional over-speeding cup can fit it slightly better.  Fitted on the converged
         # independent simulator's fit set (tests/hybrid_share_fit.py, seeds 101-103; disjoint from
         # the campaigns the tests assert on): the error of the fitted change needs 6.9 % beyond
-        # the bootstrap, the look-alike cup explains up to 3.7 % more of the residual, which a
+        # the bootstrap, the look-alike cup explains up to 3.6 % more of the residual, which a
         # share of 9.7 % covers at 95 % (docs/diagnose.md, "Model-form share of the hybrid
         # weight").  The 25 % this entry carried before had been set on the tests' own campaigns
-        # of the 3-point test simulator, whose hybrid response was 19 % too large.
+        # of the 3-point test simulator, whose hybrid response was 20 % too large.
         model_form=0.10,
     ),
     "reference_overspeeding": Effect(
