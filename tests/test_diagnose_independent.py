@@ -21,6 +21,7 @@ Fast versions (150 periods × 3 heights) run by default; the full matrix is ``@p
 
 import numpy as np
 import pytest
+from diagnose_checks import assert_note_matches_answer
 from independent_campaign import make_field_campaign
 
 from lidarcal.diagnose import REALISTIC_STRENGTHS, diagnose, summary
@@ -42,14 +43,15 @@ CATALOGUE["hybrid_weight"] = {"p": 0.0}
 LOOK_ALIKE = [{"reference_gain", "beam_angle_offset"}, {"hybrid_weight", "reference_overspeeding"}]
 
 
-def run(effects, n_periods, heights=(40.0, 80.0, 120.0, 160.0), seed=3, candidates=None):
-    field = make_field_campaign(effects, n_periods=n_periods, heights=heights, seed=seed)
+def run(effects, n_periods, heights=(40.0, 80.0, 120.0, 160.0), seed=3, candidates=None, **campaign):
+    field = make_field_campaign(effects, n_periods=n_periods, heights=heights, seed=seed, **campaign)
     js = summary(diagnose(field, candidates=candidates, simulate_options=SIM))
     # one line per campaign (shown with `pytest -s`): the confusion-matrix row
-    print(f"\n[independent] {effects} -> {js['effect']} "
+    print(f"\n[independent] {effects} {campaign} -> {js['effect']} "
           + "; ".join(f"{e['effect']} {e['parameters']} in {e['intervals']}" for e in js["effects"])
           + f"; drivers {js['drivers']}; gap {js['gap_before']:.3f} -> {js['gap_after']:.3f} % "
           f"(floor {js['gap_noise_floor']:.3f} %); {js['note']}")
+    assert_note_matches_answer(js)  # on every campaign: the note names exactly the answer's effects
     return js
 
 
@@ -172,3 +174,30 @@ def test_an_effect_outside_the_catalogue_is_unexplained_and_located():
 def test_effect_free_campaigns_of_different_size_are_none(n_periods):
     js = run({}, n_periods, seed=11)
     assert js["effect"] == "none" and js["effects"] == [], js["note"]
+
+
+# -- issue 26's campaigns (slow) --------------------------------------------------------------------
+# Long campaigns of the kind issue 26 reported, on this simulator with seed 26 (no constant of the
+# diagnosis was set from it; the hybrid weight's model-form share comes from seeds 101-103).  The
+# issue's second effect was Eq. 2 CNR weighting of scale 1 changing (L - R)/R by 0.2 %; on this
+# simulator's CNR profiles scale 1 changes it by under the tolerance (CATALOGUE above), so scale 3
+# makes it a decisive, material second effect here.
+
+@pytest.mark.slow
+def test_issue_26_a_long_effect_free_campaign_is_never_a_catalogue_effect():
+    js = run({}, 1200, seed=26)
+    assert js["effect"] in ("none", "unexplained") and js["effects"] == [], js["note"]
+    if js["gap_before"] <= 0.1:  # within the tolerance: none, whatever the significance
+        assert js["effect"] == "none", js["note"]
+
+
+@pytest.mark.slow
+def test_issue_26_a_decisive_second_effect_is_named():
+    hidden = {"beam_angle_offset": {"offset": -0.3}, "cnr_gradient_weighting": {"scale": 3.0}}
+    js = run(hidden, 2400, seed=26)
+    sets = named(js)
+    assert len(sets) == 2, js["note"]
+    for effect in hidden:  # each hidden effect named, or tied within its look-alike group
+        group = set().union({effect}, *(g for g in LOOK_ALIKE if effect in g))
+        assert any(effect in s and s <= group for s in sets), (effect, sets, js["note"])
+    assert js["gap_after"] <= 0.5 * js["gap_before"]

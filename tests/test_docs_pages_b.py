@@ -12,7 +12,8 @@ SAMPLE = {"sample_data/": f"{ROOT / 'sample_data'}/"}  # the pages name the repo
 
 
 def test_diagnose_page(tmp_path, monkeypatch):
-    assert run_page("diagnose.md", tmp_path, monkeypatch) >= 4
+    data = {"tests/data/": f"{ROOT / 'tests' / 'data'}/"}  # the stored fit set of the hybrid weight's share
+    assert run_page("diagnose.md", tmp_path, monkeypatch, replace=data) >= 4
 
 
 def test_contracts_page(tmp_path, monkeypatch):

@@ -51,6 +51,7 @@ from lidarcal.diagnose.selection import (
     DEFAULT_TOLERANCE,
     adequate,
     conclude,
+    minor_effects,
     range_notes,
     refine,
     select,
@@ -96,6 +97,8 @@ class DiagnosisResult:
     answer: str = "none"            # effects[0] id, "none" or "unexplained"
     drivers: list[dict] = field(default_factory=list)  # where the residual lies (stats.locate)
     tolerance: float = DEFAULT_TOLERANCE  # %, the practical tolerance
+    minor: list[CandidateFit] = field(default_factory=list)  # strong but not material (docs/diagnose.md)
+    p_min: float = float("nan")     # smallest Holm-adjusted p-value of the disagreement tests
 
     @property
     def effect_id(self) -> str:
@@ -181,19 +184,24 @@ def diagnose(
     problem.groups = stats.bin_groups(problem.conditions, problem.valid, n_bins,
                                       [e.drivers[:2] for e in effects if len(e.drivers) >= 2])
     # 2. where do they disagree?
-    edges, drivers, binned0, tests, significant = _disagreement(problem, n_bins, min_bin_count, alpha)
+    edges, drivers, binned0, tests, significant, p_min = _disagreement(problem, n_bins, min_bin_count, alpha)
     gap0 = stats.gap(problem.r, problem.groups, min_bin_count)
     log.info(f"gap before: {gap0[0]:.3f} % (noise floor {gap0[2]:.3f} %, tolerance {tolerance:g} %)")
-    # 3-4. fit every candidate, add effects while strong and material, refine them
+    # 3-4. fit every candidate; when the gap is material, add effects while strong and material
     fits = fit_candidates(problem, effects)
+    material = significant and gap0[0] > tolerance  # within the tolerance nothing is material: none
     chosen, steps = select(problem, fits, bic_threshold, tie_threshold, tolerance, min_share) \
-        if significant else ([], [])
+        if material else ([], [])
     chosen, steps = adequate(problem, chosen, steps, gap0[0], tolerance)
+    # the strong candidates that are not named (listed as minor), unless nothing explains the gap
+    minor = minor_effects(problem, fits, chosen, bic_threshold, tolerance, gap0[0]) \
+        if significant and (chosen or not material) else []
     corrected, after = (model, problem.base) if not chosen else refine(problem, chosen)
     steps = steps + range_notes(problem, chosen)
     fits.sort(key=lambda c: c.delta_bic)  # the refined score may reorder the table
     chosen.sort(key=lambda c: -c.contribution)  # importance: the size of the change each makes
-    answer, note = conclude(chosen, steps, significant, gap0[0], tolerance)
+    minor.sort(key=lambda c: c.minor_score)
+    answer, note = conclude(chosen, steps, significant, gap0[0], tolerance, minor, p_min)
     # 5. the gap after adding the fitted effect(s); where the residual lies
     d_after = records_difference(after)
     r1 = np.where(problem.valid, problem.d_measured - d_after, np.nan)
@@ -217,7 +225,7 @@ def diagnose(
         chosen=chosen[0] if chosen else None, tied=list(chosen[0].tied) if chosen else [], note=note,
         gap_before=gap0, gap_after=gap1, design_effect=problem.design_effect, nominal_model=model,
         corrected_model=corrected, settings=settings, source=source, field_dataset=ds, selected=chosen,
-        answer=answer, drivers=where, tolerance=float(tolerance))
+        answer=answer, drivers=where, tolerance=float(tolerance), minor=minor, p_min=p_min)
 
 
 def _conditions_input(ds: xr.Dataset, source: str) -> xr.Dataset:
@@ -246,8 +254,8 @@ def _residual(ds: xr.Dataset, usable: np.ndarray, model, simulate: Simulator) ->
 def _disagreement(problem: Problem, n_bins: int, min_bin_count: int, alpha: float):
     """Bin the residual by every condition (and the gap metric's other bin groups) and test it (Holm).
 
-    Returns the bin edges and drivers per condition, the binned residual, the tests and whether
-    the disagreement is significant at ``alpha``.
+    Returns the bin edges and drivers per condition, the binned residual, the tests, whether
+    the disagreement is significant at ``alpha`` and the smallest Holm-adjusted p-value.
     """
     valid, conditions = problem.valid, problem.conditions
     edges = {n: stats.bin_edges(conditions[n][valid], n_bins) for n in CONDITION_NAMES}
@@ -262,5 +270,5 @@ def _disagreement(problem: Problem, n_bins: int, min_bin_count: int, alpha: floa
     p_min = float(np.nanmin(p_all)) if np.isfinite(p_all).any() else 1.0
     significant = p_min < alpha
     log.info(f"disagreement {'significant' if significant else 'not significant'} (min Holm p = {p_min:.3g})")
-    return edges, drivers, binned0, tests, significant
+    return edges, drivers, binned0, tests, significant, p_min
 

@@ -5,7 +5,8 @@ variables the residual is binned by), ``bin`` (quantile bins), ``candidate`` (ca
 Per-variable bin limits live in ``<variable>_bin_lower/upper`` (each in its own unit); the
 fitted parameter of each candidate in ``fit_<effect>_<parameter>`` (+ ``_stderr``, ``_nominal`` and
 the 95 % block-bootstrap interval ``_lower``/``_upper``); ``candidate_selected`` gives the order in
-which forward selection named the candidates (0: not named).
+which forward selection named the candidates (0: not named) and ``candidate_minor`` flags the
+strong candidates that are not named (the ``minor`` list: their ``fit_*`` values are that list's).
 The corrected model is the ``lidarcal_lidar_model`` global attribute (the same attribute a
 ``simulated_rtd`` carries), so ``LidarModel.from_dict(ds.attrs["lidarcal_lidar_model"])`` or
 :func:`corrected_model` rebuilds it; the ``--json`` object is in ``diagnosis_json``.
@@ -54,6 +55,13 @@ def _effect_entry(c) -> dict[str, Any]:
     }
 
 
+def _minor_entry(c) -> dict[str, Any]:
+    """One element of ``minor``: a strong candidate that is not named, and why (docs/diagnose.md)."""
+    entry = _effect_entry(c)
+    del entry["tied"]
+    return {**entry, "score": _num(c.minor_score), "reason": c.minor}
+
+
 def summary(result: DiagnosisResult) -> dict[str, Any]:
     """Return the ``--json`` object of ``docs/diagnose.md`` (listed keys exact; a few documented extras).
 
@@ -61,7 +69,9 @@ def summary(result: DiagnosisResult) -> dict[str, Any]:
     ``uncertainties`` (block-bootstrap standard errors), ``intervals`` (95 %) and ``units``
     are those of ``effects[0]``.  ``drivers`` lists where the residual lies
     (``{"variable", "range", "units", "z"}``).  ``score`` of a candidate is its ΔBIC against
-    ``none`` fitted alone (lower is better; ``none`` is 0).
+    ``none`` fitted alone (lower is better; ``none`` is 0).  ``minor`` lists the strong candidates
+    that are not named, with their estimates, intervals, change, ``score`` (ΔBIC alone, or given
+    the named effects) and ``reason``.
     """
     effects = [_effect_entry(c) for c in result.selected]
     first = effects[0] if effects else {"parameters": {}, "uncertainties": {}, "intervals": {}, "units": {}}
@@ -85,6 +95,8 @@ def summary(result: DiagnosisResult) -> dict[str, Any]:
         "tolerance": _num(result.tolerance),
         "candidates": cands,
         "significant": bool(result.significant),
+        "p_adjusted_min": _num(result.p_min),
+        "minor": [_minor_entry(c) for c in result.minor],
         "note": result.note,
         "gap_before_by_height": dict(zip(map(str, heights), map(_num, result.gap_before[1]), strict=True)),
         "gap_after_by_height": dict(zip(map(str, heights), map(_num, result.gap_after[1]), strict=True)),
@@ -187,6 +199,9 @@ def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagno
     rank = {c.effect.id: i + 1 for i, c in enumerate(result.selected)}
     put("candidate_selected", "candidate",
         np.asarray([0] + [rank.get(c.effect.id, 0) for c in result.candidates], np.int32))
+    minor = {c.effect.id for c in result.minor}
+    put("candidate_minor", "candidate",
+        np.asarray([0] + [int(c.effect.id in minor) for c in result.candidates], np.int8))
     for c in result.candidates:
         for p in c.effect.parameters:
             base, about = f"fit_{c.effect.id}_{p.name}", dict(effect=c.effect.id, parameter=p.long_name)

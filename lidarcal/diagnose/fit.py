@@ -40,7 +40,7 @@ import numpy as np
 
 __all__ = [
     "features", "smooth_response", "noise_weights", "design_effect", "FitResult", "fit_linear",
-    "delta_bic", "day_clusters", "bootstrap_fit", "bootstrap_grid",
+    "delta_bic", "day_clusters", "bootstrap_fit", "bootstrap_rss", "bootstrap_grid",
 ]
 
 
@@ -309,17 +309,18 @@ def bootstrap_fit(r: np.ndarray, J: list[np.ndarray], w: np.ndarray, clusters: n
     return full, samples
 
 
-def bootstrap_grid(r: np.ndarray, responses: list[list[np.ndarray]], w: np.ndarray, clusters: np.ndarray,
-                   n_boot: int = 400, seed: int = 0) -> np.ndarray:
-    """Index of the best grid point (least weighted RSS) in each block-bootstrap resample.
+def bootstrap_rss(r: np.ndarray, alternatives: list[list[np.ndarray]], w: np.ndarray, clusters: np.ndarray,
+                  n_boot: int = 400, seed: int = 0) -> np.ndarray:
+    """Weighted RSS (n_boot, n_alternatives) of least-squares fits of ``r`` in block-bootstrap resamples.
 
-    ``responses[i]`` are the response columns of grid point ``i`` (the linear parameters are fitted
-    at each point).  Per point and cluster the normal equations and yᵀWy are summed once; a
-    resample's RSS at a point is Σc·yᵀWy − bᵀA⁻¹b with the cluster counts c.  The same
-    resamples (seed) as :func:`bootstrap_fit`.
+    ``alternatives[i]`` are the response columns of alternative ``i`` (fitted unconstrained in
+    each resample; no column: the RSS of ``r`` itself).  Only periods where every column is
+    finite count, for all alternatives alike.  Per alternative and cluster the normal equations
+    and yᵀWy are summed once; a resample's RSS is Σc·yᵀWy − bᵀA⁻¹b with the cluster counts c.
+    The same resamples (seed) as :func:`bootstrap_fit`.
     """
     ok = (w > 0) & np.isfinite(r)
-    for cols in responses:
+    for cols in alternatives:
         for Jk in cols:
             ok &= np.isfinite(Jk)
     rows, _ = np.nonzero(ok)
@@ -330,8 +331,11 @@ def bootstrap_grid(r: np.ndarray, responses: list[list[np.ndarray]], w: np.ndarr
     y, ww = r[ok], w[ok]
     yy = np.zeros(G)
     np.add.at(yy, g, ww * y * y)
-    rss = np.empty((int(n_boot), len(responses)))
-    for i, cols in enumerate(responses):
+    rss = np.empty((int(n_boot), len(alternatives)))
+    for i, cols in enumerate(alternatives):
+        rss[:, i] = counts @ yy
+        if not cols:
+            continue
         X = np.column_stack([Jk[ok] for Jk in cols])
         k = X.shape[1]
         A = np.zeros((G, k, k))
@@ -341,5 +345,15 @@ def bootstrap_grid(r: np.ndarray, responses: list[list[np.ndarray]], w: np.ndarr
         At = np.einsum("bg,gij->bij", counts, A) + 1e-30 * np.eye(k)
         bt = counts @ b
         beta = np.linalg.solve(At, bt[:, :, None])[:, :, 0]
-        rss[:, i] = counts @ yy - np.einsum("bk,bk->b", bt, beta)
-    return np.argmin(rss, axis=1)
+        rss[:, i] -= np.einsum("bk,bk->b", bt, beta)
+    return rss
+
+
+def bootstrap_grid(r: np.ndarray, responses: list[list[np.ndarray]], w: np.ndarray, clusters: np.ndarray,
+                   n_boot: int = 400, seed: int = 0) -> np.ndarray:
+    """Index of the best grid point (least weighted RSS) in each block-bootstrap resample.
+
+    ``responses[i]`` are the response columns of grid point ``i`` (the linear parameters are fitted
+    at each point; :func:`bootstrap_rss`).
+    """
+    return np.argmin(bootstrap_rss(r, responses, w, clusters, n_boot, seed), axis=1)

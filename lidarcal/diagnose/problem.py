@@ -18,7 +18,7 @@ import xarray as xr
 
 from lidarcal.campaign import simulate_campaign
 from lidarcal.diagnose import fit, stats
-from lidarcal.diagnose.effects import Effect
+from lidarcal.diagnose.effects import Effect, model_form_share
 
 __all__ = ["Problem", "Simulator", "CandidateFit", "records_difference", "RECORD_NAMES", "DEFAULT_BOOTSTRAP",
            "DEFAULT_MODEL_UNCERTAINTY"]
@@ -51,6 +51,8 @@ class CandidateFit:
     tied: list[str] = field(default_factory=list)  # catalogue ids it cannot be told from
     free: dict[str, float] = field(default_factory=dict)     # unconstrained fit of each linear parameter
     free_se: dict[str, float] = field(default_factory=dict)  # its (sandwich) standard error
+    minor: str = ""             # why a strong candidate is not named (empty: not a minor effect)
+    minor_score: float = float("nan")  # its ΔBIC: alone, or given the named effects
 
     @property
     def bounds(self) -> list[tuple[float, float]]:
@@ -138,8 +140,8 @@ class Problem:
         return fit.smooth_response(dy, self.conditions, effect.drivers, self.valid, weights=self.weights)
 
     def form_share(self, *effects: Effect) -> float:
-        """Model-form share of the fitted change: the diagnosis' own, or an effect's larger one."""
-        return max([self.model_uncertainty] + [e.model_form for e in effects if e.model_form is not None])
+        """Model-form share of the fitted change (:func:`~lidarcal.diagnose.effects.model_form_share`)."""
+        return max([model_form_share(e, self.model_uncertainty) for e in effects] or [self.model_uncertainty])
 
     def gap2(self, r: np.ndarray) -> float:
         """Square of the gap metric (%²) of a residual."""

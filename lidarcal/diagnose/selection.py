@@ -27,8 +27,8 @@ from lidarcal.diagnose.candidates import (
 )
 from lidarcal.diagnose.problem import CandidateFit, Problem, records_difference
 
-__all__ = ["select", "adequate", "refine", "range_notes", "conclude", "DEFAULT_TOLERANCE",
-           "DEFAULT_MIN_SHARE"]
+__all__ = ["select", "adequate", "refine", "range_notes", "minor_effects", "conclude", "DEFAULT_TOLERANCE",
+           "DEFAULT_MIN_SHARE", "TIE_RESAMPLE_SHARE"]
 
 log = logging.getLogger("lidarcal.diagnose")
 
@@ -125,19 +125,33 @@ def _try(problem: Problem, chosen: list[CandidateFit], c: CandidateFit, rss_cur:
     return t
 
 
-def _indistinct(problem: Problem, a: _Trial, b: _Trial, rss_cur: float, tie_threshold: float) -> bool:
-    """Tell whether ``b`` cannot be told from ``a`` (``rss_cur``: the weighted RSS before either).
+#: A runner-up is tied with the pick when, within its model-form allowance, it fits the residual
+#: at least as well in at least this share of the day-block bootstrap resamples (one side of 95 %).
+TIE_RESAMPLE_SHARE = 0.025
 
-    Within ``tie_threshold`` BIC units, or ``b`` fitting worse than ``a`` by less than an error of
+
+def _indistinct(problem: Problem, chosen: Sequence[CandidateFit], a: _Trial, b: _Trial, rss_cur: float,
+                tie_threshold: float) -> bool:
+    """Tell whether ``b`` cannot be told from ``a`` given ``chosen`` (``rss_cur``: the RSS before either).
+
+    Within ``tie_threshold`` BIC units; or ``b`` fitting worse than ``a`` by less than an error of
     b's own response model would cost (the catalogue's responses are models: a response wrong by
-    model_uncertainty of itself adds about that share squared of the explained sum of squares; at
-    95 %, (1.96 u)² of it) — e.g. a hybrid weight and a TI-proportional cup over-speeding.  b's
-    share, not a's: an imprecise response of the pick does not make every other effect plausible,
-    an imprecise response of the runner-up can hide that it is the right one.
+    its model-form share u of itself adds about u² of the explained sum of squares; at 95 %,
+    (1.96 u)² of it) — e.g. a hybrid weight and a TI-proportional cup over-speeding; or the data
+    not deciding: in at least :data:`TIE_RESAMPLE_SHARE` of the day-block bootstrap resamples
+    ``b`` fits within that allowance of ``a``.  b's share, not a's: an imprecise response of the
+    pick does not make every other effect plausible, an imprecise response of the runner-up can
+    hide that it is the right one.
     """
-    u = problem.form_share(b.cand.effect)
-    slack = (1.96 * u) ** 2 * max(rss_cur - a.res.rss_free, 0.0)
-    return b.dbic - a.dbic < tie_threshold or b.res.rss_free - a.res.rss_free <= slack
+    allowance = (1.96 * problem.form_share(b.cand.effect)) ** 2
+    if b.dbic - a.dbic < tie_threshold or b.res.rss_free - a.res.rss_free <= allowance * max(
+            rss_cur - a.res.rss_free, 0.0):
+        return True
+    rss = fit.bootstrap_rss(problem.r, [columns(chosen)[0], columns([*chosen, a.cand])[0],
+                                        columns([*chosen, b.cand])[0]],
+                            problem.weights, problem.clusters, problem.n_boot, problem.seed)
+    within = rss[:, 2] - rss[:, 1] <= allowance * np.maximum(rss[:, 0] - rss[:, 1], 0.0)
+    return bool(np.mean(within) >= TIE_RESAMPLE_SHARE)
 
 
 def select(problem: Problem, fits: list[CandidateFit], bic_threshold: float, tie_threshold: float,
@@ -190,9 +204,12 @@ def select(problem: Problem, fits: list[CandidateFit], bic_threshold: float, tie
                     f"not added ({'; '.join(t.reasons)})")
             if t is not trials[0]:
                 steps.append(line)
-            elif _indistinct(problem, t, pick, rss_cur, tie_threshold) or extra < tolerance:
+            elif extra < tolerance:
                 steps.append(f"{line}; {pick.id} explains the gap comparably (it leaves {extra:.3f} % more, "
                              f"in quadrature, < tolerance {tolerance:g} %)")
+            elif _indistinct(problem, chosen, t, pick, rss_cur, tie_threshold):
+                steps.append(f"{line}; {pick.id} explains the gap comparably (these data cannot tell it from "
+                             f"{t.id})")
             else:
                 forced.append(t.id)
                 steps.append(f"{line}; {pick.id} explains the gap less well (it leaves {extra:.3f} % more, "
@@ -200,7 +217,8 @@ def select(problem: Problem, fits: list[CandidateFit], bic_threshold: float, tie
         best = pick.cand
         _restore(chosen + [best], pick.estimates)
         best.clipped = pick.res.clipped
-        best.tied = forced + [t.id for t in ok[1:] if _indistinct(problem, pick, t, rss_cur, tie_threshold)]
+        best.tied = forced + [t.id for t in ok[1:]
+                              if _indistinct(problem, chosen, pick, t, rss_cur, tie_threshold)]
         best.contribution, best.share = pick.contribution, pick.share
         chosen.append(best)
         steps.append(f"{best.effect.id}: ΔBIC {pick.dbic:.1f}, changes (L-R)/R by {pick.contribution:.3f} % "
@@ -211,56 +229,94 @@ def select(problem: Problem, fits: list[CandidateFit], bic_threshold: float, tie
         rss_cur, g_cur = pick.res.rss, pick.g2
     if chosen:
         joint_fit(problem, chosen)  # the trials after the last step moved the estimates
-    return _prune(problem, chosen, steps, tolerance)
+    return _prune(problem, chosen, steps, bic_threshold, tolerance)
 
 
-def _prune(problem: Problem, chosen: list[CandidateFit], steps: list[str],
+def _prune(problem: Problem, chosen: list[CandidateFit], steps: list[str], bic_threshold: float,
            tolerance: float) -> tuple[list[CandidateFit], list[str]]:
-    """Drop named effects that explain no material part of the systematic residual given the others.
+    """Drop named effects that, given the others, no longer pass the test they were added by.
 
-    With several effects named, each must be material given the others: remove at least the
-    tolerance (in quadrature) from the gap the others leave, ``sqrt(gap(others)² − gap(all)²) ≥
-    tolerance``, **or** take the gap from above the tolerance (the others alone) to at most the
-    tolerance (all together) — by the diagnosis's own definition a gap above the tolerance is
-    material, so the effect that closes it is too.  An effect that is strong by ΔBIC and changes
-    (L − R)/R by more than the tolerance but leaves every bin mean as it was only fits the
-    model-form mismatch between the catalogue's responses and the data (e.g. a hybrid weight
-    added to a beam-angle offset).  The weakest effect that is not material is dropped and the
-    test repeated.
+    With several effects named, each must, given all the others, still be strong (lower the BIC
+    by at least ``bic_threshold``) and material (change (L − R)/R by at least the tolerance rms
+    at the joint fit, or take the gap from above the tolerance — the others alone — to within
+    it): forward selection judged each given only those named before it.  The weakest effect
+    that fails (the highest ΔBIC) is dropped and the test repeated.  How much of the gap an
+    effect removes given the others is reported, not gated on: an effect whose own change
+    exceeds the tolerance is a finding whatever gap happens to be left (``docs/diagnose.md``).
     """
     tol2 = tolerance**2
-    kept_lines: dict[str, str] = {}
     while len(chosen) > 1:
-        kept_lines = {}
+        res_all = joint_fit(problem, chosen)
         g_all = problem.gap2(problem.r - np.where(problem.valid, fitted(chosen), 0.0))
-        unique, material = [], []
+        change = {c.effect.id: contribution(problem, c) for c in chosen}
+        failing = []
         for c in chosen:
             others = [x for x in chosen if x is not c]
-            joint_fit(problem, others)
+            res_wo = joint_fit(problem, others)
             g_wo = problem.gap2(problem.r - np.where(problem.valid, fitted(others), 0.0))
-            u = float(np.sqrt(max(g_wo - g_all, 0.0)))
+            dbic = fit.delta_bic(res_all.rss_free, res_wo.rss, c.effect.n_parameters, problem.n_eff)
             closes = g_wo > tol2 >= g_all
-            unique.append(u)
-            material.append(u >= tolerance or closes)
-            if closes and u < tolerance:
-                kept_lines[c.effect.id] = (
-                    f"{c.effect.id} kept: given the others it removes only {u:.3f} % of the gap (in "
-                    f"quadrature), but without it the gap is {np.sqrt(g_wo):.3f} % > tolerance "
-                    f"{tolerance:g} % and with it {np.sqrt(g_all):.3f} % <= tolerance: it closes a "
-                    f"material gap")
+            why = []
+            if dbic > -bic_threshold:
+                why.append(f"lowers the BIC by only {-dbic:.1f} < {bic_threshold:g}")
+            if change[c.effect.id] < tolerance and not closes:
+                why.append(f"changes (L-R)/R by only {change[c.effect.id]:.3f} % < tolerance {tolerance:g} % "
+                           f"and does not take the gap below the tolerance")
+            if why:
+                failing.append((dbic, c, why))
         joint_fit(problem, chosen)
-        weak = [k for k in range(len(chosen)) if not material[k]]
-        if not weak:
+        if not failing:
             break
-        k = min(weak, key=lambda j: unique[j])
-        steps.append(f"{chosen[k].effect.id} dropped: given the others it removes only {unique[k]:.3f} % "
-                     f"of the gap (in quadrature) < tolerance {tolerance:g} % and does not take the gap "
-                     f"below the tolerance")
-        chosen = chosen[:k] + chosen[k + 1:]
+        _, weak, why = max(failing, key=lambda f: f[0])
+        steps.append(f"{weak.effect.id} dropped: given the others it {' and '.join(why)}")
+        chosen = [c for c in chosen if c is not weak]
         joint_fit(problem, chosen)
-    if len(chosen) > 1:
-        steps += list(kept_lines.values())
     return chosen, steps
+
+
+def minor_effects(problem: Problem, fits: Sequence[CandidateFit], chosen: Sequence[CandidateFit],
+                  bic_threshold: float, tolerance: float, gap: float) -> list[CandidateFit]:
+    """Candidates that are strong but not material: the ``minor`` list (``docs/diagnose.md``).
+
+    With no effect named (the gap before within the tolerance), every candidate that alone lowers
+    the BIC by at least ``bic_threshold`` and is not out of its physical range, with its alone fit
+    (estimate, block-bootstrap interval).  With effects named, every other candidate that,
+    fitted together with them, lowers the BIC by as much and stays in its range, with that joint
+    fit's estimate and block-bootstrap interval; the named effects' values are left as they were.
+    Each gets ``minor`` (why it is not named), ``minor_score`` (its ΔBIC: alone, or given the
+    named effects) and ``contribution`` (its change of (L − R)/R at that estimate).
+    """
+    out: list[CandidateFit] = []
+    if not chosen:
+        for c in fits:
+            if c.delta_bic <= -bic_threshold and not range_verdict(problem, [c])[0]:
+                c.minor = (f"the gap before ({gap:.3f} %) is within the tolerance ({tolerance:g} %), so no "
+                           f"effect is material")
+                c.minor_score = c.delta_bic
+                out.append(c)
+        return out
+    res = joint_fit(problem, list(chosen))
+    g0 = problem.gap2(problem.r)
+    g_cur = problem.gap2(problem.r - np.where(problem.valid, fitted(chosen), 0.0))
+    kept = _snapshot(chosen)
+    intervals = {c.effect.id: dict(c.interval) for c in chosen}
+    for c in fits:
+        if c in chosen:
+            continue
+        t = _try(problem, list(chosen), c, res.rss, g0, g_cur, bic_threshold, tolerance, 0.0)
+        if t is None or t.dbic > -bic_threshold or t.beyond:
+            continue
+        _restore([c], {c.effect.id: t.estimates[c.effect.id]})
+        _restore(chosen, {k: v for k, v in t.estimates.items() if k != c.effect.id})
+        bootstrap(problem, list(chosen) + [c])
+        c.contribution = contribution(problem, c)
+        c.minor = "; ".join(t.reasons) or "not named"
+        c.minor_score = t.dbic
+        out.append(c)
+        _restore(chosen, kept)
+        for x in chosen:
+            x.interval = dict(intervals[x.effect.id])
+    return out
 
 
 def refine(problem: Problem, chosen: list[CandidateFit]) -> tuple[Any, dict[str, np.ndarray]]:
@@ -331,17 +387,29 @@ def adequate(problem: Problem, chosen: list[CandidateFit], steps: list[str], gap
     return chosen, steps
 
 
-def conclude(chosen: list[CandidateFit], steps: list[str], significant: bool, gap: float,
-            tolerance: float) -> tuple[str, str]:
-    """Return the answer (first effect, ``none`` or ``unexplained``) and its one-paragraph note."""
+def conclude(chosen: Sequence[CandidateFit], steps: list[str], significant: bool, gap: float,
+             tolerance: float, minor: Sequence[CandidateFit] = (),
+             p_min: float = float("nan")) -> tuple[str, str]:
+    """Return the answer (first effect, ``none`` or ``unexplained``) and its one-paragraph note.
+
+    The note ends with ``named: <ids>`` (or ``named: none``): the same effects as the answer's
+    ``effects``, in the same order; the strong candidates that are not named are listed as
+    ``minor: <id> (...)`` with the reason (``tests/test_diagnose.py`` parses both).
+    """
+    p_text = f"min Holm p = {p_min:.3g}" if np.isfinite(p_min) else "Holm-corrected"
+    lines = [f"minor: {c.effect.id} (ΔBIC {c.minor_score:.1f}, changes (L-R)/R by {c.contribution:.3f} % "
+             f"rms: {c.minor})" for c in minor]
     if not significant:
         return "none", ("no significant disagreement between measurement and nominal model in any height or "
-                        "environmental bin (Holm-corrected)")
+                        f"environmental bin ({p_text}); named: none")
     if chosen:
-        return chosen[0].effect.id, "; ".join(steps)
+        named = ", ".join(c.effect.id for c in chosen)
+        return chosen[0].effect.id, "; ".join([*steps, *lines, f"named: {named}"])
     if not gap > tolerance:
-        return "none", (f"the disagreement is significant but below the tolerance: gap {gap:.3f} % <= "
-                        f"{tolerance:g} %" + (f"; {steps[-1]}" if steps else ""))
-    return "unexplained", (f"the disagreement is significant and material (gap {gap:.3f} % > tolerance "
-                           f"{tolerance:g} %) but no catalogue effect explains it"
-                           + (f"; {steps[-1]}" if steps else "") + "; drivers lists where the residual lies")
+        return "none", "; ".join([f"the disagreement is significant ({p_text}) but the gap {gap:.3f} % is "
+                                  f"within the tolerance {tolerance:g} %: no effect is material", *lines,
+                                  "named: none"])
+    return "unexplained", "; ".join(
+        [f"the disagreement is significant ({p_text}) and material (gap {gap:.3f} % > tolerance "
+         f"{tolerance:g} %) but no catalogue effect explains it", *steps[-1:],
+         "drivers lists where the residual lies", "named: none"])
