@@ -18,47 +18,74 @@ import logging
 import shlex
 import sys
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
+from typing import NamedTuple
 
 from lidarcal import __version__
 from lidarcal.errors import LidarcalError
-from lidarcal.provenance import contact
-
-#: Subcommand modules, in the order they appear in ``lidarcal --help``.
-COMMANDS = (
-    "calibrate",
-    "bench",
-    "rwf",
-    "terms",
-    "conditions",
-    "field",
-    "turbulence",
-    "simulate",
-    "sensitivity",
-    "budget",
-    "sweep",
-    "certificate",
-    "dcc",
-    "verify",
-    "keygen",
-    "table",
-    "diagnose",
-    "compare",
-    "validate",
-)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the argument parser from every subcommand module."""
+class Command(NamedTuple):
+    """A subcommand: the module under ``lidarcal.cli`` that builds it, and its line in ``lidarcal --help``."""
+
+    module: str
+    help: str
+
+
+#: Every subcommand, in the order ``lidarcal --help`` lists them.  A command's module (and the
+#: library behind it) is imported only when that command is run, so ``lidarcal --help`` and a
+#: light command such as ``lidarcal verify`` do not pay for the simulation engine's imports.
+COMMANDS = {
+    "calibrate": Command("calibrate", "run the whole calibration (default: embedded sample data)"),
+    "bench": Command("bench", "fiber-optic bench (SAFO-MV): simulate, ingest, repeatability"),
+    "rwf": Command("rwf", "range-weighting function and zero distance (Eqs. 1-2)"),
+    "terms": Command("terms", "non-simulated uncertainty terms (Eqs. 6-11, Table 4)"),
+    "conditions": Command("conditions", "check or generate 10-minute conditions inputs"),
+    "field": Command("field", "build a field_campaign from lidar .sta files and a mast record"),
+    "turbulence": Command("turbulence", "turbulence at a virtual lidar's sample points"),
+    "simulate": Command("simulate", "simulate a campaign of 10-minute periods (virtual lidar vs reference)"),
+    "sensitivity": Command("sensitivity", "environmental sensitivities (IEC 50-2, Eqs. 12-13)"),
+    "budget": Command("budget", "uncertainty budget per height and wind-speed bin"),
+    "sweep": Command("sweep", "maximum deviation and slopes over a full grid of conditions"),
+    "certificate": Command("certificate", "bundle and seal a calibration certificate"),
+    "dcc": Command("dcc", "export a certificate as a PTB Digital Calibration Certificate (XML)"),
+    "verify": Command("verify", "check a certificate's integrity record, signature and schema"),
+    "keygen": Command("keygen", "new Ed25519 key pair for signing certificates (KEY, KEY.pub)"),
+    "table": Command("table", "IEC-style result table of a certificate (CSV, Markdown, HTML)"),
+    "diagnose": Command("diagnose", "name the model effect that explains a field campaign's gap"),
+    "diagnose-generate": Command("diagnose", "write a synthetic field campaign with a hidden effect"),
+    "compare": Command("compare", "the field campaign's slopes and budget beside the virtual lidar's"),
+    "validate": Command("validate", "check artefacts against their schema and CF/ACDD"),
+}
+
+
+def build_parser(commands: Iterable[str] | None = None) -> argparse.ArgumentParser:
+    """Build the argument parser: every subcommand in full, or only ``commands`` in full.
+
+    The other subcommands are then listed with their help line only, without importing their
+    modules (:data:`COMMANDS`); :func:`main` builds only the command it runs.
+    """
     parser = argparse.ArgumentParser(
         prog="lidarcal",
         description="Anemometer-free calibration of pulsed Doppler wind lidars.",
     )
     parser.add_argument("--version", action="version", version=f"lidarcal {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMANDS:
-        importlib.import_module(f"lidarcal.cli.{name}").register(sub)
+    full = {COMMANDS[c].module for c in COMMANDS} if commands is None else \
+        {COMMANDS[c].module for c in commands if c in COMMANDS}
+    registered: set[str] = set()
+    for name, command in COMMANDS.items():
+        if command.module not in full:
+            sub.add_parser(name, help=command.help, add_help=False)
+        elif command.module not in registered:  # the module adds all of its commands
+            importlib.import_module(f"lidarcal.cli.{command.module}").register(sub)
+            registered.add(command.module)
     return parser
+
+
+def _command_in(argv: Sequence[str]) -> str | None:
+    """Return the subcommand ``argv`` names (its first word that is not an option), if any."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 def command_line(args: argparse.Namespace) -> str:
@@ -85,8 +112,8 @@ class _StderrHandler(logging.StreamHandler):
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``lidarcal`` command."""
-    parser = build_parser()
     argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser([_command_in(argv) or ""])
     args = parser.parse_args(argv)
     args.argv = argv
     warnings.showwarning = _show_warning
@@ -99,6 +126,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     level = logger.level
     logger.addHandler(handler)
     logger.setLevel(logging.INFO)
+    from lidarcal.provenance import contact  # deferred: numpy and xarray, which --help does without
+
     try:
         # --creator, --institution ... (options.add_contact_options) for every file written
         given = {k[len("contact_"):]: v for k, v in vars(args).items() if k.startswith("contact_") and v}

@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 
 from lidarcal.admin import status_line
+from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import (
     add_admin_options,
     add_certification_options,
@@ -55,7 +56,7 @@ def _periods(text: str) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``calibrate`` subcommand."""
-    p = sub.add_parser("calibrate", help="run the whole calibration (default: embedded sample data)",
+    p = sub.add_parser("calibrate", help=COMMANDS["calibrate"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-o", "--outdir", default="lidarcal-output", help="output directory (default %(default)s)")
     p.add_argument("--rtd", metavar="RTD.csv", help="bench real-time data (default: sample run)")

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from lidarcal.admin import status_line
 from lidarcal.certificate import make_certificate
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import add_admin_options, add_output_options, admin_from_args
 from lidarcal.document import seal_statement
 from lidarcal.io import check_writable, open_artefact
@@ -30,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``certificate`` subcommand."""
     p = sub.add_parser(
         "certificate",
-        help="bundle and seal a calibration certificate",
+        help=COMMANDS["certificate"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_lidar_options,
     add_los_noise_option,
@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``compare`` subcommand."""
     p = sub.add_parser(
         "compare",
-        help="the field campaign's slopes and budget beside the virtual lidar's",
+        help=COMMANDS["compare"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -16,6 +16,7 @@ import argparse
 import os
 
 from lidarcal.admin import load_admin, status_line
+from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import add_overwrite_option
 from lidarcal.dcc import DCC_SCHEMA_VERSION, dcc_attributes, write_dcc
 from lidarcal.io import open_artefact
@@ -24,7 +25,7 @@ from lidarcal.provenance import sha256
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``dcc`` subcommand."""
-    p = sub.add_parser("dcc", help="export a certificate as a PTB Digital Calibration Certificate (XML)",
+    p = sub.add_parser("dcc", help=COMMANDS["dcc"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("certificate", metavar="CERT.nc", help="sealed netCDF certificate")
     p.add_argument("-o", "--output", required=True, metavar="CERT.xml")

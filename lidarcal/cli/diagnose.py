@@ -13,7 +13,7 @@ import argparse
 import json
 import sys
 
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_heights_option,
     add_lidar_options,
@@ -43,7 +43,7 @@ from lidarcal.io import check_writable, open_artefact, write_artefact
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``diagnose`` and ``diagnose-generate`` subcommands."""
-    p = sub.add_parser("diagnose", help="name the model effect that explains a field campaign's gap",
+    p = sub.add_parser("diagnose", help=COMMANDS["diagnose"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("field", metavar="FIELD.nc", help="field_campaign netCDF (docs/contracts.md)")
     add_lidar_options(p, default="the field file's lidar_* attributes")
@@ -75,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _sim_args(p)
     p.set_defaults(handler=run)
 
-    g = sub.add_parser("diagnose-generate", help="write a synthetic field campaign with a hidden effect",
+    g = sub.add_parser("diagnose-generate", help=COMMANDS["diagnose-generate"].help,
                        description=_generate.__doc__)
     g.add_argument("--effect", default="none", choices=list(EFFECTS), help="hidden catalogue effect")
     g.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",

@@ -24,10 +24,7 @@ from typing import Any
 import numpy as np
 
 from lidarcal.admin import load_admin, merge_admin
-from lidarcal.campaign import DEFAULT_BASE_SEED
-from lidarcal.lidar.model import REFERENCE_TURBULENCE
 from lidarcal.provenance import USER_ATTRIBUTES
-from lidarcal.units import ureg
 
 __all__ = [
     "number",
@@ -134,6 +131,8 @@ def positive_quantity(option: str, unit: str | None = None) -> Callable[[str], s
     """
 
     def parse(text: str) -> str:
+        from lidarcal.units import ureg  # deferred: the unit registry, built when a quantity is given
+
         try:
             q = ureg.Quantity(text.strip())
             magnitude = float(q.to(unit).magnitude) if unit and not q.dimensionless else float(q.magnitude)
@@ -191,6 +190,8 @@ def add_reference_turbulence_option(parser: argparse.ArgumentParser | argparse._
     Unset (``None``) keeps the model's own value (the default ``pinned_u`` for a new model, the
     recorded one for ``--model``).
     """
+    from lidarcal.lidar.model import REFERENCE_TURBULENCE  # deferred: light CLI start
+
     parser.add_argument("--reference-turbulence", choices=REFERENCE_TURBULENCE, default=None,
                         help="what the virtual reference's turbulence is conditioned on: pinned_u (its "
                         "realised sigma_u is the period's TI*U, the rest Gaussian through the RWF; the "
@@ -212,9 +213,13 @@ def progress_enabled(args: argparse.Namespace) -> bool:
     return sys.stderr.isatty() if choice is None else bool(choice)
 
 
-def add_seed_option(parser: argparse.ArgumentParser, *, default: int = DEFAULT_BASE_SEED,
+def add_seed_option(parser: argparse.ArgumentParser, *, default: int | None = None,
                     help: str = "base seed of the Monte Carlo; see docs/seeds.md") -> None:
-    """``--seed N`` with the project's base seed as default."""
+    """``--seed N``; ``default`` None is the project's base seed."""
+    if default is None:
+        from lidarcal.campaign import DEFAULT_BASE_SEED  # deferred: light CLI start
+
+        default = DEFAULT_BASE_SEED
     parser.add_argument("--seed", type=nonnegative_int("--seed"), default=default, metavar="N",
                         help=f"{help} (default %(default)s)")
 

@@ -24,7 +24,7 @@ import os
 
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.scheduler import WORKER_TIMEOUT
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_certification_options,
     add_heights_option,
@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``simulate`` subcommand."""
     p = sub.add_parser(
         "simulate",
-        help="simulate a campaign of 10-minute periods (virtual lidar vs reference)",
+        help=COMMANDS["simulate"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from lidarcal.cli import COMMANDS
 from lidarcal.compliance import check_compliance, summary_lines
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
@@ -17,7 +18,7 @@ from lidarcal.schema import validate_dataset
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``validate`` subcommand."""
-    p = sub.add_parser("validate", help="check artefacts against their schema and CF/ACDD",
+    p = sub.add_parser("validate", help=COMMANDS["validate"].help,
                        description=__doc__)
     p.add_argument("files", nargs="+", metavar="FILE")
     p.add_argument("--kind", help="schema to apply (default: the file's lidarcal_artefact attribute)")
