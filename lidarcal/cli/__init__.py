@@ -96,6 +96,29 @@ def command_line(args: argparse.Namespace) -> str:
     return "lidarcal " + shlex.join(argv)
 
 
+def interrupted(args: argparse.Namespace) -> list[str]:
+    """Say what an interrupted (Ctrl-C) command kept and the command that resumes it.
+
+    A command that keeps finished simulation chunks sets ``resume`` (``set_defaults``): a function
+    of its arguments returning the chunk directory (None: none kept) and the option the command
+    needs to run again in place (``--overwrite`` for ``calibrate``, whose early files exist).
+    """
+    how = getattr(args, "resume", None)
+    if how is None:
+        return ["interrupted"]
+    from lidarcal.campaign.chunks import finished_chunks  # deferred: only after an interrupt
+
+    workdir, option = how(args)
+    argv = list(getattr(args, "argv", None) or [args.command])
+    again = "lidarcal " + shlex.join(argv + ([option] if option and option not in argv else []))
+    if workdir is None:
+        return ["interrupted; no finished chunk was kept (only --workdir DIR keeps them for a resume)",
+                f"run it again with: {again} --workdir DIR"]
+    n = finished_chunks(workdir)
+    return [f"interrupted; {n} finished simulation chunk(s) kept in {workdir}",
+            f"resume with: {again}" + ("" if n else " (nothing to reuse yet: it starts again)")]
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Print warnings as one plain line (no source excerpt) on stderr."""
     name = "warning" if category in (UserWarning,) or issubclass(category, UserWarning) else category.__name__
@@ -141,7 +164,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"lidarcal {args.command}: error: {where}: {exc.strerror or exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted", file=sys.stderr)
+        try:
+            said = interrupted(args)
+        except Exception:  # never a traceback after Ctrl-C: the bare fact is still right
+            said = ["interrupted"]
+        for line in said:
+            print(f"lidarcal {args.command}: {line}", file=sys.stderr)
         return 130
     finally:
         logger.removeHandler(handler)

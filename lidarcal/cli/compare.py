@@ -23,7 +23,7 @@ from lidarcal.cli.options import (
     nonnegative,
     positive_int,
     probability,
-    progress_enabled,
+    progress_of,
     simulation_options,
 )
 from lidarcal.compare import (
@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         base_seed=args.seed,
         min_periods=args.min_periods,
         los_noise_model=args.los_noise,
-        progress=progress_enabled(args),
+        progress=progress_of(args),
         simulate_options={k: v for k, v in opts.items() if v is not None},
         inputs=inputs,
     )

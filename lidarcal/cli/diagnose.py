@@ -26,7 +26,7 @@ from lidarcal.cli.options import (
     number,
     positive_int,
     probability,
-    progress_enabled,
+    progress_of,
     simulation_options,
 )
 from lidarcal.conditions import load_conditions
@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         min_bin_count=args.min_bin_count, alpha=args.alpha, bic_threshold=args.bic_threshold,
         tolerance=args.tolerance, n_bootstrap=args.bootstrap, model_uncertainty=args.model_uncertainty,
         min_wind_speed=args.min_wind_speed,
-        simulate_options=_sim_options(args), progress=progress_enabled(args))
+        simulate_options=_sim_options(args), progress=progress_of(args))
     inputs = {"field": args.field, **({"cube": args.cube} if args.cube else {}),
               **({"rwf": args.rwf} if args.rwf else {})}
     call = command_line(args)
@@ -160,7 +160,7 @@ def _generate(args: argparse.Namespace) -> int:
     else:
         cond = hidden_effect_conditions(args.periods, args.heights, args.conditions_seed)
     ds = generate_field_campaign(cond, args.effect, _parse_params(args.param), base_seed=args.seed,
-                                 simulate_options={**_sim_options(args), "progress": progress_enabled(args)},
+                                 simulate_options={**_sim_options(args), "progress": progress_of(args)},
                                  call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: {ds.sizes['time']} periods x {ds.sizes['height']} heights, hidden effect "

@@ -5,7 +5,9 @@ configures the virtual lidar takes the same ``--cube``/``--rwf``, and so on.  Ea
 here adds one argparse group to a subcommand's parser; the ``*_from_args`` helpers turn the
 parsed options back into library keyword arguments.
 
-* progress: on when stderr is a terminal; ``--progress`` / ``--no-progress`` force it.
+* progress: a live bar when stderr is a terminal, else a line every ``--progress-interval``
+  seconds (default 30: periods done, time left); ``--progress`` forces the bar, ``--no-progress``
+  silences both (:class:`lidarcal.campaign.progress.Progress`).
 * heights: ``--heights M [M ...]`` (metres).
 * seed: ``--seed N``, default :data:`lidarcal.campaign.DEFAULT_BASE_SEED` (docs/seeds.md).
 * numbers are checked at parse time by the ``type`` functions below (:func:`number`,
@@ -47,7 +49,7 @@ __all__ = [
     "add_overwrite_option",
     "add_admin_options",
     "admin_from_args",
-    "progress_enabled",
+    "progress_of",
     "simulation_options",
 ]
 
@@ -202,15 +204,31 @@ def add_reference_turbulence_option(parser: argparse.ArgumentParser | argparse._
 
 
 def add_progress_option(parser: argparse.ArgumentParser) -> None:
-    """``--progress`` / ``--no-progress``; unset means "when stderr is a terminal"."""
+    """``--progress`` / ``--no-progress`` and ``--progress-interval S`` (see :func:`progress_of`)."""
+    from lidarcal.campaign.progress import PROGRESS_INTERVAL  # deferred: light CLI start
+
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                        help="progress bar on stderr (default: when stderr is a terminal)")
+                        help="progress on stderr: --progress a live bar, --no-progress nothing (default: "
+                        "the bar when stderr is a terminal, else a line every --progress-interval seconds "
+                        "with the periods done and the time left)")
+    parser.add_argument("--progress-interval", type=positive("--progress-interval"), metavar="S",
+                        default=PROGRESS_INTERVAL,
+                        help="seconds between two progress lines (default %(default)g)")
 
 
-def progress_enabled(args: argparse.Namespace) -> bool:
-    """Return the ``--progress`` choice, or whether stderr is a terminal when none was given."""
+def progress_of(args: argparse.Namespace) -> Any:
+    """Return the :class:`~lidarcal.campaign.progress.Progress` the options ask for.
+
+    ``--progress``: a bar; ``--no-progress``: nothing; neither: a bar when stderr is a terminal,
+    else a line every ``--progress-interval`` seconds.
+    """
+    from lidarcal.campaign.progress import PROGRESS_INTERVAL, Progress  # deferred: light CLI start
+
     choice = getattr(args, "progress", None)
-    return sys.stderr.isatty() if choice is None else bool(choice)
+    interval = float(getattr(args, "progress_interval", PROGRESS_INTERVAL))
+    if choice is None:
+        return Progress("bar" if sys.stderr.isatty() else "lines", interval)
+    return Progress("bar" if choice else "off", interval)
 
 
 def add_seed_option(parser: argparse.ArgumentParser, *, default: int | None = None,
@@ -352,7 +370,7 @@ def add_overwrite_option(parser: argparse.ArgumentParser) -> None:
 def simulation_options(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword arguments of :func:`lidarcal.campaign.simulate_campaign` from the shared options."""
     opts: dict[str, Any] = {"chunk": args.chunk, "scheduler": args.scheduler, "workers": args.workers,
-                            "progress": progress_enabled(args)}
+                            "progress": progress_of(args)}
     if getattr(args, "workdir", None) is not None:
         opts["workdir"] = args.workdir
     return opts

@@ -77,7 +77,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_progress_option(p)
     p.add_argument("--records-output", metavar="SIM.nc", help="also write the simulated records")
     add_output_options(p, "SWEEP.nc")
-    p.set_defaults(handler=run)
+    p.set_defaults(handler=run, resume=lambda args: (args.workdir, None))
 
 
 def run(args: argparse.Namespace) -> int:
