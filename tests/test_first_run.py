@@ -205,3 +205,64 @@ def test_calibrate_checks_every_input_before_writing_anything(tmp_path, capsys):
     assert main(["calibrate", "-o", str(out), "--rwf", str(tmp_path / "rwf.nc"), "--no-progress"]) == 2
     assert "rwf.nc" in capsys.readouterr().err
     assert not out.exists()
+
+
+# ---- lidarcal validate: one spelling of acknowledgement, the block the files share said once ----
+
+
+def test_acknowledgement_is_settable_in_the_acdd_1_3_spelling(tmp_path, capsys):
+    """validate called acknowledgment 'not settable by an option' while --attribute listed it."""
+    import netCDF4
+
+    from lidarcal.compliance import check_compliance, supplied_by
+    from lidarcal.data import sample_file
+
+    # compliance-checker asks for either spelling; lidarcal names the option, in ACDD-1.3's
+    assert supplied_by("acknowledgment/acknowledgement") == "--attribute acknowledgement=VALUE"
+    written = {}
+    for spelling in ("acknowledgement", "acknowledgment"):  # ACDD-1.3, and ACDD-1.1's accepted too
+        out = tmp_path / f"rwf-{spelling}.nc"
+        assert main(["rwf", "-o", str(out), "--attribute", f"{spelling}=Funded by a test grant"]) == 0
+        with netCDF4.Dataset(out) as nc:
+            written[spelling] = {k: nc.getncattr(k) for k in nc.ncattrs() if k.startswith("acknowledg")}
+        report = check_compliance(out)
+        assert not any("acknowledg" in w for w in report.warnings), report.warnings
+    assert written == {s: {"acknowledgement": "Funded by a test grant"} for s in written}
+    # an input carrying the ACDD-1.1 spelling (the sample conditions) passes it on in the 1.3 one
+    argv = ["conditions", "synthetic", "--periods", "6", "--from-sample", "-o", str(tmp_path / "c.nc")]
+    assert main(argv) == 0
+    with netCDF4.Dataset(sample_file("conditions/conditions.nc")) as nc:
+        assert "acknowledgment" in nc.ncattrs()
+    with netCDF4.Dataset(tmp_path / "c.nc") as nc:
+        names = {k: nc.getncattr(k) for k in nc.ncattrs() if k.startswith("acknowledg")}
+    assert names == {"acknowledgement": "brightwind developers for publishing the demo met-mast record"}
+    capsys.readouterr()
+
+
+def test_validate_says_the_attributes_every_file_lacks_once(tmp_path, capsys):
+    files = []
+    for i in range(3):
+        out = tmp_path / f"rwf{i}.nc"
+        extra = ["--attribute", "program=Test programme"] if i == 2 else []
+        assert main(["rwf", "-o", str(out), *extra]) == 0
+        files.append(str(out))
+    capsys.readouterr()
+    assert main(["validate", *files]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert [line for line in out if line.endswith(": ok")] == [f"{f}: ok" for f in files]
+    blocks = [i for i, line in enumerate(out) if "ACDD attribute(s) not present" in line]
+    # once for the three files, after them; then what two of them lack besides (program)
+    assert len(blocks) == 2 and blocks[0] > max(out.index(f"{f}: ok") for f in files)
+    common = out[blocks[0]]
+    assert re.fullmatch(r"warning: (\d+) ACDD attribute\(s\) not present in any of these 3 files; "
+                        r"give them with:", common)
+    assert int(common.split()[1]) >= 20  # contact, site, programme ...: a run without user details
+    assert "acknowledgement" in " ".join(out[blocks[0]:blocks[1]])  # settable: under --attribute
+    assert not any("not settable" in line for line in out)
+    assert out[blocks[1]] == (f"warning: 1 ACDD attribute(s) not present (besides those) in {files[0]}, "
+                              f"{files[1]}; give them with:")
+    assert out[blocks[1] + 1] == "  --attribute NAME=VALUE: program"
+    # one file: its block in its own section, as before
+    assert main(["validate", files[0]]) == 0
+    one = capsys.readouterr().out.splitlines()
+    assert one[0] == f"{files[0]}: ok" and any("ACDD attribute(s) not present;" in line for line in one)

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from lidarcal.admin import load_admin, merge_admin
-from lidarcal.provenance import USER_ATTRIBUTES
+from lidarcal.provenance import ACDD_SPELLINGS, USER_ATTRIBUTES
 
 __all__ = [
     "number",
@@ -290,6 +290,7 @@ class _AttributeAction(argparse.Action):
         name = name.strip()
         if not sep or not value.strip():
             parser.error(f"{option_string}: expected NAME=VALUE; found {values!r}")
+        name = ACDD_SPELLINGS.get(name, name)  # acknowledgment (ACDD-1.1) is written acknowledgement
         if name not in USER_ATTRIBUTES:
             parser.error(f"{option_string}: {name!r} is not an attribute the user sets; "
                          f"expected one of {', '.join(USER_ATTRIBUTES)}")
@@ -312,7 +313,8 @@ def add_contact_options(parser: argparse.ArgumentParser) -> None:
                              f"(default: ${env})") if site else f"{attr} attribute (default: ${env})")
     g.add_argument("--attribute", action=_AttributeAction, metavar="NAME=VALUE",
                    help="a further ACDD attribute only you know, recorded in every file written "
-                        f"(repeatable; NAME one of {', '.join(USER_ATTRIBUTES)})")
+                        f"(repeatable; NAME one of {', '.join(USER_ATTRIBUTES)}; ACDD-1.3 spellings: "
+                        "acknowledgment is accepted and written acknowledgement)")
 
 
 #: option -> administrative attribute (lidarcal.admin; docs/certificate.md)

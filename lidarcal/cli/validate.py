@@ -2,6 +2,10 @@
 
 Every file is checked and reported.  Exit status 0 when all pass, 1 when a file has schema or
 compliance problems, 2 when a file is missing or unreadable (whatever the others gave).
+
+The ACDD attributes only you can give (contact, site, programme ...; ``--attribute``) are
+usually absent from every file of a run alike: with several files, the attributes absent from
+all of them are listed once, after the files, with the option that gives each.
 """
 
 from __future__ import annotations
@@ -10,7 +14,7 @@ import argparse
 import sys
 
 from lidarcal.cli import COMMANDS
-from lidarcal.compliance import check_compliance, summary_lines
+from lidarcal.compliance import check_compliance, missing_attributes, missing_lines, summary_lines
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
 from lidarcal.schema import validate_dataset
@@ -31,6 +35,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     """Validate every file, reporting each; 2 if any could not be read, else 1 if any has a problem."""
     bad = unreadable = 0
+    several = len(args.files) > 1 and not args.verbose
+    absent: dict[str, list[str]] = {}  # file -> ACDD attributes absent (several files: said once, after)
     for path in args.files:
         try:
             ds = open_artefact(path, load=False, chunks={})
@@ -52,7 +58,25 @@ def run(args: argparse.Namespace) -> int:
         for line in problems:
             print(f"  schema: {line}")
         if report:  # failures, then each documented exception and warning check on one line
-            for line in summary_lines(report, verbose=args.verbose):
+            for line in summary_lines(report, verbose=args.verbose, missing=not several):
                 print(f"  {line}")
+            absent[path] = missing_attributes(report)
         bad += bool(failures)
+    if several and absent:
+        _say_absent(absent)
     return 2 if unreadable else 1 if bad else 0
+
+
+def _say_absent(absent: dict[str, list[str]]) -> None:
+    """Say the ACDD attributes absent from every file once, then what some files lack besides."""
+    common = [name for name in next(iter(absent.values())) if all(name in names for names in absent.values())]
+    for line in missing_lines(common, f" in any of these {len(absent)} files"):
+        print(line)
+    besides: dict[tuple[str, ...], list[str]] = {}  # the same extra attributes: one block for their files
+    for path, names in absent.items():
+        extra = tuple(n for n in names if n not in common)
+        if extra:
+            besides.setdefault(extra, []).append(path)
+    for extra, paths in besides.items():
+        for line in missing_lines(list(extra), f" (besides those) in {', '.join(paths)}"):
+            print(line)
