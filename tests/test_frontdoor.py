@@ -83,7 +83,7 @@ def _loaded(code: str) -> list[str]:
 
 
 def test_import_lidarcal_and_help_import_no_library():
-    """``import lidarcal``, ``lidarcal --help`` and ``--version`` import neither xarray nor pint (issue 27)."""
+    """``import lidarcal``, ``lidarcal --help`` and ``--version`` import neither xarray nor pint."""
     code = ("import sys, lidarcal\n"
             "assert not [f for f in sys.meta_path if type(f).__module__.startswith('lidarcal')]")  # no hook
     assert _loaded(code) == []
