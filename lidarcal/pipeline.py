@@ -380,13 +380,15 @@ def _issue(run: _Run, cert: xr.Dataset, signer: Any, signing_key: str | os.PathL
     artefacts beside it.
     """
     # the document states the seal the certificate gets when it is written, just below
+    public = f"{signing_key}.pub" if signer else None
     written = write_report(run.paths["report"], certificate=cert, overwrite=run.overwrite,
-                           seal=seal_statement(fingerprint(signer) if signer else None))
+                           seal=seal_statement(fingerprint(signer) if signer else None,
+                                               run.paths["certificate"].name, public))
     run.done("report", "HTML report (interactive plots)")
     run.done("report_pdf", f"certificate document ({written['pages']} pages, A4)")
     write_certificate(cert, run.paths["certificate"], overwrite=run.overwrite, signing_key=signer)
-    run.done("certificate", "calibration certificate (check with: lidarcal verify"
-             + (f" --public-key {signing_key}.pub)" if signer else ")"))
+    run.done("certificate", f"calibration certificate (check with: lidarcal verify {run.paths['certificate']}"
+             + (f" --public-key {public})" if signer else ")"))
 
 
 def calibrate(

@@ -234,3 +234,17 @@ def test_calibrate_returns_the_datasets_it_wrote(small_run):
                                   xr.open_dataset(out / "budget.nc").relative_uncertainty.values)
     sim = result.datasets["simulated"]
     assert (sim.sizes["time"], sim.sizes["height"]) == (48, 2)
+
+
+def test_the_certificate_document_of_a_short_run(small_run, poppler, tmp_path):
+    """A real 48-period calibration's PDF: nothing under the footer, the file named, U in m/s, a legend."""
+    from test_document import check_document
+
+    _, result, _ = small_run
+    texts = check_document(result.paths["report_pdf"], poppler, tmp_path)
+    assert "check with lidarcal verify certificate.nc" in texts[0]
+    assert "Certified result in m/s: expanded uncertainty U (m/s), k = 2" in " ".join(texts)
+    budget = result.datasets["budget"]
+    (contributors,) = [t for t in texts if "of each contributor" in t]
+    names = [str(c).replace("_", " ") for c in budget.contributor.values] + ["combined"]
+    assert all(name in contributors for name in names), contributors[:300]

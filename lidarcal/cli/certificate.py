@@ -88,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{path}: certificate with components {cert.attrs['certificate_components']}; {how}")
     if args.report:  # the certificate as sealed just now: the document states its seal
         written = write_report(args.report, certificate=cert, overwrite=args.overwrite,
-                               seal=seal_statement(fingerprint(key) if key else None))
+                               seal=seal_statement(fingerprint(key) if key else None, Path(path).name,
+                                                   f"{args.sign}.pub" if key else None))
         print(f"{args.report}: HTML report with {len(written['figures'])} interactive plots; "
               f"{written['pdf']}: certificate document ({written['pages']} pages, A4)")
     return 0
