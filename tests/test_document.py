@@ -198,3 +198,19 @@ def test_contributor_bars_are_wide_and_the_legend_is_always_there():
               if isinstance(c, LineCollection) and len(c.get_segments())]
     # 23 bins x 5 bars over a 7-inch panel: about 4 points each (they were 0.8 pt, hairlines)
     assert widths and min(widths) >= 2.5, min(widths)
+
+
+def test_a_page_with_other_characters_embeds_a_font_that_has_them(tmp_path, poppler):
+    """Standard Helvetica (Windows-1252) where it suffices, TrueType where a name needs more."""
+    records = make_records(n=600, heights=(80.0, 120.0), seed=5)
+    cert = make_certificate(budget=budget(records), sensitivities=[], config={}, call="test",
+                            demonstration=True)
+    cert.attrs["customer_name"] = "Łódź Wind Sp. z o.o."  # Ł, ó, ź: not all in Windows-1252
+    pdf = tmp_path / "doc.pdf"
+    write_document(pdf, cert)
+    # poppler-utils' pdffonts (beside pdftotext): page 1 embeds a TrueType font, the others use Helvetica
+    fonts = subprocess.run([str(Path(poppler[1]).with_name("pdffonts")), str(pdf)], capture_output=True,
+                           text=True, check=True).stdout
+    assert "TrueType" in fonts and "Helvetica" in fonts, fonts
+    text = page_text(pdf_words(pdf, poppler[1])[0])
+    assert "Łódź Wind Sp. z o.o." in text  # not '?' for the letters outside Windows-1252

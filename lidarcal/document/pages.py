@@ -320,12 +320,21 @@ def _provenance_pages(pages: _Pages, cert: xr.Dataset) -> None:
 
 
 def _windows_1252(fig) -> bool:
-    """Return whether every text on ``fig`` can be written in the standard PDF fonts' encoding."""
-    from matplotlib.text import Text
+    """Return whether every text on ``fig`` can be written in the standard PDF fonts' encoding.
 
+    The texts are the figure's, its legends', and each axes' titles, labels and texts; tick
+    labels are numbers, written in ASCII (:data:`~lidarcal.document.figures.STYLE`).  (Asking
+    matplotlib for every Text artist would create each axis's ticks once more.)
+    """
+    texts = [t.get_text() for t in fig.texts]
+    for ax in fig.axes:
+        texts += [ax.get_title(loc) for loc in ("left", "center", "right")]
+        texts += [ax.get_xlabel(), ax.get_ylabel(), *(t.get_text() for t in ax.texts)]
+    for legend in [*fig.legends, *(ax.get_legend() for ax in fig.axes)]:
+        if legend is not None:
+            texts += [legend.get_title().get_text(), *(t.get_text() for t in legend.get_texts())]
     try:
-        for t in fig.findobj(Text):
-            t.get_text().encode("cp1252")
+        "".join(texts).encode("cp1252")
     except UnicodeEncodeError:
         return False
     return True
