@@ -10,7 +10,10 @@ contributors are, for the two approaches of Figure 9:
     ``uncertainty_terms`` artefact (interpolated) or computed with :mod:`lidarcal.analysis.terms`;
     ``mean_difference`` — \\|mean(lidar − reference)\\|;
     ``std_difference`` — standard deviation σ_diff of lidar − reference (ddof = 1);
-    ``statistical`` — σ_diff / √N.
+    ``statistical`` — σ_diff / √N;
+    ``model_form`` — the simulation's model form, when the records carry the model-form runs
+    (:mod:`lidarcal.analysis.model_form`): raises the combined standard uncertainty by the
+    spread of its value across the defensible alternative models.
 ``iec`` (field calibration against a mast)
     ``reference_sensor`` — √(u_abs² + (u_rel·Ū)²) from the anemometer calibration;
     ``mean_difference``; ``statistical`` — σ_diff / √N; ``mounting``, ``separation`` and
@@ -49,6 +52,7 @@ import xarray as xr
 
 from lidarcal.analysis import kernels
 from lidarcal.analysis._records import checked, select_heights
+from lidarcal.analysis.model_form import model_form_term
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.binning import bin_index, binned_statistics
 from lidarcal.cf import with_bounds
@@ -63,7 +67,7 @@ __all__ = ["budget", "certified_bins", "numerical_state", "tolerance_exponent", 
 
 #: Contributors of each approach, in the order of the ``contributor`` dimension.
 CONTRIBUTORS = {
-    "monte_carlo": ("virtual_reference", "mean_difference", "std_difference", "statistical"),
+    "monte_carlo": ("virtual_reference", "mean_difference", "std_difference", "statistical", "model_form"),
     "iec": ("reference_sensor", "mean_difference", "statistical", "mounting", "separation",
             "flow_inhomogeneity"),
 }
@@ -73,6 +77,8 @@ _CONTRIBUTOR_NAMES = {
     "mean_difference": "absolute mean lidar minus reference difference",
     "std_difference": "standard deviation of the lidar minus reference difference",
     "statistical": "standard uncertainty of the mean difference, sigma_diff / sqrt(N)",
+    "model_form": "simulation model form, the spread of the combined uncertainty across the defensible "
+                  "alternative models (common random numbers)",
     "reference_sensor": "reference anemometer standard uncertainty",
     "mounting": "lidar mounting",
     "separation": "separation between lidar and reference mast",
@@ -242,6 +248,7 @@ def budget(
     separation: Any = 0.0,
     flow_inhomogeneity: Any = 0.0,
     noise_terms: str = "printed",
+    model_form: bool = True,
     source: str | None = None,
     call: str | None = None,
 ) -> xr.Dataset:
@@ -274,6 +281,10 @@ def budget(
         k of the expanded uncertainty (default 2).
     reference_uncertainty : quantity or str
         IEC approach: absolute standard uncertainty of the calibrated anemometer, e.g. "0.1 m s-1".
+    model_form : bool
+        Monte Carlo approach: add the ``model_form`` contributor when the records carry the
+        model-form runs (``model_form_*`` variables, :mod:`lidarcal.campaign.model_form`); without
+        them (or with False) the contributor is left out.
     reference_relative_uncertainty, mounting, separation, flow_inhomogeneity : fraction or str
         IEC approach: relative standard uncertainties ("0.5 %" or 0.005), multiplied by the
         bin's mean reference wind speed.
@@ -310,17 +321,21 @@ def budget(
         vref, config["virtual_reference_terms"] = _terms_total(
             terms, centres, np.asarray(records["height"].values, dtype=float), noise_terms)
         parts = _monte_carlo_parts(binned, vref)
-        binned["estimates"] = _replica_estimates(binned, vref, k)
+        mf = model_form_term(records, edges, binned, vref, k, source=source) if model_form else None
+        if mf is not None:
+            parts["model_form"], config["model_form"] = mf["contribution"], mf["config"]
+        binned["estimates"] = _replica_estimates(binned, vref, k, parts.get("model_form"))
     else:
         u_abs, rel = _iec_inputs(terms, reference_uncertainty, dict(zip(_IEC_FRACTIONS, (
             reference_relative_uncertainty, mounting, separation, flow_inhomogeneity), strict=True)))
         config.update({"reference_uncertainty_m_s-1": u_abs, **{f"{a}_fraction": b for a, b in rel.items()}})
         parts = _iec_parts(binned, u_abs, rel)
-    contribution = np.stack([np.broadcast_to(parts[c], binned["n"].shape) for c in CONTRIBUTORS[approach]],
-                            axis=-1)
+        mf = None
+    names = tuple(c for c in CONTRIBUTORS[approach] if c in parts)
+    contribution = np.stack([np.broadcast_to(parts[c], binned["n"].shape) for c in names], axis=-1)
     rule = {"min_periods": int(min_periods), "certified_range": certified_range,
             "significant_digits": int(significant_digits)}
-    return _assemble(records, terms, approach, edges, binned, contribution, rule, k, config, call)
+    return _assemble(records, terms, names, edges, binned, contribution, rule, k, config, call, mf)
 
 
 def _certified_range(value: Any) -> tuple[float, float]:
@@ -469,14 +484,20 @@ def _binned_replicas(records: xr.Dataset, lidar: xr.DataArray, ref: xr.DataArray
     return edges, pooled
 
 
-def _replica_estimates(binned: Mapping[str, Any], vref: np.ndarray, k: float) -> np.ndarray:
-    """Each replica's own relative expanded uncertainty (%) per (height, bin, replica); NaN where none."""
+def _replica_estimates(binned: Mapping[str, Any], vref: np.ndarray, k: float,
+                       model_form: np.ndarray | None = None) -> np.ndarray:
+    """Each replica's own relative expanded uncertainty (%) per (height, bin, replica); NaN where none.
+
+    ``model_form`` (the pooled contributor, one value per bin) enters every replica's estimate alike.
+    """
     out = []
     for d in binned["replicas"]:
         with np.errstate(invalid="ignore", divide="ignore"):
             parts = _monte_carlo_parts({**d, "statistical": d["std_difference"] / np.sqrt(d["n"])}, vref)
+            if model_form is not None:
+                parts["model_form"] = model_form
             combined = kernels.quadrature(*(np.broadcast_to(parts[c], d["n"].shape)
-                                            for c in CONTRIBUTORS["monte_carlo"]))
+                                            for c in CONTRIBUTORS["monte_carlo"] if c in parts))
             value = k * combined * 100.0 / d["mean_reference"]
         out.append(np.where(d["targeted"], value, np.nan))
     return np.stack(out, axis=-1)
@@ -513,11 +534,11 @@ def _iec_parts(binned: Mapping[str, np.ndarray], u_abs: float,
     }
 
 
-def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edges: np.ndarray,
+def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, ...], edges: np.ndarray,
               binned: Mapping[str, Any], contribution: np.ndarray, rule: Mapping[str, Any], k: float,
-              config: dict[str, Any], call: str | None) -> xr.Dataset:
+              config: dict[str, Any], call: str | None, mf: Mapping[str, Any] | None = None) -> xr.Dataset:
     """Build the ``uncertainty_budget`` artefact with the attributes of its schema, stamped."""
-    n, names = binned["n"], CONTRIBUTORS[approach]
+    n, approach = binned["n"], config["approach"]
     combined = kernels.quadrature(contribution, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         pct = 100.0 / binned["mean_reference"]
@@ -536,6 +557,10 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edge
                                         certified_range=rule["certified_range"],
                                         min_periods=rule["min_periods"])),
     }
+    if mf is not None:  # the model-form contributor's companions (lidarcal.analysis.model_form)
+        values["model_form_standard_error"] = (hw, mf["standard_error"])
+        values["model_form_sample_count"] = (hw, mf["sample_count"].astype(np.int32))
+        values["model_form_shift"] = (hw + ("model_form_alternative",), mf["shift"])
     mc: dict[str, Any] = {}
     if "estimates" in binned:  # the Monte Carlo approach: how far its own numbers have settled
         tol, nflag, h = numerical_state(values["relative_expanded_uncertainty"][1], binned["estimates"],
@@ -554,7 +579,9 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edge
         {name: (dims, data) for name, (dims, data) in values.items()},
         coords={"height": records["height"].variable.copy(),
                 "wind_speed": ("wind_speed", 0.5 * (edges[:-1] + edges[1:])),
-                "contributor": ("contributor", np.array(names, dtype=object))},
+                "contributor": ("contributor", np.array(names, dtype=object)),
+                **({"model_form_alternative": ("model_form_alternative",
+                                               np.array(mf["alternatives"], dtype=object))} if mf else {})},
     )
     ds = with_output_attrs(ds, "uncertainty_budget", **context)
     ds["height"].attrs = dict(records["height"].attrs)

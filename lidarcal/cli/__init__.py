@@ -48,7 +48,8 @@ COMMANDS = {
     "budget": Command("budget", "uncertainty budget per height and wind-speed bin"),
     "sweep": Command("sweep", "maximum deviation and slopes over a full grid of conditions"),
     "certificate": Command("certificate", "bundle and seal a calibration certificate"),
-    "dcc": Command("dcc", "export a certificate as a PTB Digital Calibration Certificate (XML)"),
+    "dcc": Command("dcc", "export a certificate as a PTB Digital Calibration Certificate (XML), "
+                   "signed with an X.509 key on request; check a signed one"),
     "verify": Command("verify", "check a certificate's integrity record, signature and schema"),
     "keygen": Command("keygen", "new Ed25519 key pair for signing certificates (KEY, KEY.pub)"),
     "table": Command("table", "IEC-style result table of a certificate (CSV, Markdown, HTML)"),

@@ -5,7 +5,8 @@ same words and numbers, taken from here: :func:`certificate_facts` turns the cer
 attributes into page 1's sections (an attribute it does not carry is shown as
 :data:`NOT_STATED`), :func:`signature_status` says what its seal attributes state,
 :func:`headline_text` is the certified range in one sentence, :func:`certified_grid` the
-certified relative expanded uncertainty per wind-speed bin and height, and :func:`fmt`,
+certified relative expanded uncertainty per wind-speed bin and height, :func:`model_form_grid`
+the simulation's model-form contributor on the same grid, and :func:`fmt`,
 :func:`units_suffix` and :data:`VARIABLE_NAMES` the one way numbers, units and variables are
 written.
 """
@@ -19,7 +20,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
-from lidarcal.certificate import certified_rule, headline_range, not_settled
+from lidarcal.certificate import certified_rule, headline_range, model_form_values, not_settled
 from lidarcal.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
 
 __all__ = [
@@ -36,6 +37,7 @@ __all__ = [
     "certified_grid",
     "certified_rows",
     "extent_text",
+    "model_form_grid",
 ]
 
 NOT_STATED = "not stated"
@@ -290,3 +292,14 @@ def certified_grid(
         "inside": inside,
         "flag": b["bin_flag"].values,
     }
+
+
+def model_form_grid(budget: xr.Dataset) -> dict[str, Any] | None:
+    """Return the ``model_form`` contributor (%, k = 1) and its standard error, as :func:`certified_grid`.
+
+    None when the budget has no model-form contributor.
+    """
+    values = model_form_values(budget)
+    if values is None:
+        return None
+    return {**certified_grid(budget), "value": values["value"], "tolerance": values["standard_error"]}

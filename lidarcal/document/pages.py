@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.certificate import MEASURAND, model_form_summary
 from lidarcal.document.facts import (
     NOT_STATED,
     certificate_facts,
@@ -40,6 +41,7 @@ from lidarcal.document.facts import (
     extent_text,
     fmt,
     headline_text,
+    model_form_grid,
     stated,
 )
 from lidarcal.document.figures import A4, FONT, STYLE, draw, figure_names, parts_of
@@ -225,6 +227,9 @@ def _result_tables(budget: xr.Dataset) -> list[_Table]:
     extent = extent_text(budget, g)
     if extent:
         heading.append((textwrap.fill(extent, 118), FONT, {}))
+    mf = " It includes the simulation's model form (contributor model_form, on its own page)." if (
+        model_form_grid(budget) is not None) else ""
+    heading.append((textwrap.fill(MEASURAND + mf, 125), FONT - 0.5, {}))
     heading.append((f"Per height and wind-speed bin (bin centre){tol}; – : bin not certified (too few "
                     "periods or no data).", FONT - 0.5, {"color": "0.3"}))
     tables = [_Table(heading, g, rows, _relative_cell(g, True), "Certified result (continued)")]
@@ -297,6 +302,34 @@ def _all_bins_pages(pages: _Pages, budget: xr.Dataset) -> None:
     table = _Table([], g, np.arange(g["wind_speed"].size), _relative_cell(g, False),
                    "Every bin of the budget (continued)")
     _flow_table(pages, fig, _TOP, table)
+
+
+def _model_form_pages(pages: _Pages, budget: xr.Dataset) -> None:
+    """Lay out the model-form contributor per certified bin, its standard error and its shifts."""
+    g = model_form_grid(budget)
+    fig = pages.new()
+    _title(fig, "Model form of the simulation: contributor model_form (%, k = 1)",
+           "Per height and certified wind-speed bin: the standard uncertainty ± its standard error "
+           "(subsample of periods); – : bin not certified.")
+    continued = "Model form of the simulation (continued)"
+    text = textwrap.fill(model_form_summary(budget) or "", 120)
+    fig.text(0.07, _TOP, text, fontsize=FONT, va="top")
+    y = _TOP - (text.count("\n") + 1) * _line(FONT, 1.3) - 0.01
+    if "model_form_shift" in budget:  # the largest shift of U each alternative makes, per height
+        ok = xr.DataArray(g["certified"], dims=("wind_speed", "height"))
+        shift = budget["model_form_shift"].where(ok)
+        rows: list[tuple[str, str, dict]] = [("Largest shift of U under each alternative (percentage points)",
+                                              "", {"section": True})]
+        for alt in shift["model_form_alternative"].values:
+            s = shift.sel(model_form_alternative=alt).transpose("height", "wind_speed").values
+            worst = [s[i][np.nanargmax(np.abs(s[i]))] if np.isfinite(s[i]).any() else np.nan
+                     for i in range(s.shape[0])]
+            cells = [f"{fmt(z)} m: {w:+.2f}" if np.isfinite(w) else f"{fmt(z)} m: –"
+                     for z, w in zip(budget["height"].values, worst, strict=True)]
+            rows.append((str(alt), "   ".join(cells), {}))
+        fig, y = _text_rows(pages, fig, y, rows, continued=continued, x1=0.26, width=88)
+        y -= 0.01
+    _flow_table(pages, fig, y, _Table([], g, certified_rows(g), _relative_cell(g, True), continued))
 
 
 def _provenance_pages(pages: _Pages, cert: xr.Dataset) -> None:
@@ -378,6 +411,8 @@ def write_document(
             draw(pages.new(), name, parts)
         if budget is not None:
             _all_bins_pages(pages, budget)
+            if model_form_grid(budget) is not None:
+                _model_form_pages(pages, budget)
         _provenance_pages(pages, cert)
         cid, status = certificate_id(cert.attrs), stated(cert.attrs, "calibration_status")
         n = len(pages.figs)
