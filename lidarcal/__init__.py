@@ -11,7 +11,8 @@ The main entry points are available from the top level and imported on first use
 ``lidarcal.diagnose_campaign`` is :func:`lidarcal.diagnose.diagnose`.  Importing lidarcal
 imports none of them, nor xarray or pint, so that ``lidarcal --help`` and ``lidarcal verify``
 start within a second of CPU (``benchmarks/bench_startup.py``).
-:func:`lidarcal.units.register_units` makes cf-xarray's unit registry pint's application registry, so that ``ds.pint.quantify()`` reads the units of every artefact;
+:func:`lidarcal.units.register_units` makes cf-xarray's unit registry pint's application
+registry, so that ``ds.pint.quantify()`` reads the units of every artefact;
 lidarcal does it itself the first time it reads or converts a unit (docs/units.md).
 """
 
