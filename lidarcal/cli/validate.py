@@ -3,6 +3,10 @@
 Every file is checked and reported.  Exit status 0 when all pass, 1 when a file has schema or
 compliance problems, 2 when a file is missing or unreadable (whatever the others gave).
 
+A certificate (or any sealed file) has its seal checked too, as ``lidarcal verify`` does
+without a public key: one whose contents no longer match its seal, or that carries none, is
+not ``ok``, however well formed it is.
+
 The ACDD attributes only you can give (contact, site, programme ...; ``--attribute``) are
 usually absent from every file of a run alike: with several files, the attributes absent from
 all of them are listed once, after the files, with the option that gives each.
@@ -18,6 +22,7 @@ from lidarcal.compliance import check_compliance, missing_attributes, missing_li
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
 from lidarcal.schema import validate_dataset
+from lidarcal.seal import INTEGRITY_ATTR, verify_certificate
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -45,18 +50,23 @@ def run(args: argparse.Namespace) -> int:
             print(f"{path}: FAIL (not readable)")
             unreadable += 1
             continue
+        kind = args.kind or ds.attrs.get("lidarcal_artefact")
+        sealed = kind == "certificate" or INTEGRITY_ATTR in ds.attrs
         try:
             problems = validate_dataset(ds, args.kind, source=path)
         except InputError as exc:
             problems = [str(exc)]
         finally:
             ds.close()
+        seal = _seal_lines(path, verbose=args.verbose) if sealed else []
         report = None if args.no_compliance else check_compliance(path)
-        failures = problems + (report.failures if report else [])
+        failures = problems + seal + (report.failures if report else [])
         status = "FAIL" if failures else "ok"
         print(f"{path}: {status}")
         for line in problems:
             print(f"  schema: {line}")
+        for line in seal:
+            print(f"  seal: {line}")
         if report:  # failures, then each documented exception and warning check on one line
             for line in summary_lines(report, verbose=args.verbose, missing=not several):
                 print(f"  {line}")
@@ -65,6 +75,25 @@ def run(args: argparse.Namespace) -> int:
     if several and absent:
         _say_absent(absent)
     return 2 if unreadable else 1 if bad else 0
+
+
+def _seal_lines(path: str, *, verbose: bool = False) -> list[str]:
+    """List what is wrong with the seal of the certificate ``path`` (nothing: it matches its contents).
+
+    Its schema problems are left out (the schema check above reports them); without
+    ``verbose`` at most five lines, the last saying how many more ``lidarcal verify`` lists.
+    """
+    try:
+        report = verify_certificate(path)
+    except InputError as exc:
+        return [str(exc)]
+    found = [p for p in report.problems if not p.startswith("schema: ")]
+    if not found:
+        return []
+    found[-1] += " (altered after it was sealed, or never sealed: its numbers are not certified)"
+    if verbose or len(found) <= 5:
+        return found
+    return [*found[:4], f"and {len(found) - 4} more (lidarcal verify {path} lists every one)"]
 
 
 def _say_absent(absent: dict[str, list[str]]) -> None:

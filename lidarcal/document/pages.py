@@ -46,6 +46,7 @@ from lidarcal.document.facts import (
 )
 from lidarcal.document.figures import A4, FONT, STYLE, draw, figure_names, parts_of
 from lidarcal.io import atomic_path, check_writable
+from lidarcal.seal import VerificationReport, invalid_seal_banner, require_valid_seal
 
 __all__ = ["write_document", "BOTTOM", "FOOTER_RULE"]
 
@@ -380,22 +381,37 @@ def write_document(
     overwrite: bool = False,
     parts: Mapping[str, Any] | None = None,
     seal: str | None = None,
-    warning: str | None = None,
+    allow_invalid: bool = False,
+    check: VerificationReport | None = None,
 ) -> dict[str, Any]:
     """Write the certificate document ``path`` (A4 PDF) of certificate ``cert``.
 
     ``parts`` (from :func:`parts_of`) saves extracting the components again; ``seal``
-    (:func:`seal_statement`) states the seal of a certificate written after its document;
-    ``warning`` (an invalid seal) is printed in red on page 1 and in every page's footer.
+    (:func:`seal_statement`) states the seal of a certificate written after its document.
+
+    A certificate read from a file has its seal checked first
+    (:func:`lidarcal.seal.require_valid_seal`; a certificate being built, never sealed and read
+    from no file, has none): an altered one is refused with nothing written, or with
+    ``allow_invalid`` written with the warning that its numbers are not certified in red on
+    page 1 and in every page's footer.  ``check``: the caller's own result of that check (the
+    HTML report's), not repeated.
 
     Returns
     -------
     dict
         ``{"pdf": Path, "pages": int}``.
+
+    Raises
+    ------
+    SealError
+        The certificate's seal does not match its contents (unless ``allow_invalid``).
     """
     import matplotlib
     from matplotlib.backends.backend_pdf import PdfPages
 
+    if check is None:
+        check = require_valid_seal(cert, allow_invalid=allow_invalid)
+    warning = invalid_seal_banner(check) if check is not None and not check.ok else None
     path = Path(path)
     check_writable(path, overwrite=overwrite)
     parts = parts_of(cert) if parts is None else parts

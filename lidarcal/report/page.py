@@ -219,7 +219,7 @@ def write_report(
     if pdf_path:
         with _all_or_nothing(written):
             document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
-                                      warning=banner)
+                                      allow_invalid=allow_invalid, check=check)
         written.append(pdf_path)
     with _all_or_nothing(written):
         write_text(path, page, overwrite=overwrite)
