@@ -125,6 +125,27 @@ def test_a_long_result_table_continues_on_the_next_page(long_certificate, tmp_pa
     assert "lidarcal verify run-7.nc" in texts[0] and "CERT.nc" not in " ".join(texts)
 
 
+def test_the_lines_above_the_result_are_evenly_spaced(long_certificate, tmp_path, poppler):
+    """The measurand's line naming the model_form contributor ran 3.4 pt lower than the others.
+
+    (matplotlib spaces, and places by its top, a line by its tallest and deepest glyphs.)  The
+    budget's last contributor renamed model_form stands for a run with that contributor.
+    """
+    names = [str(c) for c in long_certificate.budget_contributor.values]
+    cert = long_certificate.assign_coords(budget_contributor=[*names[:-1], "model_form"])
+    pdf = tmp_path / "doc.pdf"
+    write_document(pdf, cert)
+    pages = pdf_words(pdf, poppler[1])
+    (page,) = [words for words in pages if "U is the expanded" in page_text(words)]
+    start = next(w[3] for i, w in enumerate(page) if w[4] == "U" and page[i + 1][4] == "is")
+    end = max(w[3] for w in page if w[4] == "Per" and w[3] < start)
+    tops = sorted({round(w[3], 4) for w in page if end < w[3] <= start}, reverse=True)
+    assert "model_form," in page_text([w for w in page if end < w[3] <= start])
+    gaps = -np.diff(tops)
+    # a line of the 7.5-pt text is 0.011 of the page high: equal gaps to 0.4 pt (0.0005 of 842 pt)
+    assert len(tops) >= 3 and np.ptp(gaps) < 0.0005, gaps
+
+
 def test_the_certified_range_says_where_the_values_stop(tmp_path, poppler):
     """Winds of 4.5-11 m/s only: the table stops at 11 m/s and says why, not 'promising' 4-16 m/s."""
     records = make_records(n=1200, heights=(80.0, 120.0), seed=5)

@@ -479,6 +479,12 @@ def test_report_pngs_on_request(inputs, tmp_path):
     for png in out["png"]:
         with Image.open(png) as im:
             assert min(im.info["dpi"]) >= 149.9 and im.size[0] > 1000
+    # with a certificate the document is written too, and is not listed as a PNG
+    from lidarcal.certificate import make_certificate
+
+    cert = make_certificate(budget=inputs["budget"], sensitivities=[], demonstration=True)
+    out = write_report(tmp_path / "c.html", certificate=cert, png=False)
+    assert out["png"] == [] and out["pdf"].name == "c.pdf"
 
 
 def test_report_figures_pass_bokehs_document_checks(inputs):

@@ -162,8 +162,12 @@ def _flow_table(pages: _Pages, fig, y: float, table: _Table) -> tuple[Any, float
     if y - _heading_height(table.heading) - header - line * (min(3, len(rows)) + 0.5) < BOTTOM:
         fig, y = pages.next(table.continued)
     for text, size, style in table.heading:
-        fig.text(0.07, y, text, fontsize=size, va="top", **style)
-        y -= _line(size, 1.25) * (text.count("\n") + 1) + 0.004
+        # a text per line, placed by its baseline: matplotlib spaces (and, placed by its top,
+        # shifts) a line with taller or deeper glyphs than the others, so lines ran unevenly
+        for part in text.split("\n"):
+            fig.text(0.07, y - _line(size, 0.9), part, fontsize=size, va="baseline", **style)
+            y -= _line(size, 1.25)
+        y -= 0.004
     y -= 0.006
     while True:
         fits = max(1, int((y - BOTTOM - header) / line - 0.5))

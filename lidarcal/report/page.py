@@ -223,5 +223,6 @@ def write_report(
         written.append(pdf_path)
     with _all_or_nothing(written):
         write_text(path, page, overwrite=overwrite)
-    return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
+    return {"html": path, "figures": list(figs), "png": [p for p in written if p != pdf_path],
+            "pdf": document["pdf"] if document else None,
             "pages": document["pages"] if document else 0}
