@@ -100,6 +100,23 @@ def test_without_a_terminal_the_default_is_a_line_at_a_steady_interval(monkeypat
     assert parsed[-1]["done"] == "40" and parsed[-1]["rest"] == "done"  # the last line says it ended
 
 
+def test_short_sets_of_tasks_still_get_a_line_at_the_interval(progress_log):
+    """The model-form alternatives and small replica batches each run shorter than the interval.
+
+    The interval runs across them (one Progress for the command): three sets of 0.15 s with an
+    interval of 0.2 s give a line during the second or third.  Each set's own clock never
+    reached 0.2 s, so none was printed: a default run was silent through its model-form runs.
+    """
+    progress = Progress("lines", 0.2)
+    for i in (1, 2, 3):
+        with progress.labelled(f"model form alt{i} ({i} of 3)").tracker(10, 1) as tracker:
+            time.sleep(0.15)
+            tracker.done(10)
+    parsed = [LINE.match(line) for line in progress_log]
+    assert parsed and all(parsed), progress_log
+    assert {m["label"] for m in parsed} <= {"model form alt2 (2 of 3)", "model form alt3 (3 of 3)"}
+
+
 def test_ctrl_c_says_what_it_kept_and_the_resumed_run_what_it_reused(tmp_path):
     """A real SIGINT (Ctrl-C: to the whole process group) during ``lidarcal simulate --workdir``."""
     cond = synthetic_conditions(96, (40.0, 80.0), seed=7)

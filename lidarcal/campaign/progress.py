@@ -61,6 +61,8 @@ class Progress:
     interval: float = PROGRESS_INTERVAL
     label: str = "simulation"
     _said: set = dataclasses.field(default_factory=set, compare=False, repr=False)
+    #: when the last line was logged (or the first set of tasks started), shared by every label
+    _last: list = dataclasses.field(default_factory=list, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         if self.mode not in _MODES:
@@ -84,7 +86,7 @@ class Progress:
 
     def labelled(self, label: str) -> Progress:
         """Return the same reporting for another set of tasks (what :meth:`once` said stays said)."""
-        return dataclasses.replace(self, label=label, _said=self._said)
+        return dataclasses.replace(self, label=label, _said=self._said, _last=self._last)
 
     def once(self, message: str) -> None:
         """Log ``message`` (INFO) unless this :class:`Progress` has logged it already."""
@@ -102,7 +104,9 @@ class Tracker:
 
     In ``"lines"`` mode a daemon thread logs a line every ``interval`` seconds while the tasks
     run (so a line comes even when no chunk finishes for a while), and a last line when the set
-    ends if it took longer than that.
+    ends if it logged one.  The interval runs from the last line of any set of the same
+    :class:`Progress` (or the start of its first set): a run of many short sets (the model-form
+    alternatives, small batches of replicas) still says where it is every ``interval`` seconds.
     """
 
     def __init__(self, progress: Progress, periods: int, chunks: int) -> None:
@@ -119,6 +123,8 @@ class Tracker:
 
     def __enter__(self) -> Tracker:
         self._t0 = time.monotonic()
+        if not self.progress._last:
+            self.progress._last.append(self._t0)
         if self.progress.mode == "bar":
             from tqdm.auto import tqdm
 
@@ -135,7 +141,7 @@ class Tracker:
         if self._bar is not None:
             self._bar.close()
         if exc_type is None and 0 <= self._said_done < self.periods_done:  # a long set: say it ended
-            log.info("%s", self.line())
+            self._say()
 
     def done(self, periods: int) -> None:
         """Count one finished chunk of ``periods`` periods."""
@@ -164,7 +170,13 @@ class Tracker:
         since, rate_of = (now - t1, done - n1) if done > n1 and now - t1 >= 1.0 else (elapsed, done)
         return f"{head}, about {duration_text(since / rate_of * (self.periods - done))} left"
 
+    def _say(self) -> None:
+        self._said_done = self.periods_done
+        self.progress._last[0] = time.monotonic()
+        log.info("%s", self.line())
+
     def _loop(self) -> None:
-        while not self._stop.wait(self.progress.interval):
-            self._said_done = self.periods_done
-            log.info("%s", self.line())
+        interval = self.progress.interval
+        while not self._stop.wait(min(interval / 4, 1.0)):
+            if time.monotonic() - self.progress._last[0] >= interval:
+                self._say()
