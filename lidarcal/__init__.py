@@ -9,14 +9,15 @@ The main entry points are available from the top level and imported on first use
     lidarcal.verify(result.paths["certificate"]).ok
 
 ``lidarcal.diagnose_campaign`` is :func:`lidarcal.diagnose.diagnose`.  Importing lidarcal
-makes cf-xarray's unit registry pint's application registry (docs/units.md), so
-``ds.pint.quantify()`` reads the units of every artefact.
+imports none of them, nor xarray or pint, so that ``lidarcal --help`` and ``lidarcal verify``
+start within a second of CPU (``benchmarks/bench_startup.py``).
+:func:`lidarcal.units.register_units` makes cf-xarray's unit registry pint's application
+registry, so that ``ds.pint.quantify()`` reads the units of every artefact;
+lidarcal does it itself the first time it reads or converts a unit (docs/units.md).
 """
 
 from importlib import import_module as _import_module
 from importlib import metadata as _metadata
-
-from lidarcal import units  # noqa: F401  (imports cf_xarray.units, which registers itself with pint)
 
 #: Public name -> (module, attribute); resolved by :func:`__getattr__` on first access.
 _EXPORTS = {
@@ -38,8 +39,14 @@ _EXPORTS = {
 __all__ = ["__version__", *_EXPORTS]  # and __init__.pyi, for type checkers (tests/test_frontdoor.py)
 
 
+#: Submodules reachable as attributes of the package before anyone imported them.
+_SUBMODULES = ("units",)
+
+
 def __getattr__(name: str):
-    """Import an entry point on first access (PEP 562)."""
+    """Import an entry point (or :data:`_SUBMODULES`) on first access (PEP 562)."""
+    if name in _SUBMODULES:
+        return _import_module(f"lidarcal.{name}")
     try:
         module, attr = _EXPORTS[name]
     except KeyError:
@@ -49,7 +56,7 @@ def __getattr__(name: str):
 
 def __dir__() -> list[str]:
     """List the module's names and the entry points not yet imported (PEP 562)."""
-    return sorted({*globals(), *_EXPORTS})
+    return sorted({*globals(), *_EXPORTS, *_SUBMODULES})
 
 
 try:

@@ -45,9 +45,10 @@ import warnings
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 
-from lidarcal.provenance import CONTACT_ENV, USER_ATTRIBUTES
+from lidarcal.provenance import ACDD_SPELLINGS, CONTACT_ENV, USER_ATTRIBUTES
 
-__all__ = ["ComplianceReport", "check_compliance", "summary_lines", "SUITES"]
+__all__ = ["ComplianceReport", "check_compliance", "summary_lines", "missing_attributes", "missing_lines",
+           "SUITES"]
 
 SUITES = ("cf:1.11", "acdd:1.3")
 _DB_UNITS = re.compile(r'units for \S+, "dB( m-1)?" are not recognized by UDUNITS')
@@ -101,11 +102,33 @@ def exception_kind(line: str, *, has_time: bool = True, has_z: bool = True) -> s
     return None
 
 
-def summary_lines(report: ComplianceReport, *, verbose: bool = False) -> list[str]:
+def missing_attributes(report: ComplianceReport) -> list[str]:
+    """Return the ACDD attributes found absent (``acknowledgment/acknowledgement``: either spelling)."""
+    return [m.group(1) for line in report.warnings if (m := _ACDD_ABSENT.match(line))]
+
+
+def missing_lines(missing: list[str], where: str = "") -> list[str]:
+    """Say which ACDD attributes are ``missing`` (``where``: in which files), and the option giving each."""
+    if not missing:
+        return []
+    out = [f"warning: {len(missing)} ACDD attribute(s) not present{where}; give them with:"]
+    by_option: dict[str, list[str]] = {}
+    for name in missing:
+        option = supplied_by(name)
+        if option.startswith("--attribute"):  # the name to give ("a/b": the ACDD-1.3 spelling)
+            option, name = "--attribute NAME=VALUE", option.split()[1].partition("=")[0]
+        by_option.setdefault(option, []).append(name)
+    out.extend(f"  {option}: {', '.join(names)}" for option, names in by_option.items())
+    return out
+
+
+def summary_lines(report: ComplianceReport, *, verbose: bool = False, missing: bool = True) -> list[str]:
     """Return the report as lines for a person.
 
     Failures in full; each documented exception and each warning check folded into one line
-    with its count and the variables it concerns (every line with ``verbose``).
+    with its count and the variables it concerns (every line with ``verbose``).  The absent
+    ACDD attributes are one block (:func:`missing_lines`), left out with ``missing=False``
+    (``lidarcal validate`` of several files says the block they share once).
     """
     out = [f"compliance: {line}" for line in report.failures]
     kinds: dict[str, list[str]] = {}
@@ -118,21 +141,14 @@ def summary_lines(report: ComplianceReport, *, verbose: bool = False) -> list[st
         if verbose:
             out.extend(f"  {line}" for line in lines)
     checks: dict[str, list[str]] = {}
-    missing: list[str] = []
     for line in report.warnings:
-        if (m := _ACDD_ABSENT.match(line)) and not verbose:
-            missing.append(m.group(1))
+        if _ACDD_ABSENT.match(line) and not verbose:
             continue
         checks.setdefault(line[: line.index("]") + 1] if "]" in line else line, []).append(line)
-    site_missing = any(name in _SITE_ATTRIBUTES for name in missing)
+    absent = [] if verbose else missing_attributes(report)
+    site_missing = any(name in _SITE_ATTRIBUTES for name in absent)
     if missing:  # ACDD: each attribute it asks for once, grouped by what supplies it
-        out.append(f"warning: {len(missing)} ACDD attribute(s) not present; give them with:")
-        by_option: dict[str, list[str]] = {}
-        for name in missing:
-            option = supplied_by(name)
-            by_option.setdefault("--attribute NAME=VALUE" if option.startswith("--attribute") else option,
-                                 []).append(name)
-        out.extend(f"  {option}: {', '.join(names)}" for option, names in by_option.items())
+        out.extend(missing_lines(absent))
     for check, lines in checks.items():
         if site_missing and _EXTENTS.search(check) and not verbose:
             continue  # "geospatial_lat_min/max attribute not found": the site, listed above
@@ -169,6 +185,8 @@ def supplied_by(attribute: str) -> str:
     '--site-latitude DEGREES --site-longitude DEGREES (or $LIDARCAL_SITE_LATITUDE/_LONGITUDE)'
     >>> supplied_by("program")
     '--attribute program=VALUE'
+    >>> supplied_by("acknowledgment/acknowledgement")
+    '--attribute acknowledgement=VALUE'
     """
     if attribute in _CONTACT_OPTIONS:
         env = CONTACT_ENV.get(attribute) or CONTACT_ENV.get(
@@ -176,8 +194,12 @@ def supplied_by(attribute: str) -> str:
         return f"{_CONTACT_OPTIONS[attribute]} TEXT (or ${env})"
     if attribute in _SITE_ATTRIBUTES:
         return "--site-latitude DEGREES --site-longitude DEGREES (or $LIDARCAL_SITE_LATITUDE/_LONGITUDE)"
-    if attribute in USER_ATTRIBUTES:
-        return f"--attribute {attribute}=VALUE"
+    # the checker names an attribute it accepts in two spellings as "a/b"
+    # ("acknowledgment/acknowledgement"): lidarcal writes the ACDD-1.3 one
+    names = [ACDD_SPELLINGS.get(a, a) for a in attribute.split("/")]
+    user = next((a for a in names if a in USER_ATTRIBUTES), None)
+    if user is not None:
+        return f"--attribute {user}=VALUE"
     return "not settable by an option (lidarcal writes it; report a missing one as a bug)"
 
 
@@ -258,8 +280,11 @@ def check_compliance(path: str | os.PathLike, *, cache: bool = True) -> Complian
     report = ComplianceReport(str(path))
     suite = CheckSuite()
     suite.load_all_available_checkers()
-    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()), \
-            (_answers_once() if cache else contextlib.nullcontext()):  # its "Using ... table" on stdout
+    # its "Using packaged standard name table" (on stderr) and other chatter (stdout): not findings
+    quiet = contextlib.ExitStack()
+    quiet.enter_context(contextlib.redirect_stdout(io.StringIO()))
+    quiet.enter_context(contextlib.redirect_stderr(io.StringIO()))
+    with warnings.catch_warnings(), quiet, (_answers_once() if cache else contextlib.nullcontext()):
         warnings.simplefilter("ignore")
         ds = suite.load_dataset(str(path))
         has_time, has_z = get_time_variable(ds) is not None, get_z_variable(ds) is not None

@@ -15,7 +15,7 @@ from typing import Any
 from lidarcal.errors import InputError
 from lidarcal.io import atomic_path
 
-__all__ = ["offline_html", "html_table", "write_text"]
+__all__ = ["offline_html", "html_table", "write_text", "check_models"]
 
 
 def html_table(header: list[str], rows: list[list[str]], caption: str) -> str:
@@ -42,6 +42,7 @@ def offline_html(models: Mapping[str, Any], *, title: str, header: str = "",
     from bokeh.embed import components as bokeh_components
     from bokeh.embed.bundle import Bundle, bundle_for_objs_and_resources
     from bokeh.resources import INLINE
+    from bokeh.settings import settings
 
     models = dict(models)
     after = after or {}
@@ -56,7 +57,14 @@ def offline_html(models: Mapping[str, Any], *, title: str, header: str = "",
     foreign = sorted({type(x).__module__ for x in doc.models if not type(x).__module__.startswith("bokeh.")})
     if foreign:
         raise InputError(f"report plots use non-bokeh models from {foreign}; cannot embed them offline")
-    script, divs = bokeh_components(list(models.values()))
+    # bokeh's document checks (its E-/W- validation codes) are a fifth of the page's cost; the
+    # report's figures are fixed code, checked once by the tests (lidarcal.htmlpage.check_models),
+    # not at every run
+    settings.perform_document_validation.set_value(False)
+    try:
+        script, divs = bokeh_components(list(models.values()))
+    finally:
+        settings.perform_document_validation.unset_value()
     bundle = bundle_for_objs_and_resources([doc], INLINE)
     resources = "".join(Bundle(js_raw=bundle.js_raw, css_raw=bundle.css_raw, hashes=bundle.hashes))
     sections = "\n".join(
@@ -90,6 +98,18 @@ table.numbers caption {{ text-align: left; font-size: 0.9em; padding-bottom: 0.3
 </body>
 </html>
 """
+
+
+def check_models(models: Mapping[str, Any]) -> list[str]:
+    """Return bokeh's validation errors and warnings for ``models`` (what :func:`offline_html` skips)."""
+    from bokeh.core.validation import check_integrity
+    from bokeh.document import Document
+
+    doc = Document()
+    for model in models.values():
+        doc.add_root(model)
+    issues = check_integrity(list(doc.models))
+    return [f"{i.code} {i.name}: {i.text}" for i in [*issues.error, *issues.warning]]
 
 
 def write_text(path: str | os.PathLike, text: str, *, overwrite: bool = False) -> Path:

@@ -52,6 +52,7 @@ from lidarcal.bench.ingest import ingest
 from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.campaign.adaptive import DEFAULT_MAX_REPLICAS, adaptive_replicas
 from lidarcal.campaign.model_form import DEFAULT_PER_BIN, model_form_runs
+from lidarcal.campaign.progress import Progress
 from lidarcal.certificate import make_certificate
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
 from lidarcal.conditions.grid import sweep_conditions
@@ -274,36 +275,27 @@ def _output_paths(outdir: Path, *, overwrite: bool) -> dict[str, Path]:
 
 
 def _bench_cube(run: _Run) -> xr.Dataset:
-    """Stage 1: the bench cube, the user's artefact or ingested from the bench files."""
+    """Stage 1: the bench cube, the user's artefact or ingested from the bench files (not yet written)."""
     cfg = run.cfg
     if cfg.cube is not None:
-        cube = open_artefact(cfg.cube, "bench_cube")
-    else:
-        rtd = cfg.bench_rtd or sample_file("bench/rtd.csv.gz")
-        control = cfg.bench_control or sample_file("bench/control_log.csv")
-        cube = ingest(rtd, control, call=f"lidarcal calibrate (bench ingest {Path(rtd).name})")
-    cube = run.publish(cube, "cube", "bench_cube")
-    serial = cube.attrs.get("lidar_serial")
-    run.done("cube", f"bench cube ({int(cube.sample_count.sum())} samples, lidar {serial})")
-    return cube
+        return open_artefact(cfg.cube, "bench_cube")
+    rtd = cfg.bench_rtd or sample_file("bench/rtd.csv.gz")
+    control = cfg.bench_control or sample_file("bench/control_log.csv")
+    return ingest(rtd, control, call=f"lidarcal calibrate (bench ingest {Path(rtd).name})")
 
 
 def _rwf(run: _Run) -> xr.Dataset:
-    """Stage 2: the range-weighting function and zero distance, given or from the pulse file."""
+    """Stage 2: the range-weighting function and Zd, given or from the pulse file (not yet written)."""
     cfg = run.cfg
     if cfg.rwf is not None:
-        rwf = open_artefact(cfg.rwf, "rwf")
-    else:
-        pulse = cfg.pulse_file or sample_file("rwf/pulse_example.csv")
-        rwf = range_weighting_function(pulse_file=pulse, fft_size=cfg.fft_size,
-                                       call=f"lidarcal calibrate (rwf from {Path(pulse).name})")
-    rwf = run.publish(rwf, "rwf", "rwf")
-    run.done("rwf", f"range-weighting function (Zd = {float(rwf.zero_distance):+.3f} m)")
-    return rwf
+        return open_artefact(cfg.rwf, "rwf")
+    pulse = cfg.pulse_file or sample_file("rwf/pulse_example.csv")
+    return range_weighting_function(pulse_file=pulse, fft_size=cfg.fft_size,
+                                    call=f"lidarcal calibrate (rwf from {Path(pulse).name})")
 
 
-def _write_conditions(run: _Run) -> None:
-    """Stage 3: the conditions the Monte Carlo runs on."""
+def _conditions_artefact(run: _Run) -> xr.Dataset:
+    """Stage 3: the conditions the Monte Carlo runs on (not yet written)."""
     cond, cond_inputs = _conditions(run.cfg)
     if cond.attrs.get("lidarcal_artefact") != "conditions":
         # a user's file that is not a lidarcal conditions artefact (a field campaign, a plain
@@ -312,12 +304,23 @@ def _write_conditions(run: _Run) -> None:
                      summary="10-minute conditions (lidarcal docs/contracts.md) used as Monte Carlo input.",
                      call="lidarcal calibrate",
                      input_datasets={role: open_artefact(p) for role, p in cond_inputs.items()})
+    return cond
+
+
+def _publish_inputs(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, cond: xr.Dataset) -> tuple[xr.Dataset, ...]:
+    """Write the three inputs of the simulation (read back: their checksums chain on)."""
+    cube = run.publish(cube, "cube", "bench_cube")
+    serial = cube.attrs.get("lidar_serial")
+    run.done("cube", f"bench cube ({int(cube.sample_count.sum())} samples, lidar {serial})")
+    rwf = run.publish(rwf, "rwf", "rwf")
+    run.done("rwf", f"range-weighting function (Zd = {float(rwf.zero_distance):+.3f} m)")
     write_artefact(cond, run.paths["conditions"], overwrite=run.overwrite)
     run.done("conditions", f"conditions ({cond.sizes['time']} periods x {cond.sizes['height']} heights)")
+    return cube, rwf
 
 
 def _simulate(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, *,
-              progress: bool) -> tuple[xr.Dataset, xr.Dataset]:
+              progress: Progress) -> tuple[xr.Dataset, xr.Dataset]:
     """Stage 4: the Monte Carlo records, with replicas until every certified value settles.
 
     Returns the records (read back) and the Table 4 terms (not yet written) the budget needs.
@@ -332,8 +335,8 @@ def _simulate(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, *,
     workdir.mkdir(exist_ok=True)
     records = simulate_campaign(
         paths["conditions"], model, base_seed=cfg.base_seed, chunk=cfg.chunk,
-        scheduler=cfg.scheduler, workers=cfg.workers, progress=progress, workdir=workdir,
-        call="lidarcal calibrate (simulate)",
+        scheduler=cfg.scheduler, workers=cfg.workers, progress=progress.labelled("replica 0"),
+        workdir=workdir, call="lidarcal calibrate (simulate)",
         inputs={"conditions": paths["conditions"], "cube": paths["cube"], "rwf": paths["rwf"]},
     )
     if cube.attrs.get("lidar_serial"):
@@ -389,13 +392,15 @@ def _issue(run: _Run, cert: xr.Dataset, signer: Any, signing_key: str | os.PathL
     artefacts beside it.
     """
     # the document states the seal the certificate gets when it is written, just below
+    public = f"{signing_key}.pub" if signer else None
     written = write_report(run.paths["report"], certificate=cert, overwrite=run.overwrite,
-                           seal=seal_statement(fingerprint(signer) if signer else None))
+                           seal=seal_statement(fingerprint(signer) if signer else None,
+                                               run.paths["certificate"].name, public))
     run.done("report", "HTML report (interactive plots)")
     run.done("report_pdf", f"certificate document ({written['pages']} pages, A4)")
     write_certificate(cert, run.paths["certificate"], overwrite=run.overwrite, signing_key=signer)
-    run.done("certificate", "calibration certificate (check with: lidarcal verify"
-             + (f" --public-key {signing_key}.pub)" if signer else ")"))
+    run.done("certificate", f"calibration certificate (check with: lidarcal verify {run.paths['certificate']}"
+             + (f" --public-key {public})" if signer else ")"))
 
 
 def calibrate(
@@ -403,7 +408,7 @@ def calibrate(
     config: CalibrationConfig | None = None,
     *,
     overwrite: bool = False,
-    progress: bool = False,
+    progress: Any = False,
     signing_key: str | os.PathLike | None = None,
     admin: Mapping[str, str] | None = None,
     demonstration: bool = False,
@@ -418,8 +423,10 @@ def calibrate(
         Inputs and settings; defaults to the embedded sample data.
     overwrite : bool
         Replace existing outputs; otherwise existing files are refused before any work.
-    progress : bool
-        Show a progress bar (tqdm, stderr) during the simulation.
+    progress : bool, str or Progress
+        How the simulation reports its progress (:class:`lidarcal.campaign.progress.Progress`): True
+        a tqdm bar on stderr, ``"lines"`` a line every 30 s on the ``lidarcal.campaign.progress``
+        logger (periods done, time left), False nothing.
     signing_key : path, optional
         Ed25519 private key (``lidarcal keygen``) signing the certificate's seal; read before
         any work.  Not part of the configuration: it changes who vouches, not the numbers.
@@ -437,10 +444,19 @@ def calibrate(
         INFO level on the ``lidarcal.pipeline`` logger.
     """
     cfg = config or CalibrationConfig()
+    created = not Path(outdir).exists()
     paths = _output_paths(Path(outdir), overwrite=overwrite)
     signer = load_private_key(signing_key) if signing_key is not None else None
     _check_issuer(cfg, admin or {}, demonstration)
     run = _Run(cfg, paths, overwrite, time.perf_counter())
+    # Every input is read and checked before anything is written (or removed): a conditions
+    # file that is not one must not leave this run's cube and RWF behind.
+    try:
+        cube, rwf, cond = _bench_cube(run), _rwf(run), _conditions_artefact(run)  # 1-3.
+    except BaseException:
+        if created and not any(Path(outdir).iterdir()):
+            Path(outdir).rmdir()  # the directory this run made for nothing
+        raise
     # A certificate (and the report showing it) from an earlier run in this directory would sit
     # beside artefacts it was not built from, still verifying, if this run stopped half-way:
     # remove it before the first new artefact is published; this run's is written last.
@@ -448,10 +464,8 @@ def calibrate(
 
     # Each artefact is written, then read back with open_artefact: downstream stages then
     # record the checksum of the file on disk as their input (the certificate's chain).
-    cube = _bench_cube(run)  # 1. bench cube
-    rwf = _rwf(run)  # 2. range-weighting function and zero distance
-    _write_conditions(run)  # 3. conditions
-    records, terms = _simulate(run, cube, rwf, progress=progress)  # 4. Monte Carlo
+    cube, rwf = _publish_inputs(run, cube, rwf, cond)  # 1. bench cube, 2. RWF and Zd, 3. conditions
+    records, terms = _simulate(run, cube, rwf, progress=Progress.of(progress))  # 4. Monte Carlo
     # 5. Table 4 terms, sensitivities, budget
     terms = run.publish(terms, "terms", "uncertainty_terms")
     run.done("terms", "uncertainty terms not modelled by Monte Carlo (Table 4)")

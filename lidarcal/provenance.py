@@ -30,7 +30,7 @@ from lidarcal.errors import InputError
 
 __all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "jsonable", "contact",
            "contact_attributes", "merge_history", "check_text", "text_problems",
-           "CONVENTIONS", "CONTACT_ENV", "SITE_ENV", "USER_ATTRIBUTES", "REFERENCES"]
+           "CONVENTIONS", "CONTACT_ENV", "SITE_ENV", "USER_ATTRIBUTES", "ACDD_SPELLINGS", "REFERENCES"]
 
 CONVENTIONS = "CF-1.11, ACDD-1.3"
 _PACKAGES = ("lidarcal", "numpy", "scipy", "pandas", "xarray", "dask", "distributed", "netCDF4", "pint",
@@ -63,10 +63,16 @@ _SITE_RANGE = {"site_latitude": (-90.0, 90.0), "site_longitude": (-180.0, 180.0)
 #: Further ACDD-1.3 attributes only the user can know (``--attribute NAME=VALUE``): recorded as
 #: given in every file written.  Attributes lidarcal computes (dates, provenance, coverage) are
 #: not among them.
-USER_ATTRIBUTES = ("acknowledgment", "contributor_name", "contributor_role", "program", "metadata_link",
+USER_ATTRIBUTES = ("acknowledgement", "contributor_name", "contributor_role", "program", "metadata_link",
                    "keywords_vocabulary", "platform", "platform_vocabulary", "instrument",
                    "instrument_vocabulary", "geospatial_bounds_vertical_crs", "creator_institution",
                    "publisher_institution", "references", "license")
+
+#: Spellings of older ACDD versions -> the ACDD-1.3 name lidarcal writes.  ACDD-1.3 spells it
+#: ``acknowledgement`` (ACDD-1.1: ``acknowledgment``); the compliance checker accepts either.  A
+#: user's ``--attribute acknowledgment=...``, or an input file carrying that spelling, is
+#: written as ``acknowledgement``.
+ACDD_SPELLINGS = {"acknowledgment": "acknowledgement"}
 
 #: Characters no text lidarcal writes may hold: the C0 controls but tab, line feed and carriage
 #: return; DEL and the C1 controls; the non-characters U+FFFE and U+FFFF; lone surrogates.  XML 1.0
@@ -182,6 +188,7 @@ def contact(**values: str | None) -> Iterator[None]:
     Keys are those of :data:`CONTACT_ENV` (``creator_name``, ``creator_email``, ``institution``,
     ``publisher_name`` ...); they win over the environment variables; ``None`` is ignored.
     """
+    values = {ACDD_SPELLINGS.get(k, k): v for k, v in values.items()}
     known = {*CONTACT_ENV, *SITE_ENV, *USER_ATTRIBUTES}
     unknown = set(values) - known
     if unknown:
@@ -363,11 +370,11 @@ def _now() -> str:
 
 
 #: Site attributes an artefact inherits from its first input that has them (a measured
-#: record's location and acknowledgment describe every product derived from it).
-_CARRIED = ("acknowledgment", "geospatial_lat_min", "geospatial_lat_max", "geospatial_lon_min",
-            "geospatial_lon_max", "geospatial_lat_units", "geospatial_lon_units", "geospatial_lat_resolution",
-            "geospatial_lon_resolution", "geospatial_bounds", "geospatial_bounds_crs",
-            "geospatial_bounds_vertical_crs", "site", "location")
+#: record's location and acknowledgement describe every product derived from it).
+_CARRIED = ("acknowledgement", "acknowledgment", "geospatial_lat_min", "geospatial_lat_max",
+            "geospatial_lon_min", "geospatial_lon_max", "geospatial_lat_units", "geospatial_lon_units",
+            "geospatial_lat_resolution", "geospatial_lon_resolution", "geospatial_bounds",
+            "geospatial_bounds_crs", "geospatial_bounds_vertical_crs", "site", "location")
 
 
 _TIME_COVERAGE = ("time_coverage_start", "time_coverage_end")
@@ -392,8 +399,9 @@ def _from_inputs(inputs: Mapping[str, str | os.PathLike], input_datasets: Mappin
         if other.attrs.get("history"):
             past.append(str(other.attrs["history"]))
         for key in _CARRIED:
-            if key in other.attrs and key not in carried:
-                carried[key] = other.attrs[key]
+            name = ACDD_SPELLINGS.get(key, key)  # written with the ACDD-1.3 spelling
+            if key in other.attrs and name not in carried:
+                carried[name] = other.attrs[key]
         if "time_coverage_start" in other.attrs and "time_coverage_end" in other.attrs:
             coverage = coverage or {k: other.attrs[k] for k in _TIME_COVERAGE if k in other.attrs}
     return records, past, carried, coverage
@@ -444,6 +452,10 @@ def stamp(
 
     out = canonical_order(ds)
     attrs = {**carried, **{k: v for k, v in ds.attrs.items() if not k.startswith("lidarcal_source_")}}
+    for old, new in ACDD_SPELLINGS.items():  # one attribute, with the ACDD-1.3 spelling
+        value = attrs.pop(old, None)
+        if value is not None:
+            attrs.setdefault(new, value)
     if _has_time(ds) is None and "time_coverage_start" not in attrs:
         # statistics over a period (a budget over a campaign) keep the period of their source
         # data; lidarcal.io writes it as source_time_coverage_* (ACDD ties time_coverage_* to a

@@ -4,24 +4,31 @@ The registry is cf-xarray's, so UDUNITS/CF strings such as ``m s-1`` parse.  Pin
 ``dB`` as a logarithmic (offset) unit, so CNR quantities are checked by their unit string
 and then handled as plain floats.  :func:`si_unit` writes a UDUNITS string in the D-SI form
 of a Digital Calibration Certificate (:mod:`lidarcal.dcc`).
+
+The registry is built the first time lidarcal needs it (``ureg`` or ``Q_`` is used, a unit is
+parsed or converted, or :func:`register_units` is called), not when this module is imported:
+building it (importing pint and ``cf_xarray.units``) costs about a second of CPU, which a
+command that never touches a unit (``lidarcal --help``, ``lidarcal verify``) should not pay.
+Once built, it is pint's application registry, the one pint-xarray uses (docs/units.md).
 """
 
 from __future__ import annotations
 
 import numbers
 import re
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pint
-import xarray as xr
-from cf_xarray.units import units as ureg  # importing it makes it pint's application registry
 
 from lidarcal.errors import MissingVariableError, UnitError
 
+if TYPE_CHECKING:
+    import pint
+    import xarray as xr
+
 __all__ = [
-    "ureg",
-    "Q_",
+    "ureg",  # noqa: F822  (built on first access: __getattr__)
+    "Q_",  # noqa: F822
     "LOG_UNITS",
     "cf_units",
     "convert_values",
@@ -31,8 +38,6 @@ __all__ = [
     "register_units",
     "si_unit",
 ]
-
-Q_ = ureg.Quantity
 
 #: Units pint cannot do arithmetic with; accepted only as these exact strings.
 LOG_UNITS = {"dB": {"dB", "decibel"}, "dB m-1": {"dB m-1", "dB/m", "decibel m-1"}}
@@ -46,21 +51,42 @@ _CANONICAL = {
 }
 
 
+def _registry() -> pint.UnitRegistry:
+    """Return cf-xarray's registry, importing it (which makes it pint's application registry) on first use."""
+    registry = globals().get("ureg")
+    if registry is None:
+        from cf_xarray.units import units as registry  # importing it makes it pint's application registry
+
+        globals().update(ureg=registry, Q_=registry.Quantity)
+    return registry
+
+
+def __getattr__(name: str) -> Any:
+    """``ureg`` and ``Q_`` (the registry and its Quantity), built on first access (PEP 562)."""
+    if name in ("ureg", "Q_"):
+        _registry()
+        return globals()[name]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def register_units() -> None:
     """Make this registry (cf-xarray's) pint's application registry, the one pint-xarray uses.
 
-    ``import lidarcal`` already does it (it imports this module, and ``cf_xarray.units``
-    registers itself), so ``ds.pint.quantify()`` understands the units of every artefact
-    (``m s-1``, ``%``, ``dB``, ``1``); call this again if other code replaced the application
-    registry since.
+    lidarcal builds the registry the first time it parses or converts a unit, and building it
+    registers it; call this before ``ds.pint.quantify()`` on a dataset lidarcal has not yet
+    read units from (``ds.pint.quantify()`` then understands ``m s-1``, ``%``, ``dB``, ``1``),
+    or again if other code replaced the application registry since.
     """
-    if pint.get_application_registry().get() is not ureg:
-        pint.set_application_registry(ureg)
+    import pint
+
+    registry = _registry()
+    if pint.get_application_registry().get() is not registry:
+        pint.set_application_registry(registry)
 
 
 def cf_units(unit: pint.Unit | str) -> str:
     """Return the UDUNITS/CF spelling of ``unit`` (``degree`` rather than ``deg``)."""
-    unit = ureg.Unit(unit) if isinstance(unit, str) else unit
+    unit = _registry().Unit(unit) if isinstance(unit, str) else unit
     name = str(unit)
     if name in _CANONICAL:
         return _CANONICAL[name]
@@ -70,7 +96,7 @@ def cf_units(unit: pint.Unit | str) -> str:
 def parse_unit(text: str, *, where: str) -> pint.Unit:
     """Return ``text`` as a unit of the registry or raise a :class:`UnitError` naming ``where``."""
     try:
-        return ureg.Unit(text)
+        return _registry().Unit(text)
     except Exception as exc:  # pint raises several unrelated types here
         raise UnitError(f"{where}: units {text!r} cannot be parsed ({exc})") from None
 
@@ -99,7 +125,7 @@ def convert_values(values: Any, found: str | None, expected: str, *, where: str)
         )
     if src == dst:
         return values
-    return Q_(values, src).to(dst).magnitude
+    return _registry().Quantity(values, src).to(dst).magnitude
 
 
 def convert_variable(ds: xr.Dataset, name: str, expected: str, *, source: str = "<dataset>") -> xr.DataArray:
@@ -134,9 +160,12 @@ def to_magnitude(value: Any, expected: str, *, name: str) -> float | np.ndarray:
                     raise
                 raise UnitError(f"{where}: cannot parse {value!r} as a quantity") from None
         try:
-            value = ureg.Quantity(value)
+            value = _registry().Quantity(value)
         except Exception as exc:
             raise UnitError(f"{where}: cannot parse {value!r} as a quantity ({exc})") from None
+    import pint  # deferred: imported with the registry, which was built above or here
+
+    _registry()
     if isinstance(value, pint.Quantity):
         found = cf_units(value.units)
         out = convert_values(value.magnitude, found, expected, where=where)

@@ -292,9 +292,12 @@ def test_merge_history_dedupes_and_orders():
     ]
 
 
-def test_pint_quantifies_every_artefact_after_import_lidarcal(run_dir):
+def test_pint_quantifies_every_artefact_after_register_units(run_dir):
+    # lidarcal.units.register_units() makes cf-xarray's registry pint's (import lidarcal alone
+    # does not: it imports no unit library, docs/units.md)
     code = (
-        "import glob, lidarcal\n"
+        "import glob, lidarcal.units\n"
+        "lidarcal.units.register_units()\n"
         "import pint_xarray, xarray as xr\n"
         f"files = sorted(glob.glob({str(run_dir)!r} + '/*.nc'))\n"
         "kinds = set()\n"

@@ -6,7 +6,7 @@ import pytest
 
 from lidarcal.campaign import DEFAULT_BASE_SEED
 from lidarcal.cli import build_parser
-from lidarcal.cli.options import progress_enabled
+from lidarcal.cli.options import progress_of
 
 SIMULATING = ("calibrate", "simulate", "sweep", "diagnose", "compare")
 
@@ -27,7 +27,7 @@ def test_simulating_commands_share_one_spelling(command):
                    "--cube", "c.nc", "--rwf", "r.nc", "--no-progress"])
     parallel = (args.scheduler, args.workers, args.chunk)
     assert parallel == ("threads", 2, 8) and (args.cube, args.rwf) == ("c.nc", "r.nc")
-    assert args.progress is False and progress_enabled(args) is False
+    assert args.progress is False and progress_of(args).mode == "off"
     assert args.seed == DEFAULT_BASE_SEED == 20240101
 
 
@@ -57,9 +57,10 @@ def test_progress_follows_the_terminal_unless_forced(monkeypatch):
 
     for tty in (True, False):
         monkeypatch.setattr("sys.stderr", Tty(tty))
-        assert progress_enabled(argparse.Namespace(progress=None)) is tty
-        assert progress_enabled(argparse.Namespace(progress=True)) is True
-        assert progress_enabled(argparse.Namespace(progress=False)) is False
+        # not a terminal (tee, nohup, CI): a line every --progress-interval seconds, not nothing
+        assert progress_of(argparse.Namespace(progress=None)).mode == ("bar" if tty else "lines")
+        assert progress_of(argparse.Namespace(progress=True)).mode == "bar"
+        assert progress_of(argparse.Namespace(progress=False)).mode == "off"
     args = _parse(["calibrate", "--progress"])
     assert args.progress is True
 

@@ -65,19 +65,77 @@ def test_diagnose_campaign_runs_the_diagnosis(tmp_path):
         lidarcal.diagnose_campaign(tmp_path / "missing.nc")
 
 
-def test_import_lidarcal_registers_units_and_defers_the_engine():
-    code = ("import sys, json, pint, lidarcal; "
-            "print(json.dumps([pint.get_application_registry().get() is lidarcal.units.ureg, "
-            "[type(f).__module__ for f in sys.meta_path if type(f).__module__.startswith('lidarcal')], "
-            "sorted(m for m in ('distributed', 'netCDF4', 'pyconturb', 'pint_xarray', 'lidarcal.pipeline') "
-            "if m in sys.modules)]))")
+#: What a command that runs no simulation and draws nothing never needs: seconds of CPU to import.
+ENGINE = ("cf_xarray", "scipy.stats", "scipy.interpolate", "matplotlib", "bokeh", "distributed", "pyconturb",
+          "pint_xarray", "lidarcal.pipeline", "lidarcal.campaign", "lidarcal.analysis", "lidarcal.report",
+          "lidarcal.document", "lidarcal.diagnose", "lidarcal.lidar")
+#: ... and what ``lidarcal --help`` needs none of either.
+LIBRARIES = ("numpy", "xarray", "pandas", "pint", "dask", "netCDF4", "yaml")
+
+
+def _loaded(code: str) -> list[str]:
+    """Run ``code`` in a fresh interpreter; return which of ENGINE and LIBRARIES it imported."""
+    probe = (f"{code}\nimport json, sys\nprint(json.dumps(sorted(m for m in {(*ENGINE, *LIBRARIES)!r} "
+             "if m in sys.modules)))")
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    return json.loads(done.stdout.splitlines()[-1])
+
+
+def test_import_lidarcal_and_help_import_no_library():
+    """``import lidarcal``, ``lidarcal --help`` and ``--version`` import neither xarray nor pint."""
+    code = ("import sys, lidarcal\n"
+            "assert not [f for f in sys.meta_path if type(f).__module__.startswith('lidarcal')]")  # no hook
+    assert _loaded(code) == []
+    for argv in (["--help"], ["--version"], []):
+        code = ("import contextlib, io\nfrom lidarcal.cli import main\n"
+                f"with contextlib.redirect_stdout(io.StringIO()), contextlib.suppress(SystemExit):\n"
+                f"    main({argv!r})")
+        assert _loaded(code) == [], argv
+    # the help still lists every command, with its line, without importing a command module
+    code = ("import sys\nfrom lidarcal.cli import build_parser\nprint(build_parser([]).format_help())\n"
+            "assert not [m for m in sys.modules if m.startswith('lidarcal.cli.')]")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    from lidarcal.cli import COMMANDS
+
+    text = " ".join(done.stdout.split())
+    assert all(f"{name} {' '.join(c.help.split())}" in text for name, c in COMMANDS.items())
+
+
+def test_units_registry_is_built_and_registered_on_first_use():
+    assert _loaded("import lidarcal.units") == ["numpy"]
+    code = ("import json, pint, lidarcal\n"
+            "first = lidarcal.units.to_magnitude('36 km/h', 'm s-1', name='u')\n"
+            "print(json.dumps([first, pint.get_application_registry().get() is lidarcal.units.ureg]))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    # the registry is pint's application registry, and no import hook was installed for it
-    assert json.loads(out) == [True, [], []]
-    # first use imports what it needs
+    assert json.loads(out) == [10.0, True]  # 36 km/h = 10 m/s, and pint-xarray would use this registry
+    # the entry points are imported on first use
     code = "import sys, lidarcal; lidarcal.calibrate; print('lidarcal.pipeline' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "True"
+
+
+def test_verify_imports_only_what_reading_a_certificate_needs(tmp_path):
+    """``lidarcal verify`` reads a netCDF file and hashes it: no unit registry, no engine, no plots.
+
+    (xarray itself imports pint, to recognise pint arrays, and the seal check reads the file
+    through dask.)
+    """
+    from analysis_factories import make_records
+
+    from lidarcal.analysis import budget
+    from lidarcal.cli import main
+    from lidarcal.io import open_artefact, write_artefact
+
+    make_records(n=200).to_netcdf(tmp_path / "records.nc")
+    bud = write_artefact(budget(open_artefact(tmp_path / "records.nc")), tmp_path / "budget.nc")
+    cert = tmp_path / "cert.nc"
+    assert main(["certificate", "--budget", str(bud), "-o", str(cert), "--demonstration"]) == 0
+    code = ("import contextlib, io\nfrom lidarcal.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()) as out:\n"
+            f"    assert main(['verify', {str(cert)!r}]) == 0\n"
+            "assert ': OK (' in out.getvalue()")
+    assert set(_loaded(code)) - set(LIBRARIES) == set()
 
 
 def test_readme_python_chain_runs_as_a_script_without_a_main_guard(tmp_path):

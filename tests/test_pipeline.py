@@ -126,7 +126,7 @@ def test_cli_calibrate_runs_from_any_directory(tmp_path, capsys, monkeypatch):
 
 
 @pytest.mark.slow
-def test_sample_lidar_reproduces_the_papers_findings(tmp_path):
+def test_sample_lidar_reproduces_the_papers_findings(tmp_path, poppler):
     """§3.3/§3.4 checks on the default run (2,016 periods x 8 heights, a few minutes).
 
     The simulated shear sensitivity of the WindCube-like sample lidar is negative in the
@@ -201,6 +201,24 @@ def test_sample_lidar_reproduces_the_papers_findings(tmp_path):
     certified = {(float(z), float(u)) for z in top.height.values for u in top.wind_speed.values
                  if int(top.bin_flag.sel(height=z, wind_speed=u)) == 0}
     assert listed == certified
+    _check_default_document(tmp_path / "report.pdf", budget, poppler, tmp_path / "pages")
+
+
+def _check_default_document(pdf: Path, budget: xr.Dataset, poppler, tmp_path: Path) -> None:
+    """The default run's PDF, every page rendered (test_document.check_document), states what it must."""
+    from test_document import check_document
+
+    tmp_path.mkdir()
+    texts = check_document(pdf, poppler, tmp_path)
+    everything = " ".join(texts)
+    assert "check with lidarcal verify certificate.nc" in texts[0]
+    assert "Certified result in m/s: expanded uncertainty U (m/s), k = 2" in everything
+    # the certified values stop below 16 m/s at every height (docs/validation.md): the page says where
+    ok = budget.bin_flag == 0
+    top = float(budget.wind_speed.where(ok.any("height")).max())
+    assert top < 16 and f"span 4 to {top:g} m/s of the 4 to 16 m/s range" in everything
+    assert "numerical tolerance" in everything and "of each contributor" in everything
+    assert "Model form of the simulation" in everything  # the model-form contributor's page
 
 
 def _running(proc) -> bool:
@@ -272,3 +290,17 @@ def test_calibrate_returns_the_datasets_it_wrote(small_run):
                                   xr.open_dataset(out / "budget.nc").relative_uncertainty.values)
     sim = result.datasets["simulated"]
     assert (sim.sizes["time"], sim.sizes["height"]) == (48, 2)
+
+
+def test_the_certificate_document_of_a_short_run(small_run, poppler, tmp_path):
+    """A real 48-period calibration's PDF: nothing under the footer, the file named, U in m/s, a legend."""
+    from test_document import check_document
+
+    _, result, _ = small_run
+    texts = check_document(result.paths["report_pdf"], poppler, tmp_path)
+    assert "check with lidarcal verify certificate.nc" in texts[0]
+    assert "Certified result in m/s: expanded uncertainty U (m/s), k = 2" in " ".join(texts)
+    budget = result.datasets["budget"]
+    (contributors,) = [t for t in texts if "of each contributor" in t]
+    names = [str(c).replace("_", " ") for c in budget.contributor.values] + ["combined"]
+    assert all(name in contributors for name in names), contributors[:300]

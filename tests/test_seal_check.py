@@ -11,6 +11,7 @@ readable by others (item 10) are refused too.
 from __future__ import annotations
 
 import os
+import subprocess
 from pathlib import Path
 
 import netCDF4
@@ -24,6 +25,7 @@ from lidarcal.analysis import budget, sensitivity
 from lidarcal.analysis.terms import PAPER_INPUTS, TABLE4_WIND_SPEEDS, uncertainty_terms
 from lidarcal.certificate import make_certificate, result_table
 from lidarcal.cli import main
+from lidarcal.document import write_document
 from lidarcal.errors import InputError, SealError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.report import write_report
@@ -132,6 +134,22 @@ def test_result_table_and_report_check_the_seal(sealed, tampered, tmp_path):
     detached.encoding = {}
     with pytest.raises(SealError, match="cannot be checked"):
         require_valid_seal(detached)
+
+
+def test_the_certificate_document_checks_the_seal(sealed, tampered, tmp_path, poppler):
+    """write_document on its own (not through write_report): refused, or the warning on every page."""
+    with pytest.raises(SealError, match="values altered"):
+        write_document(tmp_path / "d.pdf", open_artefact(tampered))
+    assert list(tmp_path.glob("*.pdf")) == []
+    written = write_document(tmp_path / "d.pdf", open_artefact(tampered), allow_invalid=True)
+    pages = subprocess.run([poppler[1], str(written["pdf"]), "-"], capture_output=True, text=True,
+                           check=True).stdout.split("\f")[:written["pages"]]
+    assert "WARNING: INVALID CERTIFICATE" in pages[0]
+    assert all("INVALID SEAL: these numbers are NOT certified" in p for p in pages), len(pages)
+    intact = write_document(tmp_path / "s.pdf", open_artefact(sealed["cert"]))
+    text = subprocess.run([poppler[1], str(intact["pdf"]), "-"], capture_output=True, text=True,
+                          check=True).stdout
+    assert "INVALID" not in text
 
 
 def test_signing_key_readable_by_others_is_refused(sealed, tmp_path, capsys):
@@ -275,6 +293,8 @@ SHOWS_A_CERTIFICATE = {
     ("smc",): (lambda cert, tmp: ["smc", cert, _SAMPLE_STA, "-o", tmp / "s.nc", "--no-monte-carlo",
                                   "--report", tmp / "s.html"],
                2, "refusing to show this certificate's numbers"),
+    # shows no number, but its "ok" would vouch for the file: the seal is part of its check
+    ("validate",): (lambda cert, tmp: ["validate", "--no-compliance", cert], 1, "tampered.nc: FAIL"),
 }
 #: Commands that take no certificate, or show none of its numbers, and why.
 NO_CERTIFICATE_SHOWN = {
@@ -298,8 +318,6 @@ NO_CERTIFICATE_SHOWN = {
     ("diagnose",): "a field campaign",
     ("diagnose-generate",): "writes a field campaign",
     ("compare",): "a field campaign and a lidar's components",
-    ("validate",): "prints a file's schema and CF/ACDD problems, none of its numbers (lidarcal verify "
-                   "checks a seal)",
 }
 
 
@@ -345,6 +363,7 @@ def _readers():
         "lidarcal.report.write_report": lambda p, tmp: write_report(tmp / "r.html",
                                                                    certificate=open_artefact(p)),
         "lidarcal.smc.smc": lambda p, tmp: smc(p, [_SAMPLE_STA], monte_carlo=False),
+        "lidarcal.document.write_document": lambda p, tmp: write_document(tmp / "r.pdf", open_artefact(p)),
     }
 
 
@@ -383,6 +402,10 @@ NOT_READERS = {
     "lidarcal.smc.smc_dataset": "the artefact of what smc computed (after smc's check)",
     "lidarcal.smc.binned": "an smc artefact's per-bin view, no certificate read",
     "lidarcal.smc.binned_table": "an smc artefact's table, no certificate read",
+    "lidarcal.document.parts_of": "the components of a certificate the caller opened through a reader",
+    "lidarcal.document.seal_statement": "a sentence about a seal, no numbers",
+    "lidarcal.document.fmt": "formats a number", "lidarcal.document.units_suffix": "formats a unit",
+    "lidarcal.document.VARIABLE_NAMES": "a constant",
 }
 
 
@@ -390,7 +413,8 @@ def test_every_public_reader_checks_the_seal(tampered, tmp_path):
     import importlib
 
     public = {f"lidarcal.{n}" for n in lidarcal.__all__ if n != "__version__"}
-    for module in ("lidarcal.certificate", "lidarcal.dcc", "lidarcal.report", "lidarcal.smc"):
+    for module in ("lidarcal.certificate", "lidarcal.dcc", "lidarcal.report", "lidarcal.document",
+                   "lidarcal.smc"):
         public |= {f"{module}.{n}" for n in importlib.import_module(module).__all__}
     readers = _readers()
     unclassified = sorted(public - set(readers) - set(NOT_READERS))

@@ -40,6 +40,7 @@ from lidarcal.analysis.budget import (
     budget,
 )
 from lidarcal.binning import bin_index
+from lidarcal.campaign.progress import Progress
 from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_replicas
 from lidarcal.errors import InputError
 from lidarcal.schema import output_attrs
@@ -113,7 +114,7 @@ def adaptive_replicas(
     scheduler: Any = None,
     workers: int | None = None,
     workdir: str | os.PathLike | None = None,
-    progress: bool = False,
+    progress: Any = False,
     duration: float = 600.0,
 ) -> tuple[xr.Dataset, xr.Dataset]:
     """Add Monte Carlo replicas to ``records`` until every certified value has settled.
@@ -145,6 +146,7 @@ def adaptive_replicas(
     opts = dict(terms=terms, min_periods=min_periods, certified_range=certified_range, bin_width=bin_width,
                 coverage_factor=coverage_factor, significant_digits=significant_digits)
     heights = [float(z) for z in records["height"].values]
+    progress = Progress.of(progress)
     trials: list[dict[str, np.ndarray]] = []
     current = with_trials(records, trials)
     bud = budget(current, **opts)
@@ -155,9 +157,11 @@ def adaptive_replicas(
         log.info("Monte Carlo replicas %s: %d certified value(s) not settled to %d digits; re-simulating %d "
                  "(period, height) cells", f"{batch[0]}-{batch[-1]}" if len(batch) > 1 else batch[0],
                  int((bud["numerical_flag"] == 1).sum()), int(significant_digits), int(cells.sum()))
+        label = (f"replicas {batch[0]}-{batch[-1]}" if len(batch) > 1 else f"replica {batch[0]}")
         done = simulate_replicas(conditions, model, cells, batch, heights=heights, base_seed=base_seed,
                                  chunk=chunk, scheduler=scheduler, workers=workers, workdir=workdir,
-                                 progress=progress, duration=duration)
+                                 progress=progress.labelled(f"{label} (of at most {int(max_replicas)})"),
+                                 duration=duration)
         trials += [{"replica": r, **done[r]} for r in batch]
         current = with_trials(records, trials)
         bud = budget(current, **opts)

@@ -25,7 +25,8 @@ from lidarcal.errors import InputError
 from lidarcal.io import disk_full, part_path, publish, remove_stale_parts
 from lidarcal.lidar import LidarModel, simulate_period
 
-__all__ = ["OUTPUTS", "chunk_key", "chunk_path", "load_chunk", "period_keys", "run_chunk", "seed_entropy"]
+__all__ = ["OUTPUTS", "chunk_key", "chunk_path", "finished_chunks", "load_chunk", "period_keys", "run_chunk",
+           "seed_entropy"]
 
 #: Per-height outputs of :func:`lidarcal.lidar.simulate_period` stored by the campaign.
 OUTPUTS = (
@@ -124,6 +125,12 @@ def make_workdir(workdir: str | os.PathLike) -> Path:
 def chunk_path(workdir: str | os.PathLike, start: int, stop: int, key: str) -> Path:
     """``workdir/chunk-<start>-<stop>-<key16>.npz``."""
     return Path(workdir) / f"chunk-{start:07d}-{stop:07d}-{key[:16]}.npz"
+
+
+def finished_chunks(workdir: str | os.PathLike) -> int:
+    """Count the finished chunk files under ``workdir`` (replica 0 and every ``replica-<r>``)."""
+    path = Path(workdir)
+    return sum(1 for _ in path.rglob("chunk-*.npz")) if path.is_dir() else 0
 
 
 def load_chunk(path: Path, key: str, n: int, n_heights: int) -> dict[str, np.ndarray] | None:

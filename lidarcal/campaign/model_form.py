@@ -30,6 +30,7 @@ import xarray as xr
 
 from lidarcal.analysis.kernels import centred_edges
 from lidarcal.binning import bin_index
+from lidarcal.campaign.progress import Progress
 from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_replicas
 from lidarcal.errors import InputError
 from lidarcal.lidar.model_form import ALTERNATIVES, alternative_models
@@ -97,7 +98,7 @@ def model_form_runs(
     scheduler: Any = None,
     workers: int | None = None,
     workdir: str | os.PathLike | None = None,
-    progress: bool = False,
+    progress: Any = False,
     duration: float = 600.0,
 ) -> xr.Dataset:
     """Simulate every alternative of ``model`` on the selected periods; return ``records`` with the runs.
@@ -130,11 +131,12 @@ def model_form_runs(
     log.info("model form: %d alternative(s) (%s) on %d (period, height) cells, at most %d per bin, with the "
              "nominal run's seeds", len(models), ", ".join(models), int(cells.sum()), int(per_bin))
     runs = {}
-    for name, alt in models.items():
+    for i, (name, alt) in enumerate(models.items(), 1):
         where = None if workdir is None else os.path.join(os.fspath(workdir), f"model-form-{name}")
+        said = Progress.of(progress).labelled(f"model form {name} ({i} of {len(models)})")
         runs[name] = simulate_replicas(conditions, alt, cells, [0], heights=heights, base_seed=base_seed,
                                        chunk=chunk, scheduler=scheduler, workers=workers, workdir=where,
-                                       progress=progress, duration=duration)[0]
+                                       progress=said, duration=duration)[0]
     return with_model_form(records, models, runs, per_bin=int(per_bin))
 
 

@@ -51,6 +51,7 @@ from lidarcal.campaign.chunks import (
     unflatten_los,
 )
 from lidarcal.campaign.los import los_variables
+from lidarcal.campaign.progress import Progress
 from lidarcal.campaign.scheduler import WORKER_TIMEOUT, execute
 from lidarcal.cf import height_coord, time_coord
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions
@@ -97,7 +98,7 @@ def simulate_campaign(
     scheduler: Any = None,
     workers: int | None = None,
     workdir: str | os.PathLike | None = None,
-    progress: bool = False,
+    progress: Any = False,
     los_periods: Sequence[int] = (),
     duration: float = 600.0,
     connect_timeout: float = 5.0,
@@ -126,8 +127,9 @@ def simulate_campaign(
         Worker processes/threads for local schedulers (default: number of CPUs).
     workdir : path, optional
         Directory for the resumable chunk cache (created if missing).
-    progress : bool
-        Show a progress bar (tqdm) on the terminal.
+    progress : bool, str or Progress
+        How to report progress (:class:`~lidarcal.campaign.progress.Progress`): True a tqdm bar,
+        ``"lines"`` a line every 30 s (periods done, time left), False nothing.
     los_periods : sequence of int
         Period indices whose LOS time series are kept (``return_los=True``).
     duration : float
@@ -156,6 +158,7 @@ def simulate_campaign(
     # the chunk key takes the attribute form (residuals by digest), the workers the full model
     results, tasks, bounds = _schedule(camp, model.to_dict(), base_seed, chunk, duration, workdir,
                                        transport=model.to_dict(residuals=True))
+    _say_reused(len(results), len(results) + len(tasks), workdir, Progress.of(progress).label)
     for name, result in execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
         results[bounds[name][0]] = result
     out = {name: np.concatenate([results[s][name] for s in sorted(results)], axis=0) for name in OUTPUTS}
@@ -177,7 +180,7 @@ def simulate_replicas(
     scheduler: Any = None,
     workers: int | None = None,
     workdir: str | os.PathLike | None = None,
-    progress: bool = False,
+    progress: Any = False,
     duration: float = 600.0,
     connect_timeout: float = 5.0,
     worker_timeout: float = WORKER_TIMEOUT,
@@ -238,6 +241,7 @@ def simulate_replicas(
                 "los": np.zeros(idx.size, dtype=bool), "base_seed": int(base_seed), "replica": r,
                 "duration": float(duration), "workdir": where, "key": key, "start": a, "stop": a + idx.size,
             }))
+    _say_reused(len(results), len(results) + len(tasks), workdir, Progress.of(progress).label)
     for name, result in execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
         results[bounds[name]] = result
     out: dict[int, dict[str, np.ndarray]] = {}
@@ -249,6 +253,12 @@ def simulate_replicas(
         out[r] = {"period": sel[rows], "height": camp.z[cols],
                   **{name: full[name][rows, cols] for name in OUTPUTS}}
     return out
+
+
+def _say_reused(reused: int, total: int, workdir, label: str) -> None:
+    """Log how many of the chunks were found finished in ``workdir`` (a resumed run)."""
+    if reused:
+        log.info("%s: reusing %d of %d chunks finished earlier (kept in %s)", label, reused, total, workdir)
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ from typing import Any
 
 from lidarcal import __version__
 from lidarcal.campaign.chunks import run_chunk
+from lidarcal.campaign.progress import Progress, Tracker
 from lidarcal.campaign.workers import BLAS_ENV, PARENT_PID_ENV, init_pool_worker, quiet_orphaned_gathers
 from lidarcal.errors import ComputeError, InputError
 
@@ -183,13 +184,14 @@ def _close_quietly(client, timeout: float) -> None:
             lg.setLevel(level)
 
 
-def _log_dashboard(client) -> None:
+def _log_dashboard(client, progress: Progress) -> None:
+    """Say where the scheduler's dashboard is, once per command (not once per batch of replicas)."""
     with contextlib.suppress(Exception):
         if "dashboard" in client.scheduler_info(n_workers=0).get("services", {}):
-            log.info("dask dashboard: %s", client.dashboard_link)
+            progress.once(f"dask dashboard: {client.dashboard_link}")
 
 
-def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
+def _run_distributed(client, tasks: list[tuple[str, dict]], tracker: Tracker,
                      worker_timeout: float = WORKER_TIMEOUT) -> Iterator[tuple[str, dict]]:
     """Run ``tasks`` on a ``distributed.Client``; fail within ``worker_timeout`` s if no worker is left.
 
@@ -202,11 +204,11 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
 
     address = str(getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler")
     quiet_orphaned_gathers()  # no AllExit traceback after our own message when workers die
-    _log_dashboard(client)
+    _log_dashboard(client, tracker.progress)
     _check_workers(client, address, worker_timeout)
+    periods = {name: _periods(payload) for name, payload in tasks}
     tasks = _share_model(client, tasks)
     futures = {client.submit(run_chunk, payload, key=name, pure=False): name for name, payload in tasks}
-    bar = _bar(len(tasks), progress)
     finished = False
     # a lost scheduler is reported once, by the ComputeError below, not by the client's own
     # reconnect logging (an ERROR with a traceback)
@@ -256,11 +258,10 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], progress: bool,
                     completed.add(fut)  # else computed again
                     continue
                 fut.release()
-                bar.update(1)
+                tracker.done(periods[name])
                 yield name, result
         finished = True
     finally:
-        bar.close()
         if not finished:
             with contextlib.suppress(Exception):
                 client.cancel(list(futures), force=True)
@@ -295,29 +296,31 @@ def _shared_model(model):
     return model
 
 
-def _bar(total: int, enabled: bool):
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, unit="chunk", desc="simulate", disable=not enabled, dynamic_ncols=True)
+def _periods(payload: dict) -> int:
+    """Periods a chunk task simulates."""
+    return int(payload["stop"]) - int(payload["start"])
 
 
 def _run_local(
-    tasks: list[tuple[str, dict]], scheduler: str, workers: int | None, progress: bool
+    tasks: list[tuple[str, dict]], scheduler: str, workers: int | None, tracker: Tracker
 ) -> Iterator[tuple[str, dict]]:
     import dask
+    from dask.callbacks import Callback
 
     delayed = [dask.delayed(run_chunk, pure=False)(payload, dask_key_name=name) for name, payload in tasks]
     kw: dict[str, Any] = {"scheduler": scheduler}
     if scheduler in ("processes", "threads") and workers:
         kw["num_workers"] = int(workers)
-    callbacks = []
-    if progress:
-        from tqdm.dask import TqdmCallback
+    if scheduler == "processes":  # one chunk per dispatch (dask's default is 6): each is reported as it
+        kw["chunksize"] = 1  # finishes, and a few long chunks are not queued behind one worker
+    periods = {name: _periods(payload) for name, payload in tasks}
 
-        callbacks.append(TqdmCallback(desc="simulate", unit="chunk", dynamic_ncols=True))
+    def finished(key, result, dsk, state, worker_id) -> None:
+        if key in periods:
+            tracker.done(periods[key])
+
     with _blas_env(), contextlib.ExitStack() as stack:
-        for cb in callbacks:
-            stack.enter_context(cb)
+        stack.enter_context(Callback(posttask=finished))
         if scheduler == "processes":  # pool workers die with this process (campaign.workers)
             stack.enter_context(dask.config.set({
                 "multiprocessing.context": "spawn",
@@ -334,13 +337,21 @@ def execute(tasks, scheduler, workers, progress, connect_timeout,
 
     ``scheduler`` is a dask scheduler name, ``"local"``, an address or a ``distributed.Client``
     (see :mod:`lidarcal.campaign.run`); faults end with one :class:`~lidarcal.errors.ComputeError`.
+    ``progress`` (:meth:`Progress.of`) reports the periods of the finished chunks.
     """
     if not tasks:
         return
+    progress = Progress.of(progress)
+    with progress.tracker(sum(_periods(payload) for _, payload in tasks), len(tasks)) as tracker:
+        yield from _execute(tasks, scheduler, workers, tracker, connect_timeout, worker_timeout)
+
+
+def _execute(tasks, scheduler, workers, tracker: Tracker, connect_timeout,
+             worker_timeout) -> Iterator[tuple[str, dict]]:
     if scheduler is None:
         scheduler = "processes"
     if hasattr(scheduler, "submit"):  # a distributed.Client
-        yield from _run_distributed(scheduler, tasks, progress, worker_timeout)
+        yield from _run_distributed(scheduler, tasks, tracker, worker_timeout)
         return
     if not isinstance(scheduler, str):
         raise InputError(
@@ -349,7 +360,7 @@ def execute(tasks, scheduler, workers, progress, connect_timeout,
     if "://" in scheduler:
         client = _connect(scheduler, connect_timeout)
         try:
-            yield from _run_distributed(client, tasks, progress, worker_timeout)
+            yield from _run_distributed(client, tasks, tracker, worker_timeout)
         finally:
             _close_quietly(client, connect_timeout)
         return
@@ -361,11 +372,11 @@ def execute(tasks, scheduler, workers, progress, connect_timeout,
             local_cluster(n, dashboard_address=None) as cluster,
             Client(cluster, set_as_default=False) as client,
         ):
-            yield from _run_distributed(client, tasks, progress, worker_timeout)
+            yield from _run_distributed(client, tasks, tracker, worker_timeout)
         return
     if scheduler not in ("processes", "threads", "synchronous", "sync", "single-threaded"):
         raise InputError(
             f"unknown scheduler {scheduler!r}; use 'processes', 'threads', 'synchronous', 'local', "
             f"an address such as 'tcp://127.0.0.1:8786', or a distributed.Client"
         )
-    yield from _run_local(tasks, scheduler, workers, progress)
+    yield from _run_local(tasks, scheduler, workers, tracker)

@@ -14,14 +14,14 @@ import argparse
 from lidarcal.bench.ingest import ingest
 from lidarcal.bench.repeatability import repeatability
 from lidarcal.bench.simulator import BenchRun, simulate_run
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import add_output_options, finite, nonnegative, nonnegative_int, positive
 from lidarcal.io import check_writable, write_artefact
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``bench`` command and its subcommands."""
-    p = sub.add_parser("bench", help="fiber-optic bench (SAFO-MV): simulate, ingest, repeatability",
+    p = sub.add_parser("bench", help=COMMANDS["bench"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.set_defaults(handler=lambda args: (p.print_help(), 1)[1])
     bsub = p.add_subparsers(dest="bench_command", metavar="SUBCOMMAND")

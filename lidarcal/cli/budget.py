@@ -13,7 +13,7 @@ import argparse
 import numpy as np
 
 from lidarcal.analysis.budget import budget
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_certification_options,
     add_monte_carlo_options,
@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``budget`` subcommand."""
     p = sub.add_parser(
         "budget",
-        help="uncertainty budget per height and wind-speed bin",
+        help=COMMANDS["budget"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

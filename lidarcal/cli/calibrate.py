@@ -1,9 +1,10 @@
 """``lidarcal calibrate [-o OUTDIR]``: the whole calibration, bench to certificate.
 
 With no options it runs on the embedded sample data (a simulated SAFO-MV bench run, an
-example pulse, and three months of a real met-mast record carried to 40–200 m), writing
-every artefact into OUTDIR and printing where each went.  Any input can be replaced by your
-own file.
+example pulse, and two weeks of a real met-mast record carried to 40–200 m; --periods 0 takes
+all three months of it), writing every artefact into OUTDIR and printing where each went.  Any
+input can be replaced by your own file; every input is read and checked before anything is
+written.
 
 Examples::
 
@@ -11,8 +12,11 @@ Examples::
     lidarcal calibrate -o run1 --periods 500        # quicker
     lidarcal calibrate --rtd rtd.csv --control control_log.csv --conditions site.nc -o run2
 
-A run that is killed during the simulation keeps its finished chunks in
-OUTDIR/.simulation-chunks; run the same command again with --overwrite to resume.
+Without a terminal (under tee, nohup, a batch job) it prints a progress line every 30 s
+(--progress-interval): periods done, chunks, time left.  A run that is interrupted (Ctrl-C) or
+killed during the simulation keeps its finished chunks in OUTDIR/.simulation-chunks; Ctrl-C
+prints how many and the command that resumes (the same with --overwrite), and the resumed run
+says how many it reused.
 
 The Monte Carlo states its own accuracy (JCGM 101 7.9): replicas of the periods of the certified
 bins that have not settled are simulated with independent seeds until every certified value is
@@ -23,9 +27,11 @@ says which values did not settle.
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from lidarcal.admin import status_line
 from lidarcal.campaign.model_form import DEFAULT_PER_BIN
+from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import (
     add_admin_options,
     add_certification_options,
@@ -39,9 +45,9 @@ from lidarcal.cli.options import (
     add_reference_turbulence_option,
     add_seed_option,
     admin_from_args,
-    progress_enabled,
+    progress_of,
 )
-from lidarcal.pipeline import DEFAULT_HEIGHTS, CalibrationConfig, calibrate
+from lidarcal.pipeline import CHUNK_DIR, DEFAULT_HEIGHTS, CalibrationConfig, calibrate
 
 
 def _periods(text: str) -> int:
@@ -67,7 +73,7 @@ def _model_form_periods(text: str) -> int:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``calibrate`` subcommand."""
-    p = sub.add_parser("calibrate", help="run the whole calibration (default: embedded sample data)",
+    p = sub.add_parser("calibrate", help=COMMANDS["calibrate"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("-o", "--outdir", default="lidarcal-output", help="output directory (default %(default)s)")
     p.add_argument("--rtd", metavar="RTD.csv", help="bench real-time data (default: sample run)")
@@ -105,7 +111,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sign", metavar="KEY",
                    help="sign the certificate's seal with this Ed25519 private key (lidarcal keygen); "
                    "without it the certificate is sealed for integrity only")
-    p.set_defaults(handler=run)
+    p.set_defaults(handler=run, resume=lambda args: (Path(args.outdir) / CHUNK_DIR, "--overwrite"))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -123,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         terms={**({} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms}),
                **({"paper_table4": True} if args.table4 == "printed" else {})},
     )
-    result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args),
+    result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_of(args),
                        signing_key=args.sign, admin=admin_from_args(args), demonstration=args.demonstration)
     print(f"done: {status_line(result.datasets['certificate'].attrs)}")
     print(f"done: certificate {result.paths['certificate']}, report {result.paths['report']}, "

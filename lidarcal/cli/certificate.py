@@ -17,7 +17,7 @@ from pathlib import Path
 
 from lidarcal.admin import status_line
 from lidarcal.certificate import make_certificate
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import add_admin_options, add_output_options, admin_from_args
 from lidarcal.document import seal_statement
 from lidarcal.errors import DiskFullError, LidarcalError
@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``certificate`` subcommand."""
     p = sub.add_parser(
         "certificate",
-        help="bundle and seal a calibration certificate",
+        help=COMMANDS["certificate"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -90,7 +90,8 @@ def run(args: argparse.Namespace) -> int:
     if args.report:  # the certificate as sealed just now: the document states its seal
         try:
             written = write_report(args.report, certificate=cert, overwrite=args.overwrite,
-                                   seal=seal_statement(fingerprint(key) if key else None))
+                                   seal=seal_statement(fingerprint(key) if key else None, Path(path).name,
+                                                       f"{args.sign}.pub" if key else None))
         except BaseException as exc:  # the set is whole or absent: withdraw the certificate too
             path.unlink(missing_ok=True)
             if isinstance(exc, LidarcalError | OSError):

@@ -12,7 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_lidar_options,
     add_los_noise_option,
@@ -23,7 +23,7 @@ from lidarcal.cli.options import (
     nonnegative,
     positive_int,
     probability,
-    progress_enabled,
+    progress_of,
     simulation_options,
 )
 from lidarcal.compare import (
@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``compare`` subcommand."""
     p = sub.add_parser(
         "compare",
-        help="the field campaign's slopes and budget beside the virtual lidar's",
+        help=COMMANDS["compare"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         base_seed=args.seed,
         min_periods=args.min_periods,
         los_noise_model=args.los_noise,
-        progress=progress_enabled(args),
+        progress=progress_of(args),
         simulate_options={k: v for k, v in opts.items() if v is not None},
         inputs=inputs,
     )

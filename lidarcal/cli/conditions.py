@@ -14,7 +14,7 @@ import warnings
 
 import numpy as np
 
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.field import add_conditions_from_sta
 from lidarcal.cli.options import add_output_options, nonnegative_int, number, positive, positive_int
 from lidarcal.conditions import load_conditions, sample_conditions_path, synthetic_conditions
@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``conditions`` subcommand and its actions."""
     p = sub.add_parser(
         "conditions",
-        help="check or generate 10-minute conditions inputs",
+        help=COMMANDS["conditions"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 
 from lidarcal.admin import load_admin, status_line
+from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import add_overwrite_option
 from lidarcal.dcc import DCC_SCHEMA_VERSION, dcc_attributes, write_dcc
 from lidarcal.errors import InputError
@@ -35,8 +36,7 @@ from lidarcal.provenance import sha256
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``dcc`` subcommand."""
-    p = sub.add_parser("dcc", help="export a certificate as a PTB Digital Calibration Certificate (XML), "
-                       "signed with an X.509 key on request; check a signed one",
+    p = sub.add_parser("dcc", help=COMMANDS["dcc"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("certificate", metavar="CERT.nc", nargs="?",
                    help="sealed netCDF certificate (with --verify: the one the XML should name)")

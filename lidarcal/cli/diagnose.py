@@ -13,7 +13,7 @@ import argparse
 import json
 import sys
 
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_heights_option,
     add_lidar_options,
@@ -26,7 +26,7 @@ from lidarcal.cli.options import (
     number,
     positive_int,
     probability,
-    progress_enabled,
+    progress_of,
     simulation_options,
 )
 from lidarcal.conditions import load_conditions
@@ -43,7 +43,7 @@ from lidarcal.io import check_writable, open_artefact, write_artefact
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``diagnose`` and ``diagnose-generate`` subcommands."""
-    p = sub.add_parser("diagnose", help="name the model effect that explains a field campaign's gap",
+    p = sub.add_parser("diagnose", help=COMMANDS["diagnose"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("field", metavar="FIELD.nc", help="field_campaign netCDF (docs/contracts.md)")
     add_lidar_options(p, default="the field file's lidar_* attributes")
@@ -75,7 +75,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     _sim_args(p)
     p.set_defaults(handler=run)
 
-    g = sub.add_parser("diagnose-generate", help="write a synthetic field campaign with a hidden effect",
+    g = sub.add_parser("diagnose-generate", help=COMMANDS["diagnose-generate"].help,
                        description=_generate.__doc__)
     g.add_argument("--effect", default="none", choices=list(EFFECTS), help="hidden catalogue effect")
     g.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
@@ -118,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
         min_bin_count=args.min_bin_count, alpha=args.alpha, bic_threshold=args.bic_threshold,
         tolerance=args.tolerance, n_bootstrap=args.bootstrap, model_uncertainty=args.model_uncertainty,
         min_wind_speed=args.min_wind_speed,
-        simulate_options=_sim_options(args), progress=progress_enabled(args))
+        simulate_options=_sim_options(args), progress=progress_of(args))
     inputs = {"field": args.field, **({"cube": args.cube} if args.cube else {}),
               **({"rwf": args.rwf} if args.rwf else {})}
     call = command_line(args)
@@ -160,7 +160,7 @@ def _generate(args: argparse.Namespace) -> int:
     else:
         cond = hidden_effect_conditions(args.periods, args.heights, args.conditions_seed)
     ds = generate_field_campaign(cond, args.effect, _parse_params(args.param), base_seed=args.seed,
-                                 simulate_options={**_sim_options(args), "progress": progress_enabled(args)},
+                                 simulate_options={**_sim_options(args), "progress": progress_of(args)},
                                  call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: {ds.sizes['time']} periods x {ds.sizes['height']} heights, hidden effect "

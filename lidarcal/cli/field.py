@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import argparse
 
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import add_contact_options, number
 from lidarcal.conditions.mast import parse_height_columns, sta_field_campaign
 from lidarcal.conditions.sta import sta_conditions
@@ -46,7 +46,7 @@ def add_conditions_from_sta(acts: argparse._SubParsersAction) -> None:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``field`` subcommand and its ``from-sta`` action."""
-    p = sub.add_parser("field", help="build a field_campaign from lidar .sta files and a mast record",
+    p = sub.add_parser("field", help=COMMANDS["field"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     acts = p.add_subparsers(dest="action", metavar="ACTION")
     f = acts.add_parser("from-sta", help="lidar .sta files + mast CSV -> field_campaign",

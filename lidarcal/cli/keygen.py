@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 
+from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import add_output_options
 from lidarcal.signing import generate_keypair
 
@@ -24,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``keygen`` subcommand."""
     p = sub.add_parser(
         "keygen",
-        help="new Ed25519 key pair for signing certificates (KEY, KEY.pub)",
+        help=COMMANDS["keygen"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

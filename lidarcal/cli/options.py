@@ -5,7 +5,9 @@ configures the virtual lidar takes the same ``--cube``/``--rwf``, and so on.  Ea
 here adds one argparse group to a subcommand's parser; the ``*_from_args`` helpers turn the
 parsed options back into library keyword arguments.
 
-* progress: on when stderr is a terminal; ``--progress`` / ``--no-progress`` force it.
+* progress: a live bar when stderr is a terminal, else a line every ``--progress-interval``
+  seconds (default 30: periods done, time left); ``--progress`` forces the bar, ``--no-progress``
+  silences both (:class:`lidarcal.campaign.progress.Progress`).
 * heights: ``--heights M [M ...]`` (metres).
 * seed: ``--seed N``, default :data:`lidarcal.campaign.DEFAULT_BASE_SEED` (docs/seeds.md).
 * numbers are checked at parse time by the ``type`` functions below (:func:`number`,
@@ -24,11 +26,7 @@ from typing import Any
 import numpy as np
 
 from lidarcal.admin import load_admin, merge_admin
-from lidarcal.campaign import DEFAULT_BASE_SEED
-from lidarcal.lidar.model import REFERENCE_TURBULENCE
-from lidarcal.lidar.noise import LOS_NOISE_MODELS
-from lidarcal.provenance import USER_ATTRIBUTES
-from lidarcal.units import ureg
+from lidarcal.provenance import ACDD_SPELLINGS, USER_ATTRIBUTES
 
 __all__ = [
     "number",
@@ -51,7 +49,7 @@ __all__ = [
     "add_overwrite_option",
     "add_admin_options",
     "admin_from_args",
-    "progress_enabled",
+    "progress_of",
     "simulation_options",
 ]
 
@@ -156,6 +154,8 @@ def positive_quantity(option: str, unit: str | None = None) -> Callable[[str], s
     """
 
     def parse(text: str) -> str:
+        from lidarcal.units import ureg  # deferred: the unit registry, built when a quantity is given
+
         try:
             q = ureg.Quantity(text.strip())
             magnitude = float(q.to(unit).magnitude) if unit and not q.dimensionless else float(q.magnitude)
@@ -201,6 +201,8 @@ def add_los_noise_option(parser: argparse.ArgumentParser | argparse._ArgumentGro
     Unset (``None``) means the mixture when the cube has measured residuals, Gaussian otherwise
     (``LidarModel.from_artefacts``).
     """
+    from lidarcal.lidar.noise import LOS_NOISE_MODELS  # deferred: light CLI start
+
     parser.add_argument("--los-noise", choices=LOS_NOISE_MODELS, default=None,
                         help="LOS error of the bench-calibrated lidar: 'mixture' bad estimates at the rate "
                         "p_bad(CNR) fitted to the bench, otherwise a good residual of the bench bin; "
@@ -215,6 +217,8 @@ def add_reference_turbulence_option(parser: argparse.ArgumentParser | argparse._
     Unset (``None``) keeps the model's own value (the default ``pinned_u`` for a new model, the
     recorded one for ``--model``).
     """
+    from lidarcal.lidar.model import REFERENCE_TURBULENCE  # deferred: light CLI start
+
     parser.add_argument("--reference-turbulence", choices=REFERENCE_TURBULENCE, default=None,
                         help="what the virtual reference's turbulence is conditioned on: pinned_u (its "
                         "realised sigma_u is the period's TI*U, the rest Gaussian through the RWF; the "
@@ -225,20 +229,40 @@ def add_reference_turbulence_option(parser: argparse.ArgumentParser | argparse._
 
 
 def add_progress_option(parser: argparse.ArgumentParser) -> None:
-    """``--progress`` / ``--no-progress``; unset means "when stderr is a terminal"."""
+    """``--progress`` / ``--no-progress`` and ``--progress-interval S`` (see :func:`progress_of`)."""
+    from lidarcal.campaign.progress import PROGRESS_INTERVAL  # deferred: light CLI start
+
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                        help="progress bar on stderr (default: when stderr is a terminal)")
+                        help="progress on stderr: --progress a live bar, --no-progress nothing (default: "
+                        "the bar when stderr is a terminal, else a line every --progress-interval seconds "
+                        "with the periods done and the time left)")
+    parser.add_argument("--progress-interval", type=positive("--progress-interval"), metavar="S",
+                        default=PROGRESS_INTERVAL,
+                        help="seconds between two progress lines (default %(default)g)")
 
 
-def progress_enabled(args: argparse.Namespace) -> bool:
-    """Return the ``--progress`` choice, or whether stderr is a terminal when none was given."""
+def progress_of(args: argparse.Namespace) -> Any:
+    """Return the :class:`~lidarcal.campaign.progress.Progress` the options ask for.
+
+    ``--progress``: a bar; ``--no-progress``: nothing; neither: a bar when stderr is a terminal,
+    else a line every ``--progress-interval`` seconds.
+    """
+    from lidarcal.campaign.progress import PROGRESS_INTERVAL, Progress  # deferred: light CLI start
+
     choice = getattr(args, "progress", None)
-    return sys.stderr.isatty() if choice is None else bool(choice)
+    interval = float(getattr(args, "progress_interval", PROGRESS_INTERVAL))
+    if choice is None:
+        return Progress("bar" if sys.stderr.isatty() else "lines", interval)
+    return Progress("bar" if choice else "off", interval)
 
 
-def add_seed_option(parser: argparse.ArgumentParser, *, default: int = DEFAULT_BASE_SEED,
+def add_seed_option(parser: argparse.ArgumentParser, *, default: int | None = None,
                     help: str = "base seed of the Monte Carlo; see docs/seeds.md") -> None:
-    """``--seed N`` with the project's base seed as default."""
+    """``--seed N``; ``default`` None is the project's base seed."""
+    if default is None:
+        from lidarcal.campaign import DEFAULT_BASE_SEED  # deferred: light CLI start
+
+        default = DEFAULT_BASE_SEED
     parser.add_argument("--seed", type=nonnegative_int("--seed"), default=default, metavar="N",
                         help=f"{help} (default %(default)s)")
 
@@ -291,6 +315,7 @@ class _AttributeAction(argparse.Action):
         name = name.strip()
         if not sep or not value.strip():
             parser.error(f"{option_string}: expected NAME=VALUE; found {values!r}")
+        name = ACDD_SPELLINGS.get(name, name)  # acknowledgment (ACDD-1.1) is written acknowledgement
         if name not in USER_ATTRIBUTES:
             parser.error(f"{option_string}: {name!r} is not an attribute the user sets; "
                          f"expected one of {', '.join(USER_ATTRIBUTES)}")
@@ -313,7 +338,8 @@ def add_contact_options(parser: argparse.ArgumentParser) -> None:
                              f"(default: ${env})") if site else f"{attr} attribute (default: ${env})")
     g.add_argument("--attribute", action=_AttributeAction, metavar="NAME=VALUE",
                    help="a further ACDD attribute only you know, recorded in every file written "
-                        f"(repeatable; NAME one of {', '.join(USER_ATTRIBUTES)})")
+                        f"(repeatable; NAME one of {', '.join(USER_ATTRIBUTES)}; ACDD-1.3 spellings: "
+                        "acknowledgment is accepted and written acknowledgement)")
 
 
 #: option -> administrative attribute (lidarcal.admin; docs/certificate.md)
@@ -371,7 +397,7 @@ def add_overwrite_option(parser: argparse.ArgumentParser) -> None:
 def simulation_options(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword arguments of :func:`lidarcal.campaign.simulate_campaign` from the shared options."""
     opts: dict[str, Any] = {"chunk": args.chunk, "scheduler": args.scheduler, "workers": args.workers,
-                            "progress": progress_enabled(args)}
+                            "progress": progress_of(args)}
     if getattr(args, "workdir", None) is not None:
         opts["workdir"] = args.workdir
     return opts

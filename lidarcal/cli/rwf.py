@@ -13,7 +13,7 @@ import argparse
 
 import numpy as np
 
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import add_output_options, finite, positive
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.rwf import range_weighting_function
@@ -22,7 +22,7 @@ from lidarcal.units import Q_
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``rwf`` subcommand."""
-    p = sub.add_parser("rwf", help="range-weighting function and zero distance (Eqs. 1-2)",
+    p = sub.add_parser("rwf", help=COMMANDS["rwf"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     pulse = p.add_argument_group("pulse")
     pulse.add_argument("--pulse-length", type=positive("--pulse-length"), default=25.0, metavar="M",

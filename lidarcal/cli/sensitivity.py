@@ -13,7 +13,7 @@ import numpy as np
 
 from lidarcal.analysis.budget import DEFAULT_MIN_PERIODS
 from lidarcal.analysis.sensitivity import sensitivity
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import add_output_options, nonnegative, positive, positive_int, positive_quantity
 from lidarcal.conditions.variables import CANONICAL_UNITS
 from lidarcal.errors import InputError
@@ -31,7 +31,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``sensitivity`` subcommand."""
     p = sub.add_parser(
         "sensitivity",
-        help="environmental sensitivities (IEC 50-2, Eqs. 12-13)",
+        help=COMMANDS["sensitivity"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

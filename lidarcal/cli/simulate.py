@@ -24,7 +24,7 @@ import os
 
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.scheduler import WORKER_TIMEOUT
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_certification_options,
     add_heights_option,
@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``simulate`` subcommand."""
     p = sub.add_parser(
         "simulate",
-        help="simulate a campaign of 10-minute periods (virtual lidar vs reference)",
+        help=COMMANDS["simulate"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -100,7 +100,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_monte_carlo_options(p, max_replicas=1)
     add_progress_option(p)
     add_output_options(p, "SIM.nc")
-    p.set_defaults(handler=run)
+    p.set_defaults(handler=run, resume=lambda args: (args.workdir, None))
 
 
 def run(args: argparse.Namespace) -> int:
@@ -126,12 +126,14 @@ def run(args: argparse.Namespace) -> int:
     if args.reference_turbulence:
         model = model.replace(reference_turbulence=args.reference_turbulence)
     base_seed = args.seed
+    opts = simulation_options(args)  # one Progress for replica 0 and the replicas: the dashboard said once
+    first = opts["progress"].labelled("replica 0" if args.max_replicas > 1 else "simulation")
     ds = simulate_campaign(
         conditions,
         model,
         heights=args.heights,
         base_seed=base_seed,
-        **simulation_options(args),
+        **{**opts, "progress": first},
         los_periods=args.los_periods,
         duration=args.duration,
         connect_timeout=args.timeout,
@@ -145,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
         ds, bud = adaptive_replicas(
             ds, conditions, model, significant_digits=args.significant_digits, max_replicas=args.max_replicas,
             min_periods=args.min_periods, certified_range=tuple(args.certified_range), base_seed=base_seed,
-            duration=args.duration, **simulation_options(args))
+            duration=args.duration, **opts)
         print(f"Monte Carlo: {bud.attrs['monte_carlo_replicas']} replica(s), {ds.sizes.get('trial', 0)} "
               f"further trials; {int((bud.numerical_flag == 1).sum())} certified value(s) not settled to "
               f"{args.significant_digits} significant digits")

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_output_options,
     add_parallel_options,
@@ -35,7 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``smc`` subcommand."""
     p = sub.add_parser(
         "smc",
-        help="the certificate applied to a measurement campaign: per-period uncertainty",
+        help=COMMANDS["smc"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )

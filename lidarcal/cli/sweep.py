@@ -12,7 +12,7 @@ import argparse
 
 import numpy as np
 
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_heights_option,
     add_lidar_options,
@@ -55,7 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``sweep`` subcommand."""
     p = sub.add_parser(
         "sweep",
-        help="maximum deviation and slopes over a full grid of conditions",
+        help=COMMANDS["sweep"].help,
         description=__doc__,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -77,7 +77,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_progress_option(p)
     p.add_argument("--records-output", metavar="SIM.nc", help="also write the simulated records")
     add_output_options(p, "SWEEP.nc")
-    p.set_defaults(handler=run)
+    p.set_defaults(handler=run, resume=lambda args: (args.workdir, None))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -30,6 +30,7 @@ from pathlib import Path
 
 from lidarcal.admin import status_line
 from lidarcal.certificate import result_table
+from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import add_overwrite_option
 from lidarcal.io import atomic_path, check_writable, open_artefact
 from lidarcal.seal import invalid_seal_banner, require_valid_seal
@@ -40,7 +41,7 @@ _SUFFIXES = {".csv": "csv", ".md": "md", ".markdown": "md", ".html": "html", ".h
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``table`` subcommand."""
-    p = sub.add_parser("table", help="IEC-style result table of a certificate or an smc artefact",
+    p = sub.add_parser("table", help=COMMANDS["table"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("certificate", metavar="CERT.nc")
     p.add_argument("--format", choices=FORMATS,

@@ -17,7 +17,7 @@ import argparse
 import numpy as np
 
 from lidarcal.analysis.terms import PAPER_INPUTS, format_table, repeatability_inputs, uncertainty_terms
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_output_options,
     finite,
@@ -34,7 +34,7 @@ from lidarcal.units import Q_
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``terms`` subcommand."""
-    p = sub.add_parser("terms", help="non-simulated uncertainty terms (Eqs. 6-11, Table 4)",
+    p = sub.add_parser("terms", help=COMMANDS["terms"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--repeatability", metavar="REP.nc",
                    help="repeatability artefact giving s-bar_s, s-bar_delta and n_runs")

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from lidarcal.cli import command_line
+from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import add_output_options, nonnegative_int, number, positive, positive_int
 from lidarcal.io import check_writable, write_artefact
 from lidarcal.lidar import DEFAULT_RWF_FWHM, LidarModel
@@ -24,7 +24,7 @@ from lidarcal.units import Q_
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``turbulence`` subcommand."""
-    p = sub.add_parser("turbulence", help="turbulence at a virtual lidar's sample points",
+    p = sub.add_parser("turbulence", help=COMMANDS["turbulence"].help,
                        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--wind-speed", type=positive("--wind-speed"), required=True, metavar="M_S",
                    help="mean wind speed, m/s")

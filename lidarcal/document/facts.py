@@ -35,6 +35,8 @@ __all__ = [
     "certificate_id",
     "headline_text",
     "certified_grid",
+    "certified_rows",
+    "extent_text",
     "model_form_grid",
 ]
 
@@ -77,13 +79,22 @@ def stated(attrs: Mapping[str, Any], *names: str) -> str:
     return NOT_STATED
 
 
-def seal_statement(signed_by: str | None) -> str:
-    """Describe the seal of a certificate signed by key ``signed_by`` (fingerprint), or unsigned."""
+def seal_statement(signed_by: str | None, certificate: str | None = None,
+                   public_key: str | None = None) -> str:
+    """Describe the seal of a certificate signed by key ``signed_by`` (fingerprint), or unsigned.
+
+    ``certificate`` (the file's name) and ``public_key`` (the key file) make the command that
+    checks it; unknown, the sentence says which file to give instead of a placeholder.
+    """
+    check = f"check with lidarcal verify {certificate}" if certificate else \
+        "check its file with lidarcal verify"
     if signed_by:
-        return f"signed (Ed25519) by key {signed_by}; check with lidarcal verify CERT.nc --public-key KEY.pub"
+        key = f" --public-key {public_key}" if public_key else \
+            " and --public-key with the signer's public key"
+        return f"signed (Ed25519) by key {signed_by}; {check}{key}"
     return (
         "sealed, unsigned: SHA-256 integrity record only (whoever can rewrite the file can "
-        "re-seal it); check with lidarcal verify CERT.nc"
+        f"re-seal it); {check}"
     )
 
 
@@ -91,12 +102,13 @@ def signature_status(attrs: Mapping[str, Any], seal: str | None = None) -> str:
     """Say what the certificate's seal and signature attributes say (not a verification).
 
     ``seal`` (:func:`seal_statement`) stands for a certificate not yet written, whose seal
-    and signature are added when it is.
+    and signature are added when it is.  A certificate read from a file is named by it.
     """
+    name = attrs.get("lidarcal_source_file")
     if SIGNATURE_ATTR in attrs:
-        return seal_statement(str(attrs.get(SIGNATURE_KEY_ATTR, NOT_STATED)))
+        return seal_statement(str(attrs.get(SIGNATURE_KEY_ATTR, NOT_STATED)), name)
     if INTEGRITY_ATTR in attrs:
-        return seal_statement(None)
+        return seal_statement(None, name)
     return seal or "not sealed (this document was made from a certificate not yet written)"
 
 
@@ -199,6 +211,45 @@ def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT
                  f"{int(budget.attrs['monte_carlo_significant_digits'])} significant digits within "
                  f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas.")
     return text
+
+
+def certified_rows(g: Mapping[str, Any]) -> np.ndarray:
+    """Return the wind-speed bins (indices) the certified result lists.
+
+    The certified range, cut to the bins certified at some height (empty when nothing is).
+    """
+    rows = np.flatnonzero(g["inside"])
+    some = np.flatnonzero(g["certified"][rows].any(axis=1))
+    return rows[some[0]:some[-1] + 1] if some.size else rows[:0]
+
+
+def extent_text(budget: xr.Dataset, g: Mapping[str, Any] | None = None) -> str | None:
+    """Say where the certified values stop inside the certified range, and why; None when they fill it.
+
+    The range is the budget's own (``certified_range_m_s``): bin centres beyond the budget's
+    wind-speed axis had no period at all.
+    """
+    g = certified_grid(budget) if g is None else g
+    shown = certified_rows(g)
+    if not shown.size:
+        return None
+    lo, hi = (float(v) for v in np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE)))
+    ws = g["wind_speed"]
+    step = float(np.median(np.diff(ws))) if ws.size > 1 else 0.0
+    first, last = float(ws[shown[0]]), float(ws[shown[-1]])
+    below, above = first - step / 2 > lo, last + step / 2 < hi  # a whole bin of the range left out
+    if not (below or above):
+        return None
+    meanings = dict(zip(np.atleast_1d(budget["bin_flag"].attrs.get("flag_values", [])).tolist(),
+                        str(budget["bin_flag"].attrs.get("flag_meanings", "")).split(), strict=False))
+    beyond = np.setdiff1d(np.flatnonzero(g["inside"]), shown)
+    found = {meanings.get(int(f)) for f in np.asarray(g["flag"])[beyond].ravel()}
+    thin = found <= {"too_few_periods", "empty"}
+    sides = " and ".join([f"below {fmt(first)} m/s"] * below + [f"above {fmt(last)} m/s"] * above)
+    why = (f"no bin has the {int(budget.attrs['min_periods'])} distinct periods a certified bin needs, at "
+           "any height" if thin and "min_periods" in budget.attrs else "no bin is certified at any height")
+    return (f"The certified values span {fmt(first)} to {fmt(last)} m/s of the {fmt(lo)} to {fmt(hi)} m/s "
+            f"range: {sides} {why}.")
 
 
 def certified_grid(

@@ -20,7 +20,7 @@ import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
 from lidarcal.certificate import components, extract_component
-from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, fmt, units_suffix
+from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, certified_rows, fmt, units_suffix
 
 __all__ = [
     "A4",
@@ -66,7 +66,7 @@ def _axes(
     ncols: int,
     *,
     top: float = 0.9,
-    bottom: float = 0.08,
+    bottom: float = 0.1,
     left: float = 0.1,
     right: float = 0.96,
     hspace: float = 0.55,
@@ -85,9 +85,12 @@ def _axes(
 
 #: The documents' matplotlib style: sizes and grid from rcParams (``ax.tick_params`` after
 #: the fact re-styles every tick, which was a good part of the PDF's cost), TrueType fonts
-#: (type 42) so that the PDF's text can be searched and extracted.
+#: (type 42) where a page needs them (:mod:`lidarcal.document.pages`), so that the PDF's text
+#: can be searched and extracted, and ASCII minus signs in tick labels (the standard PDF fonts'
+#: encoding has no U+2212).
 STYLE = {
     "pdf.fonttype": 42,
+    "axes.unicode_minus": False,
     "font.size": FONT,
     "axes.titlesize": FONT + 1,
     "axes.labelsize": FONT,
@@ -101,38 +104,52 @@ STYLE = {
 
 
 def _small(ax, title: str, xlabel: str, ylabel: str) -> None:
-    ax.set_title(title)
+    # a title at a fixed height: matplotlib otherwise measures the axis's tick labels to place it
+    # (a tenth of a page's cost); no axis here has ticks on top
+    ax.set_title(title, y=1.0, pad=4)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     from matplotlib.ticker import MaxNLocator
 
     for axis in (ax.xaxis, ax.yaxis):  # fewer ticks: each tick label is a text to lay out
         if isinstance(axis.get_major_locator(), MaxNLocator):
-            axis.get_major_locator().set_params(nbins=6)
+            axis.get_major_locator().set_params(nbins=4)
+
+
+def _extent(g: Mapping[str, Any], wind_speeds: tuple[float, float], step: float) -> tuple[float, float]:
+    """Return the x limits of the certified values' bins (the range when none), half a bin beyond."""
+    rows = certified_rows(g)
+    lo, hi = (g["wind_speed"][rows[0]], g["wind_speed"][rows[-1]]) if rows.size else wind_speeds
+    return float(lo) - step / 2, float(hi) + step / 2
 
 
 def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE) -> None:
-    """U (k = 2) per height on the certified range; bins outside it, or thin, in a panel of their own."""
+    """U (k = 2) per height on the certified bins, ± numerical tolerance; the others in their own panel."""
     g = certified_grid(budget, wind_speeds)
     k = float(budget.attrs.get("coverage_factor", 2.0))
-    ws, val, cert = g["wind_speed"], g["value"], g["certified"]
-    top, bottom = _axes(fig, 2, 1, height_ratios=[2.2, 1], top=0.9, bottom=0.07, hspace=0.45, right=0.8)
+    ws, val, cert, tol = g["wind_speed"], g["value"], g["certified"], g["tolerance"]
+    top, bottom = _axes(fig, 2, 1, height_ratios=[2.2, 1], top=0.9, bottom=0.1, hspace=0.45, right=0.8)
     step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
     for j, h in enumerate(g["height"]):
         c = _COLORS[j % len(_COLORS)]
-        top.plot(
-            ws, np.where(cert[:, j], val[:, j], np.nan), "-o", color=c, ms=3, lw=1.5, label=f"{fmt(h)} m"
-        )
+        y = np.where(cert[:, j], val[:, j], np.nan)
+        if tol is not None:  # JCGM 101 7.9: how far each value has settled
+            top.errorbar(ws, y, yerr=np.where(cert[:, j], tol[:, j], np.nan), fmt="-o", color=c, ms=3, lw=1.5,
+                         elinewidth=1.2, capsize=2.5, label=f"{fmt(h)} m")
+        else:
+            top.plot(ws, y, "-o", color=c, ms=3, lw=1.5, label=f"{fmt(h)} m")
         apart = ~cert[:, j] & np.isfinite(val[:, j])
         bottom.plot(ws[apart], val[apart, j], "x", color=c, ms=4, label=f"{fmt(h)} m")
-    certified_values = val[cert]
-    ymax = float(certified_values.max()) * 1.15 if certified_values.size else 1.0
-    top.set_xlim(wind_speeds[0] - step / 2, wind_speeds[1] + step / 2)
-    top.set_ylim(0, ymax)
+    certified_values = val[cert] + (np.nan_to_num(tol[cert]) if tol is not None else 0)  # with its bar
+    finite = certified_values[np.isfinite(certified_values)]
+    top.set_xlim(*_extent(g, wind_speeds, step))
+    top.set_ylim(0, float(finite.max()) * 1.15 if finite.size else 1.0)
+    lo, hi = _extent(g, wind_speeds, step)
+    bars = "; bars: ± numerical tolerance (Monte Carlo)" if tol is not None else ""
     _small(
         top,
-        f"Relative expanded uncertainty (k = {k:g}), certified bins "
-        f"({wind_speeds[0]:g} to {wind_speeds[1]:g} m/s, enough periods)",
+        f"Relative expanded uncertainty (k = {k:g}) of the certified bins ({fmt(lo + step / 2)} to "
+        f"{fmt(hi - step / 2)} m/s{bars})",
         f"reference wind speed bin{units_suffix(budget.wind_speed)}",
         f"U, k = {k:g} (%)",
     )
@@ -140,11 +157,15 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFA
         fontsize=FONT - 1, loc="upper left", bbox_to_anchor=(1.01, 1), title="height", title_fontsize=FONT
     )
     if bottom.lines and any(line.get_xdata().size for line in bottom.lines):
+        from matplotlib.ticker import NullLocator
+
         bottom.set_yscale("log")
+        bottom.yaxis.set_minor_locator(NullLocator())  # minor ticks of a log axis: dozens of texts
     bottom.axvspan(wind_speeds[0] - step / 2, wind_speeds[1] + step / 2, color="0.9", zorder=0)
     _small(
         bottom,
-        "Not certified: bins outside that range or with too few periods (own scale)",
+        f"Not certified: bins outside {wind_speeds[0]:g} to {wind_speeds[1]:g} m/s (grey: inside) or with "
+        "too few periods (own scale)",
         f"reference wind speed bin{units_suffix(budget.wind_speed)}",
         f"U, k = {k:g} (%)",
     )
@@ -153,42 +174,47 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFA
 def draw_contributors(
     fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE
 ) -> None:
-    """Standard-uncertainty contributors per height as grouped bars, certified bins only."""
+    """Standard-uncertainty contributors per height as grouped bars, certified bins only.
+
+    One full-width panel per height (two columns beyond eight heights), the bins of the
+    certified values only, so that each bar is a few points wide; one legend for the page,
+    whatever the panels hold.
+    """
+    from matplotlib.patches import Patch
+
     g = certified_grid(budget, wind_speeds)
     b = budget.transpose("wind_speed", "height", ...)
     names = [str(c).replace("_", " ") for c in b.contributor.values] + ["combined"]
     heights = g["height"]
-    ncol = 2
-    axes = _axes(fig, int(np.ceil(len(heights) / ncol)), ncol, sharey=True, top=0.88, bottom=0.06, hspace=0.6)
+    ncol = 1 if len(heights) <= 8 else 2
+    nrow = int(np.ceil(len(heights) / ncol))
+    axes = _axes(fig, nrow, ncol, sharex=True, sharey=True, top=0.9, bottom=0.1, hspace=0.25)
     ws = g["wind_speed"]
     step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
     width = 0.85 * step / len(names)
+    xlim = _extent(g, wind_speeds, 1.2 * step)
     contrib = b["relative_contribution"].transpose("wind_speed", "height", "contributor").values
     combined = b["relative_uncertainty"].values
+    points = axes[0].get_position().width * fig.get_figwidth() * 72 / (xlim[1] - xlim[0])  # points per m/s
     for j, (ax, h) in enumerate(zip(axes, heights, strict=False)):
         ok = g["certified"][:, j]
         values = np.concatenate([contrib[ok, j, :].T, combined[ok, j][None, :]])
-        span = (wind_speeds[1] - wind_speeds[0]) + 2 * step  # the x limits below
-        points = ax.get_position().width * fig.get_figwidth() * 72 / span  # points per m/s
-        for i, (name, v) in enumerate(zip(names, values, strict=True)):
+        for i, v in enumerate(values):
             # bars as one line collection each (butt caps, width in points): ~1,000 rectangles are slow
-            ax.vlines(
-                ws[ok] + (i - (len(names) - 1) / 2) * width,
-                0,
-                v,
-                label=name,
-                color=_COLORS[i % 10],
-                linewidth=points * width,
-                capstyle="butt",
-            )
-        ax.set_xlim(wind_speeds[0] - step, wind_speeds[1] + step)
-        _small(ax, f"{fmt(h)} m", f"wind speed bin{units_suffix(budget.wind_speed)}", "u (%)")
-    for ax in axes[len(heights) :]:
+            ax.vlines(ws[ok] + (i - (len(names) - 1) / 2) * width, 0, v, color=_COLORS[i % 10],
+                      linewidth=0.9 * points * width, capstyle="butt")
+        ax.set_ylabel(f"{fmt(h)} m\nu (%)")
+    axes[0].set_xlim(*xlim)
+    axes[0].set_ylim(bottom=0)
+    for ax in axes[len(heights):]:
         ax.set_visible(False)
-    axes[0].legend(fontsize=FONT - 1, ncol=min(len(names), 4), loc="lower left", bbox_to_anchor=(0, 1.25))
-    fig.suptitle(
-        "Relative standard uncertainty (k = 1) of each contributor, certified bins", fontsize=FONT + 3
-    )
+    for ax in axes[len(heights) - ncol:len(heights)]:
+        ax.set_xlabel(f"wind speed bin{units_suffix(budget.wind_speed)}")
+    fig.legend(handles=[Patch(color=_COLORS[i % 10], label=n) for i, n in enumerate(names)],
+               loc="upper center", bbox_to_anchor=(0.5, 0.945), ncol=min(len(names), 6), fontsize=FONT - 1,
+               frameon=False)
+    fig.suptitle("Relative standard uncertainty (k = 1) of each contributor, certified bins",
+                 fontsize=FONT + 3, y=0.985)
 
 
 def confidence_band(
@@ -249,7 +275,7 @@ def draw_sensitivity(fig, ds: xr.Dataset) -> None:
     readable = VARIABLE_NAMES.get(var, var.replace("_", " "))
     units = ds["slope"].attrs.get("units", "")
     heights = np.atleast_1d(ds.height.values)
-    axes = _axes(fig, int(np.ceil(len(heights) / 2)), 2, top=0.9, bottom=0.06, hspace=0.7)
+    axes = _axes(fig, int(np.ceil(len(heights) / 2)), 2, top=0.9, bottom=0.1, hspace=0.7)
     for ax, h in zip(axes, heights, strict=False):
         one = ds.sel(height=h)
         xb, yb, sem = bin_means(one)
@@ -265,7 +291,7 @@ def draw_sensitivity(fig, ds: xr.Dataset) -> None:
             f"{fmt(h)} m: m = {fmt(float(one['slope']))} ± {fmt(se)} {units}, "
             f"R = {fmt(float(one['correlation']), 2)}",
             f"{readable}{units_suffix(ds['bin'])}",
-            f"lidar − ref.{units_suffix(ds['mean_difference'])}",
+            f"lidar – ref.{units_suffix(ds['mean_difference'])}",
         )
     for ax in axes[len(heights) :]:
         ax.set_visible(False)
@@ -360,9 +386,11 @@ def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | Non
     da = cube[name].transpose("los", "cnr", "velocity")
     vmin, vmax = cube_colour_limits(da, drawn, symmetric)
     los = list(da.los.values)
-    axes = _axes(fig, int(np.ceil(len(los) / 2)), 2, top=0.87, bottom=0.06, right=0.86, hspace=0.6)
+    axes = _axes(fig, int(np.ceil(len(los) / 2)), 2, top=0.87, bottom=0.1, right=0.86, hspace=0.6,
+                 sharex=True, sharey=True)
     mesh = None
     for ax, one in zip(axes, los, strict=False):
+        ax.grid(False)  # a heatmap fills its axes: grid lines would cross the cells
         mesh = _heatmap(ax, da.sel(los=one), "RdBu_r" if symmetric else "viridis", vmin, vmax)
         if drawn is not None:
             for y in drawn:
@@ -380,7 +408,7 @@ def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | Non
             f"{name.replace('_', ' ')}{units_suffix(da)}", fontsize=FONT
         )
     what = (
-        "mean LOS velocity error (measured − programmed)"
+        "mean LOS velocity error (measured – programmed)"
         if symmetric
         else "standard deviation of the measured LOS velocity"
     )
@@ -415,7 +443,7 @@ def draw_rwf(fig, rwf: xr.Dataset) -> None:
     zd = float(rwf["zero_distance"]) if "zero_distance" in rwf else float("nan")
     norm, sl, pick = rwf_window(rwf)
     x = rwf["range_offset"].values[sl]
-    a, b = _axes(fig, 2, 1, top=0.92, bottom=0.07, right=0.78, hspace=0.35)
+    a, b = _axes(fig, 2, 1, top=0.92, bottom=0.1, right=0.78, hspace=0.35)
     a.plot(x, norm[sl], label="RWF")
     for name in ("pulse", "apodization"):
         if name in rwf:

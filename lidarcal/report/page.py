@@ -27,6 +27,8 @@ from lidarcal.document.facts import (
     certificate_facts,
     certificate_id,
     certified_grid,
+    certified_rows,
+    extent_text,
     fmt,
     headline_text,
     model_form_grid,
@@ -54,8 +56,11 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None
     if budget is not None:
         out.append(f'<p class="headline"><strong>{html.escape(headline_text(budget))}</strong></p>')
         g = certified_grid(budget)
+        extent = extent_text(budget, g)
+        if extent:
+            out.append(f"<p>{html.escape(extent)}</p>")
         rows = []
-        for i in np.flatnonzero(g["inside"]):
+        for i in certified_rows(g):
             cells = []
             for j in range(g["height"].size):
                 v = g["value"][i, j]
@@ -65,9 +70,16 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None
                 cells.append(text)
             rows.append([fmt(g["wind_speed"][i]), *cells])
         k = float(budget.attrs.get("coverage_factor", 2.0))
-        out.append(html_table(["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]], rows,
+        header = ["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]]
+        out.append(html_table(header, rows,
                           f"Certified result: relative expanded uncertainty U (%), k = {k:g}, per height and "
                           "wind-speed bin; – : not certified (too few periods or no data)"))
+        if "expanded_uncertainty" in budget:
+            absolute = budget["expanded_uncertainty"].transpose("wind_speed", "height").values
+            out.append(html_table(header, [[fmt(g["wind_speed"][i]), *[
+                f"{absolute[i, j]:.3f}" if g["certified"][i, j] and np.isfinite(absolute[i, j]) else "–"
+                for j in range(g["height"].size)]] for i in certified_rows(g)],
+                f"Certified result in m/s: expanded uncertainty U (m/s), k = {k:g}, the same bins"))
         out.append(f'<p class="measurand">{html.escape(MEASURAND)}</p>')
         out.append(_model_form_table(budget))
     if cert is not None:
@@ -207,9 +219,10 @@ def write_report(
     if pdf_path:
         with _all_or_nothing(written):
             document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
-                                      warning=banner)
+                                      allow_invalid=allow_invalid, check=check)
         written.append(pdf_path)
     with _all_or_nothing(written):
         write_text(path, page, overwrite=overwrite)
-    return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
+    return {"html": path, "figures": list(figs), "png": [p for p in written if p != pdf_path],
+            "pdf": document["pdf"] if document else None,
             "pages": document["pages"] if document else 0}

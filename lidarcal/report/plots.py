@@ -12,8 +12,8 @@ As available (:func:`report_figures`, in page order):
   R and the Eqs. 12-13 statistics rounded to 3 significant digits; and (Figure 8) the Eq. 12
   statistic m·std per height for every variable against the ±0.5 % threshold;
 - the bench cube (Figure 5): CNR x programmed velocity heatmaps of the LOS bias and of the
-  LOS standard deviation, one per line of sight on one colour scale, set by the CNR bins the
-  simulation draws from;
+  LOS standard deviation, a menu choosing the line of sight, one colour scale for all, set by
+  the CNR bins the simulation draws from;
 - the range-weighting function (Figure 6): pulse, apodization and RWF, and the RWF for a few
   CNR gradients, with the zero distance Zd.
 
@@ -61,8 +61,19 @@ class Figure:
     note: str = ""
 
     def bokeh(self) -> Any:
-        """Return the page's bokeh model."""
-        return self.build()
+        """Return the page's bokeh model.
+
+        Its renderers draw no selected/unselected or muted variants (no figure has a selection
+        tool or a "mute" legend): bokeh would otherwise add two glyphs to each renderer, and
+        every model is written to the page and serialised (most of the HTML report's cost).
+        """
+        from bokeh.models import GlyphRenderer
+
+        model = self.build()
+        for r in model.select({"type": GlyphRenderer}):
+            r.nonselection_glyph = None
+            r.muted_glyph = None
+        return model
 
 
 def _plot(title: str, xlabel: str, ylabel: str, *, width: int = _WIDTH, height: int = _HEIGHT, **kw) -> Any:
@@ -139,16 +150,25 @@ def _budget_figure(budget: xr.Dataset) -> Figure:
         from bokeh.models import ColumnDataSource
 
         p = _plot(f"{title}, all heights", xl, yl, x_range=xlim, y_range=ylim)
+        # one source (and view) for every height's columns: a source per renderer is 4 more models
+        data: dict[str, np.ndarray] = {"wind_speed": ws}
+        for h in heights:
+            y, f = rel.sel(height=h).values, flag.sel(height=h).values
+            data[f"U|{fmt(h)} m"] = np.where(f == 0, y, np.nan)
+            data[f"thin|{fmt(h)} m"] = np.where((f == 1) & np.isfinite(y), y, np.nan)
+        src, view = ColumnDataSource(data), None
         for i, h in enumerate(heights):
-            y = rel.sel(height=h).values
-            f = flag.sel(height=h).values
             color, name = _COLORS[i % len(_COLORS)], f"{fmt(h)} m"
-            src = ColumnDataSource({"wind_speed": ws, "U": np.where(f == 0, y, np.nan)})
-            p.line("wind_speed", "U", source=src, color=color, line_width=2, legend_label=name, name=name)
-            p.scatter("wind_speed", "U", source=src, color=color, size=5, legend_label=name, name=name)
-            thin = (f == 1) & np.isfinite(y)
-            p.scatter(ws[thin], y[thin], marker="x", size=11, line_width=2, color=_THIN,
-                      legend_label="thin bin (too few periods)", name=name)
+            for r in (
+                p.line("wind_speed", f"U|{name}", source=src, color=color, line_width=2, legend_label=name,
+                       name=name, **({"view": view} if view else {})),
+                p.scatter("wind_speed", f"U|{name}", source=src, color=color, size=5, legend_label=name,
+                          name=name),
+                p.scatter("wind_speed", f"thin|{name}", source=src, marker="x", size=11, line_width=2,
+                          color=_THIN, legend_label="thin bin (too few periods)", name=name),
+            ):
+                view = view or r.view
+                r.view = view
         _legend_outside(p, "none")
         groups = {"all heights": list(p.renderers), **_by_name(p)}
         return _menu(p, groups, "all heights", {lab: f"{title}, {lab}" for lab in labels})
@@ -330,9 +350,11 @@ def _los_label(cube: xr.Dataset, los: Any) -> str:
 
 
 def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) -> dict[str, Figure]:
-    """CNR x programmed velocity heatmaps, one per line of sight, one colour scale for all.
+    """CNR x programmed velocity heatmaps of each line of sight (menu: the LOS), one colour scale for all.
 
     The colour scale spans the bins the simulation draws from (``drawn_cnr``, dB), else all bins.
+    One plot shows the chosen line of sight: five plots would be five times the models to write
+    (axes, grids, ranges, tools), for the same pictures the PDF shows side by side.
     """
     out = {}
     for name, heading, palette, symmetric in (
@@ -345,8 +367,7 @@ def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) 
         clim = cube_colour_limits(da, drawn_cnr, symmetric)
         label = f"{name.replace('_', ' ')}{units_suffix(da)}"
 
-        def build(da=da, clim=clim, label=label, palette=palette) -> Any:
-            from bokeh.layouts import gridplot
+        def build(da=da, clim=clim, label=label, palette=palette, heading=heading) -> Any:
             from bokeh.models import ColorBar, LinearColorMapper
             from bokeh.palettes import Viridis256, all_palettes
 
@@ -356,22 +377,21 @@ def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) 
             v, c = cube.velocity.values, cube.cnr.values
             dv = float(np.median(np.diff(v))) if v.size > 1 else 1.0
             dc = float(np.median(np.diff(c))) if c.size > 1 else 1.0
-            plots = []
-            for los in da.los.values:
-                p = _plot(_los_label(cube, los), f"programmed radial velocity{units_suffix(cube.velocity)}",
-                          f"CNR{units_suffix(cube.cnr)}", width=360, height=280)
+            labels = [_los_label(cube, los) for los in da.los.values]
+            p = _plot(labels[0], f"programmed radial velocity{units_suffix(cube.velocity)}",
+                      f"CNR{units_suffix(cube.cnr)}", width=620, height=420)
+            for los, text in zip(da.los.values, labels, strict=True):
                 p.image(image=[da.sel(los=los).values], x=v.min() - dv / 2, y=c.min() - dc / 2,
-                        dw=float(np.ptp(v)) + dv, dh=float(np.ptp(c)) + dc, color_mapper=mapper)
-                plots.append(p)
-            plots[-1].add_layout(ColorBar(color_mapper=mapper, title=label), "right")
-            return gridplot(plots, ncols=3)
+                        dw=float(np.ptp(v)) + dv, dh=float(np.ptp(c)) + dc, color_mapper=mapper, name=text)
+            p.add_layout(ColorBar(color_mapper=mapper, title=label), "right")
+            return _menu(p, _by_name(p), labels[0], {text: f"{heading}: {text}" for text in labels})
 
         scale = (f"99th percentile of the CNR bins the simulation draws from, {fmt(drawn_cnr[0])} to "
                  f"{fmt(drawn_cnr[1])} dB" if drawn_cnr else "99th percentile of all bins")
         out[f"cube_{name}"] = Figure(
             f"{heading}, per line of sight", build,
-            note=f"<p>Colour: {html.escape(label)}; blank cells had no bench samples. "
-                 "The colour scale is the same for every line of sight "
+            note=f"<p>Colour: {html.escape(label)}; blank cells had no bench samples. The menu chooses the "
+                 "line of sight; the colour scale is the same for every one "
                  f"({fmt(clim[0])} to {fmt(clim[1])}, {scale}).</p>",
         )
     return out
