@@ -36,6 +36,10 @@ class ValidationError(InputError):
         super().__init__(f"{source}: {len(self.problems)} problem(s) found:\n{lines}")
 
 
+class SchemaError(InputError):
+    """A file of ``schemas/`` is malformed: an unknown key, a missing section; names file, variable, key."""
+
+
 class SealError(InputError):
     """A certificate's seal or signature does not match its contents: its numbers are not shown."""
 
