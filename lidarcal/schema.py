@@ -25,7 +25,8 @@ other key (``long_name``, ``standard_name``, ``comment``, ``coverage_content_typ
 ``units`` and the checked ``attributes``.  The language is closed: a written key must be one of
 :data:`WRITTEN_ATTRIBUTES` (CF, ACDD and a few lidarcal settings), so a misspelt check
 (``allow_nans``) is refused with a :class:`~lidarcal.errors.SchemaError` naming the file, the
-variable and the key instead of being written as an attribute with its check lost.  :func:`output_attrs` turns a spec into the attributes
+variable and the key instead of being written as an attribute with its check lost.
+:func:`output_attrs` turns a spec into the attributes
 of a variable being written; it is the only place an artefact's variables get their long names,
 units and comments, so a new output variable is one YAML entry.  Strings may be templates
 filled from the writer's context (``"sensitivity slope m of the difference to {xname}"``); a
@@ -57,7 +58,8 @@ from lidarcal.errors import InputError, SchemaError, ValidationError
 from lidarcal.units import LOG_UNITS, parse_unit
 
 __all__ = ["load_schema", "declared_variables", "declared_spec", "list_kinds", "validate_dataset",
-           "output_attrs", "with_output_attrs", "check_schema_keys", "COMMON_ATTRIBUTES", "WRITTEN_ATTRIBUTES"]
+           "output_attrs", "with_output_attrs", "check_schema_keys", "COMMON_ATTRIBUTES",
+           "WRITTEN_ATTRIBUTES"]
 
 #: Global attributes every artefact written by lidarcal must carry.
 COMMON_ATTRIBUTES = (
@@ -80,8 +82,8 @@ def list_kinds() -> list[str]:
 #: Keys an ``include`` entry may have.
 _INCLUDE_KEYS = {"from", "into", "only", "name", "keep", "set"}
 #: Top-level keys of a schema file.
-_TOP_KEYS = frozenset({"kind", "description", "provenance", "dims", "stackable_dims", "units_on_every_variable",
-                       "include", "coordinates", "variables", "attributes"})
+_TOP_KEYS = frozenset({"kind", "description", "provenance", "dims", "stackable_dims",
+                       "units_on_every_variable", "include", "coordinates", "variables", "attributes"})
 #: Spec keys that are checks (``units`` and ``attributes`` are also written).
 _CHECK_KEYS = frozenset({"dims", "units", "convertible", "allow_nan", "range", "required", "attributes"})
 #: Variable attributes a spec may write (directly or under ``attributes``): CF-1.11 Appendix A's
@@ -149,17 +151,20 @@ def check_schema_keys(schema: dict[str, Any], filename: str) -> None:
                     raise _unknown(str(key), spec_keys, where)
             checked = (spec or {}).get("attributes") or {}
             if not isinstance(checked, dict):
-                raise SchemaError(f"{where}: 'attributes' must map attribute names to values; found {checked!r}")
+                raise SchemaError(f"{where}: 'attributes' must map attribute names to values; "
+                                  f"found {checked!r}")
             for key in checked:
                 if key not in WRITTEN_ATTRIBUTES:
                     raise _unknown(str(key), WRITTEN_ATTRIBUTES, f"{where}, attributes")
     keep_keys = _CHECK_KEYS | {"standard_name"}
     for entry in schema.get("include") or []:
-        where = f"schema {filename}, include from {entry.get('from')!r}" if isinstance(entry, dict) else filename
-        for key in (entry.get("keep") or []) if isinstance(entry, dict) else []:
+        if not isinstance(entry, dict):
+            raise SchemaError(f"schema {filename}: an include entry is a mapping; found {entry!r}")
+        where = f"schema {filename}, include from {entry.get('from')!r}"
+        for key in entry.get("keep") or []:
             if key not in keep_keys:
                 raise _unknown(str(key), keep_keys, f"{where}, keep")
-        for key in (entry.get("set") or {}) if isinstance(entry, dict) else {}:
+        for key in entry.get("set") or {}:
             if key not in _CHECK_KEYS:
                 raise _unknown(str(key), _CHECK_KEYS, f"{where}, set")
 
@@ -187,7 +192,8 @@ def _included(entry: dict[str, Any], where: str) -> tuple[str, dict[str, dict[st
                          f"{sorted(_INCLUDE_KEYS)}; found {sorted(entry)}")
     into = entry.get("into", "variables")
     if into not in ("variables", "coordinates"):
-        raise SchemaError(f"schema {where}: include 'into' is {into!r}; expected 'variables' or 'coordinates'")
+        raise SchemaError(f"schema {where}: include 'into' is {into!r}; "
+                          "expected 'variables' or 'coordinates'")
     source = declared_variables(entry["from"])
     only = entry.get("only", [n for n, spec in source.items() if spec.get("required", True)])
     missing = [n for n in only if n not in source]

@@ -31,7 +31,7 @@ def test_every_schema_file_uses_only_declared_keys(path):
             unknown = set(spec or {}) - schema._CHECK_KEYS - schema.WRITTEN_ATTRIBUTES
             assert not unknown, f"{path.name}: {section} {name!r} has unknown key(s) {sorted(unknown)}"
             unknown = set((spec or {}).get("attributes") or {}) - schema.WRITTEN_ATTRIBUTES
-            assert not unknown, f"{path.name}: {section} {name!r} checks unknown attribute(s) {sorted(unknown)}"
+            assert not unknown, f"{path.name}: {section} {name!r} checks undeclared {sorted(unknown)}"
     assert schema.load_schema(raw["kind"])["kind"] == path.name[:-5]
 
 
