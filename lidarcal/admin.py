@@ -33,7 +33,7 @@ from lidarcal.errors import InputError
 from lidarcal.provenance import REFERENCES, check_text, sha256
 
 __all__ = ["ADMIN_FILE_KEYS", "DATE_ATTRIBUTES", "STATUS_ATTR", "STATUS_REASON_ATTR",
-           "DEMONSTRATION", "ISSUED", "SIMULATED_ORIGIN", "load_admin", "parse_admin", "sample_digests",
+           "DEMONSTRATION", "ISSUED", "load_admin", "parse_admin", "sample_digests",
            "demonstration_reasons", "new_certificate_id", "merge_admin", "issuer_problem",
            "certificate_attributes", "default_method_reference", "status_line"]
 
@@ -41,10 +41,6 @@ STATUS_ATTR = "calibration_status"
 STATUS_REASON_ATTR = "calibration_status_reason"
 DEMONSTRATION = "demonstration"
 ISSUED = "issued"
-
-#: What ``lidarcal bench simulate`` writes as the control log's ``data_origin`` metadata (and
-#: ingest copies into the cube's ``data_origin`` attribute).
-SIMULATED_ORIGIN = "simulated by lidarcal bench simulate, not a measurement"
 
 #: Keys of the administrative-data YAML file (``group.key`` for nested ones) and the global
 #: attribute each is stored as (docs/certificate.md).
@@ -273,7 +269,9 @@ def demonstration_reasons(attrs: Mapping[str, Any], extra: Iterable[Mapping[str,
 
     Every record of the provenance (``lidarcal_provenance_chain``, ``lidarcal_inputs``,
     ``lidarcal_components`` and ``extra``), however deep, is searched for a SHA-256 of an
-    embedded sample file and for a ``data_origin`` saying the bench run was simulated.
+    embedded sample file and for a ``data_origin`` saying the bench run was simulated (the bench
+    stage writes :data:`lidarcal.bench.simulator.SIMULATED_ORIGIN`; this module, beneath every
+    stage, knows it by its word "simulated").
     """
     trees = []
     for name in ("lidarcal_provenance_chain", "lidarcal_inputs", "lidarcal_components"):

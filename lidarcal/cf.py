@@ -1,4 +1,4 @@
-"""CF helpers: the height and time coordinates, cell bounds and the canonical dimension order."""
+"""CF helpers: the height and time coordinates, cell bounds, the canonical dimension order, UTC text."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-__all__ = ["with_bounds", "height_coord", "time_coord", "canonical_dims", "canonical_order"]
+__all__ = ["with_bounds", "height_coord", "time_coord", "canonical_dims", "canonical_order", "iso_utc"]
 
 
 def height_coord(values: Any) -> xr.DataArray:
@@ -30,6 +30,23 @@ def with_bounds(ds: xr.Dataset, coord: str, edges: Any) -> xr.Dataset:
     out = ds.assign_coords({name: ((coord, "nv"), bounds, {"units": ds[coord].attrs.get("units", "1")})})
     out[coord].attrs["bounds"] = name
     return out
+
+
+def iso_utc(t: Any, unit: str = "s") -> Any:
+    """ISO 8601 UTC text of ``t`` (datetime64, or integer nanoseconds since 1970), ``Z``-suffixed.
+
+    Truncated toward the past to ``unit`` (never rounded): ``"s"`` for the time coverage an
+    artefact records, ``"ms"`` for the timestamps of a bench file and the messages that quote them.
+    A scalar gives a ``str``, an array an array of them.
+
+    >>> iso_utc(1_676_650_020_800_000_000), iso_utc(1_676_650_020_800_000_000, "ms")
+    ('2023-02-17T16:07:00Z', '2023-02-17T16:07:00.800Z')
+    """
+    t = np.asarray(t)
+    if t.dtype.kind in "iu":
+        t = t.astype("datetime64[ns]")
+    text = np.char.add(np.datetime_as_string(t, unit=unit), "Z")
+    return str(text) if text.ndim == 0 else text
 
 
 def time_coord(values: Any) -> xr.DataArray:

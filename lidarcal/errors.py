@@ -7,7 +7,9 @@ the file, the variable, what was expected and what was found.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+
+import numpy as np
 
 
 class LidarcalError(Exception):
@@ -36,6 +38,10 @@ class ValidationError(InputError):
         super().__init__(f"{source}: {len(self.problems)} problem(s) found:\n{lines}")
 
 
+class SchemaError(InputError):
+    """A file of ``schemas/`` is malformed: an unknown key, a missing section; names file, variable, key."""
+
+
 class SealError(InputError):
     """A certificate's seal or signature does not match its contents: its numbers are not shown."""
 
@@ -53,3 +59,19 @@ class OutputExistsError(LidarcalError, FileExistsError):
 
 class DiskFullError(LidarcalError):
     """An output could not be written for want of space; nothing was published."""
+
+
+def raise_first_bad(bad, message: Callable[[int, int], str], error: type[LidarcalError] = InputError) -> None:
+    """Raise ``error(message(i, n))`` when the boolean mask ``bad`` has a True; else nothing.
+
+    ``i`` is the first True's (flat) index, ``n`` the number of Trues: a message names the first
+    offending row and says how many there are, so a user fixes them all at once.
+
+    >>> raise_first_bad([False, True, True], lambda i, n: f"row {i + 1} is bad ({n} rows)")
+    Traceback (most recent call last):
+    ...
+    lidarcal.errors.InputError: row 2 is bad (2 rows)
+    """
+    bad = np.asarray(bad, dtype=bool).ravel()
+    if bad.any():
+        raise error(message(int(np.argmax(bad)), int(bad.sum())))

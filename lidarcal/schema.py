@@ -22,7 +22,11 @@ A spec holds checks (``dims``, ``units``, ``convertible``, ``allow_nan``, ``rang
 ``required``, ``attributes``) and the output metadata lidarcal writes on the variable: every
 other key (``long_name``, ``standard_name``, ``comment``, ``coverage_content_type``,
 ``flag_values``, ``ancillary_variables`` ...) is an attribute to write, not a check, and so are
-``units`` and the checked ``attributes``.  :func:`output_attrs` turns a spec into the attributes
+``units`` and the checked ``attributes``.  The language is closed: a written key must be one of
+:data:`WRITTEN_ATTRIBUTES` (CF, ACDD and a few lidarcal settings), so a misspelt check
+(``allow_nans``) is refused with a :class:`~lidarcal.errors.SchemaError` naming the file, the
+variable and the key instead of being written as an attribute with its check lost.
+:func:`output_attrs` turns a spec into the attributes
 of a variable being written; it is the only place an artefact's variables get their long names,
 units and comments, so a new output variable is one YAML entry.  Strings may be templates
 filled from the writer's context (``"sensitivity slope m of the difference to {xname}"``); a
@@ -39,6 +43,7 @@ same name is merged over the copy (its keys win).
 
 from __future__ import annotations
 
+import difflib
 import functools
 import re
 import string
@@ -49,11 +54,12 @@ import xarray as xr
 import yaml
 
 from lidarcal.data import packaged_dir
-from lidarcal.errors import InputError, ValidationError
+from lidarcal.errors import InputError, SchemaError, ValidationError
 from lidarcal.units import LOG_UNITS, parse_unit
 
 __all__ = ["load_schema", "declared_variables", "declared_spec", "list_kinds", "validate_dataset",
-           "output_attrs", "with_output_attrs", "COMMON_ATTRIBUTES"]
+           "output_attrs", "with_output_attrs", "check_schema_keys", "COMMON_ATTRIBUTES",
+           "WRITTEN_ATTRIBUTES"]
 
 #: Global attributes every artefact written by lidarcal must carry.
 COMMON_ATTRIBUTES = (
@@ -75,8 +81,27 @@ def list_kinds() -> list[str]:
 
 #: Keys an ``include`` entry may have.
 _INCLUDE_KEYS = {"from", "into", "only", "name", "keep", "set"}
-#: Spec keys that are checks (``units`` and ``attributes`` are also written); any other key is metadata.
+#: Top-level keys of a schema file.
+_TOP_KEYS = frozenset({"kind", "description", "provenance", "dims", "stackable_dims",
+                       "units_on_every_variable", "include", "coordinates", "variables", "attributes"})
+#: Spec keys that are checks (``units`` and ``attributes`` are also written).
 _CHECK_KEYS = frozenset({"dims", "units", "convertible", "allow_nan", "range", "required", "attributes"})
+#: Variable attributes a spec may write (directly or under ``attributes``): CF-1.11 Appendix A's
+#: attributes of data and coordinate variables, ACDD-1.3's ``coverage_content_type``, and the few
+#: lidarcal attributes that record a writer's setting on the variable it shaped.  The schema language
+#: is closed: a key that is neither a check nor one of these (a misspelt ``allow_nans``) is refused,
+#: never written as an attribute with its check lost.  A new written attribute is one name here.
+WRITTEN_ATTRIBUTES = frozenset({
+    # CF-1.11 Appendix A (variable and coordinate attributes)
+    "ancillary_variables", "axis", "bounds", "calendar", "cell_measures", "cell_methods", "comment",
+    "flag_masks", "flag_meanings", "flag_values", "long_name", "positive", "references", "source",
+    "standard_name", "units", "valid_max", "valid_min", "valid_range",
+    # ACDD-1.3
+    "coverage_content_type",
+    # lidarcal: the setting that shaped the variable (rwf, turbulence_box, uncertainty_budget)
+    "coverage_factor", "description", "fft_size", "pulse_shape", "sigma_target", "window_length_m",
+    "window_std_fraction",
+})
 #: Attributes :func:`output_attrs` writes first, in this order (the rest follow as declared).
 _LEADING_ATTRS = ("long_name", "units", "coverage_content_type", "standard_name")
 
@@ -90,10 +115,58 @@ def _read_schema(kind: str) -> dict[str, Any]:
     schema = yaml.safe_load(path.read_text())
     for key in ("kind", "description", "dims"):
         if key not in schema:
-            raise InputError(f"schema {path.name}: missing top-level key {key!r}")
+            raise SchemaError(f"schema {path.name}: missing top-level key {key!r}")
     if schema["kind"] != kind:
-        raise InputError(f"schema {path.name}: declares kind {schema['kind']!r}")
+        raise SchemaError(f"schema {path.name}: declares kind {schema['kind']!r}")
+    check_schema_keys(schema, path.name)
     return schema
+
+
+def _unknown(key: str, allowed: frozenset[str] | set[str], where: str) -> SchemaError:
+    close = difflib.get_close_matches(key, sorted(allowed), n=1)
+    hint = f" (did you mean {close[0]!r}?)" if close else ""
+    return SchemaError(f"{where}: unknown key {key!r}{hint}; expected one of {sorted(allowed)}")
+
+
+def check_schema_keys(schema: dict[str, Any], filename: str) -> None:
+    """Refuse a key the schema language does not know, naming the file, the variable and the key.
+
+    Top-level keys, the keys of every coordinate and variable spec (:data:`_CHECK_KEYS` and
+    :data:`WRITTEN_ATTRIBUTES`), the names under a spec's checked ``attributes`` and an
+    ``include`` entry's ``keep`` and ``set`` (checks only: an include copies checks) are all
+    closed sets.  A misspelt check would otherwise be written as an attribute and never checked.
+    """
+    for key in schema:
+        if key not in _TOP_KEYS:
+            raise _unknown(str(key), _TOP_KEYS, f"schema {filename}")
+    spec_keys = _CHECK_KEYS | WRITTEN_ATTRIBUTES
+    for section in ("coordinates", "variables"):
+        role = section[:-1] if section == "variables" else "coordinate"
+        for name, spec in (schema.get(section) or {}).items():
+            where = f"schema {filename}, {role} {name!r}"
+            if not isinstance(spec or {}, dict):
+                raise SchemaError(f"{where}: expected a mapping of keys; found {spec!r}")
+            for key in spec or {}:
+                if key not in spec_keys:
+                    raise _unknown(str(key), spec_keys, where)
+            checked = (spec or {}).get("attributes") or {}
+            if not isinstance(checked, dict):
+                raise SchemaError(f"{where}: 'attributes' must map attribute names to values; "
+                                  f"found {checked!r}")
+            for key in checked:
+                if key not in WRITTEN_ATTRIBUTES:
+                    raise _unknown(str(key), WRITTEN_ATTRIBUTES, f"{where}, attributes")
+    keep_keys = _CHECK_KEYS | {"standard_name"}
+    for entry in schema.get("include") or []:
+        if not isinstance(entry, dict):
+            raise SchemaError(f"schema {filename}: an include entry is a mapping; found {entry!r}")
+        where = f"schema {filename}, include from {entry.get('from')!r}"
+        for key in entry.get("keep") or []:
+            if key not in keep_keys:
+                raise _unknown(str(key), keep_keys, f"{where}, keep")
+        for key in entry.get("set") or {}:
+            if key not in _CHECK_KEYS:
+                raise _unknown(str(key), _CHECK_KEYS, f"{where}, set")
 
 
 def declared_variables(kind: str) -> dict[str, dict[str, Any]]:
@@ -115,16 +188,17 @@ def _included(entry: dict[str, Any], where: str) -> tuple[str, dict[str, dict[st
     """Resolve one ``include`` entry to (section, {name: spec})."""
     unknown = set(entry) - _INCLUDE_KEYS
     if "from" not in entry or unknown:
-        raise InputError(f"schema {where}: include entry {entry!r} needs 'from' and may only have "
+        raise SchemaError(f"schema {where}: include entry {entry!r} needs 'from' and may only have "
                          f"{sorted(_INCLUDE_KEYS)}; found {sorted(entry)}")
     into = entry.get("into", "variables")
     if into not in ("variables", "coordinates"):
-        raise InputError(f"schema {where}: include 'into' is {into!r}; expected 'variables' or 'coordinates'")
+        raise SchemaError(f"schema {where}: include 'into' is {into!r}; "
+                          "expected 'variables' or 'coordinates'")
     source = declared_variables(entry["from"])
     only = entry.get("only", [n for n, spec in source.items() if spec.get("required", True)])
     missing = [n for n in only if n not in source]
     if missing:
-        raise InputError(f"schema {where}: include from {entry['from']!r} names {missing}, which "
+        raise SchemaError(f"schema {where}: include from {entry['from']!r} names {missing}, which "
                          f"{entry['from']}.yaml does not declare; it declares {list(source)}")
     keep, out = entry.get("keep"), {}
     for name in only:
@@ -156,7 +230,7 @@ def load_schema(kind: str) -> dict[str, Any]:
             own = {k: v for k, v in (spec or {}).items() if k in _CHECK_KEYS}
             sections[section][name] = {**sections[section].get(name, {}), **own}
         if section not in raw and not sections[section]:
-            raise InputError(f"schema {kind}.yaml: missing top-level key {section!r}")
+            raise SchemaError(f"schema {kind}.yaml: missing top-level key {section!r}")
         schema[section] = sections[section]
     return schema
 
@@ -249,6 +323,8 @@ def with_output_attrs(ds: xr.Dataset, kind: str, **context: Any) -> xr.Dataset:
     for name in list(out.variables):
         try:
             attrs = output_attrs(kind, str(name), **context)
+        except SchemaError:
+            raise  # a malformed schema is the code's error, not an undeclared variable
         except InputError:
             continue
         out.variables[name].attrs = {**out.variables[name].attrs, **attrs}

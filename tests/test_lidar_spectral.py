@@ -176,10 +176,10 @@ def test_drawn_signals_have_the_matrix_second_order_statistics():
     U, ti, height = 8.0, 0.15, 80.0
     C = cross_spectral_matrix(model, height, U, 30.0, ti * U * np.array([1.0, 0.8, 0.5]), 0.0, T)
     expected = covariance(C)
-    for amplitudes in ("deterministic", "rayleigh"):
+    for convention in ("pinned_uvw", "free"):
         covs = []
         for i in range(400):
-            x = synthesise(draw_coefficients(C, np.random.default_rng([4, i]), amplitudes, NT), NT)
+            x = synthesise(draw_coefficients(C, np.random.default_rng([4, i]), convention, NT), NT)
             covs.append(x @ x.T / NT)
         covs = np.array(covs)
         se = covs.std(axis=0, ddof=1) / np.sqrt(len(covs))
@@ -217,15 +217,15 @@ def test_reference_realised_ti_is_the_periods_with_deterministic_amplitudes():
     U, ti = 10.0, 0.1
     C = cross_spectral_matrix(model, 80.0, U, 0.0, ti * U * np.array([1.0, 0.8, 0.5]), 0.0, T)
     ratios = {}
-    for amplitudes in ("deterministic", "rayleigh"):
-        x = np.array([synthesise(draw_coefficients(C, np.random.default_rng([8, i]), amplitudes, NT), NT)[:2]
+    for convention in ("pinned_uvw", "free"):
+        x = np.array([synthesise(draw_coefficients(C, np.random.default_rng([8, i]), convention, NT), NT)[:2]
                       for i in range(100)])
-        ratios[amplitudes] = x.std(axis=-1, ddof=1) / (ti * U * np.array([1.0, 0.8]))[:, None].T
+        ratios[convention] = x.std(axis=-1, ddof=1) / (ti * U * np.array([1.0, 0.8]))[:, None].T
     # the reference is first in the factorisation: its coefficients are m ξ with |ξ| = 1, so the
     # realised 10-min sigma_u and sigma_v are the period's to rounding, as gen_turb's first point
-    np.testing.assert_allclose(ratios["deterministic"], 1.0, rtol=1e-9)
+    np.testing.assert_allclose(ratios["pinned_uvw"], 1.0, rtol=1e-9)
     # Rayleigh amplitudes scatter (the review measured ~11 % for sigma_u)
-    spread = ratios["rayleigh"][:, 0].std(ddof=1)
+    spread = ratios["free"][:, 0].std(ddof=1)
     assert 0.06 < spread < 0.16
 
 
@@ -271,7 +271,7 @@ def test_realised_sigma_distribution_matches_gen_turb():
     r = np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1))
     coh = np.exp(-12.0 * r[None] * np.sqrt((f[1:, None, None] / U) ** 2 + (0.12 / 340.2) ** 2))
     C = m[1:, None, None] ** 2 * coh
-    ours = np.array([synthesise(draw_coefficients(C, np.random.default_rng([5, s]), "deterministic", nt), nt)
+    ours = np.array([synthesise(draw_coefficients(C, np.random.default_rng([5, s]), "pinned_uvw", nt), nt)
                      .std(axis=-1, ddof=1) / sig for s in range(200)])
     np.testing.assert_allclose(theirs[:, 0], 1.0, rtol=1e-9)
     np.testing.assert_allclose(ours[:, 0], 1.0, rtol=1e-9)

@@ -64,27 +64,38 @@ def test_what_each_convention_pins():
     U, ti = 10.0, 0.1
     C = cross_spectral_matrix(model, 80.0, U, 0.0, ti * U * np.array([1.0, 0.8, 0.5]), 0.0, T)
     sd = {}
-    for scheme in ("deterministic", "rayleigh", "first_fixed", "first_rescaled"):
-        x = np.array([synthesise(draw_coefficients(C, np.random.default_rng([8, i]), scheme, NT), NT)
+    for convention in ("pinned_uvw", "free", "pinned_u", "inferred_level"):
+        x = np.array([synthesise(draw_coefficients(C, np.random.default_rng([8, i]), convention, NT), NT)
                       for i in range(120)])
-        sd[scheme] = x.std(axis=-1, ddof=1)  # (draw, signal)
+        sd[convention] = x.std(axis=-1, ddof=1)  # (draw, signal)
     target = ti * U * np.array([1.0, 0.8])
     # pinned_uvw: u and v exact; pinned_u and inferred_level: u exact, v scatters as a Gaussian's
-    np.testing.assert_allclose(sd["deterministic"][:, :2] / target, 1.0, rtol=1e-9)
-    for scheme in ("first_fixed", "first_rescaled"):
-        np.testing.assert_allclose(sd[scheme][:, 0] / target[0], 1.0, rtol=1e-9)
-        assert 0.06 < np.std(sd[scheme][:, 1] / target[1]) < 0.2
+    np.testing.assert_allclose(sd["pinned_uvw"][:, :2] / target, 1.0, rtol=1e-9)
+    for convention in ("pinned_u", "inferred_level"):
+        np.testing.assert_allclose(sd[convention][:, 0] / target[0], 1.0, rtol=1e-9)
+        assert 0.06 < np.std(sd[convention][:, 1] / target[1]) < 0.2
     # free: u scatters (~11 %)
-    assert 0.06 < np.std(sd["rayleigh"][:, 0] / target[0]) < 0.16
+    assert 0.06 < np.std(sd["free"][:, 0] / target[0]) < 0.16
     # the LOS: fixed amplitudes make their 10-min variance scatter less than Gaussian coefficients;
     # with the field's level unknown (inferred_level) it scatters most
     los = {k: np.std(v[:, 2:] ** 2 / np.mean(v[:, 2:] ** 2, axis=0)) for k, v in sd.items()}
-    assert los["deterministic"] < 0.85 * los["first_fixed"], los
-    assert los["first_rescaled"] > 1.1 * los["first_fixed"], los
-    # the same numbers: first_fixed / first_rescaled only change what rayleigh drew
-    a = draw_coefficients(C, np.random.default_rng(1), "rayleigh", NT)
-    b = draw_coefficients(C, np.random.default_rng(1), "first_fixed", NT)
+    assert los["pinned_uvw"] < 0.85 * los["pinned_u"], los
+    assert los["inferred_level"] > 1.1 * los["pinned_u"], los
+    # the same numbers: pinned_u / inferred_level only change what free drew
+    a = draw_coefficients(C, np.random.default_rng(1), "free", NT)
+    b = draw_coefficients(C, np.random.default_rng(1), "pinned_u", NT)
     np.testing.assert_allclose(np.angle(a[0]), np.angle(b[0]), atol=1e-12)
+
+
+def test_the_draw_speaks_the_models_vocabulary_only():
+    """One vocabulary: the old ``turbulence_amplitudes`` words are read from old records, not drawn."""
+    from lidarcal.lidar.synthesis import REFERENCE_TURBULENCE
+
+    assert REFERENCE_TURBULENCE == ("pinned_u", "pinned_uvw", "free", "inferred_level")
+    C = cross_spectral_matrix(LidarModel.ideal(), 80.0, 10.0, 0.0, np.array([1.0, 0.8, 0.5]), 0.0, T)
+    for old in ("deterministic", "rayleigh", "first_fixed", "first_rescaled"):
+        with pytest.raises(ValueError, match=r"reference_turbulence must be one of \['pinned_u'"):
+            draw_coefficients(C, np.random.default_rng(0), old, NT)
 
 
 # -- against the gen_turb brute force (slow) --------------------------------------------------------

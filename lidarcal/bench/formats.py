@@ -53,7 +53,8 @@ import numpy as np
 import pandas as pd
 
 from lidarcal.bench.grid import LOS_LABELS, los_index
-from lidarcal.errors import InputError, MissingVariableError, UnitError
+from lidarcal.cf import iso_utc
+from lidarcal.errors import InputError, MissingVariableError, UnitError, raise_first_bad
 from lidarcal.io import atomic_path
 from lidarcal.units import convert_values
 
@@ -193,12 +194,9 @@ def _unit_column(df: pd.DataFrame, prefix: str, expected: str, path, what: str) 
 
 def _numeric(col: pd.Series, name: str, path, what: str) -> np.ndarray:
     values = pd.to_numeric(col.str.strip(), errors="coerce").to_numpy(dtype=float)
-    bad = ~np.isfinite(values)
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise InputError(
-            f"{path}: {what} column {name!r} has {int(bad.sum())} missing, NaN or non-numeric value(s); "
-            f"expected finite numbers; first at data row {i + 1}: found {col.iloc[i]!r}")
+    raise_first_bad(~np.isfinite(values), lambda i, n: (
+        f"{path}: {what} column {name!r} has {n} missing, NaN or non-numeric value(s); "
+        f"expected finite numbers; first at data row {i + 1}: found {col.iloc[i]!r}"))
     return values
 
 
@@ -212,22 +210,16 @@ RTD_CNR_RANGE = (-60.0, 20.0)
 
 def _check_range(values: np.ndarray, name: str, bounds: tuple[float, float], unit: str, path,
                  what: str) -> None:
-    bad = (values < bounds[0]) | (values > bounds[1])
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise InputError(
-            f"{path}: {what} column {name!r} data row {i + 1} is {values[i]:g} {unit} (after unit "
-            f"conversion); expected values within [{bounds[0]:g}, {bounds[1]:g}] {unit}; "
-            f"{int(bad.sum())} row(s) outside")
+    raise_first_bad((values < bounds[0]) | (values > bounds[1]), lambda i, n: (
+        f"{path}: {what} column {name!r} data row {i + 1} is {values[i]:g} {unit} (after unit "
+        f"conversion); expected values within [{bounds[0]:g}, {bounds[1]:g}] {unit}; "
+        f"{n} row(s) outside"))
 
 
 def _times(col: pd.Series, name: str, path, what: str) -> np.ndarray:
     text = col.str.strip()
-    missing = text.isna().to_numpy() | (text == "").to_numpy()
-    if missing.any():
-        i = int(np.argmax(missing))
-        raise InputError(f"{path}: {what} column {name!r} has {int(missing.sum())} empty timestamp(s); "
-                         f"first at data row {i + 1}")
+    raise_first_bad(text.isna().to_numpy() | (text == "").to_numpy(), lambda i, n: (
+        f"{path}: {what} column {name!r} has {n} empty timestamp(s); first at data row {i + 1}"))
     try:
         parsed = pd.to_datetime(text, format="ISO8601", utc=True)
     except (ValueError, TypeError) as exc:
@@ -238,29 +230,20 @@ def _times(col: pd.Series, name: str, path, what: str) -> np.ndarray:
 
 def _check_increasing(t: np.ndarray, name: str, path, what: str) -> None:
     step = np.diff(t)
-    bad = step <= 0
-    if bad.any():
-        i = int(np.argmax(bad)) + 1
-        kind = "duplicated" if step[i - 1] == 0 else "out of order"
-        raise InputError(
-            f"{path}: {what} column {name!r}: timestamps must be strictly increasing; "
-            f"{int(bad.sum())} are duplicated or out of order, first at data row {i + 1} "
-            f"({_iso(t[i])} is {kind} after {_iso(t[i - 1])})")
-
-
-def _iso(t_ns: int) -> str:
-    return str(np.datetime64(int(t_ns), "ns").astype("datetime64[ms]")) + "Z"
+    raise_first_bad(step <= 0, lambda i, n: (  # row i + 1 repeats or precedes row i
+        f"{path}: {what} column {name!r}: timestamps must be strictly increasing; "
+        f"{n} are duplicated or out of order, first at data row {i + 2} "
+        f"({iso_utc(t[i + 1], 'ms')} is {'duplicated' if step[i] == 0 else 'out of order'} after "
+        f"{iso_utc(t[i], 'ms')})"))
 
 
 def _los(col: pd.Series, path, what: str) -> np.ndarray:
     labels = col.fillna("").str.strip().to_numpy(dtype=str)
     idx = los_index(labels)
-    bad = idx < 0
-    if bad.any():
-        unknown = sorted(set(labels[bad].tolist()))[:10]
-        raise InputError(f"{path}: {what} column 'los' has {int(bad.sum())} row(s) with unknown LOS id(s) "
-                         f"{unknown}; expected one of {list(LOS_LABELS)} (first at data row "
-                         f"{int(np.argmax(bad)) + 1})")
+    raise_first_bad(idx < 0, lambda i, n: (
+        f"{path}: {what} column 'los' has {n} row(s) with unknown LOS id(s) "
+        f"{sorted(set(labels[idx < 0].tolist()))[:10]}; expected one of {list(LOS_LABELS)} (first at "
+        f"data row {i + 1})"))
     return idx
 
 
@@ -301,13 +284,10 @@ def _check_durations(start: np.ndarray, end: np.ndarray, meta: dict, path) -> No
         raise InputError(f"{path}: control log metadata 'accumulation_time_s' must be a positive number of "
                          f"seconds; found {declared!r}")
     duration = (end - start) / 1e9
-    bad = np.abs(duration - seconds) > DURATION_TOLERANCE_S
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise InputError(
-            f"{path}: control log row {i + 1} ({_iso(start[i])} to {_iso(end[i])}) lasts {duration[i]:g} s; "
-            f"expected the declared accumulation_time_s {seconds:g} s (+-{DURATION_TOLERANCE_S:g} s); "
-            f"{int(bad.sum())} of {len(start)} bins differ")
+    raise_first_bad(np.abs(duration - seconds) > DURATION_TOLERANCE_S, lambda i, n: (
+        f"{path}: control log row {i + 1} ({iso_utc(start[i], 'ms')} to {iso_utc(end[i], 'ms')}) lasts "
+        f"{duration[i]:g} s; expected the declared accumulation_time_s {seconds:g} s "
+        f"(+-{DURATION_TOLERANCE_S:g} s); {n} of {len(start)} bins differ"))
 
 
 def read_control_log(path: str | os.PathLike) -> ControlLog:
@@ -329,25 +309,17 @@ def read_control_log(path: str | os.PathLike) -> ControlLog:
     start = _times(df["start_utc"], "start_utc", path, what)
     end = _times(df["end_utc"], "end_utc", path, what)
     _check_increasing(start, "start_utc", path, what)
-    short = end <= start
-    if short.any():
-        i = int(np.argmax(short))
-        raise InputError(f"{path}: control log row {i + 1}: end_utc {_iso(end[i])} is not after "
-                         f"start_utc {_iso(start[i])}")
-    overlap = end[:-1] > start[1:]
-    if overlap.any():
-        i = int(np.argmax(overlap)) + 1
-        raise InputError(f"{path}: control log row {i + 1} starts at {_iso(start[i])}, before the previous "
-                         f"bin ends ({_iso(end[i - 1])}); programmed bins must not overlap")
+    raise_first_bad(end <= start, lambda i, n: (
+        f"{path}: control log row {i + 1}: end_utc {iso_utc(end[i], 'ms')} is not after "
+        f"start_utc {iso_utc(start[i], 'ms')}"))
+    raise_first_bad(end[:-1] > start[1:], lambda i, n: (  # row i + 1 starts before row i ends
+        f"{path}: control log row {i + 2} starts at {iso_utc(start[i + 1], 'ms')}, before the previous "
+        f"bin ends ({iso_utc(end[i], 'ms')}); programmed bins must not overlap"))
     _check_durations(start, end, meta, path)
     velocity, vname = _unit_column(df, "programmed_velocity", "m s-1", path, what)
     cnr, cname = _unit_column(df, "programmed_cnr", "dB", path, what)
     los = _los(df["los"], path, what)
     return ControlLog(start, end, los, velocity, cnr, meta, str(path), {"velocity": vname, "cnr": cname})
-
-
-def _iso_column(t_ns: np.ndarray) -> np.ndarray:
-    return np.char.add(np.datetime_as_string(np.asarray(t_ns).astype("datetime64[ns]"), unit="ms"), "Z")
 
 
 @contextlib.contextmanager
@@ -371,7 +343,7 @@ def write_rtd(rtd: RtdTable, path: str | os.PathLike, *, overwrite: bool = False
     A path ending in ``.gz`` is written gzip-compressed, byte-reproducibly (header mtime 0).
     """
     df = pd.DataFrame({
-        "timestamp_utc": _iso_column(rtd.time_ns),
+        "timestamp_utc": iso_utc(rtd.time_ns, "ms"),
         "los": np.asarray(LOS_LABELS)[rtd.los],
         "radial_wind_speed_m_s": np.round(rtd.velocity, 3),
         "cnr_dB": np.round(rtd.cnr, 2),
@@ -389,8 +361,8 @@ def write_control_log(log: ControlLog, path: str | os.PathLike, *, overwrite: bo
     """
     df = pd.DataFrame({
         "bin_index": np.arange(len(log)),
-        "start_utc": _iso_column(log.start_ns),
-        "end_utc": _iso_column(log.end_ns),
+        "start_utc": iso_utc(log.start_ns, "ms"),
+        "end_utc": iso_utc(log.end_ns, "ms"),
         "los": np.asarray(LOS_LABELS)[log.los],
         "programmed_velocity_m_s": log.velocity,
         "programmed_cnr_dB": log.cnr,

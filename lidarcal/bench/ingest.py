@@ -53,6 +53,7 @@ its 259 judged bins, from the first LOS-0 bins on.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from pathlib import Path
@@ -74,8 +75,8 @@ from lidarcal.bench.grid import (
     grid_index,
 )
 from lidarcal.binning import group_statistics
-from lidarcal.cf import with_bounds
-from lidarcal.errors import InputError
+from lidarcal.cf import iso_utc, with_bounds
+from lidarcal.errors import InputError, raise_first_bad
 from lidarcal.provenance import stamp
 from lidarcal.schema import output_attrs
 from lidarcal.units import to_magnitude
@@ -93,10 +94,6 @@ AGREEMENT_Z = 5.0
 AGREEMENT_MIN_RECORDS = 5
 AGREEMENT_MAX_NOISE = 0.5 * AGREEMENT_FLOOR
 COVERAGE_MIN_FRACTION = 0.5
-
-
-def _iso(t_ns: int) -> str:
-    return str(np.datetime64(int(t_ns), "ns").astype("datetime64[s]")) + "Z"
 
 
 def cube_template() -> xr.Dataset:
@@ -117,24 +114,22 @@ def _cells(control: ControlLog) -> np.ndarray:
     checks = ((names["cnr"], ci, control.cnr, CNR_EDGES, "dB"),
               (names["velocity"], vi, control.velocity, VELOCITY_EDGES, "m s-1"))
     for name, idx, values, edges, unit in checks:
-        bad = idx < 0
-        if bad.any():
-            i = int(np.argmax(bad))
-            raise InputError(
-                f"{control.source}: control log column {name!r} row {i + 1} is {values[i]:g} {unit} "
-                f"(after unit conversion); "
-                f"expected values within the Table 1 grid [{edges[0]:g}, {edges[-1]:g}) {unit}")
+        raise_first_bad(idx < 0, functools.partial(_off_grid, control.source, name, values, edges, unit))
     return np.ravel_multi_index((control.los, ci, vi), _SHAPE)
 
 
+def _off_grid(source: str, name: str, values: np.ndarray, edges: np.ndarray, unit: str, i: int,
+              n: int) -> str:
+    """Say that row ``i``, the first of ``n``, is outside the Table 1 grid."""
+    return (f"{source}: control log column {name!r} row {i + 1} is {values[i]:g} {unit} "
+            f"(after unit conversion); "
+            f"expected values within the Table 1 grid [{edges[0]:g}, {edges[-1]:g}) {unit}")
+
+
 def _bin_name(control: ControlLog, i: int) -> str:
-    return (f"row {i + 1} ({_iso_ms(control.start_ns[i])} to {_iso_ms(control.end_ns[i])}, "
+    return (f"row {i + 1} ({iso_utc(control.start_ns[i], 'ms')} to {iso_utc(control.end_ns[i], 'ms')}, "
             f"LOS {LOS_LABELS[control.los[i]]}, programmed CNR {control.cnr[i]:g} dB, "
             f"programmed velocity {control.velocity[i]:g} m s-1)")
-
-
-def _iso_ms(t_ns: int) -> str:
-    return str(np.datetime64(int(t_ns), "ns").astype("datetime64[ms]")) + "Z"
 
 
 def check_agreement(rtd: RtdTable, control: ControlLog, bin_idx: np.ndarray, status: np.ndarray,
@@ -156,14 +151,12 @@ def check_agreement(rtd: RtdTable, control: ControlLog, bin_idx: np.ndarray, sta
     dt = float(np.median(np.diff(t))) if len(t) > 1 else np.inf
     expected = (control.end_ns - control.start_ns - settling_ns) / dt
     uncovered = n_in < np.floor(COVERAGE_MIN_FRACTION * expected)  # under 2 records expected: no verdict
-    if uncovered.any():
-        i = int(np.argmax(uncovered))
-        raise InputError(
-            f"{both} do not describe the same run: the RTD does not cover the programmed bin "
-            f"{_bin_name(control, i)}; expected about {max(expected[i], 0):.0f} RTD records (one per "
-            f"{dt / 1e9:.3g} s) after the {settling_ns / 1e9:g} s settling time, found {int(n_in[i])}; "
-            f"{int(uncovered.sum())} of {n_bins} bins are not covered (RTD from {_iso_ms(t[0])} to "
-            f"{_iso_ms(t[-1])})")
+    raise_first_bad(uncovered, lambda i, n: (
+        f"{both} do not describe the same run: the RTD does not cover the programmed bin "
+        f"{_bin_name(control, i)}; expected about {max(expected[i], 0):.0f} RTD records (one per "
+        f"{dt / 1e9:.3g} s) after the {settling_ns / 1e9:g} s settling time, found {int(n_in[i])}; "
+        f"{n} of {n_bins} bins are not covered (RTD from {iso_utc(t[0], 'ms')} to "
+        f"{iso_utc(t[-1], 'ms')})"))
     cand = np.flatnonzero(status == kernels.USED)
     group = bin_idx[cand]
     residual = rtd.velocity[cand] - control.velocity[group]
@@ -227,9 +220,9 @@ def build_cube(
     span_ok = (rtd.time_ns[-1] >= control.start_ns[0]) and (rtd.time_ns[0] < control.end_ns[-1])
     if not span_ok:
         raise InputError(
-            f"{control.source}: the control log ({_iso(control.start_ns[0])} to "
-            f"{_iso(control.end_ns[-1])}) does not overlap the RTD in {rtd.source} "
-            f"({_iso(rtd.time_ns[0])} to {_iso(rtd.time_ns[-1])})")
+            f"{control.source}: the control log ({iso_utc(control.start_ns[0])} to "
+            f"{iso_utc(control.end_ns[-1])}) does not overlap the RTD in {rtd.source} "
+            f"({iso_utc(rtd.time_ns[0])} to {iso_utc(rtd.time_ns[-1])})")
     cell_of_bin = _cells(control)
     n_cells = int(np.prod(_SHAPE))
     settling_ns = round(settling_s * 1e9)
@@ -268,7 +261,7 @@ def build_cube(
     ds.attrs.update({
         "lidar_serial": meta["lidar_serial"], "bench_id": meta["bench_id"], "operator": meta["operator"],
         "run_id": str(meta["run_id"]),
-        "time_coverage_start": _iso(used_t.min()), "time_coverage_end": _iso(used_t.max()),
+        "time_coverage_start": iso_utc(used_t.min()), "time_coverage_end": iso_utc(used_t.max()),
         "rf_driver_calibration_reference": meta["rf_driver_calibration_reference"],
         "rf_driver_relative_uncertainty": float(meta["rf_driver_relative_uncertainty_percent"]),
         "rf_driver_relative_uncertainty_units": "%",

@@ -32,7 +32,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from lidarcal.admin import SIMULATED_ORIGIN
 from lidarcal.bench.formats import ControlLog, RtdTable, write_control_log, write_rtd
 from lidarcal.bench.grid import CNR_NODES, LOS_LABELS, VELOCITY_NODES, los_index
 from lidarcal.bench.response import TrueResponse
@@ -41,7 +40,13 @@ from lidarcal.io import check_writable
 from lidarcal.units import to_magnitude
 
 __all__ = ["BenchRun", "simulate_run", "sweep_schedule", "simulate_rtd", "RF_DRIVER_REFERENCE",
-           "RF_DRIVER_RELATIVE_UNCERTAINTY_PERCENT", "RTD_NAME", "RTD_NAME_GZ", "CONTROL_NAME"]
+           "RF_DRIVER_RELATIVE_UNCERTAINTY_PERCENT", "RTD_NAME", "RTD_NAME_GZ", "CONTROL_NAME",
+           "SIMULATED_ORIGIN"]
+
+#: What a simulated run's control log says as its ``data_origin`` metadata (ingest copies it into
+#: the cube's ``data_origin`` attribute): the mark by which :func:`lidarcal.admin.demonstration_reasons`
+#: (which looks for the word "simulated") makes every certificate built on the run a demonstration.
+SIMULATED_ORIGIN = "simulated by lidarcal bench simulate, not a measurement"
 
 #: Relative uncertainty of the RF-driver calibration, percent (paper §2.1).
 RF_DRIVER_RELATIVE_UNCERTAINTY_PERCENT = 5.95622e-8

@@ -57,7 +57,7 @@ COMMANDS = {
     "diagnose": Command("diagnose", "name the model effect that explains a field campaign's gap"),
     "diagnose-generate": Command("diagnose", "write a synthetic field campaign with a hidden effect"),
     "compare": Command("compare", "the field campaign's slopes and budget beside the virtual lidar's"),
-    "smc": Command("smc", "the certificate applied to a measurement campaign: the uncertainty of each period"),
+    "smc": Command("smc", "the certificate applied to a measurement campaign: each period's uncertainty"),
     "validate": Command("validate", "check artefacts against their schema and CF/ACDD"),
 }
 

@@ -47,6 +47,7 @@ from lidarcal.lidar.noise import (
 )
 from lidarcal.lidar.quadrature import gauss_hermite_rwf
 from lidarcal.lidar.rwf_profile import RwfProfileDigest, rwf_nodes, rwf_profile_digest
+from lidarcal.lidar.synthesis import REFERENCE_TURBULENCE
 from lidarcal.turbulence.kernels import COHERENCE_DECAY, L_C, LAMBDA_1, SIGMA_RATIOS
 
 __all__ = ["LidarModel", "DEFAULT_CNR_THRESHOLD", "flow_distortion_factor", "direction_spread",
@@ -55,9 +56,8 @@ __all__ = ["LidarModel", "DEFAULT_CNR_THRESHOLD", "flow_distortion_factor", "dir
 
 log = logging.getLogger(__name__)
 
-#: Conventions of ``LidarModel.reference_turbulence`` (``docs/validation.md``).
-REFERENCE_TURBULENCE = ("pinned_u", "pinned_uvw", "free", "inferred_level")
-#: Records written before ``reference_turbulence`` existed carried ``turbulence_amplitudes``.
+#: Records written before ``reference_turbulence`` existed carried ``turbulence_amplitudes``: its
+#: words, read as the one vocabulary (:data:`lidarcal.lidar.synthesis.REFERENCE_TURBULENCE`) here only.
 _LEGACY_AMPLITUDES = {"deterministic": "pinned_uvw", "rayleigh": "free"}
 
 #: Readings of Eq. 5's p: the average it multiplies (see :func:`lidarcal.lidar.wfr.hybrid_speed`).

@@ -61,7 +61,7 @@ from lidarcal.lidar.geometry import beam_geometry, period_points, wind_axes
 from lidarcal.lidar.model import LidarModel, RwfProfileDigest
 from lidarcal.lidar.quadrature import cnr_weights
 from lidarcal.lidar.spectral import cross_spectral_matrix
-from lidarcal.lidar.synthesis import REFERENCE_AMPLITUDES, draw_coefficients, synthesise
+from lidarcal.lidar.synthesis import draw_coefficients, synthesise
 from lidarcal.lidar.wfr import reconstruct
 from lidarcal.turbulence.kernels import sigma_components
 
@@ -92,8 +92,7 @@ def _simulate_height(model: LidarModel, height: float, U: float, direction: floa
     sigma = sigma_components(ti, U)
     if np.any(sigma > 0):  # turbulence: (ref_u, ref_v, LOS_0..3) from their cross-spectral matrix
         C = cross_spectral_matrix(model, height, U, direction, sigma, gradient, duration)
-        coef = draw_coefficients(C, np.random.default_rng(turb_ss),
-                                 REFERENCE_AMPLITUDES[model.reference_turbulence], n_times)
+        coef = draw_coefficients(C, np.random.default_rng(turb_ss), model.reference_turbulence, n_times)
         turb = synthesise(coef, n_times)  # (6, n_times)
     else:
         turb = np.zeros((6, n_times))
