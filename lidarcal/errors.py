@@ -9,8 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 
-import numpy as np
-
 
 class LidarcalError(Exception):
     """Base class of every error lidarcal raises on purpose."""
@@ -72,6 +70,8 @@ def raise_first_bad(bad, message: Callable[[int, int], str], error: type[Lidarca
     ...
     lidarcal.errors.InputError: row 2 is bad (2 rows)
     """
+    import numpy as np  # here, not at the top: the CLI's front door imports this module without numpy
+
     bad = np.asarray(bad, dtype=bool).ravel()
     if bad.any():
         raise error(message(int(np.argmax(bad)), int(bad.sum())))
