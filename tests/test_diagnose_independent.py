@@ -184,6 +184,7 @@ def test_effect_free_campaigns_of_different_size_are_none(n_periods):
 # makes it a decisive, material second effect here.
 
 @pytest.mark.slow
+@pytest.mark.campaign  # ~8-25 min each: outside CI's time budget, run with -m campaign
 def test_issue_26_a_long_effect_free_campaign_is_never_a_catalogue_effect():
     js = run({}, 1200, seed=26)
     assert js["effect"] in ("none", "unexplained") and js["effects"] == [], js["note"]
@@ -192,6 +193,7 @@ def test_issue_26_a_long_effect_free_campaign_is_never_a_catalogue_effect():
 
 
 @pytest.mark.slow
+@pytest.mark.campaign  # ~8-25 min each: outside CI's time budget, run with -m campaign
 def test_issue_26_a_decisive_second_effect_is_named():
     hidden = {"beam_angle_offset": {"offset": -0.3}, "cnr_gradient_weighting": {"scale": 3.0}}
     js = run(hidden, 2400, seed=26)
