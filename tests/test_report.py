@@ -498,3 +498,49 @@ def test_report_figures_pass_bokehs_document_checks(inputs):
     from bokeh.plotting import figure
 
     assert any("MISSING_RENDERERS" in issue for issue in check_models({"empty": figure()}))
+
+
+def test_report_figures_one_legend_right_and_no_unused_glyphs(inputs):
+    """Each plot's legend is moved right of it (no hidden copy left in the plot), and every glyph
+    renderer, as bokeh's own full walk of the model finds them, draws no selection/mute variant."""
+    from bokeh.models import GlyphRenderer, Legend, Plot
+
+    figs = report_figures(budget=inputs["budget"], sensitivities=inputs["sensitivities"], cube=inputs["cube"],
+                          rwf=inputs["rwf"])
+    with_legend = 0
+    for name, fig in figs.items():
+        model = fig.bokeh()
+        (plot,) = model.select({"type": Plot})
+        legends = list(model.select({"type": Legend}))
+        assert [x for x in plot.right if isinstance(x, Legend)] == legends, name
+        assert not [x for x in plot.center if isinstance(x, Legend)], name
+        with_legend += len(legends)
+        renderers = list(model.select({"type": GlyphRenderer}))
+        assert renderers, name
+        assert all(r.nonselection_glyph is None and r.muted_glyph is None for r in renderers), name
+    # every figure but the two cube heatmaps (a colour bar, no legend) has one
+    assert with_legend == len(figs) - 2
+
+
+def test_gc_paused_restores_the_collector():
+    import gc
+
+    from lidarcal.document.pages import gc_paused
+
+    assert gc.isenabled()
+    with gc_paused():
+        assert not gc.isenabled()
+        with gc_paused():  # nested: still paused, and the outer one restores it
+            pass
+        assert not gc.isenabled()
+    assert gc.isenabled()
+    with pytest.raises(RuntimeError), gc_paused():
+        raise RuntimeError("a failure while drawing")
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with gc_paused():
+            pass
+        assert not gc.isenabled()  # a collector the caller disabled stays disabled
+    finally:
+        gc.enable()

@@ -19,11 +19,13 @@ character shows.  Either way the text can be searched and extracted.
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import json
 import logging
 import os
 import textwrap
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,7 +50,7 @@ from lidarcal.document.figures import A4, FONT, STYLE, draw, figure_names, parts
 from lidarcal.io import atomic_path, check_writable
 from lidarcal.seal import VerificationReport, invalid_seal_banner, require_valid_seal
 
-__all__ = ["write_document", "BOTTOM", "FOOTER_RULE"]
+__all__ = ["write_document", "gc_paused", "BOTTOM", "FOOTER_RULE"]
 
 #: Height (figure fraction) of the footer rule; the footer's text is below it.
 FOOTER_RULE = 0.035
@@ -57,6 +59,29 @@ BOTTOM = 0.055
 #: Where a continuation page's content starts, below its title.
 _TOP = 0.91
 _TABLE_FONT = FONT - 0.5
+
+
+@contextlib.contextmanager
+def gc_paused() -> Iterator[None]:
+    """Pause Python's cyclic garbage collector inside (a context or a decorator); after, collect once.
+
+    Drawing a document creates some hundred thousand objects (artists, bokeh models), which
+    start the collector's full passes over every object of the process (the loaded datasets
+    and libraries): on the default run, four of them were an eighth of the report's CPU.  With
+    the collector paused, the objects made inside stay in its youngest generation; one pass
+    over that generation at the end frees their cycles (a decorated function's figures, gone
+    with its frame).  The cycles made meanwhile wait for that pass (the default run's report:
+    a peak resident memory about 1 % higher).  Nested use pauses once; a collector the caller
+    disabled stays disabled.
+    """
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if enabled:
+            gc.enable()
+            gc.collect(0)
 
 
 def _line(size: float, spacing: float = 1.4) -> float:
@@ -378,6 +403,7 @@ def _windows_1252(fig) -> bool:
     return True
 
 
+@gc_paused()
 def write_document(
     path: str | os.PathLike,
     cert: xr.Dataset,

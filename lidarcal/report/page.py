@@ -34,7 +34,7 @@ from lidarcal.document.facts import (
     model_form_grid,
 )
 from lidarcal.document.figures import A4, STYLE, draw, drawn_cnr_range, figure_names, parts_of
-from lidarcal.document.pages import write_document
+from lidarcal.document.pages import gc_paused, write_document
 from lidarcal.htmlpage import html_table, offline_html, write_text
 from lidarcal.io import atomic_path, check_writable
 from lidarcal.report.plots import report_figures
@@ -139,6 +139,7 @@ def _all_or_nothing(published: list[Path]) -> Iterator[None]:
         raise
 
 
+@gc_paused()
 def write_report(
     path: str | os.PathLike,
     *,
