@@ -39,3 +39,19 @@ def poppler() -> tuple[str, str]:
             pytest.fail(f"CI=true and {message}")
         pytest.skip(message)
     return ppm, text
+
+
+#: Test files whose slow tests are statistical campaigns (diagnose's confusion matrices and long
+#: campaigns on the independent simulator, compare on it, smc's Monte Carlo route against a real
+#: calibration): about an hour together on 2 cores, more than CI's 90 minutes leave beside the
+#: rest. They are also marked ``campaign``: ``.ci/run`` runs ``-m "slow and not campaign"``; run
+#: ``pytest -m campaign`` when you change lidarcal/diagnose, lidarcal/compare, lidarcal/smc or the
+#: independent simulator.
+CAMPAIGN_FILES = ("test_diagnose_independent.py", "test_diagnose_hidden.py", "test_compare.py",
+                  "test_smc_montecarlo.py")
+
+
+def pytest_collection_modifyitems(config, items):
+    for item in items:
+        if item.path.name in CAMPAIGN_FILES and item.get_closest_marker("slow"):
+            item.add_marker(pytest.mark.campaign)
