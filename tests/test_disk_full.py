@@ -121,8 +121,8 @@ def test_full_file_system_calibrate(tiny_fs, capsys):
     mnt, fill = tiny_fs
     fill(16 * 1024)
     out = mnt / "run"
-    _refused(capsys, ["calibrate", "-o", str(out), "--periods", "4", "--heights", "80", "120", "--no-progress"],
-             out / "cube.nc")
+    _refused(capsys, ["calibrate", "-o", str(out), "--periods", "4", "--heights", "80", "120",
+                      "--no-progress"], out / "cube.nc")
     assert _files(mnt) == []
 
 
