@@ -132,7 +132,7 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFA
     _small(
         top,
         f"Relative expanded uncertainty (k = {k:g}), certified bins "
-        f"({wind_speeds[0]:g} to {wind_speeds[1]:g} m/s, enough periods)",
+        f"({wind_speeds[0]:g} to {wind_speeds[1]:g} m/s, enough periods, settled)",
         f"reference wind speed bin{units_suffix(budget.wind_speed)}",
         f"U, k = {k:g} (%)",
     )
@@ -144,7 +144,7 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFA
     bottom.axvspan(wind_speeds[0] - step / 2, wind_speeds[1] + step / 2, color="0.9", zorder=0)
     _small(
         bottom,
-        "Not certified: bins outside that range or with too few periods (own scale)",
+        "Not certified: bins outside that range, with too few periods or not settled (own scale)",
         f"reference wind speed bin{units_suffix(budget.wind_speed)}",
         f"U, k = {k:g} (%)",
     )

@@ -28,7 +28,9 @@ from lidarcal.document.facts import (
     certificate_id,
     certified_grid,
     fmt,
+    grid_cell,
     headline_text,
+    not_settled_text,
     stated,
 )
 from lidarcal.document.figures import A4, FONT, STYLE, draw, figure_names, parts_of
@@ -95,14 +97,13 @@ def _grid_table(
         black, grey = [], []
         for i in rows:
             v, ok = g["value"][i, j], g["certified"][i, j]
-            if only_certified and not ok:
-                text = "–"
+            if only_certified:
+                text = grid_cell(g, i, j) if ok else "–"
             else:
-                text = f"{v:.2f}" if np.isfinite(v) else "–"
-                if g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]) and np.isfinite(v):
-                    text += f" ± {g['tolerance'][i, j]:.2g}"
+                g_all = {**g, "statement": None}  # every bin's U (k = 2), the IEC-style value
+                text = grid_cell(g_all, i, j)
                 if not ok and np.isfinite(v):
-                    text += " t" if int(g["flag"][i, j]) == 1 else " o"
+                    text += " n" if g["not_settled"][i, j] else " t" if int(g["flag"][i, j]) == 1 else " o"
             (black if ok else grey).append(text)
             (grey if ok else black).append(" ")
         fig.text(c, y, "\n".join(black), ha="right", multialignment="right", color="black", **style)
@@ -161,10 +162,13 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None, seal: str | None
         return
     k = float(budget.attrs.get("coverage_factor", 2.0))
     y -= 0.012
+    g = certified_grid(budget)
+    intervals = g["statement"] is not None and bool((g["certified"] & (g["statement"] == 1)).any())
     fig.text(
         0.07,
         y,
-        f"Certified result: relative expanded uncertainty U (%), k = {k:g}",
+        f"Certified result: relative expanded uncertainty U (%), k = {k:g}"
+        + ("; low…high: the Monte Carlo 95 % coverage interval of the error (%)" if intervals else ""),
         fontsize=FONT + 1.5,
         weight="bold",
         va="top",
@@ -173,18 +177,21 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None, seal: str | None
     headline = textwrap.fill(headline_text(budget), 105)
     fig.text(0.07, y, headline, fontsize=FONT + 0.5, va="top", weight="bold")
     y -= (headline.count("\n") + 1) * (FONT + 0.5) * 1.25 / 72 / A4[1] + 0.006  # however many lines it takes
-    g = certified_grid(budget)
     tol = "; ± its numerical tolerance (Monte Carlo)" if g["tolerance"] is not None else ""
     fig.text(
         0.07,
         y,
-        f"Per height and wind-speed bin (bin centre){tol}; – : bin not certified (too few periods "
-        "or no data).",
+        f"Per height and wind-speed bin (bin centre){tol}; – : bin not certified (too few periods, "
+        "not settled or no data).",
         fontsize=FONT - 0.5,
         va="top",
         color="0.3",
     )
-    _grid_table(fig, y - 0.016, g, np.flatnonzero(g["inside"]), only_certified=True)
+    missed = textwrap.fill(not_settled_text(budget), 120)
+    bottom = 0.05 + (missed.count("\n") + 1.5) * (FONT - 0.5) * 1.3 / 72 / A4[1] if missed else 0.05
+    y = _grid_table(fig, y - 0.016, g, np.flatnonzero(g["inside"]), only_certified=True, bottom=bottom)
+    if missed:  # listed apart, never in the certified grid (JCGM 101 7.9)
+        fig.text(0.07, y - 0.004, missed, fontsize=FONT - 0.5, va="top", color="#8a5a00")
 
 
 def _all_bins_page(fig, budget: xr.Dataset) -> None:
@@ -192,8 +199,9 @@ def _all_bins_page(fig, budget: xr.Dataset) -> None:
     _title(
         fig,
         f"Every bin of the budget: U (%), k = {k:g}",
-        "Grey: not certified (t: too few periods; o: outside the certified wind-speed range); "
-        "– : no data. Only the black values are certified.",
+        "Grey: not certified (t: too few periods; o: outside the certified wind-speed range; n: not "
+        "settled by the Monte Carlo); – : no data. Black: certified bins (where page 1 shows an interval, "
+        "the interval is what they certify).",
     )
     g = certified_grid(budget)
     _grid_table(fig, 0.91, g, np.arange(g["wind_speed"].size), only_certified=False)

@@ -26,7 +26,9 @@ from lidarcal.document.facts import (
     certificate_id,
     certified_grid,
     fmt,
+    grid_cell,
     headline_text,
+    not_settled_text,
 )
 from lidarcal.document.figures import A4, STYLE, draw, drawn_cnr_range, figure_names, parts_of
 from lidarcal.document.pages import write_document
@@ -53,18 +55,18 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None
         g = certified_grid(budget)
         rows = []
         for i in np.flatnonzero(g["inside"]):
-            cells = []
-            for j in range(g["height"].size):
-                v = g["value"][i, j]
-                text = f"{v:.2f}" if g["certified"][i, j] else "–"
-                if g["certified"][i, j] and g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]):
-                    text += f" ± {g['tolerance'][i, j]:.2g}"
-                cells.append(text)
+            cells = [grid_cell(g, i, j) if g["certified"][i, j] else "–" for j in range(g["height"].size)]
             rows.append([fmt(g["wind_speed"][i]), *cells])
         k = float(budget.attrs.get("coverage_factor", 2.0))
+        intervals = g["statement"] is not None and bool((g["certified"] & (g["statement"] == 1)).any())
         out.append(html_table(["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]], rows,
                           f"Certified result: relative expanded uncertainty U (%), k = {k:g}, per height and "
-                          "wind-speed bin; – : not certified (too few periods or no data)"))
+                          "wind-speed bin"
+                          + ("; low…high: the Monte Carlo 95 % coverage interval of the error (%), certified "
+                             "where it differs materially from ±U" if intervals else "")
+                          + "; – : not certified (too few periods, not settled, or no data)"))
+        if missed := not_settled_text(budget):
+            out.append(f'<p class="not-settled">{html.escape(missed)}</p>')
     if cert is not None:
         facts = "\n".join(
             f"<tr><th>{html.escape(section if n == 0 else '')}</th><td>{html.escape(label)}</td>"

@@ -149,6 +149,10 @@ def _budget_figure(budget: xr.Dataset) -> Figure:
             thin = (f == 1) & np.isfinite(y)
             p.scatter(ws[thin], y[thin], marker="x", size=11, line_width=2, color=_THIN,
                       legend_label="thin bin (too few periods)", name=name)
+            missed = g["not_settled"][:, i] & np.isfinite(y)
+            if missed.any():
+                p.scatter(ws[missed], y[missed], marker="triangle", size=9, color=_THIN, fill_alpha=0.2,
+                          legend_label="not settled (Monte Carlo)", name=name)
         _legend_outside(p, "none")
         groups = {"all heights": list(p.renderers), **_by_name(p)}
         return _menu(p, groups, "all heights", {lab: f"{title}, {lab}" for lab in labels})
@@ -156,8 +160,9 @@ def _budget_figure(budget: xr.Dataset) -> Figure:
     return Figure(
         f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", build,
         note="<p>The axes show the certified bins (enough periods, 4 to 16 m/s); pan or zoom out for the "
-             "others. Red crosses: thin bins (fewer periods than the minimum); they are kept in the budget "
-             "but left out of the certificate's headline range. Empty bins are not drawn.</p>",
+             "others. Red crosses: thin bins (fewer periods than the minimum); red triangles: bins whose "
+             "Monte Carlo values did not settle; both are kept in the budget but not certified and left "
+             "out of the certificate's headline range. Empty bins are not drawn.</p>",
     )
 
 
