@@ -170,14 +170,10 @@ def numerical_state(pooled: Mapping[str, np.ndarray], replicas: Mapping[str, np.
         if max_replicas is not None:
             with np.errstate(invalid="ignore", divide="ignore"):
                 s_one = np.where(h >= 2, w_rep / student_factor(h, p) * np.sqrt(np.maximum(h, 1)), np.nan)
-            need = np.zeros(h.shape, dtype=int)
-            for idx in zip(*np.nonzero(assess & ~ok), strict=True):
-                hh = int(h[idx])
-                if hh < 2:  # no spread yet: one more replica before anything can be predicted
-                    need[idx] = min(hh + 1, int(max_replicas))
-                    continue
-                need[idx] = int(replicas_needed(hh, np.array([s_one[idx]]), np.array([delta_sd[name][idx]]),
-                                                np.array([target[idx]]), int(max_replicas), p)[0])
+            # no spread yet (h < 2): one more replica before anything can be predicted
+            need = np.where(h >= 2, replicas_needed(h, s_one, np.asarray(delta_sd[name], dtype=float), target,
+                                                    int(max_replicas), p), np.minimum(h + 1, int(max_replicas)))
+            need = np.where(assess & ~ok, need, 0)
             needed = need if needed is None else np.maximum(needed, need)
     out["settled"] = all_settled
     out["flag"] = np.where(assess, np.where(all_settled, 0, 1), 2).astype(np.int8)

@@ -57,6 +57,21 @@ def grouped(values: np.ndarray, group: np.ndarray, ngroups: int, fill: float = n
     return out
 
 
+def _buckets(n: np.ndarray, use: np.ndarray):
+    """Yield (row indices, width) of the rows of ``use`` grouped by trial count within a factor of 2.
+
+    Rows are NaN-padded on the right, so a bucket's rows need only its largest count of columns.
+    """
+    idx = np.flatnonzero(np.asarray(use).ravel())
+    if not idx.size:
+        return
+    counts = np.asarray(n).ravel()[idx]
+    level = np.floor(np.log2(np.maximum(counts, 1))).astype(int)
+    for lv in np.unique(level):
+        rows = idx[level == lv]
+        yield np.unravel_index(rows, np.shape(n)), int(np.asarray(n).ravel()[rows].max())
+
+
 def bin_values(samples: np.ndarray, sigma: np.ndarray, expanded: np.ndarray, nu: np.ndarray, *,
                p: float = COVERAGE_PROBABILITY, shortest: bool = False) -> dict[str, np.ndarray]:
     """Return the JCGM 101 values of each row of ``samples`` (..., n; NaN-padded trials).
@@ -78,17 +93,17 @@ def bin_values(samples: np.ndarray, sigma: np.ndarray, expanded: np.ndarray, nu:
     u = np.sqrt(var + sig**2)
     usable = (n >= 2) & np.isfinite(sig) & (sig >= 0) & np.isfinite(u)
     lo, hi = np.full(y.shape, np.nan), np.full(y.shape, np.nan)
-    if usable.any():
-        lo[usable], hi[usable] = coverage_interval(d[usable], sig[usable], p, shortest=shortest)
+    for rows, width in _buckets(n, usable):  # rows of like size, so that little padding is iterated
+        lo[rows], hi[rows] = coverage_interval(d[rows][..., :width], sig[rows], p, shortest=shortest)
     c = thin_bin_factor(nu, p)
     lower, upper = y + c * (lo - y), y + c * (hi - y)
     big_u = np.asarray(expanded, dtype=float)
     coverage = np.full(y.shape, np.nan)
-    ok = usable & np.isfinite(big_u)
-    if ok.any():
-        at = np.stack([y[ok] + (big_u[ok] - y[ok]) / c[ok], y[ok] + (-big_u[ok] - y[ok]) / c[ok]], axis=-1)
-        g = mixture_cdf(at, d[ok], sig[ok])
-        coverage[ok] = g[..., 0] - g[..., 1]
+    for rows, width in _buckets(n, usable & np.isfinite(big_u)):
+        at = np.stack([y[rows] + (big_u[rows] - y[rows]) / c[rows], y[rows] + (-big_u[rows] - y[rows]) / c[rows]],
+                      axis=-1)
+        g = mixture_cdf(at, d[rows][..., :width], sig[rows])
+        coverage[rows] = g[..., 0] - g[..., 1]
     return {"mean_difference": y, "error_standard_uncertainty": u, "coverage_interval_lower": lower,
             "coverage_interval_upper": upper, "coverage": coverage, "factor": c, "raw_lower": lo,
             "raw_upper": hi}
@@ -128,4 +143,6 @@ def delta_sds(samples: np.ndarray, strata: np.ndarray, sigma: np.ndarray, values
             influences[name] = (1.0 - c) * inf_y + c * inf_x
         combined = np.asarray(combined, dtype=float)[..., None]
         influences["expanded_uncertainty"] = k * (y * inf_y + u * inf_u) / combined
-    return {name: stratified_sd(inf, strata) for name, inf in influences.items()}
+    names = list(influences)
+    sds = stratified_sd(np.stack([influences[n] for n in names]), strata)  # one pairing of trials and periods
+    return dict(zip(names, sds, strict=True))

@@ -40,6 +40,7 @@ A value reached the tolerance δ = ½·10^ℓ, ℓ the smallest integer with δ 
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 
@@ -273,37 +274,53 @@ def stratified_sd(influence, strata) -> np.ndarray:
     pooled within-stratum variance of the influences (one-way analysis of variance).  Where no
     stratum holds two trials, the total variance of the influences is used instead (it includes
     the between-strata spread, so it errs on the large side).  ``strata`` (..., n) are integer
-    labels, negative for an absent trial.  NaN for fewer than two trials.
+    labels, -1 for an absent trial; ``influence`` may carry leading dims of its own (several
+    statistics of the same trials).  NaN for fewer than two trials.
 
     >>> inf = np.array([[1.0, 3.0, 10.0, 12.0]])  # two strata, each spread by +-1 about its mean
     >>> round(float(stratified_sd(inf, np.array([[0, 0, 1, 1]]))[0]), 6)  # sqrt((4/2) / 4)
     0.707107
     """
     f = _padded(influence)
-    lab = np.asarray(strata)
-    batch = f.shape[:-1]
-    f2 = f.reshape(-1, f.shape[-1])
-    lab2 = np.broadcast_to(lab, f.shape).reshape(-1, f.shape[-1])
-    ok = np.isfinite(f2) & (lab2 >= 0)
-    groups = np.broadcast_to(np.arange(f2.shape[0])[:, None], f2.shape)[ok]
-    x, labels = f2[ok], lab2[ok]
-    ng = f2.shape[0]
-    n = np.bincount(groups, minlength=ng).astype(float)
-    out = np.full(ng, np.nan)
-    if x.size:
-        pairs, inv = np.unique(np.stack([groups, labels]), axis=1, return_inverse=True)
-        inv = inv.ravel()
-        cnt = np.bincount(inv).astype(float)
-        s1, s2 = np.bincount(inv, x), np.bincount(inv, x * x)
-        ss = np.maximum(s2 - s1 * s1 / cnt, 0.0)
-        ss_w = np.bincount(pairs[0], ss, minlength=ng)
-        dof_w = np.bincount(pairs[0], cnt - 1, minlength=ng)
-        t1, t2 = np.bincount(groups, x, minlength=ng), np.bincount(groups, x * x, minlength=ng)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            total = np.maximum(t2 - t1 * t1 / n, 0.0) / (n - 1)
-            var = np.where(dof_w > 0, ss_w / dof_w, total)
-            out = np.where(n >= 2, np.sqrt(var / n), np.nan)
-    return out.reshape(batch)
+    lab = np.asarray(strata, dtype=np.int64)
+    lab = np.broadcast_to(lab, f.shape[f.ndim - max(lab.ndim, 1):])
+    lead, batch = f.shape[: f.ndim - lab.ndim], lab.shape[:-1]
+    lab2 = lab.reshape(-1, lab.shape[-1])
+    ng = lab2.shape[0]
+    present = lab2 >= 0
+    groups = np.broadcast_to(np.arange(ng)[:, None], lab2.shape)[present]
+    labels = lab2[present]
+    out = np.full((int(np.prod(lead, dtype=int)), ng), np.nan)
+    if labels.size:
+        labels = labels - labels.min()
+        key = groups * (int(labels.max()) + 1) + labels  # one integer per (group, stratum)
+        uniq, inv = np.unique(key, return_inverse=True)
+        pair_group = uniq // (int(labels.max()) + 1)
+        for m, fm in enumerate(f.reshape(-1, *lab2.shape)):
+            x = fm[present]
+            w = np.isfinite(x).astype(float)
+            x = np.where(w > 0, x, 0.0)
+            cnt, s1, s2 = np.bincount(inv, w), np.bincount(inv, x), np.bincount(inv, x * x)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                ss = np.where(cnt > 0, np.maximum(s2 - s1 * s1 / cnt, 0.0), 0.0)
+            ss_w = np.bincount(pair_group, ss, minlength=ng)
+            dof_w = np.bincount(pair_group, np.maximum(cnt - 1, 0), minlength=ng)
+            n = np.bincount(groups, w, minlength=ng)
+            t1, t2 = np.bincount(groups, x, minlength=ng), np.bincount(groups, x * x, minlength=ng)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                total = np.maximum(t2 - t1 * t1 / n, 0.0) / (n - 1)
+                var = np.where(dof_w > 0, ss_w / dof_w, total)
+                out[m] = np.where(n >= 2, np.sqrt(var / n), np.nan)
+    return out.reshape(tuple(lead) + tuple(batch))
+
+
+@functools.lru_cache(maxsize=8)
+def _student_table(p: float, size: int) -> np.ndarray:
+    """t_((1+p)/2)(h − 1) for h = 0 … size − 1 (NaN below h = 2)."""
+    h = np.arange(size, dtype=float)
+    out = np.full(size, np.nan)
+    out[2:] = stats.t.ppf(0.5 * (1 + p), h[2:] - 1)
+    return out
 
 
 def student_factor(h, p: float = COVERAGE_PROBABILITY) -> np.ndarray:
@@ -313,6 +330,9 @@ def student_factor(h, p: float = COVERAGE_PROBABILITY) -> np.ndarray:
     3.182
     """
     h = np.asarray(h, dtype=float)
+    whole = np.isfinite(h) & (h == np.floor(h)) & (h >= 0) & (h < 4096)
+    if np.all(whole):  # replica counts: from a table computed once
+        return _student_table(float(p), 4096)[h.astype(int)]
     with np.errstate(invalid="ignore"):
         return np.where(h >= 2, stats.t.ppf(0.5 * (1 + p), np.maximum(h - 1, 1)), np.nan)
 
@@ -350,31 +370,29 @@ def tolerance_exponent(spread) -> np.ndarray:
     return np.where(spread > 0, ell, np.where(spread == 0, -np.inf, np.nan))
 
 
-def replicas_needed(h: int, replica_sd, delta_sd, target, max_replicas: int,
+def replicas_needed(h, replica_sd, delta_sd, target, max_replicas: int,
                     p: float = COVERAGE_PROBABILITY) -> np.ndarray:
     """Fewest replicas H (h < H ≤ ``max_replicas``) at which a value is expected to settle.
 
-    ``replica_sd`` is the standard deviation of one replica's value (s, from the h done),
-    ``delta_sd`` the delta-method standard deviation of the value from the trials of the h
-    replicas, ``target`` the tolerance δ it must reach.  With H replicas the half-widths are
-    expected to be t(H − 1)·s/√H and z·``delta_sd``·√(h/H) (the trials grow in proportion);
-    the smallest H meeting both is returned (Stein's two-stage idea, Wübbeler et al. 2010,
-    with the estimate refreshed at every batch), ``max_replicas`` when none does, and h where
-    the value needs nothing (NaN inputs count as no constraint).
+    ``h`` (...) is the replicas done, ``replica_sd`` the standard deviation of one replica's
+    value (s, from the h done), ``delta_sd`` the delta-method standard deviation of the value
+    from the trials of the h replicas, ``target`` the tolerance δ it must reach.  With H
+    replicas the half-widths are expected to be t(H − 1)·s/√H and z·``delta_sd``·√(h/H) (the
+    trials grow in proportion); the smallest H meeting both is returned (Stein's two-stage idea,
+    Wübbeler et al. 2010, with the estimate refreshed at every batch), ``max_replicas`` when
+    none does (NaN inputs count as no constraint).
 
     >>> int(replicas_needed(4, np.array([0.1]), np.array([0.0]), np.array([0.05]), 30)[0])
-    19
+    18
     """
     s = np.asarray(replica_sd, dtype=float)
-    dsd = np.asarray(delta_sd, dtype=float)
-    tgt = np.asarray(target, dtype=float)
-    hs = np.arange(h + 1, int(max_replicas) + 1, dtype=float)
-    if hs.size == 0:
-        return np.full(s.shape, int(h))
+    h = np.broadcast_to(np.asarray(h, dtype=float), s.shape)
+    dsd = np.broadcast_to(np.asarray(delta_sd, dtype=float), s.shape)
+    tgt = np.broadcast_to(np.asarray(target, dtype=float), s.shape)
+    hs = np.arange(1, int(max_replicas) + 1, dtype=float)
     t = student_factor(hs, p)
-    with np.errstate(invalid="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):
         rep_ok = ~(t * s[..., None] / np.sqrt(hs) > tgt[..., None])
-        delta_ok = ~(z_factor(p) * dsd[..., None] * np.sqrt(h / hs) > tgt[..., None])
-    ok = rep_ok & delta_ok
-    first = np.where(ok.any(axis=-1), hs[np.argmax(ok, axis=-1)], float(max_replicas))
-    return first.astype(int)
+        delta_ok = ~(z_factor(p) * dsd[..., None] * np.sqrt(h[..., None] / hs) > tgt[..., None])
+    ok = rep_ok & delta_ok & (hs > h[..., None])
+    return np.where(ok.any(axis=-1), hs[np.argmax(ok, axis=-1)], float(max_replicas)).astype(int)
