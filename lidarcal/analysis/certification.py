@@ -171,8 +171,9 @@ def numerical_state(pooled: Mapping[str, np.ndarray], replicas: Mapping[str, np.
             with np.errstate(invalid="ignore", divide="ignore"):
                 s_one = np.where(h >= 2, w_rep / student_factor(h, p) * np.sqrt(np.maximum(h, 1)), np.nan)
             # no spread yet (h < 2): one more replica before anything can be predicted
-            need = np.where(h >= 2, replicas_needed(h, s_one, np.asarray(delta_sd[name], dtype=float), target,
-                                                    int(max_replicas), p), np.minimum(h + 1, int(max_replicas)))
+            later = replicas_needed(h, s_one, np.asarray(delta_sd[name], dtype=float), target,
+                                    int(max_replicas), p)
+            need = np.where(h >= 2, later, np.minimum(h + 1, int(max_replicas)))
             need = np.where(assess & ~ok, need, 0)
             needed = need if needed is None else np.maximum(needed, need)
     out["settled"] = all_settled

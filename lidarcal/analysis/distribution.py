@@ -100,8 +100,8 @@ def bin_values(samples: np.ndarray, sigma: np.ndarray, expanded: np.ndarray, nu:
     big_u = np.asarray(expanded, dtype=float)
     coverage = np.full(y.shape, np.nan)
     for rows, width in _buckets(n, usable & np.isfinite(big_u)):
-        at = np.stack([y[rows] + (big_u[rows] - y[rows]) / c[rows], y[rows] + (-big_u[rows] - y[rows]) / c[rows]],
-                      axis=-1)
+        yr, ur, cr = y[rows], big_u[rows], c[rows]
+        at = np.stack([yr + (ur - yr) / cr, yr + (-ur - yr) / cr], axis=-1)
         g = mixture_cdf(at, d[rows][..., :width], sig[rows])
         coverage[rows] = g[..., 0] - g[..., 1]
     return {"mean_difference": y, "error_standard_uncertainty": u, "coverage_interval_lower": lower,
