@@ -55,6 +55,8 @@ log = logging.getLogger(__name__)
 
 #: Most replicas (replica 0 included) by default.
 DEFAULT_MAX_REPLICAS = 30
+#: What is kept of each replica's trials (the other engine outputs are dropped as they arrive).
+_KEPT = ("period", "height", "lidar_wind_speed", "reference_wind_speed")
 #: Replicas per batch, in order; the last repeats (checks at h = 2, 4, 8, 16, 24, ...).
 BATCH_SCHEDULE = (1, 2, 4, 8)
 
@@ -174,7 +176,8 @@ def adaptive_replicas(
         done = simulate_replicas(conditions, model, cells, list(cells), heights=heights, base_seed=base_seed,
                                  chunk=chunk, scheduler=scheduler, workers=workers, workdir=workdir,
                                  progress=progress, duration=duration)
-        trials += [{"replica": r, **done[r]} for r in sorted(done)]
+        # keep only what the budget and the records need: memory grows by four numbers a trial
+        trials += [{"replica": r, **{k: done[r][k] for k in _KEPT}} for r in sorted(done)]
         current = with_trials(records, trials)
         bud = budget(current, **opts)
     return current, bud
