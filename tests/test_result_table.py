@@ -205,3 +205,37 @@ def test_open_certificate_tree(cert_path):
 def test_open_certificate_refuses_other_artefacts(cert_path):
     with pytest.raises(lidarcal.errors.InputError, match="budget.nc: not a lidarcal certificate"):
         lidarcal.open_certificate(cert_path.parent / "budget.nc")
+
+
+def test_certificate_written_before_not_settled_still_reads_and_verifies(tmp_path):
+    """A budget of the earlier rule: bin_flag 0-3, an unsettled value certified with numerical_flag 1.
+
+    Such a certificate opens and verifies; its unsettled value is read as not settled: out of the
+    headline and the certified rows, listed apart.
+    """
+    from lidarcal.seal import verify_certificate
+
+    records = make_records(n=400, heights=(80.0,), lidar_serial=SERIAL, replicas=8)
+    bud = budget(records, significant_digits=1)
+    j = int(np.argmin(abs(bud["wind_speed"].values - 9.0)))
+    assert int(bud["bin_flag"].isel(height=0, wind_speed=j)) == 0
+    # the earlier budget: no JCGM 101 distribution, four flag meanings, the value still flagged certified
+    new = ("relative_coverage", "coverage_interval", "numerical_tolerance_", "certified_statement",
+           "relative_mean", "relative_error", "error_", "effective_", "expanded_uncertainty_coverage", "replica")
+    old = bud.drop_vars([v for v in bud.data_vars if v.startswith(new)])
+    old["bin_flag"].attrs.update(flag_values=np.array([0, 1, 2, 3], dtype=np.int8),
+                                 flag_meanings="certified too_few_periods empty outside_certified_range")
+    old["numerical_flag"][{"height": 0, "wind_speed": j}] = 1
+    old["relative_expanded_uncertainty"][{"height": 0, "wind_speed": j}] = 70.0
+    cert = make_certificate(budget=old, sensitivities=[sensitivity(records, "wind_shear_exponent")],
+                            demonstration=True)
+    path = write_certificate(cert, tmp_path / "old.nc")
+    assert verify_certificate(path).ok
+    back = xr.open_dataset(path)
+    lo, hi = headline_range(back)
+    assert hi < 70.0
+    table = result_table(back).set_index(["height_m", "wind_speed_m_s"])
+    row = table.loc[(80.0, float(bud["wind_speed"].values[j]))]
+    assert row["bin_flag"] == "not_settled" and not row["certified"]
+    assert [r["wind_speed_m_s"] for r in result_table(back).attrs["not_settled_rows"]] == [
+        float(bud["wind_speed"].values[j])]
