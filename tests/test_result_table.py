@@ -221,7 +221,8 @@ def test_certificate_written_before_not_settled_still_reads_and_verifies(tmp_pat
     assert int(bud["bin_flag"].isel(height=0, wind_speed=j)) == 0
     # the earlier budget: no JCGM 101 distribution, four flag meanings, the value still flagged certified
     new = ("relative_coverage", "coverage_interval", "numerical_tolerance_", "certified_statement",
-           "relative_mean", "relative_error", "error_", "effective_", "expanded_uncertainty_coverage", "replica")
+           "relative_mean", "relative_error", "error_", "effective_", "expanded_uncertainty_coverage",
+           "replica")
     old = bud.drop_vars([v for v in bud.data_vars if v.startswith(new)])
     old["bin_flag"].attrs.update(flag_values=np.array([0, 1, 2, 3], dtype=np.int8),
                                  flag_meanings="certified too_few_periods empty outside_certified_range")
