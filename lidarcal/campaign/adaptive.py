@@ -20,7 +20,9 @@ falls in a bin that has not settled and is expected to need more replicas than i
 budget's ``replicas_needed``, the smallest h at which both half-widths, extrapolated from the
 replicas so far, reach δ — Stein's two-stage idea as in Wübbeler, Harris, Cox and Elster,
 Metrologia 47 (2010) 317, refreshed after every batch — against its ``replica_count``): a bin
-needing n more takes part in the first n replicas of the batch.  Each batch's replicas are
+needing n more takes part in the first n replicas of the batch, and one expected (from h = 4
+on) to need more than twice ``max_replicas`` takes part in none: it would end not settled
+anyway, and its replicas would only cost time.  Each batch's replicas are
 submitted together as Dask tasks.  Everything depends only on the inputs and seeds, so the
 result is the same for any workers, scheduler or chunk size, and with ``workdir`` an
 interrupted run resumes from its finished chunks.  The trials are returned as ``trial_*``
@@ -57,6 +59,9 @@ log = logging.getLogger(__name__)
 DEFAULT_MAX_REPLICAS = 30
 #: What is kept of each replica's trials (the other engine outputs are dropped as they arrive).
 _KEPT = ("period", "height", "lidar_wind_speed", "reference_wind_speed")
+#: Replicas (of a bin) from which a bin expected to need more than twice the most replicas is
+#: given up: its standard deviation then rests on 3 degrees of freedom at least.
+FUTILE_AFTER = 4
 #: Replicas per batch, in order; the last repeats (checks at h = 2, 4, 8, 16, 24, ...).
 BATCH_SCHEDULE = (1, 2, 4, 8)
 
@@ -90,15 +95,21 @@ def _batches(max_replicas: int) -> list[list[int]]:
     return out
 
 
-def _cells(records: xr.Dataset, bud: xr.Dataset, batch: Sequence[int]) -> dict[int, np.ndarray]:
+def _cells(records: xr.Dataset, bud: xr.Dataset, batch: Sequence[int],
+           max_replicas: int) -> dict[int, np.ndarray]:
     """Per replica of ``batch``, the (time, height) periods it re-simulates.
 
     A period is re-simulated by the first n replicas of the batch when its replica-0 reference
     falls in a bin that is certified but for its numerical state and has not settled, n being the
-    replicas the bin still needs (``replicas_needed`` − ``replica_count``).
+    replicas the bin still needs (``replicas_needed`` − ``replica_count``).  A bin estimated by at
+    least :data:`FUTILE_AFTER` replicas that is expected to need more than twice ``max_replicas``
+    is not re-simulated any more: it would end not settled anyway.
     """
     flag = bud["numerical_flag"].transpose("height", "wind_speed").values
-    need = (bud["replicas_needed"] - bud["replica_count"]).transpose("height", "wind_speed").values
+    needed = bud["replicas_needed"].transpose("height", "wind_speed").values
+    count = bud["replica_count"].transpose("height", "wind_speed").values
+    futile = (count >= FUTILE_AFTER) & (needed > 2 * int(max_replicas))
+    need = np.where(futile, 0, needed - count)
     bounds = bud["wind_speed_bounds"].values
     edges = np.append(bounds[:, 0], bounds[-1, 1])
     ref = records["reference_wind_speed"].transpose("time", "height").values
@@ -164,7 +175,7 @@ def adaptive_replicas(
     current = with_trials(records, trials)
     bud = budget(current, **opts)
     for batch in _batches(int(max_replicas)):
-        cells = _cells(records, bud, batch)
+        cells = _cells(records, bud, batch, int(max_replicas))
         cells = {r: c for r, c in cells.items() if c.any()}
         if not cells:
             break
