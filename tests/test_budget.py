@@ -361,3 +361,31 @@ def test_thin_bin_with_spread_of_its_own_certifies_the_widened_interval():
     assert coverage < 0.94 and int(b.certified_statement) == 1  # k = 2 under-covers: the interval it is
     half = 0.5 * float(b.relative_coverage_interval_upper - b.relative_coverage_interval_lower)
     assert half > big_u  # the certified interval is wider than +-U (by 6 % here)
+
+
+def test_statistical_term_counts_periods_not_trials():
+    """Replicas add trials, not periods of the atmosphere: sigma/sqrt(N) with N = period_count."""
+    records = make_records(n=300, heights=(80.0,), replicas=4)
+    b = budget(records, significant_digits=1)
+    stat = b.contribution.sel(contributor="statistical")
+    filled = b.period_count >= 2
+    assert bool((b.sample_count.where(filled) == 4 * b.period_count.where(filled)).where(filled, True).all())
+    expected = b.std_difference / np.sqrt(b.period_count)
+    np.testing.assert_allclose(stat.where(filled).values, expected.where(filled).values, rtol=1e-12)
+
+
+def test_shortest_interval_on_request():
+    """JCGM 101 7.7: the shortest 95 % interval is no wider than the symmetric one; the choice is recorded."""
+    records = make_records(n=400, heights=(80.0,), replicas=4, shear_slope=(8.0,))
+    sym = budget(records, significant_digits=1)
+    short = budget(records, significant_digits=1, coverage_interval="shortest")
+    width = {k: (b.relative_coverage_interval_upper - b.relative_coverage_interval_lower)
+             for k, b in (("sym", sym), ("short", short))}
+    filled = np.isfinite(width["sym"])
+    assert int(filled.sum()) >= 10
+    assert bool((width["short"] <= width["sym"] + 1e-9).where(filled, True).all())
+    assert float((width["sym"] - width["short"]).where(filled).max()) > 0  # a flat-topped, skewed bin differs
+    assert short.attrs["coverage_interval"] == "shortest" and sym.attrs["coverage_interval"] == "symmetric"
+    assert "shortest" in short.relative_coverage_interval_upper.attrs["long_name"]
+    with pytest.raises(InputError, match="coverage_interval must be one of"):
+        budget(records, coverage_interval="narrow")
