@@ -216,7 +216,7 @@ def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT
         text += (f" {len(missed)} value(s) did not settle to "
                  f"{int(budget.attrs['monte_carlo_significant_digits'])} significant digits within "
                  f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas and are not certified "
-                 "(listed below the table).")
+                 "(listed apart, with their tolerances).")
     return text
 
 

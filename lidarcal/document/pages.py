@@ -187,11 +187,7 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None, seal: str | None
         va="top",
         color="0.3",
     )
-    missed = textwrap.fill(not_settled_text(budget), 120)
-    bottom = 0.05 + (missed.count("\n") + 1.5) * (FONT - 0.5) * 1.3 / 72 / A4[1] if missed else 0.05
-    y = _grid_table(fig, y - 0.016, g, np.flatnonzero(g["inside"]), only_certified=True, bottom=bottom)
-    if missed:  # listed apart, never in the certified grid (JCGM 101 7.9)
-        fig.text(0.07, y - 0.004, missed, fontsize=FONT - 0.5, va="top", color="#8a5a00")
+    _grid_table(fig, y - 0.016, g, np.flatnonzero(g["inside"]), only_certified=True)
 
 
 def _all_bins_page(fig, budget: xr.Dataset) -> None:
@@ -199,12 +195,16 @@ def _all_bins_page(fig, budget: xr.Dataset) -> None:
     _title(
         fig,
         f"Every bin of the budget: U (%), k = {k:g}",
-        "Grey: not certified (t: too few periods; o: outside the certified wind-speed range; n: not "
-        "settled by the Monte Carlo); – : no data. Black: certified bins (where page 1 shows an interval, "
-        "the interval is what they certify).",
+        "Grey: not certified (t: too few periods; o: outside the certified range; n: not settled); "
+        "– : no data. Black: certified (page 1 says what each certifies).",
     )
     g = certified_grid(budget)
-    _grid_table(fig, 0.91, g, np.arange(g["wind_speed"].size), only_certified=False)
+    missed = textwrap.fill(not_settled_text(budget), 125)
+    lines = missed.count("\n") + 1 if missed else 0
+    bottom = 0.05 + (lines + 0.8) * (FONT - 0.5) * 1.3 / 72 / A4[1] if missed else 0.05
+    y = _grid_table(fig, 0.91, g, np.arange(g["wind_speed"].size), only_certified=False, bottom=bottom)
+    if missed:  # listed apart from the certified result, with their tolerances (JCGM 101 7.9)
+        fig.text(0.07, y - 0.004, missed, fontsize=FONT - 0.5, va="top", color="#8a5a00")
 
 
 def _provenance_page(fig, cert: xr.Dataset) -> None:
