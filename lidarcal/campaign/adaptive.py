@@ -21,8 +21,9 @@ budget's ``replicas_needed``, the smallest h at which both half-widths, extrapol
 replicas so far, reach δ — Stein's two-stage idea as in Wübbeler, Harris, Cox and Elster,
 Metrologia 47 (2010) 317, refreshed after every batch — against its ``replica_count``): a bin
 needing n more takes part in the first n replicas of the batch, and one expected (from h = 4
-on) to need more than twice ``max_replicas`` takes part in none: it would end not settled
-anyway, and its replicas would only cost time.  Each batch's replicas are
+on) to need more than ``max_replicas`` even if its replica spread were over-stated as much as it
+is once in a hundred times takes part in none: it would end not settled anyway, and its replicas
+would only cost time.  Each batch's replicas are
 submitted together as Dask tasks.  Everything depends only on the inputs and seeds, so the
 result is the same for any workers, scheduler or chunk size, and with ``workdir`` an
 interrupted run resumes from its finished chunks.  The trials are returned as ``trial_*``
@@ -38,6 +39,7 @@ from typing import Any
 
 import numpy as np
 import xarray as xr
+from scipy import stats
 
 from lidarcal.analysis.budget import (
     DEFAULT_CERTIFIED_RANGE,
@@ -59,8 +61,8 @@ log = logging.getLogger(__name__)
 DEFAULT_MAX_REPLICAS = 30
 #: What is kept of each replica's trials (the other engine outputs are dropped as they arrive).
 _KEPT = ("period", "height", "lidar_wind_speed", "reference_wind_speed")
-#: Replicas (of a bin) from which a bin expected to need more than twice the most replicas is
-#: given up: its standard deviation then rests on 3 degrees of freedom at least.
+#: Replicas (of a bin) from which a bin expected to need far more than the most replicas is given
+#: up (:func:`_futile`): its replica spread then rests on 3 degrees of freedom at least.
 FUTILE_AFTER = 4
 #: Replicas per batch, in order; the last repeats (checks at h = 2, 4, 8, 16, 24, ...).
 BATCH_SCHEDULE = (1, 2, 4, 8)
@@ -95,20 +97,38 @@ def _batches(max_replicas: int) -> list[list[int]]:
     return out
 
 
+def _futile(needed: np.ndarray, count: np.ndarray, max_replicas: int) -> np.ndarray:
+    """Bins expected to need more than ``max_replicas`` replicas however their spread was over-stated.
+
+    ``needed`` grows with the square of the replica spread s, estimated on h − 1 degrees of
+    freedom (h = ``count``); s² over-states σ² by more than χ²₀.₉₉(h − 1)/(h − 1) once in a hundred
+    times (3.8 at h = 4, 2.6 at h = 8, 2.0 at h = 16).  A bin whose ``needed`` exceeds that many
+    times ``max_replicas`` would end not settled anyway.  Only from h = :data:`FUTILE_AFTER` on.
+
+    >>> _futile(np.array([100, 120, 60]), np.array([4, 4, 8]), 30).tolist()
+    [False, True, False]
+    """
+    h = np.asarray(count, dtype=float)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dof = np.maximum(h - 1, 1)
+        factor = np.where(h >= FUTILE_AFTER, stats.chi2.ppf(0.99, dof) / dof, np.inf)
+    return np.asarray(needed, dtype=float) > factor * int(max_replicas)
+
+
 def _cells(records: xr.Dataset, bud: xr.Dataset, batch: Sequence[int],
            max_replicas: int) -> dict[int, np.ndarray]:
     """Per replica of ``batch``, the (time, height) periods it re-simulates.
 
     A period is re-simulated by the first n replicas of the batch when its replica-0 reference
     falls in a bin that is certified but for its numerical state and has not settled, n being the
-    replicas the bin still needs (``replicas_needed`` − ``replica_count``).  A bin estimated by at
-    least :data:`FUTILE_AFTER` replicas that is expected to need more than twice ``max_replicas``
-    is not re-simulated any more: it would end not settled anyway.
+    replicas the bin still needs (``replicas_needed`` − ``replica_count``).  A bin is given up
+    (:func:`_futile`) when it would need more than ``max_replicas`` even if its replica spread
+    were over-stated as much as it is once in a hundred times.
     """
     flag = bud["numerical_flag"].transpose("height", "wind_speed").values
     needed = bud["replicas_needed"].transpose("height", "wind_speed").values
     count = bud["replica_count"].transpose("height", "wind_speed").values
-    futile = (count >= FUTILE_AFTER) & (needed > 2 * int(max_replicas))
+    futile = _futile(needed, count, int(max_replicas))
     need = np.where(futile, 0, needed - count)
     bounds = bud["wind_speed_bounds"].values
     edges = np.append(bounds[:, 0], bounds[-1, 1])
