@@ -30,7 +30,7 @@ import yaml
 from lidarcal import __version__
 from lidarcal.data import sample_data_dir
 from lidarcal.errors import InputError
-from lidarcal.provenance import REFERENCES, sha256
+from lidarcal.provenance import REFERENCES, check_text, sha256
 
 __all__ = ["ADMIN_FILE_KEYS", "DATE_ATTRIBUTES", "STATUS_ATTR", "STATUS_REASON_ATTR",
            "DEMONSTRATION", "ISSUED", "SIMULATED_ORIGIN", "load_admin", "parse_admin", "sample_digests",
@@ -71,6 +71,12 @@ ADMIN_FILE_KEYS: dict[str, str] = {
     "method_reference": "method_reference",
 }
 DATE_ATTRIBUTES = ("bench_run_start", "bench_run_end", "simulation_date")
+#: The deepest the administrative data nests: the file's mapping, then a group (``laboratory:``)
+#: or the list of ``responsible_persons``, then one person's mapping.  Deeper is refused before
+#: it is built: a thousand nested lists made the reader recurse until Python gave up.
+MAX_ADMIN_DEPTH = 3
+#: The largest administrative-data file read (bytes): a few dozen short texts need far less.
+MAX_ADMIN_BYTES = 1024 * 1024
 _GROUPS = {key.split(".")[0] for key in ADMIN_FILE_KEYS if "." in key}
 
 
@@ -113,6 +119,10 @@ def _persons(value: Any, where: str) -> str:
 
 
 def _value(attr: str, value: Any, where: str) -> str:
+    return check_text(_typed(attr, value, where), where)
+
+
+def _typed(attr: str, value: Any, where: str) -> str:
     if attr == "laboratory_country_code":
         if not (isinstance(value, str) and len(value) == 2 and value.isascii() and value.isupper()):
             raise InputError(f"{where}: expected an ISO 3166-1 alpha-2 country code (two capital letters, "
@@ -127,17 +137,50 @@ def _value(attr: str, value: Any, where: str) -> str:
     return str(value).strip()
 
 
+def _check_depth(data: Any, source: str) -> None:
+    """Refuse data nested deeper than :data:`MAX_ADMIN_DEPTH` (walked without recursion)."""
+    stack = [(data, 1)]
+    while stack:
+        obj, depth = stack.pop()
+        if isinstance(obj, Mapping | list | tuple):
+            if depth > MAX_ADMIN_DEPTH:
+                raise InputError(f"{source}: administrative data nested deeper than {MAX_ADMIN_DEPTH} levels "
+                                 "(the file's keys, a group or the list of persons, one person's keys); "
+                                 "see docs/certificate.md for its keys")
+            stack.extend((v, depth + 1) for v in (obj.values() if isinstance(obj, Mapping) else obj))
+
+
+def _check_yaml_depth(text: str, source: str) -> None:
+    """Refuse a YAML document nested deeper than :data:`MAX_ADMIN_DEPTH`, from its events (no recursion)."""
+    depth = 0
+    try:
+        for event in yaml.parse(text, Loader=yaml.SafeLoader):
+            if isinstance(event, yaml.CollectionStartEvent):
+                depth += 1
+                if depth > MAX_ADMIN_DEPTH:
+                    line = event.start_mark.line + 1 if event.start_mark is not None else "?"
+                    raise InputError(f"{source}: line {line}: administrative data nested deeper than "
+                                     f"{MAX_ADMIN_DEPTH} levels (the file's keys, a group or the list of "
+                                     "persons, one person's keys); see docs/certificate.md for its keys")
+            elif isinstance(event, yaml.CollectionEndEvent):
+                depth -= 1
+    except yaml.YAMLError as exc:
+        raise InputError(f"{source}: not a readable YAML file: {exc}") from None
+
+
 def parse_admin(data: Any, source: str = "<admin>") -> dict[str, str]:
     """Validate the content of an administrative-data file; return ``{attribute: text}``.
 
     Raises
     ------
     InputError
-        Naming ``source`` and the key, for an unknown key, a bad date or a value of the
-        wrong type.
+        Naming ``source`` and the key, for an unknown key, a bad date, a value of the
+        wrong type, a control character in a text or data nested deeper than
+        :data:`MAX_ADMIN_DEPTH`.
     """
     if data is None:
         return {}
+    _check_depth(data, source)
     if not isinstance(data, Mapping):
         raise InputError(f"{source}: expected a mapping of administrative data (docs/certificate.md); "
                          f"found {type(data).__name__}")
@@ -169,8 +212,13 @@ def load_admin(path: str | os.PathLike) -> dict[str, str]:
     if not path.is_file():
         raise InputError(f"{path}: administrative-data file not found" if not path.exists()
                          else f"{path}: administrative-data path is not a file")
+    if path.stat().st_size > MAX_ADMIN_BYTES:
+        raise InputError(f"{path}: administrative-data file of {path.stat().st_size} bytes; expected at most "
+                         f"{MAX_ADMIN_BYTES} (a few dozen short texts)")
     try:
-        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        _check_yaml_depth(text, str(path))
+        data = yaml.safe_load(text)
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not a readable YAML file: {exc}") from None
     return parse_admin(data, str(path))

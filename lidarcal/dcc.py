@@ -29,6 +29,7 @@ checks a document against the XSDs (not shipped with lidarcal: they are PTB's, L
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import os
 import re
@@ -48,11 +49,18 @@ from lidarcal.admin import (
     certificate_attributes,
     status_line,
 )
-from lidarcal.certificate import components, extract_component
+from lidarcal.certificate import (
+    MEASURAND,
+    components,
+    extract_component,
+    model_form_summary,
+    model_form_values,
+)
 from lidarcal.certificate.results import certified_mask, not_settled_rows
-from lidarcal.errors import InputError, ValidationError
-from lidarcal.io import atomic_path, check_writable, open_artefact
-from lidarcal.provenance import sha256
+from lidarcal.errors import InputError, SealError, ValidationError
+from lidarcal.io import atomic_path, check_writable, open_artefact, read_image
+from lidarcal.provenance import check_text
+from lidarcal.seal import require_valid_seal, seal_problems
 from lidarcal.units import si_unit
 
 __all__ = ["DCC_NS", "SI_NS", "DCC_SCHEMA_VERSION", "SI_SCHEMA_URL", "dcc_tree",
@@ -245,6 +253,8 @@ def _statements(admin: etree._Element, attrs: Mapping[str, Any], digest: str, fi
     if attrs.get("expanded_uncertainty_headline"):
         head = _sub(statements, _d("statement"), refType="lidarcal_headline")
         _text(head, "declaration", f"Expanded uncertainty: {attrs['expanded_uncertainty_headline']}")
+    measurand = _sub(statements, _d("statement"), refType="lidarcal_measurand")  # docs/certificate.md
+    _text(measurand, "declaration", str(attrs.get("measurand") or MEASURAND))
 
 
 def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:
@@ -376,6 +386,7 @@ def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, 
     results = _sub(result_el, _d("results"))
     certified = certified_mask(budget).transpose("height", "wind_speed").values
     statements = _flags_of(budget, "certified_statement")
+    model_form = model_form_values(budget)  # (wind_speed, height), or None
     budget = budget.transpose("height", "wind_speed", ...)
     missed = {(r["height_m"], r["wind_speed_m_s"]) for r in not_settled_rows(budget)}
     tolerance = budget.get("numerical_tolerance")
@@ -406,6 +417,10 @@ def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, 
                 _real_list(lst, "Numerical tolerance of the relative expanded uncertainty (Monte Carlo)", tol,
                            si_unit(str(tolerance.attrs.get("units", "%"))), labels=labels,
                            ref_type="lidarcal_numericalTolerance")
+        if model_form is not None:  # the simulation's model-form contributor (docs/method.md)
+            _real_list(lst, "Model-form standard uncertainty (k = 1), relative to the bin's mean reference "
+                       "wind speed", model_form["value"][:, i][keep], r"\percent", labels=labels,
+                       ref_type="lidarcal_modelFormUncertainty", description=model_form_summary(budget))
         _real_list(lst, "Monte Carlo trials in the bin", budget["sample_count"].values[i][keep].astype(float),
                    r"\one", labels=labels, ref_type="lidarcal_sampleCount")
         if "period_count" in budget:
@@ -522,7 +537,11 @@ def dcc_attributes(cert: xr.Dataset, *, admin: Mapping[str, str] | None = None,
         raise InputError(f"{certificate_file}: not a lidarcal certificate (lidarcal_artefact "
                          f"{cert.attrs.get('lidarcal_artefact')!r})")
     attrs = dict(cert.attrs)
+    for key, value in attrs.items():  # a certificate sealed before control characters were refused
+        if isinstance(value, str):
+            check_text(value, f"{certificate_file}: global attribute {key!r} (XML 1.0 cannot hold it)")
     for key, value in (admin or {}).items():
+        check_text(value, f"--admin: {key}")
         if attrs.get(key) not in (None, "", value):
             raise InputError(f"--admin: {key} {value!r} contradicts the certificate {certificate_file}, "
                              f"which states {attrs[key]!r} (sealed); a DCC only adds what the certificate "
@@ -565,7 +584,14 @@ def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str
     ------
     InputError
         If ``cert`` is not a certificate or ``admin`` contradicts it.
+    SealError
+        If ``cert`` was read from a file whose seal does not match its contents (or is missing).
     """
+    require_valid_seal(cert)  # a certificate read from a file: its seal first (None: built here, unsealed)
+    return _tree(cert, certificate_sha256, certificate_file, admin)
+
+
+def _tree(cert: xr.Dataset, certificate_sha256: str, certificate_file: str, admin) -> etree._ElementTree:
     attrs = dcc_attributes(cert, admin=admin, certificate_file=certificate_file)
     etree.register_namespace("dcc", DCC_NS)
     etree.register_namespace("si", SI_NS)
@@ -583,11 +609,14 @@ def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str
 
 def write_dcc(certificate: str | os.PathLike, output: str | os.PathLike, *,
               admin: Mapping[str, str] | None = None, overwrite: bool = False,
-              xsd: str | os.PathLike | None = None) -> Path:
+              xsd: str | os.PathLike | None = None, signer: Any = None) -> Path:
     """Write the DCC XML of the netCDF certificate file ``certificate`` to ``output`` (atomically).
 
-    With ``xsd`` (PTB's ``dcc.xsd``, ``SI_Format.xsd`` beside it) the document is validated
-    first and nothing is written when it is invalid.
+    The certificate's seal is checked first (:func:`lidarcal.seal.require_valid_seal`; an altered
+    or unsealed one raises :class:`~lidarcal.errors.SealError`).  With ``xsd`` (PTB's ``dcc.xsd``,
+    ``SI_Format.xsd`` beside it) the document is validated first and nothing is written when it
+    is invalid.  With ``signer`` (:func:`lidarcal.dccsign.load_signer`) it is signed with the
+    laboratory's X.509 key and chain (enveloped XAdES-BES).
 
     Raises
     ------
@@ -595,15 +624,25 @@ def write_dcc(certificate: str | os.PathLike, output: str | os.PathLike, *,
         Bad certificate or administrative data, or the document does not validate.
     """
     check_writable(output, overwrite=overwrite)
-    cert = open_artefact(certificate, "certificate")
-    tree = dcc_tree(cert, certificate_sha256=sha256(certificate), certificate_file=Path(certificate).name,
-                    admin=admin)
+    image = read_image(certificate, "certificate file")  # the bytes checked, read and named by SHA-256
+    report = require_valid_seal(certificate, image=image, allow_invalid=True)
+    if report is not None and not report.ok:
+        raise SealError(f"{certificate}: refusing to export this certificate as a DCC: "
+                        f"{seal_problems(report)}. A DCC is written only from a certificate whose seal "
+                        "holds: it names the netCDF as the sealed original of its numbers")
+    cert = open_artefact(certificate, "certificate", image=image)
+    tree = _tree(cert, hashlib.sha256(image).hexdigest(), Path(certificate).name, admin)  # checked above
     if xsd is not None:
         problems = validate_dcc(tree, xsd)
         if problems:
             raise ValidationError(problems, source=f"{output} (against {xsd})")
+    data = etree.tostring(tree, xml_declaration=True, encoding="UTF-8", pretty_print=True)
+    if signer is not None:  # the laid-out text is what is signed: never re-indented after
+        signed = signer.sign(etree.fromstring(data, etree.XMLParser(resolve_entities=False)))
+        data = etree.tostring(signed, xml_declaration=True, encoding="UTF-8")
     with atomic_path(output, overwrite=overwrite) as tmp:
-        tree.write(str(tmp), xml_declaration=True, encoding="UTF-8", pretty_print=True)
+        tmp.write_bytes(data)  # an OSError (ENOSPC) atomic_path reports as a full disk; lxml's own
+        # writer raised SerialisationError IO_ENOSPC instead
     return Path(output)
 
 

@@ -11,25 +11,28 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import hashlib
 import os
 import re
 import shutil
 import socket
 import stat
 import tempfile
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
-from lidarcal.errors import DiskFullError, InputError, OutputExistsError
-from lidarcal.provenance import sha256
+from lidarcal.errors import DiskFullError, InputError, OutputExistsError, ValidationError
+from lidarcal.provenance import sha256, text_problems
 from lidarcal.schema import validate_dataset
 
 __all__ = [
     "write_artefact", "open_artefact", "atomic_path", "check_writable", "source_name",
     "part_path", "publish", "remove_stale_parts", "write_into", "disk_full", "LOW_SPACE_BYTES",
+    "read_image", "open_image",
 ]
 
 
@@ -70,6 +73,9 @@ def check_input_file(path: str | os.PathLike, what: str = "file") -> Path:
 def check_writable(path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Fail early (before any work) if ``path`` exists and may not be replaced."""
     path = Path(path)
+    if path.parent.is_dir() and len(path.name.encode()) > _name_max(path.parent):
+        raise InputError(f"{path}: file name of {len(path.name.encode())} bytes; the file system of "
+                         f"{path.parent} allows at most {_name_max(path.parent)}")
     if path.is_dir():
         raise InputError(f"{path}: output is a directory; expected the path of a file")
     if path.exists() and not overwrite:
@@ -136,7 +142,7 @@ def remove_stale_parts(path: str | os.PathLike) -> list[Path]:
     never touched.
     """
     path = Path(path)
-    prefixes, host, removed = (f".{path.name}.", f"..{path.name}."), _host(), []
+    prefixes, host, removed = (_part_prefix(path), f"..{path.name}."), _host(), []
     try:
         candidates = [p for p in path.parent.iterdir() if p.name.startswith(prefixes)]
     except OSError:
@@ -168,7 +174,12 @@ def disk_full(exc: BaseException, path: str | os.PathLike) -> DiskFullError | No
     holds is part of the shortage.
     """
     path = Path(path)
-    if not isinstance(exc, OSError | RuntimeError) or isinstance(exc, DiskFullError):
+    if isinstance(exc, DiskFullError):
+        return None
+    cause = _enospc_in_chain(exc)
+    if cause is not None:  # e.g. matplotlib's zlib.error while closing a PDF its ENOSPC broke
+        exc = cause
+    if not isinstance(exc, OSError | RuntimeError):
         return None
     free = _free_bytes(path.parent)
     code = getattr(exc, "errno", None)
@@ -179,10 +190,54 @@ def disk_full(exc: BaseException, path: str | os.PathLike) -> DiskFullError | No
                          "nothing was written: free some space and run again")
 
 
+def _enospc_in_chain(exc: BaseException) -> OSError | None:
+    """Return the ENOSPC/EDQUOT ``OSError`` that ``exc`` is, or was raised while handling, if any."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            return exc
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _name_max(directory: Path) -> int:
+    """Longest file name (bytes) the file system of ``directory`` allows (255 where it cannot say)."""
+    try:
+        return int(os.pathconf(directory, "PC_NAME_MAX"))
+    except (OSError, ValueError, AttributeError):
+        return 255
+
+
+def _tail_bytes() -> int:
+    """Return the bytes a temporary's name adds after its prefix: ``<host>-<pid>.<random>.part``.
+
+    The pid counted at its widest (Linux's pid_max is at most 4194304: 7 digits), the random part 8.
+    """
+    return len(_host().encode()) + len("-4194304.") + 8 + len(".part")
+
+
+def _part_prefix(path: Path) -> str:
+    """Return the start of every temporary of ``path``: ``.<name>.``, or a shortened form that fits.
+
+    A name of up to NAME_MAX bytes is legal for the destination, but ``.<name>.<host>-<pid>.<random>.part``
+    would not be: then the name is cut (at a character boundary) and ``~`` and the first 8 hex digits
+    of its SHA-256 are appended, so the prefix still belongs to this one destination (what
+    :func:`remove_stale_parts` recognises).
+    """
+    full = f".{path.name}."
+    room = _name_max(path.parent) - _tail_bytes()
+    if len(full.encode()) <= room:
+        return full
+    digest = hashlib.sha256(path.name.encode()).hexdigest()[:8]
+    keep = path.name.encode()[: max(room - len(f"..~{digest}"), 1)].decode("utf-8", "ignore")
+    return f".{keep}~{digest}."
+
+
 def part_path(path: str | os.PathLike) -> Path:
     """Create and return a new empty temporary file for ``path``, next to it (mode 0600)."""
     path = Path(path)
-    prefix = f".{path.name}.{_host()}-{os.getpid()}."
+    prefix = f"{_part_prefix(path)}{_host()}-{os.getpid()}."
     fd, tmp = tempfile.mkstemp(prefix=prefix, suffix=".part", dir=path.parent)
     os.close(fd)
     return Path(tmp)
@@ -236,7 +291,7 @@ def atomic_path(path: str | os.PathLike, *, overwrite: bool = False) -> Iterator
     try:
         yield tmp
         publish(tmp, path, overwrite=overwrite)
-    except (OSError, RuntimeError) as exc:
+    except Exception as exc:
         full = disk_full(exc, path)  # checked while the temporary still takes its space
         if full is None:
             raise
@@ -311,6 +366,9 @@ def _ready(ds: xr.Dataset, path: str | os.PathLike, *, validate: bool) -> xr.Dat
     ds.attrs = {k: v for k, v in ds.attrs.items() if not k.startswith("lidarcal_source_")}
     if validate:
         validate_dataset(ds, source=str(path), raise_on_error=True)
+    problems = text_problems(ds)  # whatever the entry points let through: never written
+    if problems:
+        raise ValidationError(problems, source=str(path))
     return _cf_ready(ds)
 
 
@@ -353,17 +411,23 @@ def open_artefact(
     *,
     chunks: dict | None = None,
     load: bool = True,
+    image: bytes | None = None,
 ) -> xr.Dataset:
     """Open a lidarcal artefact (or input file) with clear errors.
 
     The file's SHA-256 and name are attached as ``lidarcal_source_sha256`` and
-    ``lidarcal_source_file`` so that downstream artefacts can record their inputs.
+    ``lidarcal_source_file`` so that downstream artefacts can record their inputs.  With
+    ``image`` (the file's bytes, :func:`read_image`) the dataset is read from that copy in
+    memory, never from the file on disk (:func:`open_image` says why).
     """
     path = check_input_file(path, "netCDF file")
-    if path.stat().st_size == 0:
+    if (len(image) if image is not None else path.stat().st_size) == 0:
         raise InputError(f"{path}: file is empty")
     try:
-        ds = xr.open_dataset(path, engine="netcdf4", chunks=chunks)
+        if image is None:
+            ds = xr.open_dataset(path, engine="netcdf4", chunks=chunks)
+        else:
+            ds = xr.open_dataset(xr.backends.NetCDF4DataStore(open_image(path, image)), chunks=chunks)
         if load and chunks is None:
             ds = ds.load()
             ds.close()
@@ -381,6 +445,46 @@ def open_artefact(
     if not _has_time(ds):
         ds.attrs = {(k[len("source_"):] if k[len("source_"):] in _COVERAGE and k.startswith("source_")
                      and k[len("source_"):] not in ds.attrs else k): v for k, v in ds.attrs.items()}
-    ds.attrs["lidarcal_source_sha256"] = sha256(path)
+    ds.attrs["lidarcal_source_sha256"] = sha256(path) if image is None else hashlib.sha256(image).hexdigest()
     ds.attrs["lidarcal_source_file"] = path.name
+    if image is not None:
+        ds.encoding["source"] = str(path)
     return ds
+
+
+def read_image(path: str | os.PathLike, what: str = "netCDF file") -> bytes:
+    """Return the bytes of the input ``path`` (refused as :func:`check_input_file` does), for an image.
+
+    Raises
+    ------
+    InputError
+        If ``path`` is missing, not a regular file or unreadable.
+    """
+    path = check_input_file(path, what)
+    try:
+        return path.read_bytes()
+    except OSError as exc:
+        raise InputError(f"{path}: {what} cannot be read ({exc.strerror})") from None
+
+
+def open_image(path: str | os.PathLike, image: bytes):
+    """Open the bytes ``image`` of the netCDF file ``path`` as a ``netCDF4.Dataset`` held in memory.
+
+    netCDF-C/HDF5 share one file object among every open of the same file in a process; a
+    variable-length string read through a second open of a file, while a first one stays open
+    (a Dataset the caller still holds, xarray's cached handle), corrupts that shared object,
+    and a later open of the file dies with SIGSEGV.  An image in memory under a name of its
+    own is a file of its own: whatever the caller has open, reading it never touches theirs.
+    It is also exactly the bytes checked, however the file on disk changes meanwhile.
+
+    Raises
+    ------
+    InputError
+        If ``image`` is not a netCDF file.
+    """
+    import netCDF4
+
+    try:
+        return netCDF4.Dataset(f"{os.fspath(path)}#memory-{uuid.uuid4().hex}", mode="r", memory=image)
+    except OSError as exc:
+        raise InputError(f"{path}: not a readable netCDF file: {exc}") from None

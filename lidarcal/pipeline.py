@@ -51,6 +51,7 @@ from lidarcal.bench.formats import read_control_log
 from lidarcal.bench.ingest import ingest
 from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.campaign.adaptive import DEFAULT_MAX_REPLICAS, adaptive_replicas
+from lidarcal.campaign.model_form import DEFAULT_PER_BIN, model_form_runs
 from lidarcal.certificate import make_certificate
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
 from lidarcal.conditions.grid import sweep_conditions
@@ -103,7 +104,9 @@ class CalibrationConfig:
     (docs/certificate.md); a short run (a few hundred periods) may need fewer than the default.
     ``significant_digits`` and ``max_replicas`` drive the adaptive Monte Carlo (JCGM 101 7.9,
     :mod:`lidarcal.campaign.adaptive`); ``coverage_interval`` chooses the Monte Carlo coverage
-    interval of each bin (JCGM 101 7.7: ``"symmetric"`` or ``"shortest"``).
+    interval of each bin (JCGM 101 7.7: ``"symmetric"`` or ``"shortest"``).  ``model_form_periods``
+    is the most periods per (height, wind-speed bin) each model-form alternative re-simulates
+    (:mod:`lidarcal.campaign.model_form`; 0: no model-form term).
     """
 
     bench_rtd: str | None = None
@@ -125,7 +128,8 @@ class CalibrationConfig:
     max_replicas: int = DEFAULT_MAX_REPLICAS
     #: The Monte Carlo coverage interval (JCGM 101 7.7): "symmetric" or "shortest"
     coverage_interval: str = "symmetric"
-    #: LOS error model (``LidarModel.los_noise_model``); None: residuals when the cube has them
+    model_form_periods: int = DEFAULT_PER_BIN
+    #: LOS error model (``LidarModel.los_noise_model``); None: the mixture when the cube has residuals
     los_noise_model: str | None = None
     #: ``LidarModel.reference_turbulence``; None: the model's default (``"pinned_u"``)
     reference_turbulence: str | None = None
@@ -338,6 +342,14 @@ def _simulate(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, *,
     )
     if cube.attrs.get("lidar_serial"):
         records.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
+    if cfg.model_form_periods:  # the alternatives with replica 0's seeds: the budget's model_form term
+        records = model_form_runs(records, paths["conditions"], model, per_bin=cfg.model_form_periods,
+                                  wind_speeds=tuple(cfg.certified_range), base_seed=cfg.base_seed,
+                                  chunk=cfg.chunk, scheduler=cfg.scheduler,
+                                  workers=cfg.workers, workdir=workdir, progress=progress)
+        log.info("[%6.1f s] model-form runs: %d alternatives, %d (period, height) samples each",
+                 time.perf_counter() - run.t0, records.sizes.get("model_form_alternative", 0),
+                 records.sizes.get("model_form_sample", 0))
     # replicas until every certified value settles (JCGM 101 7.9): the budget needs the terms
     terms = _terms_per_height(records, cfg.terms)
     records, _ = adaptive_replicas(

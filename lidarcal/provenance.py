@@ -29,7 +29,7 @@ from lidarcal.cf import canonical_order
 from lidarcal.errors import InputError
 
 __all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "jsonable", "contact",
-           "contact_attributes", "merge_history",
+           "contact_attributes", "merge_history", "check_text", "text_problems",
            "CONVENTIONS", "CONTACT_ENV", "SITE_ENV", "USER_ATTRIBUTES", "REFERENCES"]
 
 CONVENTIONS = "CF-1.11, ACDD-1.3"
@@ -67,6 +67,48 @@ USER_ATTRIBUTES = ("acknowledgment", "contributor_name", "contributor_role", "pr
                    "keywords_vocabulary", "platform", "platform_vocabulary", "instrument",
                    "instrument_vocabulary", "geospatial_bounds_vertical_crs", "creator_institution",
                    "publisher_institution", "references", "license")
+
+#: Characters no text lidarcal writes may hold: the C0 controls but tab, line feed and carriage
+#: return; DEL and the C1 controls; the non-characters U+FFFE and U+FFFF; lone surrogates.  XML 1.0
+#: (the DCC) cannot hold the C0 ones, and a terminal obeys escape sequences (U+001B) when
+#: ``ncdump -h`` or ``lidarcal verify`` prints a sealed attribute.
+_CONTROL = re.compile("[\x00-\x08\x0b\x0c\x0e-\x1f\x7f-\x9f\ufffe\uffff\ud800-\udfff]")
+
+
+def check_text(value: Any, where: str) -> str:
+    """Return ``value`` as text, refusing a control character in it (:data:`_CONTROL`).
+
+    Every text that enters an artefact from outside (the contact options and their environment
+    variables, ``--attribute``, the administrative data) passes here, and every writer
+    (:func:`text_problems` in :mod:`lidarcal.io`) checks again what it is about to write.
+
+    Raises
+    ------
+    InputError
+        Naming ``where``, the character (U+XXXX) and its position.
+    """
+    text = str(value)
+    found = _CONTROL.search(text)
+    if found is not None:
+        raise InputError(f"{where}: contains the control character U+{ord(found.group()):04X} at position "
+                         f"{found.start()} of {text!r}; text written into an artefact or a certificate may "
+                         "hold no control characters (tab and line breaks only)")
+    return text
+
+
+def text_problems(ds: xr.Dataset) -> list[str]:
+    """List every attribute of ``ds`` (global or of a variable) whose text holds a control character."""
+    out = []
+    owners = [("global attribute", ds.attrs), *((f"variable {name!r}: attribute", var.attrs)
+                                                for name, var in ds.variables.items())]
+    for what, attrs in owners:
+        for key, value in attrs.items():
+            if isinstance(value, str) and _CONTROL.search(value):
+                found = _CONTROL.search(value)
+                out.append(f"{what} {key!r} contains the control character U+{ord(found.group()):04X} "
+                           f"at position {found.start()} of {value!r}")
+    return out
+
 
 #: The method every artefact implements (ACDD ``references``).
 REFERENCES = ("Black, A., Franke, K., Trabucci, D., Allain, P. E., Lopez, L., Albers, A.: Anemometer-free "
@@ -147,6 +189,12 @@ def contact(**values: str | None) -> Iterator[None]:
     for key in SITE_ENV:
         if values.get(key) is not None:
             _site_value(key, values[key], f"argument {key!r}")
+    for key, value in values.items():
+        if value is not None:
+            check_text(value, f"{key} ({'--attribute' if key in USER_ATTRIBUTES else 'option'})")
+    for key, env in CONTACT_ENV.items():  # the environment's too: refused before any work
+        if values.get(key) is None and os.environ.get(env):
+            check_text(os.environ[env], f"{key} (environment variable {env})")
     saved = dict(_contact_override)
     _contact_override.update({k: str(v) for k, v in values.items() if v is not None})
     try:
@@ -166,7 +214,7 @@ def _contact_attrs() -> dict[str, str]:
     for key, env in CONTACT_ENV.items():
         value = _contact_override.get(key) or os.environ.get(env) or _CONTACT_DEFAULTS.get(key)
         if value:
-            out[key] = value
+            out[key] = check_text(value, f"{key} (option or environment variable {env})")
     if out.get("creator_name") and out["creator_name"] != "lidarcal":
         out["creator_type"] = "person"
     else:

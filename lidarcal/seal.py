@@ -24,7 +24,15 @@ from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey,
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
 
 from lidarcal.errors import InputError, SealError
-from lidarcal.io import atomic_path, check_input_file, check_writable, open_artefact, write_into
+from lidarcal.io import (
+    atomic_path,
+    check_input_file,
+    check_writable,
+    open_artefact,
+    open_image,
+    read_image,
+    write_into,
+)
 from lidarcal.schema import validate_dataset
 from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign, verify_signature
 
@@ -111,16 +119,21 @@ def integrity_record(path: str | os.PathLike) -> dict[str, Any]:
     import netCDF4
 
     with netCDF4.Dataset(path, "r") as nc:
-        if nc.groups:
-            raise InputError(f"{path}: has netCDF groups; a lidarcal certificate is flat")
-        variables = {
-            name: {"data": _data_digest(var),
-                   "attributes": _attrs_digest(var, [n for n in var.ncattrs() if n not in _DIGEST_ATTRS])}
-            for name, var in nc.variables.items()
-        }
-        unsealed = (INTEGRITY_ATTR, SIGNATURE_ATTR, ATTRIBUTE_DIGESTS_ATTR)
-        glob = {n: _attrs_digest(nc, [n]) for n in nc.ncattrs() if n not in unsealed}
-        dims = {name: len(d) for name, d in nc.dimensions.items()}
+        return _record(nc, path)
+
+
+def _record(nc, path: str | os.PathLike) -> dict[str, Any]:
+    """Compute the integrity record of the open netCDF file ``nc`` (read from ``path``)."""
+    if nc.groups:
+        raise InputError(f"{path}: has netCDF groups; a lidarcal certificate is flat")
+    variables = {
+        name: {"data": _data_digest(var),
+               "attributes": _attrs_digest(var, [n for n in var.ncattrs() if n not in _DIGEST_ATTRS])}
+        for name, var in nc.variables.items()
+    }
+    unsealed = (INTEGRITY_ATTR, SIGNATURE_ATTR, ATTRIBUTE_DIGESTS_ATTR)
+    glob = {n: _attrs_digest(nc, [n]) for n in nc.ncattrs() if n not in unsealed}
+    dims = {name: len(d) for name, d in nc.dimensions.items()}
     return {
         "algorithm": "sha256",
         "canonical_form": CANONICAL_FORM,
@@ -209,6 +222,14 @@ class VerificationReport:
     signed_by: str | None = None
     #: True when that key is the public key the caller gave (not only the one in the file)
     key_trusted: bool = False
+    #: True when a public key was given but the certificate carries no signature at all (the
+    #: one problem then: its seal may match its contents)
+    unsigned: bool = False
+
+    @property
+    def intact_but_unsigned(self) -> bool:
+        """True when the only problem is the missing signature a public key asked for: the seal holds."""
+        return self.unsigned and len(self.problems) == 1
 
     @property
     def ok(self) -> bool:
@@ -225,6 +246,7 @@ def _check_signature(report: VerificationReport, attrs: Mapping[str, Any],
             report.problems.append(f"global attribute {SIGNATURE_ATTR!r} is missing, but the certificate "
                                    f"names a signing key ({claimed}): the signature was removed")
         elif trusted is not None:
+            report.unsigned = True
             report.problems.append(f"unsigned (integrity only), but a public key was given: expected a "
                                    f"signature by {fingerprint(trusted)}")
         return
@@ -270,23 +292,23 @@ def _changes(exp_vars: Mapping[str, Any], exp_glob: Mapping[str, Any], found: Ma
     return problems
 
 
-def _changes_against_root(path: Path, expected: Mapping[str, Any], found: Mapping[str, Any]) -> list[str]:
-    """Check a second-form seal: the root decides; the stored per-item digests say what changed."""
-    import netCDF4
+def _changes_against_root(nc, expected: Mapping[str, Any], found: Mapping[str, Any]) -> list[str]:
+    """Check a second-form seal of the open file ``nc``.
 
+    The root decides; the stored per-item digests say what changed.
+    """
     if seal_root(found) == expected["root"]:
         return []
     exp_vars: dict[str, Any] = {}
-    with netCDF4.Dataset(path, "r") as nc:
-        parents = _bounds_parents(nc)
-        for name, var in nc.variables.items():
-            holder, attr = ((nc[parents[name]], BOUNDS_DIGEST_ATTR) if name in parents
-                            else (var, VARIABLE_DIGEST_ATTR))
-            text = str(holder.getncattr(attr)) if attr in holder.ncattrs() else ""
-            parts = text.split()
-            if len(parts) == 4 and parts[0] == "data" and parts[2] == "attributes":
-                exp_vars[name] = {"data": parts[1], "attributes": parts[3]}
-        listed = str(nc.getncattr(ATTRIBUTE_DIGESTS_ATTR)) if ATTRIBUTE_DIGESTS_ATTR in nc.ncattrs() else ""
+    parents = _bounds_parents(nc)
+    for name, var in nc.variables.items():
+        holder, attr = ((nc[parents[name]], BOUNDS_DIGEST_ATTR) if name in parents
+                        else (var, VARIABLE_DIGEST_ATTR))
+        text = str(holder.getncattr(attr)) if attr in holder.ncattrs() else ""
+        parts = text.split()
+        if len(parts) == 4 and parts[0] == "data" and parts[2] == "attributes":
+            exp_vars[name] = {"data": parts[1], "attributes": parts[3]}
+    listed = str(nc.getncattr(ATTRIBUTE_DIGESTS_ATTR)) if ATTRIBUTE_DIGESTS_ATTR in nc.ncattrs() else ""
     exp_glob = dict(item.rsplit(" ", 1) for item in listed.split("; ") if " " in item)
     found_glob = {name: digest[:_PREFIX] for name, digest in found["global_attributes"].items()}
     problems = _changes(exp_vars, exp_glob,
@@ -302,35 +324,49 @@ def _changes_against_root(path: Path, expected: Mapping[str, Any], found: Mappin
 
 
 def verify_certificate(path: str | os.PathLike, *,
-                       public_key: str | os.PathLike | Ed25519PublicKey | None = None) -> VerificationReport:
+                       public_key: str | os.PathLike | Ed25519PublicKey | None = None,
+                       image: bytes | None = None) -> VerificationReport:
     """Recompute a certificate's checksums, signature and schema; list everything that changed.
 
     An unsigned certificate is checked for integrity only (a re-sealed file passes).  A signed
     one is checked against ``public_key`` (a path or key) when given -- the only check a
     forger cannot pass -- else against the public key stored in the file, which shows the
     file is as that key's holder sealed it but not who that is (compare ``signed_by`` with a
-    fingerprint you trust).  With ``public_key`` an unsigned file is a problem.
+    fingerprint you trust).  With ``public_key`` an unsigned file is a problem.  ``image``: the
+    file's bytes when the caller has read them already (:func:`lidarcal.io.read_image`), so the
+    bytes checked are the bytes it uses.
 
     Raises
     ------
     InputError
         If ``path`` is missing, unreadable or not a lidarcal certificate.
     """
-    import netCDF4
-
     path = check_input_file(path, "certificate file")  # missing, a directory, a FIFO: refused here
-    try:
-        with netCDF4.Dataset(path, "r") as nc:
-            kind = nc.getncattr("lidarcal_artefact") if "lidarcal_artefact" in nc.ncattrs() else None
-            stored = nc.getncattr(INTEGRITY_ATTR) if INTEGRITY_ATTR in nc.ncattrs() else None
-            signature_attrs = {n: nc.getncattr(n) for n in nc.ncattrs() if n.startswith(SIGNATURE_ATTR)}
-    except OSError as exc:
-        raise InputError(f"{path}: not a readable netCDF file: {exc}") from None
-    if kind != "certificate":
-        what = (
-            f"a {kind!r} artefact" if kind else "not a lidarcal artefact (no 'lidarcal_artefact' attribute)"
-        )
-        raise InputError(f"{path}: not a lidarcal certificate: it is {what}")
+    # one read of the file, every check on those bytes in memory: a second open of the file on
+    # disk while the caller holds one (open_certificate, a Dataset passed to result_table) can
+    # crash netCDF-C (io.open_image), and the bytes checked are the bytes read
+    image = read_image(path, "certificate file") if image is None else image
+    with open_image(path, image) as nc:
+        kind = nc.getncattr("lidarcal_artefact") if "lidarcal_artefact" in nc.ncattrs() else None
+        if kind != "certificate":
+            what = (f"a {kind!r} artefact" if kind
+                    else "not a lidarcal artefact (no 'lidarcal_artefact' attribute)")
+            raise InputError(f"{path}: not a lidarcal certificate: it is {what}")
+        report = _verify_open(nc, path, public_key)
+    if report.variables_checked:  # the seal could be read: the schema too
+        ds = open_artefact(path, load=False, chunks={}, image=image)
+        try:
+            report.problems.extend(f"schema: {p}" for p in validate_dataset(ds, "certificate",
+                                                                              source=str(path)))
+        finally:
+            ds.close()
+    return report
+
+
+def _verify_open(nc, path: Path, public_key) -> VerificationReport:
+    """Check the seal and signature of the open file ``nc`` (:func:`verify_certificate`)."""
+    stored = nc.getncattr(INTEGRITY_ATTR) if INTEGRITY_ATTR in nc.ncattrs() else None
+    signature_attrs = {n: nc.getncattr(n) for n in nc.ncattrs() if n.startswith(SIGNATURE_ATTR)}
     trusted = public_key
     if trusted is not None and not isinstance(trusted, Ed25519PublicKey):
         trusted = load_public_key(trusted)
@@ -352,9 +388,9 @@ def verify_certificate(path: str | os.PathLike, *,
     except (ValueError, KeyError, TypeError):
         report.problems.append(f"global attribute {INTEGRITY_ATTR!r} is not a valid integrity record")
         return report
-    found = integrity_record(path)
+    found = _record(nc, path)
     if expected.get("format") == SEAL_FORMAT:
-        report.problems.extend(_changes_against_root(path, expected, found))
+        report.problems.extend(_changes_against_root(nc, expected, found))
     else:
         report.problems.extend(_changes(exp_vars, exp_glob, found))
     if expected.get("dimensions") not in (None, found["dimensions"]):
@@ -362,11 +398,6 @@ def verify_certificate(path: str | os.PathLike, *,
     report.variables_checked = len(found["variables"])
     report.attributes_checked = len(found["global_attributes"])
     _check_signature(report, {**signature_attrs, INTEGRITY_ATTR: stored}, trusted)
-    ds = open_artefact(path, load=False, chunks={})
-    try:
-        report.problems.extend(f"schema: {p}" for p in validate_dataset(ds, "certificate", source=str(path)))
-    finally:
-        ds.close()
     return report
 
 
@@ -384,7 +415,7 @@ def _certificate_file(obj: str | os.PathLike | xr.Dataset, source: str | os.Path
 
 def require_valid_seal(obj: str | os.PathLike | xr.Dataset, *, source: str | os.PathLike | None = None,
                        public_key: str | os.PathLike | Ed25519PublicKey | None = None,
-                       allow_invalid: bool = False) -> VerificationReport | None:
+                       allow_invalid: bool = False, image: bytes | None = None) -> VerificationReport | None:
     """Check a certificate's seal before any of its numbers are shown; refuse a broken one.
 
     Every command and function that displays a certificate's values (``lidarcal table``, the
@@ -392,7 +423,8 @@ def require_valid_seal(obj: str | os.PathLike | xr.Dataset, *, source: str | os.
     from one (its file is ``source``, else the path xarray opened it from); the file is checked
     as :func:`verify_certificate` does (with ``public_key`` when given).  A Dataset that was
     never sealed and came from no file (a certificate being built, before
-    :func:`write_certificate`) has nothing to check: None is returned.
+    :func:`write_certificate`) has nothing to check: None is returned.  ``image``: the file's
+    bytes, already read by the caller (:func:`verify_certificate`).
 
     Returns
     -------
@@ -415,15 +447,19 @@ def require_valid_seal(obj: str | os.PathLike | xr.Dataset, *, source: str | os.
         report = VerificationReport(path="<dataset>", problems=[
             "sealed certificate read from no known file: its seal cannot be checked (pass source=)"])
     else:
-        report = verify_certificate(path, public_key=public_key)
+        report = verify_certificate(path, public_key=public_key, image=image)
     if report.ok or allow_invalid:
         return report
+    raise SealError(f"{report.path}: refusing to show this certificate's numbers: {seal_problems(report)}; "
+                    "to show them anyway, marked as invalid, pass --allow-invalid (allow_invalid=True)")
+
+
+def seal_problems(report: VerificationReport) -> str:
+    """Say in one sentence what is wrong with a seal (the first five problems) and how to see them all."""
     shown = "; ".join(report.problems[:5]) + (f"; and {len(report.problems) - 5} more"
                                               if len(report.problems) > 5 else "")
-    raise SealError(f"{report.path}: refusing to show this certificate's numbers: its seal does not match "
-                    f"its contents ({len(report.problems)} problem(s): {shown}); it was altered after it was "
-                    f"sealed, or never sealed. See lidarcal verify {report.path}; to show them anyway, "
-                    "marked as invalid, pass --allow-invalid (allow_invalid=True)")
+    return (f"its seal does not match its contents ({len(report.problems)} problem(s): {shown}); it was "
+            f"altered after it was sealed, or never sealed. See lidarcal verify {report.path}")
 
 
 def invalid_seal_banner(report: VerificationReport) -> str:

@@ -121,6 +121,10 @@ def _check_private(path: str | os.PathLike) -> None:
         )
 
 
+#: The check every private key file lidarcal signs with passes (this one and the DCC's X.509 key).
+check_private_key_file = _check_private
+
+
 def load_private_key(path: str | os.PathLike) -> Ed25519PrivateKey:
     """Read an Ed25519 private key (PEM, unencrypted) with a clear error for anything else.
 

@@ -62,3 +62,33 @@ def test_progress_follows_the_terminal_unless_forced(monkeypatch):
         assert progress_enabled(argparse.Namespace(progress=False)) is False
     args = _parse(["calibrate", "--progress"])
     assert args.progress is True
+
+
+@pytest.mark.parametrize(("option", "value", "problem"), [
+    ("--max-replicas", "1e20", "too large"),
+    ("--max-replicas", "100000000000000000000", "too large"),  # was "invalid --max-replicas value value"
+    ("--max-replicas", "1.5", "not a whole number"),
+    ("--max-replicas", "0", "too small"),
+    ("--significant-digits", "1000000", "too large"),  # was accepted
+    ("--significant-digits", "16", "too large"),
+    ("--significant-digits", "two", "not a number"),
+])
+def test_monte_carlo_bounds_are_refused_with_their_reason(option, value, problem, capsys):
+    """Issue 27 §4: --significant-digits had no upper bound; --max-replicas 1e20 gave no reason."""
+    import numpy as np
+
+    with pytest.raises(SystemExit) as exc:
+        _parse(["calibrate", option, value])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "value value" not in err and "Traceback" not in err, err
+    bound = {"--max-replicas": "in [1, 10000]", "--significant-digits": "in [1, 15]"}[option]
+    assert f"{option} expects a whole number {bound}; got '{value}': {problem} (" in err, err
+    assert ("sqrt(replicas)" if option == "--max-replicas" else "float64, which holds 15") in err, err
+    assert np.finfo(np.float64).precision == 15  # the digits a float64 holds, the bound's reason
+
+
+def test_monte_carlo_bounds_take_their_edges_and_float_spelled_whole_numbers():
+    args = _parse(["calibrate", "--max-replicas", "1e4", "--significant-digits", "15"])
+    assert (args.max_replicas, args.significant_digits) == (10_000, 15)
+    assert isinstance(args.max_replicas, int)

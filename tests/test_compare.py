@@ -24,6 +24,7 @@ from lidarcal.cli import main
 from lidarcal.compare import compare, summary, to_dataset
 from lidarcal.compare.core import slope_test
 from lidarcal.conditions import synthetic_conditions
+from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
 
 SIM = {"scheduler": "synchronous"}
@@ -332,3 +333,64 @@ def test_the_worked_example_of_docs_compare_runs(tmp_path, monkeypatch):
     from test_walkthroughs import run_page
 
     assert run_page("compare.md", tmp_path, monkeypatch) >= 3
+
+
+# -- issue 27 §3: the pair's units are checked wherever a field campaign is opened -----------------
+
+
+def _mislabelled(field_file, path, factor=3.6):
+    """The campaign with its reference in km/h still labelled m s-1 (lidar / reference ratio 1/3.6)."""
+    ds = xr.open_dataset(field_file).load()
+    ds["reference_wind_speed"] = ds["reference_wind_speed"] * factor
+    ds["reference_wind_speed"].attrs = dict(xr.open_dataset(field_file)["reference_wind_speed"].attrs)
+    ds.to_netcdf(path)
+    return path
+
+
+@pytest.mark.parametrize("command", ["compare", "diagnose", "conditions check"])
+def test_a_reference_in_km_h_labelled_m_s_is_refused_naming_the_pair_and_the_ratio(field_file, tmp_path,
+                                                                                   capsys, command):
+    """Before: compare refused it only by accident ("no (height, variable) has three bins ..."),
+    diagnose not at all; field from-sta alone checked the ratio."""
+    bad = _mislabelled(field_file, tmp_path / "kmh.nc")
+    argv = {"compare": ["compare", str(bad), "--scheduler", "synchronous", "-o", str(tmp_path / "c.nc")],
+            "diagnose": ["diagnose", str(bad), "--scheduler", "synchronous", "-o", str(tmp_path / "d.nc")],
+            "conditions check": ["conditions", "check", str(bad), "--kind", "field_campaign"]}[command]
+    capsys.readouterr()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    # the ratio, computed here by hand from the file: lidar / reference per finite period-height
+    ds = xr.open_dataset(bad)
+    a, b = ds["lidar_wind_speed"].values, ds["reference_wind_speed"].values
+    ok = np.isfinite(a) & np.isfinite(b) & (b > 0)
+    assert f"{np.median(a[ok] / b[ok]):.3f}" == "0.278"  # 1/3.6 with the 1.5 % noise of the field_file
+    assert ("kmh.nc: the median ratio of variable 'lidar_wind_speed' (m s-1) to variable "
+            "'reference_wind_speed' (m s-1) is 0.278 over") in err, err
+    assert "outside the plausible [0.8, 1.25]" in err and not list(tmp_path.glob("[cd].nc"))
+
+
+def test_the_ratio_check_keeps_a_campaign_that_recorded_skipping_it(field_file, tmp_path):
+    """field from-sta --skip-ratio-check records the choice; the campaign is opened with a warning."""
+    from lidarcal.diagnose.inputs import open_field
+
+    bad = _mislabelled(field_file, tmp_path / "kmh.nc", factor=1.4)
+    with pytest.raises(InputError, match="is 0.71[0-9] over"):
+        open_field(bad)
+    ds = xr.open_dataset(bad).load()
+    ds.attrs["lidar_reference_ratio_checked"] = "no (--skip-ratio-check): the mast is 60 m upstream"
+    raw, _ = open_field(ds)
+    assert raw is ds
+    # a pair within [0.8, 1.25] is opened as it is
+    assert open_field(_mislabelled(field_file, tmp_path / "ok.nc", factor=1.2))[0] is not None
+
+
+def test_compare_on_an_all_nan_reference_names_the_variable(field_file, tmp_path, capsys):
+    nan = tmp_path / "nan.nc"
+    ds = xr.open_dataset(field_file).load()
+    ds["reference_wind_speed"][:] = np.nan
+    ds.to_netcdf(nan)
+    capsys.readouterr()
+    assert main(["compare", str(nan), "--scheduler", "synchronous", "-o", str(tmp_path / "c.nc")]) == 2
+    err = capsys.readouterr().err
+    assert "nan.nc: variable 'reference_wind_speed' is NaN everywhere" in err, err
+    assert not (tmp_path / "c.nc").exists()

@@ -182,3 +182,55 @@ def test_injected_enospc_keygen_writes_both_keys_or_neither(tmp_path, capsys, mo
     monkeypatch.setattr(Path, "write_bytes", write_bytes)
     _refused(capsys, ["keygen", "-o", str(tmp_path / "KEY")], tmp_path / "KEY.pub")
     assert _files(tmp_path) == []
+
+
+# ------------------------------------------------------------------ issue 27: sets and exports
+
+
+def _report_set(tmp_path: Path, report_dir: Path) -> tuple[Path, Path, Path]:
+    return tmp_path / "cert.nc", report_dir / "cert.html", report_dir / "cert.pdf"
+
+
+def test_certificate_report_onto_a_full_disk_publishes_none_of_the_set(inputs, tiny_fs, tmp_path, capsys):
+    """Issue 27: ``-o`` on a disk with room, ``--report`` on a full one: cert.nc was published (and
+    verified) and cert.pdf left beside a missing HTML, while the message said nothing was written."""
+    mnt, fill = tiny_fs
+    cert, html, pdf = _report_set(tmp_path, mnt)
+    fill(16 * 1024)  # room for neither the PDF nor the HTML
+    capsys.readouterr()
+    code = main(["certificate", "--budget", str(inputs["budget"]), "--sensitivity", str(inputs["sens"]),
+                 "--demonstration", "-o", str(cert), "--report", str(html)])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err, err
+    assert f"{MESSAGE} {mnt}/cert." in err, err
+    assert f"{cert}, published before the report failed, was removed" in err, err
+    assert not cert.exists() and _files(mnt) == [] and _files(tmp_path) == []
+
+
+def test_injected_enospc_on_the_html_removes_the_pdf_and_the_certificate(inputs, tmp_path, capsys,
+                                                                          monkeypatch):
+    """The HTML is the report's last file: when it fails, the PDF and the certificate before it go too."""
+    real = Path.write_text
+
+    def write_text(self, data, *args, **kwargs):
+        if self.name.startswith(".cert.html."):
+            raise OSError(errno.ENOSPC, "No space left on device", str(self))
+        return real(self, data, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", write_text)
+    cert, html, pdf = _report_set(tmp_path, tmp_path)
+    argv = ["certificate", "--budget", str(inputs["budget"]), "--sensitivity", str(inputs["sens"]),
+            "--demonstration", "-o", str(cert), "--report", str(html)]
+    err = _refused(capsys, argv, html)
+    assert "none of cert.nc, cert.html and cert.pdf was written" in err, err
+    assert _files(tmp_path) == []  # not cert.nc, not cert.pdf, no temporary
+
+
+def test_dcc_onto_a_full_file_system(inputs, tiny_fs, tmp_path, capsys):
+    mnt, fill = tiny_fs
+    cert = tmp_path / "cert.nc"
+    assert main(["certificate", "--budget", str(inputs["budget"]), "--sensitivity", str(inputs["sens"]),
+                 "--demonstration", "-o", str(cert)]) == 0
+    fill(4 * 1024)  # the XML is tens of kB
+    _refused(capsys, ["dcc", str(cert), "-o", str(mnt / "cert.xml")], mnt / "cert.xml")
+    assert _files(mnt) == []

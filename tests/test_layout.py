@@ -48,6 +48,7 @@ STAGES = (
     "seal",
     "certificate",
     "dcc",
+    "dccsign",
     "document",
     "report",
     "diagnose",

@@ -76,7 +76,8 @@ def run_los(model, *, cnr=-20.0, U=8.0, periods=10, ti=0.0, alpha=0.0, gradient=
 
 def test_resampled_errors_reproduce_the_measured_mixture():
     values = mixture()
-    model = LidarModel.from_artefacts(cube=hand_cube(np.broadcast_to(values, (*SHAPE, values.size))))
+    model = LidarModel.from_artefacts(cube=hand_cube(np.broadcast_to(values, (*SHAPE, values.size))),
+                                      los_noise_model="residuals")
     assert model.los_noise_model == "residuals" and model.noise_table.has_residuals
     los, _ = run_los(model, periods=10)
     truth, _ = los_without_noise(8.0, 600)
@@ -103,7 +104,7 @@ def test_bin_is_chosen_with_its_bilinear_weight():
     # one residual per bin encoding the bin: 100 * LOS row + CNR index + 0.01 * velocity index
     row, ci, vi = np.meshgrid(np.arange(5), np.arange(CNR.size), np.arange(VEL.size), indexing="ij")
     code = (100.0 * row + ci + 0.01 * vi)[..., None]
-    model = LidarModel.from_artefacts(cube=hand_cube(code))
+    model = LidarModel.from_artefacts(cube=hand_cube(code), los_noise_model="residuals")
     los, _ = run_los(model, cnr=-21.5, periods=20)
     truth, beam = los_without_noise(8.0, 600)
     err = los - np.tile(truth, 20)
@@ -128,7 +129,8 @@ def test_bin_is_chosen_with_its_bilinear_weight():
 
 def test_velocity_outside_the_table_takes_the_edge_bin():
     row, ci, vi = np.meshgrid(np.arange(5), np.arange(CNR.size), np.arange(VEL.size), indexing="ij")
-    model = LidarModel.from_artefacts(cube=hand_cube((ci + 0.01 * vi)[..., None]))
+    model = LidarModel.from_artefacts(cube=hand_cube((ci + 0.01 * vi)[..., None]),
+                                      los_noise_model="residuals")
     los, _ = run_los(model, U=45.0, cnr=-10.0, periods=1)  # 45 sin 28° = 21.1 m/s > 18.5
     truth, beam = los_without_noise(45.0, 600)
     err = los - truth
@@ -186,7 +188,7 @@ def test_model_with_residuals_round_trips_through_json():
     values[..., 0] = ci * 0.01
     values[::2, ..., 1] = -vi[::2] * 0.001  # bins with 1 and with 2 residuals
     cube = hand_cube(values)
-    model = LidarModel.from_artefacts(cube=cube)
+    model = LidarModel.from_artefacts(cube=cube, los_noise_model="residuals")
     back = LidarModel.from_dict(json.loads(model.to_json()), cube=cube)
     assert back == model and back.los_noise_model == "residuals"
     assert LidarModel.from_dict(json.loads(json.dumps(model.to_dict(residuals=True)))) == model
@@ -206,7 +208,7 @@ def test_empty_bins_take_the_nearest_bins_residuals():
     values[:, :, :, 0] = 0.5
     values[0, 5, 10:, 0] = np.nan                 # beam 0, CNR -18 dB, velocities -8...18 m/s empty
     values[0, 5, 9, 0] = -0.25                    # -9 m/s: the nearest populated bin in that row
-    table = LidarModel.from_artefacts(cube=hand_cube(values)).noise_table
+    table = LidarModel.from_artefacts(cube=hand_cube(values), los_noise_model="residuals").noise_table
     count = np.asarray(table.residual_count)
     assert count.shape == (4, 12, 37) and (count == 1).all()
     r = np.asarray(table.residuals).reshape(4, 12, 37)
@@ -285,6 +287,9 @@ def test_ingest_keeps_every_candidate_residual(tmp_path):
     path = write_artefact(cube, tmp_path / "cube.nc")
     back = open_artefact(path, "bench_cube")
     np.testing.assert_array_equal(back.los_residual.values, cube.los_residual.values)
+    # the mixture fits p_bad over the CNRs the filtered lidar draws from: -26 and -22 dB unfiltered; with
+    # the -23 dB filter only -22 dB is left, one CNR, so the default falls back to every residual
+    assert LidarModel.from_artefacts(cube=back, cnr_threshold=None).los_noise_model == "mixture"
     assert LidarModel.from_artefacts(cube=back).los_noise_model == "residuals"
 
 
@@ -328,7 +333,7 @@ def los_digest(model, periods=2):
 
 def test_attributes_carry_a_digest_not_the_residuals():
     cube = full_mixture_cube()
-    model = LidarModel.from_artefacts(cube=cube)
+    model = LidarModel.from_artefacts(cube=cube, los_noise_model="residuals")
     record = json.loads(model.to_json())
     table = record["noise_table"]
     assert "residuals" not in table and "residual_count" not in table

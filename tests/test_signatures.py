@@ -113,6 +113,9 @@ def test_unsigned_certificate_says_integrity_only(inputs, keys, tmp_path, capsys
     assert code == 0 and "unsigned: integrity only" in out, out
     code, out = _verify(capsys, cert, "--public-key", str(keys[1]))
     assert code == 1 and "unsigned (integrity only), but a public key was given" in out, out
+    # issue 27: its seal matches, so it is not called altered: intact, unsigned, not by that key
+    assert "ALTERED" not in out, out
+    assert f"{cert}: NOT SIGNED by {keys[1]}: intact but unsigned (its " in out, out
 
 
 def test_forgery_of_unsigned_file_passes_integrity_only(inputs, keys, tmp_path, capsys):

@@ -50,7 +50,9 @@ def to_printed(value, printed):
 
 @pytest.fixture(scope="module")
 def table4():
-    return uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, beam_angle_coefficient=0.00248)
+    # the one switch for the printed choices (dv_SAFO at k = 1, Eq. 11 without cos phi), Eq. 9's coefficient
+    return uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, beam_angle_coefficient=0.00248,
+                             paper_table4=True)
 
 
 def test_table4_rows_reproduced_to_printed_digits(table4):
@@ -113,9 +115,36 @@ def test_which_n_in_eq7_and_coverage_factor_in_eq8():
     # N = 4 runs, as the text says: 0.0158 m/s, six times the printed value
     runs, attrs = term("bench_bias_repeatability", bias_repeatability_n="runs")
     assert runs == pytest.approx(0.0158148, abs=1e-7) and attrs["eq7_sample_count"] == 4
-    # 0.0145 used as printed gives 0.00178 (Table 4's 0.0018); removing k = 2 halves it
-    assert term("bench_uncertainty")[0] == pytest.approx(0.0017832, abs=1e-7)
-    assert term("bench_uncertainty", bench_coverage_factor=2.0)[0] == pytest.approx(0.0008916, abs=1e-7)
+    # 0.0145 used as printed gives 0.00178 (Table 4's 0.0018); removing k = 2 (the default) halves it
+    assert term("bench_uncertainty", paper_table4=True)[0] == pytest.approx(0.0017832, abs=1e-7)
+    assert term("bench_uncertainty")[0] == pytest.approx(0.0008916, abs=1e-7)
+    assert term("bench_uncertainty", bench_coverage_factor=1.0)[0] == pytest.approx(0.0017832, abs=1e-7)
+
+
+def test_default_terms_against_the_printed_ones_by_hand():
+    """Default: dv_SAFO / 2 in Eq. 8 and the height error dz cos(28°) in Eq. 11; Table 4 prints neither.
+
+    By hand, at 8 m/s, 100 m, alpha 0.2: Eq. 8 printed 0.0145 / (sqrt 2 sqrt 150 sin 28°) =
+    0.0145 / 8.13157 = 0.0017832 m/s, default half of it 0.0008916; Eq. 11 printed
+    0.2 x 8 x 0.45 / 100 = 0.0072 m/s, default x cos 28° = 0.88295 -> 0.0063572 m/s.
+    """
+    default = uncertainty_terms(Q_([8.0], "m/s"), **PAPER_INPUTS)
+    printed = uncertainty_terms(Q_([8.0], "m/s"), **PAPER_INPUTS, paper_table4=True)
+
+    def row(ds, name):
+        return float(ds.uncertainty.sel(wind_speed=8.0, contributor=name))
+
+    assert row(printed, "bench_uncertainty") == pytest.approx(0.0017832, abs=1e-7)
+    assert row(default, "bench_uncertainty") == pytest.approx(0.0008916, abs=1e-7)
+    assert row(printed, "zero_distance") == pytest.approx(0.0072, abs=1e-10)
+    assert row(default, "zero_distance") == pytest.approx(0.0063572, abs=1e-7)
+    # the other three rows do not depend on the switch
+    for name in ("bench_std_repeatability", "bench_bias_repeatability", "beam_angle"):
+        assert row(default, name) == row(printed, name)
+    assert float(default.bench_coverage_factor) == 2.0 and float(printed.bench_coverage_factor) == 1.0
+    assert float(default.zero_distance_projection) == pytest.approx(0.8829476, abs=1e-7)
+    assert float(printed.zero_distance_projection) == 1.0
+    assert json.loads(default.attrs["lidarcal_config"])["paper_table4"] is False
 
 
 def test_kernel_scaling():
@@ -125,7 +154,9 @@ def test_kernel_scaling():
     a = table4_kernel(np.array([10.0]), **base)
     b = table4_kernel(np.array([10.0]), **{**base, "height": 200.0, "shear_exponent": 0.4})
     assert a.shape == (1, len(CONTRIBUTORS))
-    assert a[0, 4] == pytest.approx(0.2 * 10 * 0.45 / 100)  # Eq. 11: 0.009 m/s
+    assert a[0, 4] == pytest.approx(0.2 * 10 * 0.45 / 100)  # Eq. 11 as printed: 0.009 m/s
+    c = table4_kernel(np.array([10.0]), **base, zero_distance_projection=np.cos(np.radians(28)))
+    assert c[0, 4] == pytest.approx(0.009 * 0.8829476, rel=1e-7)  # the height error dz cos(phi)
     assert b[0, 4] == pytest.approx(a[0, 4])  # alpha / z unchanged
     np.testing.assert_array_equal(a[0, :4], b[0, :4])
 

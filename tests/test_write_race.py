@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 
+from lidarcal.cli import main
 from lidarcal.errors import OutputExistsError
 from lidarcal.io import atomic_path, open_artefact, part_path, remove_stale_parts
 
@@ -110,3 +111,53 @@ def test_overwrite_replaces(tmp_path):
         tmp.write_bytes(b"new")
     assert Path(path).read_bytes() == b"new"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out.nc"]
+
+
+# ------------------------------------------------------------------ issue 27 §4: long names
+
+
+@pytest.mark.parametrize("length", [230, 255])
+def test_every_writer_takes_a_legal_name_up_to_name_max(tmp_path, capsys, length):
+    """A destination name of 230-255 bytes is legal; its temporary ``.<name>.<host>-<pid>.<rand>.part``
+    went over NAME_MAX, and every writer failed naming the temporary instead of the path given."""
+    assert os.pathconf(tmp_path, "PC_NAME_MAX") == 255  # the limit this test is about (ext4, tmpfs)
+    stem = "é" * ((length - 3) // 2) + "x" * ((length - 3) % 2)  # two bytes a character: cut at a boundary
+    name = f"{stem}.nc"
+    assert len(name.encode()) == length
+    d = tmp_path / "out"
+    d.mkdir()
+    assert main(["rwf", "-o", str(d / name)]) == 0
+    assert main(["keygen", "-o", str(d / stem[: (length - 4) // 2])]) == 0  # KEY and KEY.pub (4 bytes more)
+    key = next(p for p in d.iterdir() if not p.name.endswith((".pub", ".nc")))
+    assert len((key.name + ".pub").encode()) <= 255
+    records = tmp_path / "records.nc"
+    from analysis_factories import make_records
+
+    from lidarcal.analysis import budget
+    from lidarcal.io import write_artefact
+
+    make_records(n=200).to_netcdf(records)
+    bud = write_artefact(budget(open_artefact(records)), tmp_path / "b.nc")
+    cert = d / f"{stem[:-1]}c.nc"
+    assert main(["certificate", "--budget", str(bud), "--demonstration", "-o", str(cert)]) == 0
+    assert main(["dcc", str(cert), "-o", str(d / f"{stem[:-1]}c.xml")]) == 0
+    assert main(["table", str(cert), "-o", str(d / f"{stem[:-1]}c.csv")]) == 0
+    names = sorted(p.name for p in d.iterdir())
+    assert not [n for n in names if n.endswith(".part")]  # no temporary left
+    assert len(names) == 6 and all(len(n.encode()) <= 255 for n in names)
+    # a temporary's name fits, and a killed writer's is still recognised as this path's
+    tmp = part_path(d / name)
+    assert len(tmp.name.encode()) <= 255 and tmp.name.startswith(".é")
+    assert remove_stale_parts(d / name) == []  # this process is alive: never touched
+    dead = tmp.with_name(tmp.name.replace(f"-{os.getpid()}.", "-4194303."))
+    tmp.rename(dead)
+    assert remove_stale_parts(d / name) == [dead] and not dead.exists()
+
+
+def test_a_name_over_name_max_is_refused_naming_the_path(tmp_path, capsys):
+    name = "n" * 256 + ".nc"
+    assert main(["rwf", "-o", str(tmp_path / name)]) == 2
+    err = capsys.readouterr().err
+    assert f"{tmp_path / name}: file name of 259 bytes; the file system of {tmp_path} allows at most 255" \
+        in err, err
+    assert list(tmp_path.iterdir()) == []

@@ -11,7 +11,10 @@ contributors are, for the two approaches of Figure 9:
     ``mean_difference`` — \\|mean(lidar − reference)\\|;
     ``std_difference`` — standard deviation σ_diff of lidar − reference (ddof = 1);
     ``statistical`` — σ_diff / √N, N the distinct 10-minute periods in the bin (``period_count``:
-    replicas add trials, not periods of the atmosphere).
+    replicas add trials, not periods of the atmosphere);
+    ``model_form`` — the simulation's model form, when the records carry the model-form runs
+    (:mod:`lidarcal.analysis.model_form`): raises the combined standard uncertainty by the
+    spread of its value across the defensible alternative models.
 ``iec`` (field calibration against a mast)
     ``reference_sensor`` — √(u_abs² + (u_rel·Ū)²) from the anemometer calibration;
     ``mean_difference``; ``statistical`` — σ_diff / √N; ``mounting``, ``separation`` and
@@ -70,6 +73,7 @@ from lidarcal.analysis.certification import (
     settle_target,
 )
 from lidarcal.analysis.distribution import bin_values, delta_sds, grouped
+from lidarcal.analysis.model_form import model_form_term
 from lidarcal.analysis.montecarlo import COVERAGE_PROBABILITY, tolerance_exponent
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.analysis.trials import TRIAL_VARIABLES
@@ -87,7 +91,7 @@ __all__ = ["budget", "certified_bins", "numerical_state", "tolerance_exponent", 
 
 #: Contributors of each approach, in the order of the ``contributor`` dimension.
 CONTRIBUTORS = {
-    "monte_carlo": ("virtual_reference", "mean_difference", "std_difference", "statistical"),
+    "monte_carlo": ("virtual_reference", "mean_difference", "std_difference", "statistical", "model_form"),
     "iec": ("reference_sensor", "mean_difference", "statistical", "mounting", "separation",
             "flow_inhomogeneity"),
 }
@@ -109,6 +113,8 @@ _CONTRIBUTOR_NAMES = {
     "mean_difference": "absolute mean lidar minus reference difference",
     "std_difference": "standard deviation of the lidar minus reference difference",
     "statistical": "standard uncertainty of the mean difference, sigma_diff / sqrt(N), N distinct periods",
+    "model_form": "simulation model form, the spread of the combined uncertainty across the defensible "
+                  "alternative models (common random numbers)",
     "reference_sensor": "reference anemometer standard uncertainty",
     "mounting": "lidar mounting",
     "separation": "separation between lidar and reference mast",
@@ -203,6 +209,7 @@ def budget(
     flow_inhomogeneity: Any = 0.0,
     noise_terms: str = "printed",
     coverage_interval: str = "symmetric",
+    model_form: bool = True,
     source: str | None = None,
     call: str | None = None,
 ) -> xr.Dataset:
@@ -240,6 +247,10 @@ def budget(
         k of the expanded uncertainty (default 2).
     reference_uncertainty : quantity or str
         IEC approach: absolute standard uncertainty of the calibrated anemometer, e.g. "0.1 m s-1".
+    model_form : bool
+        Monte Carlo approach: add the ``model_form`` contributor when the records carry the
+        model-form runs (``model_form_*`` variables, :mod:`lidarcal.campaign.model_form`); without
+        them (or with False) the contributor is left out.
     reference_relative_uncertainty, mounting, separation, flow_inhomogeneity : fraction or str
         IEC approach: relative standard uncertainties ("0.5 %" or 0.005), multiplied by the
         bin's mean reference wind speed.
@@ -286,15 +297,19 @@ def budget(
         parts = _monte_carlo_parts(binned, vref)
         config["coverage_interval"] = coverage_interval
         config["coverage_probability"] = COVERAGE_PROBABILITY
+        mf = model_form_term(records, edges, binned, vref, k, source=source) if model_form else None
+        if mf is not None:
+            parts["model_form"], config["model_form"] = mf["contribution"], mf["config"]
         mc = _monte_carlo_values(binned, parts, vref, k, centres, rule)
     else:
         u_abs, rel = _iec_inputs(terms, reference_uncertainty, dict(zip(_IEC_FRACTIONS, (
             reference_relative_uncertainty, mounting, separation, flow_inhomogeneity), strict=True)))
         config.update({"reference_uncertainty_m_s-1": u_abs, **{f"{a}_fraction": b for a, b in rel.items()}})
         parts = _iec_parts(binned, u_abs, rel)
-    contribution = np.stack([np.broadcast_to(parts[c], binned["n"].shape) for c in CONTRIBUTORS[approach]],
-                            axis=-1)
-    return _assemble(records, terms, approach, edges, binned, contribution, rule, k, config, call, mc)
+        mf = None
+    names = tuple(c for c in CONTRIBUTORS[approach] if c in parts)
+    contribution = np.stack([np.broadcast_to(parts[c], binned["n"].shape) for c in names], axis=-1)
+    return _assemble(records, terms, names, edges, binned, contribution, rule, k, config, call, mc, mf)
 
 
 def _quadrature(parts: Mapping[str, np.ndarray], names: Iterable[str], shape: tuple[int, ...]) -> np.ndarray:
@@ -305,7 +320,7 @@ def _distribution_inputs(stats: Mapping[str, Any], parts: Mapping[str, np.ndarra
                          ) -> dict[str, np.ndarray]:
     """Per (height, bin), in % of the bin mean reference: σ of the terms not simulated, U, ν_eff, scale."""
     shape = stats["n"].shape
-    names = CONTRIBUTORS["monte_carlo"]
+    names = [c for c in CONTRIBUTORS["monte_carlo"] if c in parts]
     with np.errstate(invalid="ignore", divide="ignore"):
         scale = 100.0 / stats["mean_reference"]
         periods = np.asarray(stats["period_count"], dtype=float)
@@ -350,8 +365,10 @@ def _monte_carlo_values(binned: Mapping[str, Any], parts: Mapping[str, np.ndarra
             mine = (tr["replica"] == binned["replica_numbers"][j]) & (pos[tr["cell"]] >= 0)
             with np.errstate(invalid="ignore", divide="ignore"):
                 stats = {**d, "period_count": d["n"], "statistical": d["std_difference"] / np.sqrt(d["n"])}
-            rin = {name: v.ravel()[idx] for name, v in _distribution_inputs(
-                stats, _monte_carlo_parts(stats, vref), k).items()}
+            rparts = _monte_carlo_parts(stats, vref)
+            if "model_form" in parts:  # the same in every replica (its error: model_form_standard_error)
+                rparts["model_form"] = parts["model_form"]
+            rin = {name: v.ravel()[idx] for name, v in _distribution_inputs(stats, rparts, k).items()}
             cells = tr["cell"][mine]
             rs = grouped(tr["diff"][mine] * rin["scale"][pos[cells]], pos[cells], idx.size)
             rv = bin_values(rs, rin["sigma"], rin["expanded"], rin["nu"], shortest=shortest)
@@ -425,11 +442,12 @@ def _iec_parts(binned: Mapping[str, np.ndarray], u_abs: float,
     }
 
 
-def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edges: np.ndarray,
+def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, ...], edges: np.ndarray,
               binned: Mapping[str, Any], contribution: np.ndarray, rule: Mapping[str, Any], k: float,
-              config: dict[str, Any], call: str | None, mc: Mapping[str, Any] | None) -> xr.Dataset:
+              config: dict[str, Any], call: str | None, mc: Mapping[str, Any] | None,
+              mf: Mapping[str, Any] | None = None) -> xr.Dataset:
     """Build the ``uncertainty_budget`` artefact with the attributes of its schema, stamped."""
-    n, names = binned["n"], CONTRIBUTORS[approach]
+    n, approach = binned["n"], config["approach"]
     combined = kernels.quadrature(contribution, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         pct = 100.0 / binned["mean_reference"]
@@ -479,6 +497,10 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edge
                  "coverage_probability": COVERAGE_PROBABILITY,
                  "coverage_interval": rule["coverage_interval"],
                  "certified_coverage_intervals": int((statement == 1).sum())}
+    if mf is not None:  # the model-form contributor's companions (lidarcal.analysis.model_form)
+        values["model_form_standard_error"] = (hw, mf["standard_error"])
+        values["model_form_sample_count"] = (hw, mf["sample_count"].astype(np.int32))
+        values["model_form_shift"] = (hw + ("model_form_alternative",), mf["shift"])
     lo, hi = rule["certified_range"]
     context = {"k": f"{k:g}", "coverage_factor": k, "min_periods": rule["min_periods"], "lo": lo, "hi": hi,
                "digits": rule["significant_digits"], "coverage_probability": COVERAGE_PROBABILITY,
@@ -489,7 +511,9 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, approach: str, edge
         {name: (dims, data) for name, (dims, data) in values.items()},
         coords={"height": records["height"].variable.copy(),
                 "wind_speed": ("wind_speed", 0.5 * (edges[:-1] + edges[1:])),
-                "contributor": ("contributor", np.array(names, dtype=object))},
+                "contributor": ("contributor", np.array(names, dtype=object)),
+                **({"model_form_alternative": ("model_form_alternative",
+                                               np.array(mf["alternatives"], dtype=object))} if mf else {})},
     )
     ds = with_output_attrs(ds, "uncertainty_budget", **context)
     ds["height"].attrs = dict(records["height"].attrs)

@@ -11,7 +11,7 @@ contributor                    Eq.    standard uncertainty of U
 ``bench_bias_repeatability``   7      ``s_delta / (sqrt(2) sqrt(N) sin phi)``
 ``bench_uncertainty``          8      ``(dv_SAFO / k) / (sqrt(2) sqrt(N_los) sin phi)``
 ``beam_angle``                 9      ``U cot(phi) dphi`` (or ``c U`` with a given coefficient c)
-``zero_distance``              11     ``alpha U dz / z`` (power-law shear, Eq. 10)
+``zero_distance``              11     ``alpha U dz cos(phi) / z`` (power-law shear, Eq. 10)
 =============================  =====  ============================================================
 
 What the paper's printed numbers imply (and what lidarcal therefore does)
@@ -23,8 +23,9 @@ Eq. 7 with the N = 150 LOS samples per 10 minutes of Eq. 8 (0.00258).  The defau
 
 *Coverage factor of dv_SAFO.*  The bench uncertainty 0.0145 m/s is stated at k = 2, yet
 Table 4's 0.0018 m/s is Eq. 8 with 0.0145 used as a standard uncertainty (0.00178); with
-k = 2 removed it would be 0.00089 m/s.  The default ``bench_coverage_factor=1`` reproduces
-Table 4 (conservative); pass 2 to convert the expanded uncertainty to a standard one.
+k = 2 removed it is 0.00089 m/s.  lidarcal divides by the stated k = 2 by default
+(``bench_coverage_factor=2``): a standard uncertainty enters a quadrature sum.
+``paper_table4=True`` restores the printed use (k = 1).
 
 *Beam angle, 0.00248 vs 0.00286.*  Eq. 9 with dphi = 0.087° = 1.518e-3 rad and phi = 28°
 gives cot(28°) × 1.518e-3 = 0.00286 U, not the printed 0.00248 U (that coefficient would
@@ -55,8 +56,14 @@ through the 10-minute DBS average gives the opposite (``docs/noise_terms.md``):
 against a Monte Carlo run of the virtual lidar with the bench cube perturbed by s_s and s_δ.
 
 *Zd uncertainty along the beam.*  Eq. 11 uses the 0.45 m range uncertainty as a height
-uncertainty; the height error of an oblique beam is dz cos(phi) (0.40 m), so Eq. 11 as
-written is slightly conservative.  lidarcal follows Eq. 11.
+uncertainty; the height error of an oblique beam is dz cos(phi) (0.397 m at 28°).  lidarcal
+uses dz cos(phi) by default; ``paper_table4=True`` restores Eq. 11 as printed (dz).
+
+*One switch for the printed table.*  ``paper_table4=True`` (``lidarcal terms --table4 printed``)
+restores both printed choices (dv_SAFO used as a standard uncertainty, the range error used as
+a height error); with ``beam_angle_coefficient=0.00248`` and the default Eqs. 6-7 it reproduces
+Table 4 to its printed digits (``tests/test_terms.py``).  An explicit ``bench_coverage_factor``
+overrides the one the switch picks.
 """
 
 from __future__ import annotations
@@ -133,11 +140,14 @@ def table4_kernel(
     noise_terms: str = "printed",
     los_noise_std: float = 0.1,
     hybrid_weight: float = 2.0 / 3.0,
+    zero_distance_projection: float = 1.0,
 ) -> np.ndarray:
     """Eqs. 6–9 and 11 on SI floats; returns shape (len(wind_speed), 5) in m s-1.
 
     Angles are in radians; ``n_bias`` is the N of Eq. 7; ``bench_uncertainty`` is already a
-    standard uncertainty.  Columns follow :data:`CONTRIBUTORS`.  ``noise_terms="derived"``
+    standard uncertainty; Eq. 11's height uncertainty is ``zero_distance_projection`` times
+    ``zero_distance_uncertainty`` (cos phi for the range error of an oblique beam, 1 as Table 4
+    prints it).  Columns follow :data:`CONTRIBUTORS`.  ``noise_terms="derived"``
     replaces Eqs. 6–7 by ``s_s / (√2 √N_los sin φ) ⊕ p σ s_s / (2 sin²φ U)`` and
     ``s_δ / (√2 sin φ)`` (``los_noise_std`` σ and ``hybrid_weight`` p enter only there).
     """
@@ -160,7 +170,7 @@ def table4_kernel(
         eq9 = u * beam_angle_uncertainty / np.tan(cone_angle)
     else:
         eq9 = beam_angle_coefficient * u
-    eq11 = shear_exponent * u * zero_distance_uncertainty / height
+    eq11 = shear_exponent * u * zero_distance_projection * zero_distance_uncertainty / height
     ones = np.ones_like(u)
     return np.stack([eq6 * ones, eq7 * ones, eq8 * ones, eq9, eq11], axis=-1)
 
@@ -177,8 +187,8 @@ def _positive(value: float, name: str, unit: str, *, allow_zero: bool = True) ->
 #: units and long names are declared in ``schemas/uncertainty_terms.yaml``.
 INPUT_NAMES = ("mean_between_run_std_std", "mean_between_run_std_bias", "n_runs", "n_los_samples",
                "bench_uncertainty", "bench_coverage_factor", "beam_angle_uncertainty",
-               "zero_distance_uncertainty", "shear_exponent", "cone_angle", "beam_angle_coefficient",
-               "los_noise_std", "hybrid_weight")
+               "zero_distance_uncertainty", "zero_distance_projection", "shear_exponent", "cone_angle",
+               "beam_angle_coefficient", "los_noise_std", "hybrid_weight")
 
 
 def uncertainty_terms(
@@ -196,8 +206,9 @@ def uncertainty_terms(
     cone_angle: Any,
     beam_angle_coefficient: float | None = None,
     bias_repeatability_n: Literal["los_samples", "runs"] = "los_samples",
-    bench_coverage_factor: float = 1.0,
+    bench_coverage_factor: float | None = None,
     noise_terms: Literal["printed", "derived"] = "printed",
+    paper_table4: bool = False,
     los_noise_std: Any = None,
     hybrid_weight: float | None = None,
     repeatability: xr.Dataset | None = None,
@@ -233,11 +244,16 @@ def uncertainty_terms(
         ``U cot(phi) dphi`` (0.00286 U with the paper's inputs).
     bias_repeatability_n : {"los_samples", "runs"}
         Which N divides Eq. 7: ``n_los_samples`` (reproduces Table 4) or ``n_runs`` (the text).
-    bench_coverage_factor : float
-        k dividing ``bench_uncertainty``; 1 reproduces Table 4, 2 converts the k = 2 value.
+    bench_coverage_factor : float, optional
+        k dividing ``bench_uncertainty``: default 2 (dv_SAFO is stated at k = 2), 1 with
+        ``paper_table4`` (Table 4's use); a value given here overrides both.
     noise_terms : {"printed", "derived"}
         Eqs. 6–7 as printed (reproduces Table 4) or as propagated through the 10-minute
         average (module docstring, ``docs/noise_terms.md``).
+    paper_table4 : bool
+        Restore Table 4's printed choices: dv_SAFO used as a standard uncertainty (k = 1) and
+        Eq. 11 with the range error of Zd as a height error (no cos phi).  Default False: ÷ k = 2
+        and ``dz cos(phi)`` (module docstring).
     los_noise_std, hybrid_weight : optional
         σ (speed) and p of the derived Eq. 6's noise-bias part (default 0.1 m/s and 2/3);
         only with ``noise_terms="derived"``.
@@ -257,21 +273,28 @@ def uncertainty_terms(
 
     Examples
     --------
-    >>> ds = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, beam_angle_coefficient=0.00248)
+    >>> ds = uncertainty_terms(TABLE4_WIND_SPEEDS, **PAPER_INPUTS, beam_angle_coefficient=0.00248,
+    ...                        paper_table4=True)
     >>> round(float(ds.uncertainty.sel(wind_speed=10, contributor="beam_angle")), 4)
     0.0248
     >>> at = uncertainty_terms(TABLE4_WIND_SPEEDS, **{**PAPER_INPUTS, "height": Q_([50.0, 100.0], "m")})
     >>> at.total.dims, round(float(at.uncertainty.sel(wind_speed=10, height=50)[-1]), 4)
-    (('wind_speed', 'height'), 0.018)
+    (('wind_speed', 'height'), 0.0159)
     """
     ws = _checked_wind_speeds(wind_speed)
     heights, alphas = _checked_heights(height, shear_exponent)
+    paper_table4 = bool(paper_table4)
+    if bench_coverage_factor is None:
+        bench_coverage_factor = 1.0 if paper_table4 else 2.0
     inputs = _checked_inputs(
         mean_between_run_std_std=mean_between_run_std_std,
         mean_between_run_std_bias=mean_between_run_std_bias,
         n_runs=n_runs, n_los_samples=n_los_samples, bench_uncertainty=bench_uncertainty,
         bench_coverage_factor=bench_coverage_factor, beam_angle_uncertainty=beam_angle_uncertainty,
         zero_distance_uncertainty=zero_distance_uncertainty, cone_angle=cone_angle)
+    # Eq. 11: the range error of Zd moves an oblique beam's gate by dz cos(phi) in height
+    cos_phi = float(np.cos(np.deg2rad(inputs["cone_angle"])))
+    inputs["zero_distance_projection"] = 1.0 if paper_table4 else cos_phi
     if bias_repeatability_n not in ("los_samples", "runs"):
         raise InputError(f"argument 'bias_repeatability_n': expected 'los_samples' or 'runs'; "
                          f"found {bias_repeatability_n!r}")
@@ -289,7 +312,8 @@ def uncertainty_terms(
         beam_angle_uncertainty=np.deg2rad(inputs["beam_angle_uncertainty"]),
         zero_distance_uncertainty=inputs["zero_distance_uncertainty"],
         shear_exponent=alpha, height=z, cone_angle=np.deg2rad(inputs["cone_angle"]),
-        beam_angle_coefficient=beam_angle_coefficient, noise_terms=noise_terms, **derived,
+        beam_angle_coefficient=beam_angle_coefficient, noise_terms=noise_terms,
+        zero_distance_projection=inputs["zero_distance_projection"], **derived,
     ) for z, alpha in zip(np.atleast_1d(heights), alphas, strict=True)]
     inputs = {name: (alphas if name == "shear_exponent" else inputs[name]) for name in INPUT_NAMES
               if name in inputs or name == "shear_exponent"}
@@ -298,7 +322,7 @@ def uncertainty_terms(
     config = {**{k: (v if stacked else v[0]) if k == "shear_exponent" else v for k, v in inputs.items()},
               "height": heights.tolist() if stacked else heights, "wind_speed": ws,
               "bias_repeatability_n": bias_repeatability_n, "beam_angle_coefficient": beam_angle_coefficient,
-              "noise_terms": noise_terms}
+              "noise_terms": noise_terms, "paper_table4": paper_table4}
     ds.attrs.update({
         "bias_repeatability_n": bias_repeatability_n,
         "eq7_sample_count": np.int32(n_bias) if noise_terms == "printed" else np.int32(1),
@@ -458,6 +482,8 @@ def format_table(ds: xr.Dataset, digits: int = 4) -> str:
     lines = [
         f"Non-simulated uncertainty terms (m/s) at z = {float(ds.height):g} m, "
         f"alpha = {float(ds.shear_exponent):g}, phi = {float(ds.cone_angle):g} degree",
+        f"Eq. 8: dv_SAFO / {float(ds.bench_coverage_factor):g}; Eq. 11: height error "
+        f"{float(ds.get('zero_distance_projection', 1.0)):.4g} x dz",
         head, "-" * len(head),
     ]
     for name in ds.contributor.values:

@@ -171,7 +171,8 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
     ``base_seed``, ``duration``, and optionally ``workdir``/``key`` to cache the result atomically.
     Returns ``{output: (n, h) array}`` plus ``los`` (``{period_index: {name: array}}``).
     """
-    model = LidarModel.from_dict(task["model"])
+    # replica r >= 1 of the mixture noise model simulates its own draw of p_bad(CNR) (docs/seeds.md)
+    model = LidarModel.from_dict(task["model"]).for_replica(task["base_seed"], task.get("replica", 0))
     heights = np.asarray(task["heights"], dtype=float)
     valid = np.asarray(task["valid"], dtype=bool)
     n, nh = valid.shape

@@ -187,7 +187,9 @@ def simulate_replicas(
     Replica ``r`` re-simulates the cells marked in ``cells`` ((time, height) bool over the
     simulated heights; or a mapping replica -> such a mask, each replica its own) with the seed
     entropy ``(base_seed, r, period_key)`` (docs/seeds.md), as Dask tasks of ``chunk`` selected
-    periods, one set of tasks per replica, all submitted together.  Like
+    periods, one set of tasks per replica, all submitted together.  Replica 0 re-uses the
+    campaign's own streams ``(base_seed, period_key)``: with another ``model`` that is a
+    common-random-numbers run (:mod:`lidarcal.campaign.model_form`).  Like
     :func:`simulate_campaign` the result does not depend on the chunk size, the workers or the
     scheduler, and with ``workdir`` finished chunks are kept (in ``workdir/replica-<r>``) so an
     interrupted run resumes.
@@ -208,8 +210,8 @@ def simulate_replicas(
         if mask.shape != camp.valid.shape:
             raise InputError(f"cells{'' if not isinstance(cells, Mapping) else f' of replica {r}'} has shape "
                              f"{mask.shape}; expected {camp.valid.shape} (time, height)")
-    if any(r < 1 for r in replicas):
-        raise InputError(f"replicas are numbered from 1 (replica 0 is simulate_campaign); "
+    if any(r < 0 for r in replicas):
+        raise InputError(f"replicas are numbered from 0 (replica 0: the campaign's own streams); "
                          f"got {replicas}")
     chunk = int(chunk)
     todo = {r: camp.valid & masks[r] for r in replicas}

@@ -15,6 +15,8 @@ record of every value and attribute, optionally signed with Ed25519; checked by
   :func:`components`, :func:`provenance_chain`, :func:`open_certificate` (a DataTree).
 - :mod:`lidarcal.certificate.results` — what it certifies: :func:`headline_range`,
   :func:`headline_sentence`, :func:`result_table` (``lidarcal table``).
+- :mod:`lidarcal.certificate.measurand` — what U is (:data:`MEASURAND`) and the model-form term
+  in words (:func:`model_form_summary`).
 """
 
 from lidarcal.certificate.build import make_certificate
@@ -27,6 +29,7 @@ from lidarcal.certificate.layout import (
     provenance_chain,
     records_summary,
 )
+from lidarcal.certificate.measurand import MEASURAND, model_form_summary, model_form_values
 from lidarcal.certificate.results import (
     certified_rule,
     headline_range,
@@ -49,4 +52,7 @@ __all__ = [
     "headline_sentence",
     "certified_rule",
     "not_settled",
+    "MEASURAND",
+    "model_form_summary",
+    "model_form_values",
 ]

@@ -35,6 +35,7 @@ from lidarcal.certificate.layout import (
     provenance_record,
     scalar_coords,
 )
+from lidarcal.certificate.measurand import MEASURAND, model_form_summary
 from lidarcal.certificate.results import headline_sentence, not_settled_rows
 from lidarcal.errors import InputError
 from lidarcal.provenance import jsonable, read_json_attr, stamp
@@ -233,7 +234,10 @@ def _flattened(parts: Mapping[str, xr.Dataset], records: xr.Dataset | None
 def _summary_attributes(budget: xr.Dataset, *, serial: str | None, cube: xr.Dataset | None,
                         rwf: xr.Dataset | None, records: xr.Dataset | None) -> dict[str, Any]:
     """Return the certificate's own global attributes (approach, headline, Monte Carlo, lidar, Zd ...)."""
-    attrs: dict[str, Any] = {"budget_approach": str(budget.attrs.get("approach", "unknown"))}
+    attrs: dict[str, Any] = {"budget_approach": str(budget.attrs.get("approach", "unknown")),
+                             "measurand": MEASURAND}
+    if (model_form := model_form_summary(budget)) is not None:
+        attrs["model_form"] = model_form
     if (headline := headline_sentence(budget)) is not None:
         attrs["expanded_uncertainty_headline"] = headline
     for key in ("monte_carlo_replicas", "monte_carlo_trials", "monte_carlo_significant_digits"):

@@ -23,7 +23,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.errors import InputError
-from lidarcal.io import open_artefact
+from lidarcal.io import open_artefact, read_image
 from lidarcal.provenance import jsonable, read_json_attr
 from lidarcal.schema import output_attrs
 from lidarcal.seal import invalid_seal_banner, require_valid_seal
@@ -208,17 +208,15 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
         If its seal does not match its contents (unless ``allow_invalid``).
     """
     register_units()
-    # read without closing: xarray shares one cached handle per file, and closing it under
-    # another open Dataset of the same file made netCDF4's next open of it crash (HDF5)
-    ds = open_artefact(path, load=False, chunks=chunks)
-    if ds.attrs.get("lidarcal_artefact") != "certificate":
-        found = ds.attrs.get("lidarcal_artefact")
-        raise InputError(f"{path}: not a lidarcal certificate: it is "
-                         f"{repr(found) + ' artefact' if found else 'not a lidarcal artefact'}")
+    # the seal first, from the file's bytes (lidarcal.io.open_image): no handle of this file is
+    # open yet, and one a caller holds elsewhere is never touched; InputError for a file that
+    # is not a certificate
     seal = require_valid_seal(path, allow_invalid=allow_invalid)
-    if chunks is None:
-        ds = ds.load()  # a certificate is small: values an analyst can .item()
+    # read from memory too: a lazy (chunks) tree keeps its handle, which must not share the
+    # file with one the caller holds; a certificate is small: loaded, values an analyst can .item()
+    ds = open_artefact(path, load=chunks is None, chunks=chunks, image=read_image(path, "certificate file"))
     nodes: dict[str, xr.Dataset] = {"/": xr.Dataset(attrs=dict(ds.attrs))}
+    nodes["/"].encoding["source"] = str(path)  # the file whose seal readers (result_table) check
     if seal is not None and not seal.ok:
         nodes["/"].attrs["lidarcal_seal_problems"] = invalid_seal_banner(seal)
     for comp in components(ds):

@@ -38,7 +38,12 @@ __all__ = [
 ]
 
 
-def _budget_of(obj: xr.Dataset) -> xr.Dataset:
+def _budget_of(obj: xr.Dataset | xr.DataTree) -> xr.Dataset:
+    if isinstance(obj, xr.DataTree):  # as lidarcal.open_certificate gives it: one group per component
+        if "budget" not in obj.children:
+            raise InputError(f"{source_name(obj.to_dataset())}: certificate tree has no 'budget' group; it "
+                             f"has {sorted(obj.children)}")
+        return obj["budget"].to_dataset()
     if obj.attrs.get("lidarcal_artefact") == "certificate" or "lidarcal_components" in obj.attrs:
         return extract_component(obj, "budget")
     if "relative_expanded_uncertainty" not in obj:
@@ -202,14 +207,20 @@ def _flag_names(var: xr.DataArray) -> dict[int, str]:
     return {int(v): m for v, m in zip(values, meanings, strict=False)}
 
 
-def _significant_sensitivities(cert: xr.Dataset) -> dict[float, str]:
+def _sensitivities(cert: xr.Dataset | xr.DataTree) -> dict[str, xr.Dataset]:
+    """Return the sensitivity components (``sensitivity_<variable>``) of a flat certificate or a tree."""
+    if isinstance(cert, xr.DataTree):
+        return {str(name): node.to_dataset() for name, node in cert.children.items()
+                if str(name).startswith("sensitivity_")}
+    return {comp["name"]: extract_component(cert, comp["name"]) for comp in components(cert)
+            if comp["name"].startswith("sensitivity_")}
+
+
+def _significant_sensitivities(cert: xr.Dataset | xr.DataTree) -> dict[float, str]:
     """Per height, the sensitivities significant by Eq. 12 or 13, as readable text."""
     out: dict[float, list[str]] = {}
-    for comp in components(cert):
-        if not comp["name"].startswith("sensitivity_"):
-            continue
-        sens = extract_component(cert, comp["name"])
-        var = sens.attrs.get("environmental_variable", comp["name"][len("sensitivity_"):])
+    for name, sens in _sensitivities(cert).items():
+        var = sens.attrs.get("environmental_variable", name[len("sensitivity_"):])
         for z in np.atleast_1d(sens["height"].values):
             one = sens.sel(height=z)
             if not int(one["significant"]):
@@ -251,7 +262,7 @@ _MONTE_CARLO_COLUMNS = {
 }
 
 
-def result_table(cert: xr.Dataset, *, contributors: int = 3, allow_invalid: bool = False):
+def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow_invalid: bool = False):
     """IEC-style result table of a certificate: one row per height and wind-speed bin.
 
     Columns: ``height_m``, ``wind_speed_m_s`` (bin centre) and its bounds, ``sample_count``
@@ -265,12 +276,15 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3, allow_invalid: bool
     ``numerically_settled``; the Monte Carlo distribution of the error of one 10-minute mean
     (``mean_difference_pct``, ``standard_uncertainty_pct``, ``coverage_interval_lower_pct`` and
     ``_upper_pct``, each with its ``tolerance_*`` column, ``expanded_uncertainty_coverage_pct``
-    and ``effective_degrees_of_freedom``); ``main_contributors`` (the largest ``contributors``
+    and ``effective_degrees_of_freedom``); ``model_form_pct`` (the simulation's model-form
+    contributor, k = 1, in %; NaN without it), ``main_contributors`` (the largest ``contributors``
     standard-uncertainty contributions, in %) and ``significant_sensitivities`` (per height, Eqs.
     12-13).  Numbers are the certificate's own values, not rounded.  The table's attributes
     carry the headline range, the rule and ``not_settled_rows`` (:func:`not_settled_rows`).
 
-    A certificate read from a file has its seal checked first (:func:`lidarcal.seal.require_valid_seal`):
+    ``cert`` is a certificate Dataset (or a budget), or the tree :func:`lidarcal.open_certificate`
+    returns.  A certificate read from a file has its seal checked first
+    (:func:`lidarcal.seal.require_valid_seal`, on the file the Dataset or tree was read from):
     an altered one raises :class:`~lidarcal.errors.SealError` unless ``allow_invalid`` (the
     caller then shows :func:`lidarcal.seal.invalid_seal_banner` with the table).
 
@@ -280,8 +294,9 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3, allow_invalid: bool
     """
     import pandas as pd
 
-    if not allow_invalid and "lidarcal_components" in cert.attrs:
-        require_valid_seal(cert)
+    is_certificate = "lidarcal_components" in cert.attrs
+    if not allow_invalid and is_certificate:
+        require_valid_seal(cert.to_dataset() if isinstance(cert, xr.DataTree) else cert)
 
     budget = _budget_of(cert).load()
     k = float(budget.attrs.get("coverage_factor", 2.0))
@@ -290,8 +305,9 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3, allow_invalid: bool
     # rows run over (height, wind speed): index by those names, whatever the stored order
     headline = certified_mask(budget).transpose("height", "wind_speed")
     budget = budget.transpose("height", "wind_speed", ...)
-    sens = _significant_sensitivities(cert) if "lidarcal_components" in cert.attrs else {}
+    sens = _significant_sensitivities(cert) if is_certificate else {}
     names = [str(c) for c in budget["contributor"].values]
+    mf = names.index("model_form") if "model_form" in names else None
     bounds = budget["wind_speed_bounds"].values if "wind_speed_bounds" in budget else None
     rows = []
     for i, z in enumerate(budget["height"].values):
@@ -331,6 +347,7 @@ def result_table(cert: xr.Dataset, *, contributors: int = 3, allow_invalid: bool
             for name, col in _TOLERANCES.items():
                 if name != "numerical_tolerance":
                     row[col] = _value(budget, name, i, j)
+            row["model_form_pct"] = float(rel_c[mf]) if mf is not None else np.nan
             row["main_contributors"] = main
             row["significant_sensitivities"] = sens.get(float(z), "")
             rows.append(row)

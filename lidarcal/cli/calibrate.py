@@ -25,6 +25,7 @@ from __future__ import annotations
 import argparse
 
 from lidarcal.admin import status_line
+from lidarcal.campaign.model_form import DEFAULT_PER_BIN
 from lidarcal.cli.options import (
     add_admin_options,
     add_certification_options,
@@ -53,6 +54,17 @@ def _periods(text: str) -> int:
     return value
 
 
+def _model_form_periods(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if value < 0 or value == 1:
+        raise argparse.ArgumentTypeError(f"--model-form-periods expects 0 (none) or a whole number >= 2 "
+                                         f"(a standard deviation needs two periods); got {text!r}")
+    return value
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``calibrate`` subcommand."""
     p = sub.add_parser("calibrate", help="run the whole calibration (default: embedded sample data)",
@@ -73,6 +85,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--noise-terms", choices=("printed", "derived"), default="printed",
                    help="Eqs. 6-7 as printed (reproduces Table 4, default) or as propagated through the "
                    "10-minute average (docs/noise_terms.md)")
+    p.add_argument("--table4", choices=("corrected", "printed"), default="corrected",
+                   help="Table 4 terms: corrected (default: dv_SAFO / 2, Eq. 11 with dz cos(phi)) or as the "
+                   "paper prints them (lidarcal terms --table4)")
+    p.add_argument("--model-form-periods", type=_model_form_periods, default=DEFAULT_PER_BIN, metavar="N",
+                   help="most periods per (height, wind-speed bin) each model-form alternative re-simulates "
+                   "with the nominal seeds (default %(default)s; 0 = no model_form contributor; "
+                   "docs/method.md)")
     add_los_noise_option(p)
     add_reference_turbulence_option(p)
     add_certification_options(p)  # --min-periods also sets the sensitivities' bins (one rule)
@@ -99,9 +118,11 @@ def run(args: argparse.Namespace) -> int:
         min_periods=args.min_periods, certified_range=tuple(args.certified_range),
         significant_digits=args.significant_digits, max_replicas=args.max_replicas,
         coverage_interval=args.coverage_interval,
+        model_form_periods=args.model_form_periods,
         los_noise_model=args.los_noise,
         reference_turbulence=args.reference_turbulence,
-        terms={} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms},
+        terms={**({} if args.noise_terms == "printed" else {"noise_terms": args.noise_terms}),
+               **({"paper_table4": True} if args.table4 == "printed" else {})},
     )
     result = calibrate(args.outdir, cfg, overwrite=args.overwrite, progress=progress_enabled(args),
                        signing_key=args.sign, admin=admin_from_args(args), demonstration=args.demonstration)

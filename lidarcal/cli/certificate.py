@@ -20,6 +20,7 @@ from lidarcal.certificate import make_certificate
 from lidarcal.cli import command_line
 from lidarcal.cli.options import add_admin_options, add_output_options, admin_from_args
 from lidarcal.document import seal_statement
+from lidarcal.errors import DiskFullError, LidarcalError
 from lidarcal.io import check_writable, open_artefact
 from lidarcal.report import write_report
 from lidarcal.seal import write_certificate
@@ -87,8 +88,19 @@ def run(args: argparse.Namespace) -> int:
     print(f"{path}: {status_line(cert.attrs)}")
     print(f"{path}: certificate with components {cert.attrs['certificate_components']}; {how}")
     if args.report:  # the certificate as sealed just now: the document states its seal
-        written = write_report(args.report, certificate=cert, overwrite=args.overwrite,
-                               seal=seal_statement(fingerprint(key) if key else None))
+        try:
+            written = write_report(args.report, certificate=cert, overwrite=args.overwrite,
+                                   seal=seal_statement(fingerprint(key) if key else None))
+        except BaseException as exc:  # the set is whole or absent: withdraw the certificate too
+            path.unlink(missing_ok=True)
+            if isinstance(exc, LidarcalError | OSError):
+                html = Path(args.report)
+                note = (f"; {path}, published before the report failed, was removed too, so none of "
+                        f"{path.name}, {html.name} and {html.with_suffix('.pdf').name} was written"
+                        + (" (the earlier files --overwrite replaced are gone)" if args.overwrite else ""))
+                raise (DiskFullError if isinstance(exc, DiskFullError) else LidarcalError)(
+                    f"{exc}{note}") from None
+            raise
         print(f"{args.report}: HTML report with {len(written['figures'])} interactive plots; "
               f"{written['pdf']}: certificate document ({written['pages']} pages, A4)")
     return 0

@@ -26,6 +26,7 @@ import numpy as np
 from lidarcal.admin import load_admin, merge_admin
 from lidarcal.campaign import DEFAULT_BASE_SEED
 from lidarcal.lidar.model import REFERENCE_TURBULENCE
+from lidarcal.lidar.noise import LOS_NOISE_MODELS
 from lidarcal.provenance import USER_ATTRIBUTES
 from lidarcal.units import ureg
 
@@ -54,6 +55,12 @@ __all__ = [
     "simulation_options",
 ]
 
+#: Most significant digits ``--significant-digits`` accepts: what a float64 holds (numpy's
+#: ``finfo(float).precision``); a certified value cannot settle beyond its own resolution.
+MAX_SIGNIFICANT_DIGITS = int(np.finfo(np.float64).precision)
+#: Most replicas ``--max-replicas`` accepts (the reason is in its message).
+MAX_REPLICAS = 10_000
+
 SCHEDULER_HELP = (
     "'processes' (default), 'threads', 'synchronous', 'local' (LocalCluster) or the address of a "
     "dask.distributed scheduler, e.g. tcp://127.0.0.1:8786"
@@ -71,25 +78,40 @@ def _interval(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) 
 
 
 def number(option: str, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
-           hi_open: bool = False, integer: bool = False) -> Callable[[str], float]:
+           hi_open: bool = False, integer: bool = False, reason: str | None = None) -> Callable[[str], float]:
     """Return an argparse ``type`` for a finite number in a range, naming ``option`` when refused.
 
     ``lo``/``hi`` are the bounds (None: unbounded), ``lo_open``/``hi_open`` exclude them; with
-    ``integer`` only whole numbers are accepted and an ``int`` is returned.  NaN and infinities
-    are always refused.
+    ``integer`` only whole numbers are accepted (``1e3`` is 1000) and an ``int`` is returned.  NaN
+    and infinities are always refused.  ``reason`` says why the bounds are what they are; a refusal
+    gives it, with what was wrong with the value.
     """
     bounds = _interval(lo, hi, lo_open, hi_open)
     bounds = "" if bounds == "finite" else f" {bounds}"
     what = f"a whole number{bounds}" if integer else f"a finite number{bounds}"
+    why = f" ({reason})" if reason else ""
+
+    def refuse(text: str, problem: str) -> argparse.ArgumentTypeError:
+        return argparse.ArgumentTypeError(f"{option} expects {what}; got {text!r}: {problem}{why}")
 
     def parse(text: str) -> float:
         try:
-            value = int(text) if integer else float(text)
+            value = float(text)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"{option} expects {what}; got {text!r}") from None
-        if not np.isfinite(value) or (lo is not None and (value < lo or (lo_open and value == lo))) \
-                or (hi is not None and (value > hi or (hi_open and value == hi))):
-            raise argparse.ArgumentTypeError(f"{option} expects {what}; got {text!r}")
+            raise refuse(text, "not a number") from None
+        if not np.isfinite(value):
+            raise refuse(text, "not finite")
+        if integer:
+            if not value.is_integer():
+                raise refuse(text, "not a whole number")
+            try:
+                value = int(text)  # exact, however long
+            except ValueError:
+                value = int(value)  # written as a float: 1e3
+        if lo is not None and (value < lo or (lo_open and value == lo)):
+            raise refuse(text, "too small")
+        if hi is not None and (value > hi or (hi_open and value == hi)):
+            raise refuse(text, "too large")
         return value
 
     parse.__name__ = f"{option} value"
@@ -174,15 +196,17 @@ def add_lidar_options(parser: argparse.ArgumentParser, *,
 
 
 def add_los_noise_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
-    """``--los-noise residuals|gaussian``: the bench-calibrated lidar's LOS error model.
+    """``--los-noise mixture|residuals|gaussian``: the bench-calibrated lidar's LOS error model.
 
-    Unset (``None``) means resample the cube's measured residuals when it has them, Gaussian
-    otherwise (``LidarModel.from_artefacts``).
+    Unset (``None``) means the mixture when the cube has measured residuals, Gaussian otherwise
+    (``LidarModel.from_artefacts``).
     """
-    parser.add_argument("--los-noise", choices=("residuals", "gaussian"), default=None,
-                        help="LOS error of the bench-calibrated lidar: resample each bench bin's measured "
-                        "residuals, bad estimates included, or draw N(los_bias, los_std) after the outlier "
-                        "rule (default: residuals when the cube has them; docs/contracts.md)")
+    parser.add_argument("--los-noise", choices=LOS_NOISE_MODELS, default=None,
+                        help="LOS error of the bench-calibrated lidar: 'mixture' bad estimates at the rate "
+                        "p_bad(CNR) fitted to the bench, otherwise a good residual of the bench bin; "
+                        "'residuals' every residual of the bin resampled, bad estimates included (runs "
+                        "before the mixture existed); 'gaussian' N(los_bias, los_std) after the outlier "
+                        "rule (default: mixture when the cube has residuals; docs/method.md)")
 
 
 def add_reference_turbulence_option(parser: argparse.ArgumentParser | argparse._ArgumentGroup) -> None:
@@ -381,7 +405,10 @@ def add_monte_carlo_options(parser: argparse.ArgumentParser, *, replicas: bool =
     from lidarcal.analysis.budget import DEFAULT_SIGNIFICANT_DIGITS  # deferred: light CLI start
 
     g = parser.add_argument_group("numerical accuracy of the Monte Carlo (JCGM 101 7.9)")
-    g.add_argument("--significant-digits", type=positive_int("--significant-digits"),
+    g.add_argument("--significant-digits", type=number(
+                       "--significant-digits", lo=1, hi=MAX_SIGNIFICANT_DIGITS, integer=True,
+                       reason=f"a certified value is a float64, which holds {MAX_SIGNIFICANT_DIGITS} "
+                       "significant decimal digits: no number of replicas settles more"),
                    default=DEFAULT_SIGNIFICANT_DIGITS, metavar="N",
                    help="significant digits (of each bin's expanded uncertainty U) every certified value "
                    "must settle to (default %(default)s)")
@@ -392,7 +419,12 @@ def add_monte_carlo_options(parser: argparse.ArgumentParser, *, replicas: bool =
         from lidarcal.campaign.adaptive import DEFAULT_MAX_REPLICAS  # deferred: light CLI start
 
         default = DEFAULT_MAX_REPLICAS if max_replicas is None else int(max_replicas)
-        g.add_argument("--max-replicas", type=positive_int("--max-replicas"), default=default,
+        g.add_argument("--max-replicas", type=number(
+                           "--max-replicas", lo=1, hi=MAX_REPLICAS, integer=True,
+                           reason="the records keep every replica's values of each period and height, so "
+                           "memory grows with them, while the tolerance falls only as 1/sqrt(replicas): "
+                           f"{MAX_REPLICAS} replicas make it 100 times smaller than one replica's spread"),
+                       default=default,
                        metavar="M", help="most replicas (re-simulations of the unsettled bins' periods, "
                        "replica 0 included) before the run stops unsettled (default %(default)s; 1: no "
                        "replica)")

@@ -115,7 +115,7 @@ def run(args: argparse.Namespace) -> int:
         rwf = open_artefact(args.rwf, "rwf") if args.rwf else None
         model = corrected_model(args.model, cube=cube, rwf=rwf)
         if args.los_noise:
-            model = model.replace(los_noise_model=args.los_noise)
+            model = model.with_los_noise(args.los_noise, cube)
         inputs.update({k: v for k, v in (("model", args.model), ("cube", args.cube), ("rwf", args.rwf)) if v})
     elif args.cube or args.rwf:
         cube = open_artefact(args.cube, "bench_cube") if args.cube else None

@@ -5,7 +5,7 @@ Defaults are the paper's inputs.  s-bar_s, s-bar_delta and the run count can com
 Prints the table on stdout.  Examples::
 
     lidarcal terms -o terms.nc                                  # Eq. 9 as a formula (0.00286 U)
-    lidarcal terms --beam-angle-coefficient 0.00248 -o t4.nc    # Table 4 as printed
+    lidarcal terms --table4 printed --beam-angle-coefficient 0.00248 -o t4.nc   # Table 4 as printed
     lidarcal terms --repeatability rep.nc --height 120 --shear 0.14 -o terms.nc
     lidarcal terms --noise-terms derived -o terms_derived.nc    # Eqs. 6-7 propagated
 """
@@ -69,9 +69,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--bench-uncertainty", type=nonnegative("--bench-uncertainty"), default=0.0145,
                    metavar="M_S",
                    help="dv_SAFO as stated, m/s (0.0145)")
-    p.add_argument("--bench-coverage-factor", type=positive("--bench-coverage-factor"), default=1.0,
-                   metavar="K",
-                   help="k dividing dv_SAFO (1 reproduces Table 4; 2 converts the stated k=2 value)")
+    p.add_argument("--bench-coverage-factor", type=positive("--bench-coverage-factor"), metavar="K",
+                   help="k dividing dv_SAFO (default 2: it is stated at k = 2; 1 with --table4 printed)")
+    p.add_argument("--table4", choices=("corrected", "printed"), default="corrected",
+                   help="corrected (default): dv_SAFO / 2 and Eq. 11 with the height error dz cos(phi); "
+                        "printed: both as Table 4 uses them (with --beam-angle-coefficient 0.00248 the "
+                        "table is reproduced to its printed digits)")
     p.add_argument("--beam-angle-uncertainty", type=nonnegative("--beam-angle-uncertainty"), default=0.087,
                    metavar="DEG",
                    help="beam angle standard uncertainty, degree (0.087)")
@@ -111,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
         beam_angle_coefficient=args.beam_angle_coefficient,
         bias_repeatability_n=args.eq7_n,
         bench_coverage_factor=args.bench_coverage_factor,
+        paper_table4=args.table4 == "printed",
         noise_terms=args.noise_terms,
         los_noise_std=None if args.los_noise_std is None else Q_(args.los_noise_std, "m/s"),
         hybrid_weight=args.hybrid_weight,

@@ -11,6 +11,8 @@ What OK promises depends on the signature, and each file's line says which appli
 * ``signed by <fingerprint>`` with ``--public-key KEY.pub`` -- the file is exactly as sealed
   by the holder of the matching private key (``lidarcal keygen``, ``--sign``); a re-sealed,
   re-signed or unsigned file fails.
+* ``NOT SIGNED by KEY.pub: intact but unsigned`` with ``--public-key`` -- the seal matches the
+  contents, but the file carries no signature, so it is not one signed by that key (status 1).
 * ``signed by <fingerprint>`` without ``--public-key`` -- the signature matches the public key
   stored in the file: consistent, but anyone can sign with a key of their own; compare the
   fingerprint with one you trust, or pass ``--public-key``.
@@ -74,6 +76,12 @@ def run(args: argparse.Namespace) -> int:
                 f"{path}: OK ({report.variables_checked} variables and {report.attributes_checked} global "
                 f"attributes match their SHA-256; schema valid); {_signature_line(report, args.public_key)}"
             )
+        elif report.intact_but_unsigned:  # exit 1 all the same: it is not what --public-key asked for
+            print(f"{path}: NOT SIGNED by {args.public_key}: intact but unsigned (its "
+                  f"{report.variables_checked} variables and {report.attributes_checked} global attributes "
+                  "match their SHA-256: integrity only, since whoever can rewrite the file can re-seal it)")
+            print(f"  - {report.problems[0]}")
+            bad += 1
         else:
             print(f"{path}: ALTERED or invalid ({len(report.problems)} problem(s))")
             for line in report.problems:

@@ -233,7 +233,7 @@ def compare(
         Wind-speed bin of the budgets (0.5 m s-1).
     terms : xarray.Dataset, optional
         ``uncertainty_terms`` artefact for the Monte Carlo budget (default: the paper's inputs).
-    los_noise_model : {None, "residuals", "gaussian"}
+    los_noise_model : {None, "mixture", "residuals", "gaussian"}
         LOS error model of the bench-calibrated lidar (:meth:`lidarcal.lidar.LidarModel.from_attrs`).
     simulate_options : mapping, optional
         Extra keyword arguments of :func:`lidarcal.campaign.simulate_campaign`.

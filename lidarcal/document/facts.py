@@ -7,7 +7,8 @@ attributes into page 1's sections (an attribute it does not carry is shown as
 :func:`headline_text` is the certified range in one sentence, :func:`certified_grid` the
 certified statement per wind-speed bin and height (±U, or the Monte Carlo coverage interval
 where the two differ materially), :func:`not_settled_text` the values left out because they did
-not settle, listed apart with their tolerances, and :func:`fmt`,
+not settle, listed apart with their tolerances, :func:`model_form_grid` the simulation's
+model-form contributor on the same grid, and :func:`fmt`,
 :func:`units_suffix` and :data:`VARIABLE_NAMES` the one way numbers, units and variables are
 written.
 """
@@ -21,6 +22,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
+from lidarcal.certificate.measurand import model_form_values
 from lidarcal.certificate.results import (
     certified_mask,
     certified_rule,
@@ -45,6 +47,7 @@ __all__ = [
     "certified_grid",
     "not_settled_text",
     "grid_cell",
+    "model_form_grid",
 ]
 
 NOT_STATED = "not stated"
@@ -299,3 +302,14 @@ def certified_grid(
         "upper": optional("relative_coverage_interval_upper"),
         "not_settled": missed,
     }
+
+
+def model_form_grid(budget: xr.Dataset) -> dict[str, Any] | None:
+    """Return the ``model_form`` contributor (%, k = 1) and its standard error, as :func:`certified_grid`.
+
+    None when the budget has no model-form contributor.
+    """
+    values = model_form_values(budget)
+    if values is None:
+        return None
+    return {**certified_grid(budget), "value": values["value"], "tolerance": values["standard_error"]}

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.certificate import MEASURAND, model_form_summary
 from lidarcal.document.facts import (
     NOT_STATED,
     certificate_facts,
@@ -30,6 +31,7 @@ from lidarcal.document.facts import (
     fmt,
     grid_cell,
     headline_text,
+    model_form_grid,
     not_settled_text,
     stated,
 )
@@ -178,6 +180,11 @@ def _page_one(fig, cert: xr.Dataset, budget: xr.Dataset | None, seal: str | None
     fig.text(0.07, y, headline, fontsize=FONT + 0.5, va="top", weight="bold")
     y -= (headline.count("\n") + 1) * (FONT + 0.5) * 1.25 / 72 / A4[1] + 0.006  # however many lines it takes
     tol = "; ± its numerical tolerance (Monte Carlo)" if g["tolerance"] is not None else ""
+    mf = " It includes the simulation's model form (contributor model_form, on its own page)." if (
+        model_form_grid(budget) is not None) else ""
+    notes = textwrap.fill(MEASURAND + mf, 125)
+    fig.text(0.07, y, notes, fontsize=FONT - 0.5, va="top")
+    y -= (notes.count("\n") + 1) * (FONT - 0.5) * 1.25 / 72 / A4[1] + 0.006
     fig.text(
         0.07,
         y,
@@ -205,6 +212,31 @@ def _all_bins_page(fig, budget: xr.Dataset) -> None:
     y = _grid_table(fig, 0.91, g, np.arange(g["wind_speed"].size), only_certified=False, bottom=bottom)
     if missed:  # listed apart from the certified result, with their tolerances (JCGM 101 7.9)
         fig.text(0.07, y - 0.004, missed, fontsize=FONT - 0.5, va="top", color="#8a5a00")
+
+
+def _model_form_page(fig, budget: xr.Dataset) -> None:
+    """Lay out the model-form contributor per certified bin, its standard error and its shifts."""
+    g = model_form_grid(budget)
+    _title(fig, "Model form of the simulation: contributor model_form (%, k = 1)",
+           "Per height and certified wind-speed bin: the standard uncertainty ± its standard error "
+           "(subsample of periods); – : bin not certified.")
+    text = textwrap.fill(model_form_summary(budget) or "", 120)
+    fig.text(0.07, 0.91, text, fontsize=FONT, va="top")
+    y = 0.91 - (text.count("\n") + 1) * FONT * 1.3 / 72 / A4[1] - 0.01
+    if "model_form_shift" in budget:  # the largest shift of U each alternative makes, per height
+        ok = xr.DataArray(g["certified"], dims=("wind_speed", "height"))
+        shift = budget["model_form_shift"].where(ok)
+        rows: list[tuple[str, str, dict]] = [("Largest shift of U under each alternative (percentage points)",
+                                              "", {"section": True})]
+        for alt in shift["model_form_alternative"].values:
+            s = shift.sel(model_form_alternative=alt).transpose("height", "wind_speed").values
+            worst = [s[i][np.nanargmax(np.abs(s[i]))] if np.isfinite(s[i]).any() else np.nan
+                     for i in range(s.shape[0])]
+            cells = [f"{fmt(z)} m: {w:+.2f}" if np.isfinite(w) else f"{fmt(z)} m: –"
+                     for z, w in zip(budget["height"].values, worst, strict=True)]
+            rows.append((str(alt), "   ".join(cells), {}))
+        y = _text_page(fig, y, rows, x1=0.26, width=88) - 0.01
+    _grid_table(fig, y, g, np.flatnonzero(g["inside"]), only_certified=True)
 
 
 def _provenance_page(fig, cert: xr.Dataset) -> None:
@@ -284,6 +316,8 @@ def write_document(
             draw(fig, name, parts)
         if budget is not None:
             _all_bins_page(page(), budget)
+            if model_form_grid(budget) is not None:
+                _model_form_page(page(), budget)
         _provenance_page(page(), cert)
         cid, status = certificate_id(cert.attrs), stated(cert.attrs, "calibration_status")
         for i, fig in enumerate(pages, 1):

@@ -7,6 +7,8 @@ Public API (see ``docs/contracts.md``, "The virtual lidar"):
   :func:`lidar_attributes` read a conditions file's ``lidar_*`` attributes;
 * :class:`NoiseTable` (:mod:`lidarcal.lidar.noise`) — the bench cube's LOS bias, std and measured
   residuals per (CNR, velocity) bin, as the simulation draws from them;
+* :mod:`lidarcal.lidar.bad_estimates` — bad estimates as a property of CNR: the fitted rate
+  p_bad(CNR), its covariance, the search band, the replicas' draws of the curve;
 * :mod:`lidarcal.lidar.spectral` — the continuous-RWF LOS signals' cross-spectral matrix;
 * :mod:`lidarcal.lidar.synthesis` — Fourier coefficients and time series drawn from that matrix;
 * :mod:`lidarcal.lidar.geometry` — beams, range gates, sample points, reachability;

@@ -2,8 +2,9 @@
 
 A :class:`LidarModel` is a frozen, JSON-serialisable dataclass holding everything the virtual
 lidar needs: the beam geometry, the beam period, the hybrid weight, the RWF as K quadrature
-nodes, the LOS noise (ideal Gaussian, or a bench ``ℓcv`` table: Gaussian from its bias and
-std, or resampled from its measured residuals, ``los_noise_model``), the availability, and the
+nodes, the LOS noise (ideal Gaussian, or a bench ``ℓcv`` table: good residuals resampled with
+bad estimates at the CNR's fitted rate, every residual resampled, or Gaussian from its bias and
+std, ``los_noise_model``), the CNR filter, the availability, and the
 effects the ``diagnose`` stage can switch on (``zero_distance_offset``, ``beam_angle_offset``,
 ``cnr_weighting_scale``, ``hybrid_weight``, ``reference_overspeeding``, ``reference_gain``,
 ``reference_flow_distortion_*``).
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 from collections.abc import Mapping
 from typing import Any
 
@@ -32,23 +34,26 @@ import xarray as xr
 
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import source_name
+from lidarcal.lidar.bad_estimates import BadEstimates
 from lidarcal.lidar.noise import (
     LOS_NOISE_MODELS,
     NoiseTable,
     cube_residuals,
+    fit_bad_estimates,
     listify,
     noise_table_from_cube,
     residuals_digest,
     tuplify,
 )
-from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes, trapezoid_weights
-from lidarcal.rwf.kernels import barycenter
-from lidarcal.turbulence.kernels import SIGMA_RATIOS
-from lidarcal.units import convert_variable
+from lidarcal.lidar.quadrature import gauss_hermite_rwf
+from lidarcal.lidar.rwf_profile import RwfProfileDigest, rwf_nodes, rwf_profile_digest
+from lidarcal.turbulence.kernels import COHERENCE_DECAY, L_C, LAMBDA_1, SIGMA_RATIOS
 
 __all__ = ["LidarModel", "DEFAULT_CNR_THRESHOLD", "flow_distortion_factor", "direction_spread",
            "RwfProfileDigest",
-           "rwf_profile_digest", "REFERENCE_TURBULENCE"]
+           "rwf_profile_digest", "REFERENCE_TURBULENCE", "fit_bad_estimates", "lidar_cnr_threshold"]
+
+log = logging.getLogger(__name__)
 
 #: Conventions of ``LidarModel.reference_turbulence`` (``docs/validation.md``).
 REFERENCE_TURBULENCE = ("pinned_u", "pinned_uvw", "free", "inferred_level")
@@ -66,32 +71,6 @@ DEFAULT_RWF_NODES = 5
 #: CNR filter (dB) of a bench-calibrated lidar: WindCube-type profilers discard LOS estimates
 #: below about -23 dB by default.
 DEFAULT_CNR_THRESHOLD = -23.0
-
-
-@dataclasses.dataclass(frozen=True)
-class RwfProfileDigest:
-    """An RWF profile known only by digest (:attr:`LidarModel.rwf_profile` of an attribute-form record).
-
-    ``sha256`` is :func:`rwf_profile_digest` of the profile, ``count`` its number of points;
-    :meth:`LidarModel.with_rwf` restores the values from the RWF artefact the model was built from.
-    """
-
-    sha256: str
-    count: int
-    #: What error messages call the record holding it; not part of the record.
-    origin: str = dataclasses.field(default="lidar model", compare=False, repr=False)
-
-    def to_dict(self) -> dict[str, Any]:
-        """Return the attribute form: ``{"sha256": ..., "count": ...}``."""
-        return {"sha256": self.sha256, "count": self.count}
-
-
-def rwf_profile_digest(profile: Any) -> str:
-    """SHA-256 of an RWF profile: its offsets then its values, little-endian float64."""
-    import hashlib
-
-    values = np.ascontiguousarray(np.asarray(profile, dtype=float), dtype="<f8")
-    return hashlib.sha256(values.tobytes()).hexdigest()
 
 
 @dataclasses.dataclass(frozen=True)
@@ -124,14 +103,25 @@ class LidarModel:
     #: fixed-amplitude signals; records without this field mean it); ``"free"`` a Gaussian process;
     #: ``"inferred_level"`` σ_u pinned as well, but the field's level is unknown given it (scales with it)
     reference_turbulence: str = "pinned_u"
-    #: LOS error of a bench-calibrated lidar: ``"residuals"`` resamples the bench bin's measured
-    #: residuals (bad estimates included), ``"gaussian"`` draws N(los_bias, los_std) (MAD-trimmed);
-    #: :meth:`from_artefacts` picks ``"residuals"`` when the cube has them.  The ideal lidar is
+    #: LOS error of a bench-calibrated lidar: ``"mixture"`` a bad estimate with probability
+    #: p_bad(CNR) (``bad_estimates``), otherwise one of the bench bin's good residuals;
+    #: ``"residuals"`` resamples every residual of the bin (bad estimates included: the model of runs
+    #: before the mixture existed); ``"gaussian"`` draws N(los_bias, los_std) (MAD-trimmed);
+    #: :meth:`from_artefacts` picks ``"mixture"`` when the cube has residuals.  The ideal lidar is
     #: Gaussian (``los_noise_std``) whatever this says.
     los_noise_model: str = "gaussian"
+    #: the ``"mixture"`` model's bad estimates: p_bad(CNR), its covariance, the search band
+    #: (:class:`~lidarcal.lidar.bad_estimates.BadEstimates`); other noise models carry none
+    bad_estimates: BadEstimates | None = None
     #: the continuous RWF ``(offsets (m), values)`` that filters turbulence; ``None``: the Gaussian with
     #: the quadrature nodes' mean and variance (exact for the ideal lidar)
     rwf_profile: tuple[tuple[float, ...], tuple[float, ...]] | None = None
+    #: the turbulence model's form (``lidarcal.turbulence.kernels``; defaults IEC 61400-1 Ed. 3 as
+    #: PyConTurb): decay a and u coherence length L_c (m) of exp(-a r sqrt((f/U)² + (0.12/L_c)²)),
+    #: and the Kaimal Lambda_1 (m), Lambda(z) = min(0.7 z, Lambda_1)
+    coherence_decay: float = COHERENCE_DECAY
+    coherence_length: float = L_C
+    turbulence_length_scale: float = LAMBDA_1
     description: str = "ideal"  #: free text: where the configuration came from
 
     def __post_init__(self) -> None:
@@ -144,6 +134,13 @@ class LidarModel:
             object.__setattr__(self, "rwf_profile", tuplify(self.rwf_profile))
         if isinstance(self.noise_table, Mapping):
             object.__setattr__(self, "noise_table", NoiseTable(**self.noise_table))
+        if isinstance(self.bad_estimates, Mapping):
+            try:
+                object.__setattr__(self, "bad_estimates", BadEstimates(**self.bad_estimates))
+            except (TypeError, ValueError) as exc:
+                raise InputError(f"LidarModel: {exc}") from None
+        if self.los_noise_model != "mixture":  # the fit belongs to the mixture (replace() drops it)
+            object.__setattr__(self, "bad_estimates", None)
         problems = []
         if len(self.azimuths) != 4:
             problems.append(f"azimuths must list 4 oblique beams; got {self.azimuths}")
@@ -181,6 +178,22 @@ class LidarModel:
                 self.noise_table.has_residuals or self.noise_table.needs_residuals)):
             problems.append("los_noise_model 'residuals' needs a bench noise table with measured residuals "
                             "(a bench cube with 'los_residual'); use 'gaussian'")
+        elif self.los_noise_model == "mixture":
+            table = self.noise_table
+            if not (table is not None and (table.has_residuals or table.needs_residuals)):
+                problems.append("los_noise_model 'mixture' needs a bench noise table with measured residuals "
+                                "(a bench cube with 'los_residual'); use 'gaussian'")
+            elif self.bad_estimates is None:
+                problems.append("los_noise_model 'mixture' needs bad_estimates (the fitted rate "
+                                "LidarModel.from_artefacts or with_los_noise('mixture', cube) gives)")
+            elif tuple(self.bad_estimates.cnr) != tuple(table.cnr):
+                problems.append(f"bad_estimates' CNR bins {list(self.bad_estimates.cnr)} dB are not the "
+                                "noise "
+                                f"table's {list(table.cnr)} dB")
+        for name in ("coherence_decay", "coherence_length", "turbulence_length_scale"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and np.isfinite(value) and value > 0):
+                problems.append(f"{name} must be a finite number > 0; got {value!r}")
         if self.reference_turbulence not in REFERENCE_TURBULENCE:
             problems.append(f"reference_turbulence must be one of {list(REFERENCE_TURBULENCE)}; got "
                             f"{self.reference_turbulence!r}")
@@ -224,14 +237,17 @@ class LidarModel:
         Its optional ``lidar_*`` global attributes (:data:`LIDAR_ATTRIBUTES`) give the
         configuration; missing ones take the defaults.  With ``cube`` and/or ``rwf`` the lidar is
         configured from those artefacts (:meth:`from_artefacts`) and the attributes fill in the
-        rest (cone, p, beam period; RWF width without ``rwf``; LOS noise without ``cube``).
+        rest (cone, p, beam period; RWF width without ``rwf``; LOS noise without ``cube``; with
+        ``cube``, the CNR filter ``lidar_cnr_threshold`` when the file gives one, the ``.sta``
+        header's ``CNRThreshold``: :func:`lidar_cnr_threshold`).
         ``los_noise_model`` is passed on to :meth:`from_artefacts` (without a cube only
         ``None`` or ``"gaussian"`` make sense: the ideal lidar's noise is Gaussian).
         """
         p = lidar_attributes(ds, source=source)
-        if cube is None and los_noise_model == "residuals":
-            raise InputError(f"{source or source_name(ds)}: los_noise_model 'residuals' needs a bench cube "
-                             "(--cube) with measured residuals; without one the LOS noise is Gaussian")
+        if cube is None and los_noise_model in ("residuals", "mixture"):
+            raise InputError(f"{source or source_name(ds)}: los_noise_model {los_noise_model!r} needs a "
+                             "bench "
+                             "cube (--cube) with measured residuals; without one the LOS noise is Gaussian")
         if cube is None and rwf is None:
             return cls.ideal(cone_angle=p["lidar_cone_angle"], hybrid_weight=p["lidar_hybrid_weight"],
                              rwf_fwhm=p["lidar_rwf_fwhm"], los_noise_std=p["lidar_los_noise_std"],
@@ -242,6 +258,10 @@ class LidarModel:
             overrides["rwf_fwhm"] = p["lidar_rwf_fwhm"]
         if cube is None:
             overrides["los_noise_std"] = p["lidar_los_noise_std"]
+        else:
+            threshold = lidar_cnr_threshold(ds, source=source)
+            if threshold is not None:
+                overrides["cnr_threshold"] = threshold
         return cls.from_artefacts(cube=cube, rwf=rwf, los_noise_model=los_noise_model, **overrides)
 
     @classmethod
@@ -261,11 +281,16 @@ class LidarModel:
         periods are unavailable rather than simulated with metres-per-second noise; pass
         ``cnr_threshold=None`` to simulate every period.
 
-        ``los_noise_model`` (:data:`LOS_NOISE_MODELS`): ``None`` resamples the cube's measured
-        residuals when it has ``los_residual`` and draws Gaussian N(``los_bias``, ``los_std``)
-        otherwise; ``"residuals"`` with a cube without them is an
-        :class:`~lidarcal.errors.MissingVariableError` naming the file.  Without a cube the noise
-        is the ideal Gaussian.  Remaining ``overrides`` set fields.
+        ``los_noise_model`` (:data:`LOS_NOISE_MODELS`): ``None`` picks ``"mixture"`` when the cube
+        has ``los_residual`` (good residuals resampled, bad estimates at the rate
+        :func:`fit_bad_estimates` fits, ``docs/method.md``) and ``"gaussian"`` (N(``los_bias``,
+        ``los_std``)) otherwise; a cube whose residuals hold fewer than two bad estimates (so no
+        search band can be estimated) falls back to ``"residuals"`` with a warning.  Asking for
+        ``"mixture"`` or ``"residuals"`` with a cube without residuals is a
+        :class:`~lidarcal.errors.MissingVariableError` naming the file; ``"mixture"`` with too
+        few bad estimates an :class:`~lidarcal.errors.InputError` saying why.  Without a cube the
+        noise is the ideal Gaussian.  Remaining ``overrides`` set fields (a ``cnr_threshold``
+        override also sets the CNR range the rate is fitted over).
         """
         if los_noise_model is not None and los_noise_model not in LOS_NOISE_MODELS:
             raise InputError(f"los_noise_model must be one of {list(LOS_NOISE_MODELS)}; "
@@ -275,31 +300,73 @@ class LidarModel:
         kw: dict[str, Any] = {"rwf_offsets": offsets, "rwf_weights": weights}
         described = []
         if rwf is not None:
-            offsets, weights, profile = _rwf_nodes(rwf, n_nodes)
+            offsets, weights, profile = rwf_nodes(rwf, n_nodes)
             kw.update(rwf_offsets=offsets, rwf_weights=weights, cnr_weighting_scale=1.0, rwf_profile=profile)
             described.append(f"RWF {source_name(rwf)} ({n_nodes} nodes)")
         else:
             described.append(f"ideal Gaussian RWF FWHM {rwf_fwhm:g} m ({n_nodes} nodes)")
         if cube is not None:
             has = "los_residual" in cube.variables
-            if los_noise_model == "residuals" and not has:
+            if los_noise_model in ("residuals", "mixture") and not has:
                 raise MissingVariableError(
-                    f"{source_name(cube)}: los_noise_model 'residuals' needs the bench cube variable "
+                    f"{source_name(cube)}: los_noise_model {los_noise_model!r} needs the bench cube variable "
                     "'los_residual' (each bin's measured residuals, written by lidarcal bench ingest since "
                     "it keeps them); this cube has none - re-ingest the bench run or use 'gaussian'")
-            model = los_noise_model or ("residuals" if has else "gaussian")
-            kw["noise_table"] = noise_table_from_cube(cube, tuple(overrides.get("azimuths", cls.azimuths)),
-                                             residuals=model == "residuals")
+            azimuths = tuple(overrides.get("azimuths", cls.azimuths))
+            threshold = overrides.get("cnr_threshold", DEFAULT_CNR_THRESHOLD)
+            model = los_noise_model or ("mixture" if has else "gaussian")
+            if model == "mixture":
+                try:
+                    kw["bad_estimates"] = fit_bad_estimates(cube, azimuths, threshold)
+                except InputError as exc:
+                    if los_noise_model is not None:
+                        raise
+                    log.warning("%s; resampling every residual of each bin (los_noise_model "
+                                "'residuals')", exc)
+                    model = "residuals"
+            kw["noise_table"] = noise_table_from_cube(cube, azimuths, residuals=model != "gaussian")
             kw["los_noise_model"] = model
             kw["cnr_threshold"] = DEFAULT_CNR_THRESHOLD
-            noise = "measured residuals resampled" if model == "residuals" else "Gaussian LOS noise"
+            noise = {"mixture": "good residuals resampled, bad estimates at the fitted CNR rate",
+                     "residuals": "measured residuals resampled", "gaussian": "Gaussian LOS noise"}[model]
             described.append(f"bench cube {source_name(cube)} ({noise}), CNR filter "
-                             f"{DEFAULT_CNR_THRESHOLD:g} dB")
+                             f"{'none' if threshold is None else format(threshold, 'g') + ' dB'}")
         else:
             described.append("ideal Gaussian LOS noise")
         kw["description"] = "; ".join(described)
         kw.update(overrides)
         return cls(**kw)
+
+    def with_los_noise(self, name: str, cube: xr.Dataset | None = None) -> LidarModel:
+        """Return the model with ``los_noise_model = name`` (``"mixture"`` fitted from ``cube`` if needed).
+
+        A model that has no ``bad_estimates`` needs the bench cube it was built from to switch to
+        ``"mixture"`` (the rate is fitted over the CNR range its ``cnr_threshold`` draws from).
+        """
+        if name not in LOS_NOISE_MODELS:
+            raise InputError(f"los_noise_model must be one of {list(LOS_NOISE_MODELS)}; got {name!r}")
+        if name != "mixture" or self.bad_estimates is not None:
+            return self.replace(los_noise_model=name)
+        if cube is None:
+            raise InputError("los_noise_model 'mixture' needs the bench cube the model was built from "
+                             "(--cube) to fit its bad-estimate rate")
+        bad = fit_bad_estimates(cube, self.azimuths, self.cnr_threshold)
+        model = self.replace(los_noise_model=name, bad_estimates=bad)
+        if model.noise_table is not None and model.noise_table.needs_values:
+            model = model.with_residuals(cube)
+        return model
+
+    def for_replica(self, base_seed: int, replica: int) -> LidarModel:
+        """Return the model Monte Carlo replica ``replica`` simulates (``docs/seeds.md``).
+
+        With the ``"mixture"`` noise model, replica r >= 1 simulates its own p_bad(CNR) curve drawn
+        from the fit's distribution (:meth:`BadEstimates.for_replica
+        <lidarcal.lidar.bad_estimates.BadEstimates.for_replica>`, keyed by ``(base_seed, r)``),
+        replica 0 the best estimate; every other model is the same for all replicas.
+        """
+        if self.bad_estimates is None:
+            return self
+        return self.replace(bad_estimates=self.bad_estimates.for_replica(base_seed, replica))
 
     # -- serialisation ------------------------------------------------------------------
     def to_dict(self, *, residuals: bool = False) -> dict[str, Any]:
@@ -318,7 +385,8 @@ class LidarModel:
         """
         table = self.noise_table
         if residuals:
-            if table is not None and table.needs_residuals and self.los_noise_model == "residuals":
+            resampled = self.los_noise_model in ("residuals", "mixture")
+            if table is not None and table.needs_residuals and resampled:
                 raise InputError(table.missing_residuals_message())
             if table is not None and table.needs_table:
                 raise InputError(table.missing_table_message())
@@ -342,6 +410,10 @@ class LidarModel:
                 value = value.to_dict()
             elif isinstance(value, RwfProfileDigest):
                 value = value.to_dict()
+            elif isinstance(value, BadEstimates):
+                value = value.to_dict()
+            elif f.name == "bad_estimates":  # None: left out, so other models' records read as before
+                continue
             out[f.name] = listify(value)
         return out
 
@@ -431,7 +503,7 @@ class LidarModel:
         pending = self.rwf_profile
         if not isinstance(pending, RwfProfileDigest):
             return self
-        _, _, profile = _rwf_nodes(rwf, len(self.rwf_offsets))
+        _, _, profile = rwf_nodes(rwf, len(self.rwf_offsets))
         found = rwf_profile_digest(profile)
         if found != pending.sha256:
             origin = source or pending.origin
@@ -541,34 +613,22 @@ def lidar_attributes(ds: xr.Dataset, *, source: str | None = None) -> dict[str, 
     return out
 
 
-def _rwf_nodes(rwf: xr.Dataset, n_nodes: int) -> tuple[np.ndarray, np.ndarray, tuple]:
-    src = source_name(rwf)
-    if "rwf" not in rwf.variables:
-        raise MissingVariableError(f"{src}: rwf artefact has no variable 'rwf'; "
-                                   f"found {sorted(map(str, rwf.variables))}")
-    values = convert_variable(rwf, "rwf", "m-1", source=src)
-    offsets = convert_variable(rwf, "range_offset", "m", source=src)
-    if "cnr_gradient" in values.dims:
-        grad = convert_variable(rwf, "cnr_gradient", "dB m-1", source=src).values
-        values = values.isel(cnr_gradient=int(np.argmin(np.abs(grad))))
-        if abs(grad).min() > 1e-9:
-            raise InputError(f"{src}: variable 'cnr_gradient' has no 0 dB m-1 column; found {grad.tolist()}")
-    values = values.transpose("range_offset")
-    order = np.argsort(offsets.values)
-    s, g = offsets.values[order], values.values[order]
-    # The lidar applies its calibrated zero distance (the barycentre of the full RWF, paper
-    # §3.2): its gates are centred on that barycentre, so the nodes are re-centred on it.
-    if "zero_distance" in rwf.variables:
-        zd = float(convert_variable(rwf, "zero_distance", "m", source=src).values)
-    else:
-        zd = float(barycenter(g * trapezoid_weights(s), s))  # trapezoid rule on a non-uniform table
+def lidar_cnr_threshold(ds: xr.Dataset, *, source: str | None = None) -> float | None:
+    """Return the CNR filter (dB) ``ds``'s ``lidar_cnr_threshold`` attribute gives, or None.
+
+    ``lidarcal conditions from-sta`` and ``field from-sta`` write the ``.sta`` header's
+    ``CNRThreshold`` there (``"not given"`` when the header has none, which counts as absent).
+    A value that is neither a finite number in [-60, 20] dB nor ``"not given"`` is an
+    :class:`~lidarcal.errors.InputError` naming the file.
+    """
+    raw = ds.attrs.get("lidar_cnr_threshold")
+    if raw is None or (isinstance(raw, str) and raw.strip().lower() == "not given"):
+        return None
     try:
-        nodes, weights = gauss_rwf_nodes(s, g, n_nodes)
-    except ValueError as exc:
-        raise InputError(f"{src}: variable 'rwf' cannot be reduced to {n_nodes} nodes: {exc}") from None
-    # the continuous RWF for the turbulence filter, on a 0.5-m grid where it exceeds 1e-6 of its peak
-    keep = np.flatnonzero(g > 1e-6 * g.max())
-    grid = np.arange(np.ceil(s[keep[0]] / 0.5), np.floor(s[keep[-1]] / 0.5) + 1) * 0.5
-    profile = (tuple(np.round(grid - zd, 6).tolist()),
-               tuple(float(v) for v in np.interp(grid, s, g / g.max()).round(9)))
-    return nodes - zd, weights, profile
+        value = float(np.asarray(raw).item())
+    except (TypeError, ValueError):
+        value = np.nan
+    if not (np.isfinite(value) and -60.0 <= value <= 20.0):
+        raise InputError(f"{source or source_name(ds)}: global attribute 'lidar_cnr_threshold' (the lidar's "
+                         f"CNR filter, dB) is {raw!r}; expected a number in [-60, 20] or 'not given'")
+    return value

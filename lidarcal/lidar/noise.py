@@ -3,14 +3,17 @@
 A :class:`NoiseTable` is the bench cube reduced to what the simulation draws from: for each
 beam a (CNR, radial velocity) table of the LOS bias and standard deviation (empty bins filled
 from the nearest populated one) and, optionally, every measured residual (measured −
-programmed, bad estimates included) as a ragged array.  :func:`noise_table_from_cube` builds
-it from a ``bench_cube`` artefact; :class:`lidarcal.lidar.model.LidarModel` carries it.
+programmed, bad estimates included) as a ragged array, from which it draws a bin's residuals
+(``los_noise_model = "residuals"``) or only its good ones (``"mixture"``, with
+:mod:`lidarcal.lidar.bad_estimates`).  :func:`noise_table_from_cube` builds it from a
+``bench_cube`` artefact; :class:`lidarcal.lidar.model.LidarModel` carries it.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
+import logging
 from typing import Any
 
 import numpy as np
@@ -18,13 +21,18 @@ import xarray as xr
 
 from lidarcal.errors import InputError
 from lidarcal.io import source_name
+from lidarcal.lidar.bad_estimates import BadEstimates, good_pools
 from lidarcal.units import convert_variable
 
-__all__ = ["NoiseTable", "LOS_NOISE_MODELS", "noise_table_from_cube", "cube_residuals", "residuals_digest",
-           "table_digest", "tuplify", "listify"]
+__all__ = ["NoiseTable", "LOS_NOISE_MODELS", "noise_table_from_cube", "cube_residuals", "cube_residual_array",
+           "residuals_digest", "table_digest", "tuplify", "listify", "fit_bad_estimates"]
 
-#: LOS noise models of a bench-calibrated lidar (:attr:`LidarModel.los_noise_model`).
-LOS_NOISE_MODELS = ("residuals", "gaussian")
+log = logging.getLogger(__name__)
+
+#: LOS noise models of a bench-calibrated lidar (:attr:`LidarModel.los_noise_model`): ``"mixture"``
+#: good residuals resampled and bad estimates at the CNR's fitted rate; ``"residuals"`` every
+#: residual of the bin resampled (runs before the mixture existed); ``"gaussian"`` N(bias, std).
+LOS_NOISE_MODELS = ("mixture", "residuals", "gaussian")
 
 
 def tuplify(value: Any) -> Any:
@@ -210,13 +218,50 @@ class NoiseTable:
         distributions and its mean the bilinear interpolation of the bins' mean residuals; row 2
         picks one of that bin's residuals with equal probability.
         """
+        self._require_residuals()
+        count, start, values = self._ragged
+        return _pick(count, start, values, self._cells(beam, cnr, velocity, uniforms), uniforms[2])
+
+    def draw_good_residuals(self, beam: np.ndarray, cnr: float, velocity: np.ndarray, uniforms: np.ndarray,
+                            bad: BadEstimates) -> np.ndarray:
+        """Draw one *good* residual (m s-1) per sample: :meth:`draw_residuals` on the good pools.
+
+        The pools are :func:`lidarcal.lidar.bad_estimates.good_pools` of the table's residuals
+        with the classification of ``bad`` (its per-CNR thresholds and ``min_good``): each bin's
+        good residuals, with its CNR neighbours' when it has fewer than ``min_good``.  They are
+        built once per table and classification.
+        """
+        self._require_residuals()
+        if tuple(bad.cnr) != tuple(self.cnr):
+            raise InputError(f"{self.origin}: the bad-estimate model's CNR bins {list(bad.cnr)} dB are not "
+                             "the "
+                             f"noise table's {list(self.cnr)} dB")
+        count, start, values = self.good_pools(bad.threshold, bad.min_good)
+        return _pick(count, start, values, self._cells(beam, cnr, velocity, uniforms), uniforms[2])
+
+    def good_pools(self, threshold: tuple[float, ...], min_good: int
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return the good-residual pools as a flat ragged array ``(count, start, values)`` (cached)."""
+        self._require_residuals()
+        key = (tuple(threshold), int(min_good))
+        cache = self.__dict__.setdefault("_good_cache", {})
+        if key not in cache:
+            counts, values, _ = good_pools(np.asarray(self.residual_count), self._ragged[2],
+                                           np.asarray(threshold, dtype=float), int(min_good))
+            flat = counts.ravel()
+            cache[key] = (flat, np.concatenate([[0], np.cumsum(flat)[:-1]]), values)
+        return cache[key]
+
+    def _require_residuals(self) -> None:
         if self.needs_residuals:
             raise InputError(self.missing_residuals_message())
         if self.residuals is None:
             raise InputError("noise table: no measured residuals to resample (a cube without "
                              "'los_residual'); use los_noise_model='gaussian'")
+
+    def _cells(self, beam: np.ndarray, cnr: float, velocity: np.ndarray, uniforms: np.ndarray) -> np.ndarray:
+        """Flat bin index per sample: the CNR and velocity neighbour picked with their bilinear weights."""
         cnr_axis, vel_axis, _, _ = self._arrays
-        count, start, values = self._ragged
         n_c, n_v = cnr_axis.size, vel_axis.size
         velocity = np.asarray(velocity, dtype=float)
         ci = np.zeros(velocity.shape, dtype=np.intp)
@@ -229,9 +274,7 @@ class NoiseTable:
             pos_v = np.interp(velocity, vel_axis, np.arange(n_v))
             j0 = np.floor(pos_v).astype(np.intp)
             vi = np.where(uniforms[1] < pos_v - j0, np.minimum(j0 + 1, n_v - 1), j0)
-        cell = (np.asarray(beam, dtype=np.intp) * n_c + ci) * n_v + vi
-        k = np.minimum((uniforms[2] * count[cell]).astype(np.intp), count[cell] - 1)
-        return values[start[cell] + k]
+        return (np.asarray(beam, dtype=np.intp) * n_c + ci) * n_v + vi
 
     def lookup(self, beam: int, cnr: float, velocity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bias and std (m s-1) for one beam at one CNR (dB) and many radial velocities."""
@@ -251,6 +294,13 @@ class NoiseTable:
         if vel_axis.size == 1:
             return np.full_like(velocity, rows_b[0]), np.full_like(velocity, rows_s[0])
         return np.interp(velocity, vel_axis, rows_b), np.interp(velocity, vel_axis, rows_s)
+
+
+def _pick(count: np.ndarray, start: np.ndarray, values: np.ndarray, cell: np.ndarray,
+          uniforms: np.ndarray) -> np.ndarray:
+    """One value of each sample's bin ``cell`` of a ragged array, each with equal probability."""
+    k = np.minimum((uniforms * count[cell]).astype(np.intp), count[cell] - 1)
+    return values[start[cell] + k]
 
 
 def _fill_nearest(values: np.ndarray) -> np.ndarray:
@@ -345,6 +395,25 @@ def _cube_layout(cube: xr.Dataset, azimuths: tuple[float, ...]) -> tuple[np.ndar
     return cnr, vel, rows, np.argsort(cnr), np.argsort(vel)
 
 
+def cube_residual_array(cube: xr.Dataset, azimuths: tuple[float, ...]) -> np.ndarray:
+    """Return the cube's residuals of these beams as ``(beam, cnr, velocity, sample)``, NaN-padded.
+
+    The bins in the order of a table built from ``cube`` (axes increasing); empty bins stay
+    empty (NaN), not filled, as
+    :meth:`BadEstimates.from_residuals <lidarcal.lidar.bad_estimates.BadEstimates.from_residuals>`
+    needs them: a filled bin would count its neighbour's residuals twice.
+    """
+    _, _, rows, ci, vi = _cube_layout(cube, azimuths)
+    src = source_name(cube)
+    var = convert_variable(cube, "los_residual", "m s-1", source=src)
+    extra = [d for d in var.dims if d not in ("los", "cnr", "velocity")]
+    if len(extra) != 1:
+        raise InputError(f"{src}: variable 'los_residual' must have dims (los, cnr, velocity, sample); "
+                         f"found {tuple(var.dims)}")
+    res = var.transpose("los", "cnr", "velocity", extra[0]).values
+    return np.stack([res[row][np.ix_(ci, vi)] for row in rows])
+
+
 def cube_residuals(cube: xr.Dataset, azimuths: tuple[float, ...]) -> tuple[np.ndarray, np.ndarray]:
     """Return the residuals a table built from ``cube`` for these beams carries: (counts, values)."""
     _, _, rows, ci, vi = _cube_layout(cube, azimuths)
@@ -375,3 +444,30 @@ def noise_table_from_cube(cube: xr.Dataset, azimuths: tuple[float, ...], *,
         count, values = _ragged_residuals(cube, rows, ci, vi)
         extra = {"residual_count": count, "residuals": values}
     return NoiseTable(cnr=cnr[ci], velocity=vel[vi], bias=np.array(out_b), std=np.array(out_s), **extra)
+
+
+def fit_bad_estimates(cube: xr.Dataset, azimuths: tuple[float, ...],
+                      cnr_threshold: float | None) -> BadEstimates:
+    """Classify the bench cube's residuals of these beams and fit p_bad(CNR) (``docs/method.md``).
+
+    ``cnr_threshold`` (dB or None): the lidar's CNR filter, which sets the CNR bins the rate is
+    fitted over.  Raises :class:`~lidarcal.errors.InputError` naming the cube when its residuals
+    hold too few bad estimates to estimate the search band, or the fit fails.
+    """
+    src = source_name(cube)
+    res = cube_residual_array(cube, azimuths)
+    cnr = convert_variable(cube, "cnr", "dB", source=src).values
+    vel = convert_variable(cube, "velocity", "m s-1", source=src).values
+    try:
+        bad = BadEstimates.from_residuals(res, np.sort(cnr), np.sort(vel), cnr_threshold=cnr_threshold)
+    except ValueError as exc:
+        raise InputError(f"{src}: variable 'los_residual' cannot give the bad-estimate rate: {exc}") from None
+    if bad.fit_pvalue < 1e-3:
+        log.warning("%s: the logistic p_bad(CNR) does not describe the bench's bad-estimate counts "
+                    "(Pearson chi-square %.1f on %d degrees of freedom, p = %.1e)", src, bad.fit_chi2,
+                    bad.fit_dof, bad.fit_pvalue)
+    if bad.band_uniformity_p < 1e-3:
+        log.warning("%s: the bench's bad estimates are not uniform over the search band %.2f to %.2f m s-1 "
+                    "(Kolmogorov-Smirnov p = %.1e); the virtual lidar draws them uniform", src, *bad.band,
+                    bad.band_uniformity_p)
+    return bad

@@ -30,9 +30,13 @@ from north):
   (``w_k ∝ w_k^0 10^(scale · g · s_k / 20)``, ``scale = cnr_weighting_scale``, ``g`` the period's
   CNR gradient) plus the turbulent LOS signal (the same Eq. 2 weighting of the continuous RWF),
   plus an error drawn for this beam, the period's CNR and this sample's noise-free radial
-  velocity: by default (``los_noise_model = "residuals"``, a cube with measured residuals) one
-  of the bench bin's measured residuals, bad estimates included, the bin picked among the
-  neighbours with its bilinear weight (:meth:`~lidarcal.lidar.noise.NoiseTable.draw_residuals`);
+  velocity: by default (``los_noise_model = "mixture"``, a cube with measured residuals) the
+  estimate is a bad one with probability p_bad(CNR) at the period's CNR, its value uniform over
+  the lidar's search band whatever the true velocity (:mod:`lidarcal.lidar.bad_estimates`), and
+  otherwise the noise-free value plus one of the bench bin's *good* residuals, the bin picked
+  among the neighbours with its bilinear weight
+  (:meth:`~lidarcal.lidar.noise.NoiseTable.draw_good_residuals`); with ``"residuals"`` one of
+  the bin's residuals, bad estimates included (:meth:`~lidarcal.lidar.noise.NoiseTable.draw_residuals`);
   with ``"gaussian"`` ``N(μ, σ)``, ``μ, σ`` the table's MAD-trimmed bias and std (bilinear,
   clamped); ``μ = 0, σ = los_noise_std`` for the ideal lidar.  Samples are kept with
   probability ``availability``.
@@ -95,7 +99,13 @@ def _simulate_height(model: LidarModel, height: float, U: float, direction: floa
         turb = np.zeros((6, n_times))
     los_true = los_mean[beam_of_time] + turb[2 + beam_of_time, np.arange(n_times)]
     noise_rng = np.random.default_rng(noise_ss)
-    if model.noise_table is not None and model.los_noise_model == "residuals":
+    if model.noise_table is not None and model.los_noise_model == "mixture":
+        # five uniforms per LOS: bad or not, the bad value, CNR neighbour, velocity neighbour, good residual
+        u = noise_rng.random((5, n_times))
+        good = los_true + model.noise_table.draw_good_residuals(beam_of_time, cnr, los_true, u[2:],
+                                                                model.bad_estimates)
+        los = model.bad_estimates.apply(good, cnr, u[:2])
+    elif model.noise_table is not None and model.los_noise_model == "residuals":
         # three uniforms per LOS: CNR neighbour, velocity neighbour, residual within the bin
         u = noise_rng.random((3, n_times))
         los = los_true + model.noise_table.draw_residuals(beam_of_time, cnr, los_true, u)

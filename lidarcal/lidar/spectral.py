@@ -61,7 +61,13 @@ from scipy.interpolate import CubicSpline
 from lidarcal.lidar.geometry import beam_geometry, wind_axes
 from lidarcal.lidar.product_integration import cusp_integral, side_integral
 from lidarcal.lidar.quadrature import gauss_hermite_rwf, gauss_rwf_nodes
-from lidarcal.turbulence.kernels import L_C, LENGTH_SCALE_FACTORS, spectral_magnitudes
+from lidarcal.turbulence.kernels import (
+    COHERENCE_DECAY,
+    L_C,
+    LAMBDA_1,
+    LENGTH_SCALE_FACTORS,
+    spectral_magnitudes,
+)
 
 __all__ = ["N_CROSS", "continuous_rwf", "cross_spectral_matrix", "knot_indices"]
 
@@ -69,8 +75,13 @@ __all__ = ["N_CROSS", "continuous_rwf", "cross_spectral_matrix", "knot_indices"]
 N_CROSS = 8
 #: Fine-grid spacing of the same-beam autocorrelation, as a fraction of the RWF's standard deviation.
 GRID_PER_SIGMA = 1.0 / 6.0
-#: Above this height (m) PyConTurb's Kaimal length scale stops depending on z.
+#: Above this height (m) PyConTurb's Kaimal length scale stops depending on z (Lambda_1 / 0.7).
 _Z_KAIMAL = 60.0
+
+
+def _z_kaimal(length_scale: float) -> float:
+    """Height (m) above which the Kaimal length scale ``min(0.7 z, Lambda_1)`` is constant (60 m at 42 m)."""
+    return _Z_KAIMAL if length_scale == LAMBDA_1 else round(float(length_scale) / 0.7, 9)
 #: The continuous RWF is cut off below this height (m): at 40 m the part of a 30-m Gaussian RWF
 #: below it is 0.08 % of the weight.
 _Z_GROUND = 1.0
@@ -115,10 +126,10 @@ def continuous_rwf(offsets: tuple[float, ...], weights: tuple[float, ...],
     return s, w, nodes, node_w
 
 
-def _beta(f: np.ndarray, wind_speed: float, l_c: float = L_C) -> np.ndarray:
+def _beta(f: np.ndarray, wind_speed: float, l_c: float = L_C, decay: float = COHERENCE_DECAY) -> np.ndarray:
     """``β_c(f)`` of the ``iec3d`` coherence ``exp(-β r)``, shape ``(3, n_f)``."""
     lc = l_c * LENGTH_SCALE_FACTORS / LENGTH_SCALE_FACTORS[0]
-    return 12.0 * np.sqrt((f[None, :] / wind_speed) ** 2 + (0.12 / lc[:, None]) ** 2)
+    return float(decay) * np.sqrt((f[None, :] / wind_speed) ** 2 + (0.12 / lc[:, None]) ** 2)
 
 
 def _phases(x: np.ndarray, wind_speed: float, f: np.ndarray) -> np.ndarray:
@@ -129,16 +140,18 @@ def _phases(x: np.ndarray, wind_speed: float, f: np.ndarray) -> np.ndarray:
 class _Magnitudes:
     """Kaimal magnitudes ``m_c(f, z)`` (``f`` without DC) at any z.
 
-    Exact above 60 m (one column), linear interpolation on a 2-m grid below (smooth in z).
+    Exact above 60 m (``Lambda_1 / 0.7``; one column), linear interpolation on a 2-m grid below
+    (smooth in z).
     """
 
     def __init__(self, z_lo: float, z_hi: float, f_all: np.ndarray, wind_speed: float, sigma, nt: int,
-                 z_weight=None, sel: np.ndarray | None = None):
-        self.uniform = z_lo >= _Z_KAIMAL
-        top = min(z_hi, _Z_KAIMAL)
-        self.z = np.array([_Z_KAIMAL]) if self.uniform else np.linspace(
+                 z_weight=None, sel: np.ndarray | None = None, length_scale: float = LAMBDA_1):
+        z_top = _z_kaimal(length_scale)
+        self.uniform = z_lo >= z_top
+        top = min(z_hi, z_top)
+        self.z = np.array([z_top]) if self.uniform else np.linspace(
             z_lo, top, max(2, int(np.ceil((top - z_lo) / 2.0)) + 1))
-        self.m_all = spectral_magnitudes(f_all, self.z, wind_speed, sigma, nt)[:, 1:, :]  # (3, nf, nz)
+        self.m_all = spectral_magnitudes(f_all, self.z, wind_speed, sigma, nt, length_scale)[:, 1:, :]
         # only the frequencies ``sel`` are used (the normalisation above and the low-rank factorisation
         # below see all of them, so a subset gives the same values as the full computation)
         self._sel = slice(None) if sel is None else np.asarray(sel)
@@ -424,6 +437,17 @@ class _Gate:
         return N_FINE if r0 < R_FINE else self.n_cross if r0 < R_FAR else min(self.n_cross, N_FAR)
 
 
+def _coherence(model) -> tuple[float, float]:
+    """Return ``(l_c, a)`` of the model's IEC coherence (PyConTurb's defaults without the fields)."""
+    return (float(getattr(model, "coherence_length", L_C)),
+            float(getattr(model, "coherence_decay", COHERENCE_DECAY)))
+
+
+def _length_scale(model) -> float:
+    """Return the model's Kaimal Lambda_1 (m)."""
+    return float(getattr(model, "turbulence_length_scale", LAMBDA_1))
+
+
 def _gate(model, height: float, U: float, wind_from_direction: float, sigma: np.ndarray, cnr_gradient: float,
           f_all: np.ndarray, nt: int, n_cross: int, sel: np.ndarray) -> _Gate:
     """Set up :class:`_Gate` at the positive frequencies ``sel`` (0-based) of ``f_all``."""
@@ -444,13 +468,14 @@ def _gate(model, height: float, U: float, wind_from_direction: float, sigma: np.
     along, across = units[:, :2] @ down, units[:, :2] @ cross  # (4,)
     proj = np.stack([along, across, units[:, 2]], axis=-1)  # (4, 3): a_bc
     q = np.hypot(across, up)  # (4,) y-z length of the beam per metre
-    beta = _beta(f, U)  # (3, nf)
+    beta = _beta(f, U, *_coherence(model))  # (3, nf)
     z_line = (R + s) * up
     # spectra vary with z below 60 m: tabulated where the RWF carries weight (> 1e-3 of its peak,
     # clamped beyond: the tails hold < 3e-4 of the weight)
     z_w = z_line[F > 1e-3 * F.max()]
     mags = _Magnitudes(float(min(z_w.min(), height)), float(max(z_w.max(), height)), f_all, U, sigma, nt,
-                       z_weight=lambda z: np.interp(z, z_line, F) / F.max(), sel=sel)
+                       z_weight=lambda z: np.interp(z, z_line, F) / F.max(), sel=sel,
+                       length_scale=_length_scale(model))
     return _Gate(height=height, U=U, f=f, s=s, h=h, F=F, R=R, up=up, along=along, across=across, proj=proj,
                  q=q, beta=beta, beta32=beta.astype(np.float32), k=2.0 * np.pi * f / U, mags=mags,
                  m_ref=mags(np.array([height]))[..., 0], rwf_key=key, n_cut=n_cut, scale=scale,
@@ -478,7 +503,8 @@ def _matrix_at(model, height: float, U: float, wind_from_direction: float, sigma
     if g.mags.uniform:  # the tabulated column (60 m) is the spectrum at every height above 60 m
         m_ref_all = g.mags.m_all[:, :, 0]
     else:
-        m_ref_all = spectral_magnitudes(f_all, np.array([float(height)]), U, sigma, nt)[:, 1:, 0]  # (3, n_f)
+        m_ref_all = spectral_magnitudes(f_all, np.array([float(height)]), U, sigma, nt,
+                                        _length_scale(model))[:, 1:, 0]  # (3, n_f)
     return C, np.concatenate([[0.0, 0.0], g.R * g.along]), m_ref_all
 
 

@@ -10,16 +10,18 @@ page, :func:`write_report` writes the certificate document (:mod:`lidarcal.docum
 
 from __future__ import annotations
 
+import contextlib
 import html
 import json
 import os
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import xarray as xr
 
+from lidarcal.certificate import MEASURAND, model_form_summary
 from lidarcal.document.facts import (
     NOT_STATED,
     certificate_facts,
@@ -28,6 +30,7 @@ from lidarcal.document.facts import (
     fmt,
     grid_cell,
     headline_text,
+    model_form_grid,
     not_settled_text,
 )
 from lidarcal.document.figures import A4, STYLE, draw, drawn_cnr_range, figure_names, parts_of
@@ -67,6 +70,8 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None
                           + "; – : not certified (too few periods, not settled, or no data)"))
         if missed := not_settled_text(budget):
             out.append(f'<p class="not-settled">{html.escape(missed)}</p>')
+        out.append(f'<p class="measurand">{html.escape(MEASURAND)}</p>')
+        out.append(_model_form_table(budget))
     if cert is not None:
         facts = "\n".join(
             f"<tr><th>{html.escape(section if n == 0 else '')}</th><td>{html.escape(label)}</td>"
@@ -75,6 +80,25 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None
             for n, (label, value) in enumerate(items))
         out.append(f'<table class="facts">\n{facts}\n</table>')
     return "\n".join(out)
+
+
+def _model_form_table(budget: xr.Dataset) -> str:
+    """Return the model-form contributor per certified bin (%, k = 1, ± standard error) as HTML."""
+    g = model_form_grid(budget)
+    if g is None:
+        return ""
+    rows = []
+    for i in np.flatnonzero(g["inside"]):
+        cells = []
+        for j in range(g["height"].size):
+            v, se = g["value"][i, j], g["tolerance"][i, j]
+            ok = g["certified"][i, j] and np.isfinite(v)
+            cells.append((f"{v:.2f}" + (f" ± {se:.2g}" if np.isfinite(se) else "")) if ok else "–")
+        rows.append([fmt(g["wind_speed"][i]), *cells])
+    return (f'<p class="model-form">{html.escape(model_form_summary(budget) or "")}</p>\n'
+            + html_table(["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]], rows,
+                         "Model form of the simulation: contributor model_form (%, k = 1) ± its standard "
+                         "error, per height and certified wind-speed bin; – : not certified"))
 
 
 def _provenance(cert: xr.Dataset | None) -> str:
@@ -92,6 +116,17 @@ def _provenance(cert: xr.Dataset | None) -> str:
         rows.append((f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}"))
     body = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
     return f'<div id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></div>'
+
+
+@contextlib.contextmanager
+def _all_or_nothing(published: list[Path]) -> Iterator[None]:
+    """On a failure inside, remove the files of this report already published, then re-raise."""
+    try:
+        yield
+    except BaseException:
+        for done in published:
+            done.unlink(missing_ok=True)
+        raise
 
 
 def write_report(
@@ -117,7 +152,8 @@ def write_report(
     (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``; ``seal``
     (:func:`lidarcal.document.seal_statement`) states the seal of a certificate written after
     its report.  With ``png`` every figure of the document is also written as
-    ``<stem>_<figure>.png`` (150 dpi).
+    ``<stem>_<figure>.png`` (150 dpi).  The files are published whole or not at all: when one
+    cannot be written (a full disk), those this call had published are removed again.
 
     A certificate read from a file has its seal checked first
     (:func:`lidarcal.seal.require_valid_seal`): an altered one is refused
@@ -166,13 +202,16 @@ def write_report(
             for name, target in pngs.items():
                 fig = MplFigure(figsize=A4)
                 draw(fig, name, parts)
-                with atomic_path(target, overwrite=overwrite) as tmp:
+                with _all_or_nothing(written), atomic_path(target, overwrite=overwrite) as tmp:
                     fig.savefig(tmp, dpi=_PNG_DPI, format="png")
                 written.append(target)
     document = None
     if pdf_path:
-        document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
-                                  warning=banner)
-    write_text(path, page, overwrite=overwrite)
+        with _all_or_nothing(written):
+            document = write_document(pdf_path, certificate, overwrite=overwrite, parts=parts, seal=seal,
+                                      warning=banner)
+        written.append(pdf_path)
+    with _all_or_nothing(written):
+        write_text(path, page, overwrite=overwrite)
     return {"html": path, "figures": list(figs), "png": written, "pdf": document["pdf"] if document else None,
             "pages": document["pages"] if document else 0}

@@ -6,14 +6,17 @@ Models (PyConTurb 2.7.4, ``spectral_models.kaimal_spectrum``, ``coherence.get_ie
 ``magnitudes.spc_to_mag``):
 
 * Kaimal one-sided PSD ``S_k(f) = 4 tau / (1 + 6 tau f)^(5/3)`` with ``tau = L_k / U``,
-  ``L_k = Lambda_1 * (8.1, 2.7, 0.66)[k]`` and ``Lambda_1 = 0.7 z`` below 60 m, 42 m above.
+  ``L_k = Lambda(z) * (8.1, 2.7, 0.66)[k]`` and ``Lambda(z) = min(0.7 z, Lambda_1)``,
+  ``Lambda_1 = 42`` m (IEC 61400-1 Ed. 3: 0.7 z below 60 m, 42 m above; Ed. 2 has 21 m,
+  i.e. 0.7 z below 30 m): :data:`LAMBDA_1`, the ``length_scale`` argument.
   The spectrum is only a shape: magnitudes are rescaled so that the discrete spectrum
   carries exactly ``sigma_k**2`` (the ddof=1 variance of a fixed-amplitude realisation).
 * Standard deviations (paper Table 2): ``sigma_u = TI * U``, ``sigma_v = 0.8 sigma_u``,
   ``sigma_w = 0.5 sigma_u``.
 * Exponential (IEC) coherence on all three components (PyConTurb's ``iec3d``):
-  ``coh_k(f, r) = exp(-12 r sqrt((f / U)^2 + (0.12 / L_c,k)^2))`` with ``r`` the y-z
-  separation and ``L_c,k = l_c * (1, 2.7/8.1, 0.66/8.1)[k]`` (``l_c = 340.2`` m).
+  ``coh_k(f, r) = exp(-a r sqrt((f / U)^2 + (0.12 / L_c,k)^2))`` with ``r`` the y-z
+  separation, ``a = 12`` (:data:`COHERENCE_DECAY`) and ``L_c,k = l_c * (1, 2.7/8.1, 0.66/8.1)[k]``
+  (``l_c = 340.2`` m).
 
 The generator (:func:`generate_points`) differs from ``gen_turb`` in three documented ways:
 it draws with a caller-supplied :class:`numpy.random.Generator`; it handles along-wind
@@ -33,6 +36,8 @@ import numpy as np
 
 __all__ = [
     "L_C",
+    "COHERENCE_DECAY",
+    "LAMBDA_1",
     "LENGTH_SCALE_FACTORS",
     "SIGMA_RATIOS",
     "sigma_components",
@@ -50,6 +55,10 @@ __all__ = [
 
 #: PyConTurb's default coherence length ``l_c`` (m) = 8.1 * 42 m (IEC 61400-1 Ed. 3).
 L_C = 340.2
+#: Decay constant ``a`` of the IEC exponential coherence (IEC 61400-1 Ed. 3; PyConTurb's ``iec3d``).
+COHERENCE_DECAY = 12.0
+#: Kaimal length-scale parameter Lambda_1 (m) above the surface layer (IEC 61400-1 Ed. 3).
+LAMBDA_1 = 42.0
 #: Kaimal integral length scales of u, v, w relative to Lambda_1 (IEC 61400-1 Ed. 3).
 LENGTH_SCALE_FACTORS = np.array([8.1, 2.7, 0.66])
 #: sigma_v / sigma_u and sigma_w / sigma_u (paper Table 2; IEC 61400-1 Ed. 4, 6.3.1).
@@ -61,22 +70,27 @@ def sigma_components(turbulence_intensity: float, wind_speed: float) -> np.ndarr
     return SIGMA_RATIOS * float(turbulence_intensity) * float(wind_speed)
 
 
-def kaimal_psd(f: np.ndarray, z: np.ndarray, wind_speed: float, component: int) -> np.ndarray:
-    """Unscaled Kaimal one-sided PSD as PyConTurb defines it, shape ``(len(f), len(z))``."""
+def kaimal_psd(f: np.ndarray, z: np.ndarray, wind_speed: float, component: int,
+               length_scale: float = LAMBDA_1) -> np.ndarray:
+    """Unscaled Kaimal one-sided PSD as PyConTurb defines it, shape ``(len(f), len(z))``.
+
+    ``length_scale`` is Lambda_1 (m): ``Lambda(z) = min(0.7 z, Lambda_1)`` (PyConTurb's 0.7 z below
+    60 m and 42 m above, bit for bit, at the default).
+    """
     z = np.atleast_1d(np.asarray(z, dtype=float))
-    lambda_1 = np.where(z < 60.0, 0.7 * z, 42.0)
+    lambda_1 = np.minimum(0.7 * z, float(length_scale))
     tau = lambda_1 * LENGTH_SCALE_FACTORS[component] / wind_speed
     f = np.asarray(f, dtype=float)[:, None]
     return 4.0 * tau / (1.0 + 6.0 * tau * f) ** (5.0 / 3.0)
 
 
 def iec3d_coherence(f: np.ndarray, r: np.ndarray, wind_speed: float, component: int,
-                    l_c: float = L_C) -> np.ndarray:
+                    l_c: float = L_C, decay: float = COHERENCE_DECAY) -> np.ndarray:
     """PyConTurb ``iec3d`` coherence for y-z separations ``r``; shape ``f.shape + r.shape``."""
     lc = l_c * LENGTH_SCALE_FACTORS[component] / LENGTH_SCALE_FACTORS[0]
     a = np.sqrt((np.asarray(f, dtype=float) / wind_speed) ** 2 + (0.12 / lc) ** 2)
     a = a.reshape(a.shape + (1,) * np.ndim(r))
-    return np.exp(-12.0 * a * np.asarray(r, dtype=float))
+    return np.exp(-float(decay) * a * np.asarray(r, dtype=float))
 
 
 def frequencies(duration: float, dt: float) -> tuple[int, np.ndarray]:
@@ -88,7 +102,7 @@ def frequencies(duration: float, dt: float) -> tuple[int, np.ndarray]:
 
 
 def spectral_magnitudes(f: np.ndarray, z: np.ndarray, wind_speed: float, sigma: np.ndarray,
-                        nt: int) -> np.ndarray:
+                        nt: int, length_scale: float = LAMBDA_1) -> np.ndarray:
     """Fourier magnitudes ``(3, n_f, n_points)`` scaled exactly as ``magnitudes.spc_to_mag``.
 
     ``|m|^2 = S df / 2`` with the DC term zeroed, then rescaled per point so that
@@ -97,7 +111,7 @@ def spectral_magnitudes(f: np.ndarray, z: np.ndarray, wind_speed: float, sigma: 
     df = f[1]
     out = np.empty((3, f.size, np.size(z)))
     for k in range(3):
-        mags = np.sqrt(kaimal_psd(f, z, wind_speed, k) * df / 2.0)
+        mags = np.sqrt(kaimal_psd(f, z, wind_speed, k, length_scale) * df / 2.0)
         mags[0] = 0.0
         power = 2.0 * np.sum(mags**2, axis=0) - ((nt + 1) % 2) * mags[-1] ** 2
         out[k] = mags * (sigma[k] / np.sqrt(nt / (nt - 1) * power))
