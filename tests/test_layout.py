@@ -47,6 +47,7 @@ STAGES = (
     "campaign",
     "seal",
     "certificate",
+    "dcc_xml",
     "dcc",
     "dccsign",
     "document",
