@@ -201,6 +201,33 @@ def _with_runs(rec, shifts):
     return with_model_form(rec, models, runs, per_bin=len(idx))
 
 
+def test_the_contributor_counts_periods_not_trials():
+    """With replicas the contributor's N is the bin's distinct periods, as the statistical term's.
+
+    Replicas 1-3 repeat replica 0's errors: the trials quadruple, the periods do not.  By hand from
+    the budget's own pooled μ, σ, N = ``period_count`` and v, with the +0.02 m/s alternative:
+    u = sqrt(v² + μ² + σ²(1 + 1/N)), u_mf = |δu| / √3, model_form = sqrt((u + u_mf)² − u²).
+    """
+    rec = _one_bin_records()
+    runs = _with_runs(rec, {"reference_level": lambda lid, ref: lid + 0.02})
+    lid, ref = rec["lidar_wind_speed"].values[:, 0], rec["reference_wind_speed"].values[:, 0]
+    idx = np.arange(rec.sizes["time"])
+    more = with_trials(runs, [{"replica": r, "period": idx, "height": np.full(idx.size, 100.0),
+                               "lidar_wind_speed": lid, "reference_wind_speed": ref} for r in (1, 2, 3)])
+    cell = budget(more, min_periods=3).sel(height=100.0, wind_speed=8.0)
+    n, trials = int(cell.period_count), int(cell.sample_count)
+    assert (n, trials) == (60, 240)
+    v = float(cell.contribution.sel(contributor="virtual_reference"))
+    mu, sigma = float(cell.mean_difference), float(cell.std_difference)
+    def u_of(m, periods):
+        return np.sqrt(v**2 + m**2 + sigma**2 * (1 + 1 / periods))
+    for periods in (n, trials):
+        u_mf = abs(u_of(mu + 0.02, periods) - u_of(mu, periods)) / np.sqrt(3)
+        expected = np.sqrt((u_of(mu, periods) + u_mf) ** 2 - u_of(mu, periods) ** 2)
+        close = float(cell.contribution.sel(contributor="model_form")) == pytest.approx(expected, rel=1e-9)
+        assert close == (periods == n), periods  # N = periods matches to rounding; N = trials does not
+
+
 def test_the_contributor_by_hand():
     """One bin, two made-up alternatives: the mean error + 0.02 m/s; the spread x 1.3.
 
