@@ -13,9 +13,13 @@ Certificate (``https://ptb.de/dcc``, ``dcc.xsd`` 3.1.2, importing the D-SI ``SI_
   ``realListXMLList`` whose ``expandedUncXMLList`` holds the expanded uncertainty (k = 2,
   coverage probability 0.95) and whose ``dcc:relativeUncertainty`` the relative expanded
   uncertainty (%), the relative expanded uncertainty as its own list, the numerical tolerance
-  when the budget has one and the number of periods per bin; the method, lidarcal as the
-  software, the bench as the measuring equipment; and a second result with the environmental
-  sensitivity slopes significant by Eq. 12 or 13.
+  when the budget has one, the number of Monte Carlo trials and of distinct periods per bin, and,
+  when the budget has the Monte Carlo distribution, its estimate, standard uncertainty and 95 %
+  coverage interval per bin (%) with each bin's certified statement in the labels of a list of
+  its own; bins whose Monte Carlo values did not settle are left out of these lists and given
+  apart, with their tolerances; the method, lidarcal as the software, the bench as the
+  measuring equipment; and a second result with the environmental sensitivity slopes
+  significant by Eq. 12 or 13.
 
 The XML refers to the netCDF certificate by SHA-256, so the two stay one record: the netCDF is
 the sealed (optionally signed) original, the XML its exchange form.  :func:`validate_dcc`
@@ -47,6 +51,7 @@ from lidarcal.certificate import (
     model_form_summary,
     model_form_values,
 )
+from lidarcal.certificate.results import certified_mask, not_settled_rows
 from lidarcal.dcc_xml import (
     _XSI,
     COVERAGE_PROBABILITY,
@@ -72,9 +77,14 @@ __all__ = ["DCC_NS", "SI_NS", "DCC_SCHEMA_VERSION", "SI_SCHEMA_URL", "dcc_tree",
            "write_dcc", "validate_dcc", "dcc_attributes", "COVERAGE_PROBABILITY"]
 
 
-
 def _flags(budget: xr.Dataset) -> dict[int, str]:
-    var = budget["bin_flag"]
+    return _flags_of(budget, "bin_flag")
+
+
+def _flags_of(budget: xr.Dataset, name: str) -> dict[int, str]:
+    if name not in budget:
+        return {}
+    var = budget[name]
     values = np.atleast_1d(var.attrs.get("flag_values", []))
     meanings = str(var.attrs.get("flag_meanings", "")).split()
     return {int(v): m for v, m in zip(values, meanings, strict=False)}
@@ -106,6 +116,19 @@ def _real_list(parent: etree._Element, name: str, values: np.ndarray, unit: str,
     return quantity
 
 
+#: The Monte Carlo distribution's lists per height (JCGM 101): budget variable, name, refType.
+_MONTE_CARLO_LISTS = (
+    ("relative_mean_difference", "Estimate of the error of one 10-minute mean (mean lidar minus reference)",
+     "lidarcal_errorEstimate"),
+    ("relative_error_standard_uncertainty", "Standard uncertainty of the error of one 10-minute mean",
+     "lidarcal_errorStandardUncertainty"),
+    ("relative_coverage_interval_lower", "Lower end of the 95 % coverage interval of the error (Monte Carlo)",
+     "lidarcal_coverageIntervalLower"),
+    ("relative_coverage_interval_upper", "Upper end of the 95 % coverage interval of the error (Monte Carlo)",
+     "lidarcal_coverageIntervalUpper"),
+)
+
+
 def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, Any], digest: str,
                     file_name: str) -> None:
     budget = extract_component(cert, "budget").load()
@@ -117,16 +140,25 @@ def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, 
           "Per height and 0.5 m/s bin of the reference wind speed: expanded uncertainty (coverage factor "
           f"{k:g}, coverage probability {COVERAGE_PROBABILITY:g}) in m/s and in % of the bin's mean "
           "reference wind speed. Each value's label is the bin's flag (" + ", ".join(flags.values())
-          + "); bins without a value (no period) are left out. " + status_line(attrs))
+          + "); bins without a value (no period) are left out, and so are bins whose Monte Carlo values did "
+          "not settle, which are given apart with their numerical tolerances. Where the budget has the Monte "
+          "Carlo distribution of the error of one 10-minute mean (JCGM 101), its estimate, standard "
+          "uncertainty and 95 % coverage interval follow, labelled with what each certified bin certifies "
+          "(expanded_uncertainty: the error lies within +-U; coverage_interval: it lies in the interval, "
+          "where the two differ materially). " + status_line(attrs))
     _methods(result_el, attrs)
     results = _sub(result_el, _d("results"))
+    certified = certified_mask(budget).transpose("height", "wind_speed").values
+    statements = _flags_of(budget, "certified_statement")
     model_form = model_form_values(budget)  # (wind_speed, height), or None
     budget = budget.transpose("height", "wind_speed", ...)
+    missed = {(r["height_m"], r["wind_speed_m_s"]) for r in not_settled_rows(budget)}
     tolerance = budget.get("numerical_tolerance")
     for i, z in enumerate(np.atleast_1d(budget["height"].values)):
         rel = budget["relative_expanded_uncertainty"].values[i]
         absolute = budget["expanded_uncertainty"].values[i]
-        keep = np.isfinite(rel) & np.isfinite(absolute) & (absolute >= 0) & (rel >= 0)
+        apart = np.array([(float(z), float(u)) in missed for u in budget["wind_speed"].values])
+        keep = np.isfinite(rel) & np.isfinite(absolute) & (absolute >= 0) & (rel >= 0) & ~apart
         result = _sub(results, _d("result"), refType="lidarcal_heightResult")
         _text(result, "name", f"Height {float(z):g} m")
         data = _sub(result, _d("data"))
@@ -153,8 +185,25 @@ def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, 
             _real_list(lst, "Model-form standard uncertainty (k = 1), relative to the bin's mean reference "
                        "wind speed", model_form["value"][:, i][keep], r"\percent", labels=labels,
                        ref_type="lidarcal_modelFormUncertainty", description=model_form_summary(budget))
-        _real_list(lst, "10-minute periods in the bin", budget["sample_count"].values[i][keep].astype(float),
+        _real_list(lst, "Monte Carlo trials in the bin", budget["sample_count"].values[i][keep].astype(float),
                    r"\one", labels=labels, ref_type="lidarcal_sampleCount")
+        if "period_count" in budget:
+            _real_list(lst, "Distinct 10-minute periods in the bin",
+                       budget["period_count"].values[i][keep].astype(float), r"\one", labels=labels,
+                       ref_type="lidarcal_periodCount")
+        mc = keep & np.all([np.isfinite(budget[name].values[i]) for name, _, _ in _MONTE_CARLO_LISTS
+                            if name in budget] or [np.zeros(keep.shape, dtype=bool)], axis=0)
+        if "certified_statement" in budget and mc.any():
+            said = [statements.get(int(f), str(int(f))) if certified[i][j]
+                    else flags.get(int(fl), str(int(fl)))
+                    for j, (f, fl) in enumerate(zip(budget["certified_statement"].values[i],
+                                                    budget["bin_flag"].values[i], strict=True)) if mc[j]]
+            for name, title, ref in _MONTE_CARLO_LISTS:
+                _real_list(lst, title, budget[name].values[i][mc], r"\percent", labels=said, ref_type=ref,
+                           description="% of the bin's mean reference wind speed; label: the statement a "
+                                       "certified bin certifies, else the bin's flag")
+    if missed:  # listed apart: never among the certified results (JCGM 101 7.9)
+        _not_settled_result(results, budget, sorted(missed))
     meta = _sub(result_el, _d("measurementMetaData"))
     known = {**attrs, **budget.attrs}  # the budget's, or the certificate's own
     names = ("monte_carlo_replicas", "monte_carlo_trials", "monte_carlo_significant_digits")
@@ -167,6 +216,31 @@ def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, 
     _sub(record, _d("reference"), f"{file_name} sha256:{digest}")
     _text(record, "declaration", f"Values copied unrounded from the sealed netCDF certificate {file_name} "
           f"(SHA-256 {digest}).")
+
+
+def _not_settled_result(results: etree._Element, budget: xr.Dataset,
+                        cells: list[tuple[float, float]]) -> None:
+    """Write the bins left out because their Monte Carlo values did not settle, with their tolerances."""
+    result = _sub(results, _d("result"), refType="lidarcal_notSettled")
+    _text(result, "name", "Not certified: Monte Carlo values not settled")
+    _text(result, "description", "Bins certified but for the Monte Carlo, whose values did not settle "
+          "within the replicas run (JCGM 101 7.9): not certified, given with their relative expanded "
+          "uncertainty and the largest numerical tolerance of their values.")
+    rows = {(r["height_m"], r["wind_speed_m_s"]): r for r in not_settled_rows(budget)}
+    labels = [f"{z:g}m_{u:g}m/s" for z, u in cells]
+    lst = _sub(_sub(result, _d("data")), _d("list"))
+    _real_list(lst, "Height", np.array([z for z, _ in cells]), r"\metre", labels=labels,
+               ref_type="lidarcal_height")
+    _real_list(lst, "Reference wind speed, bin centre", np.array([u for _, u in cells]),
+               r"\metre\second\tothe{-1}", labels=labels, ref_type="lidarcal_windSpeedBinCentre")
+    _real_list(lst, "Relative expanded uncertainty (not certified)",
+               np.array([rows[c]["expanded_uncertainty_pct"] for c in cells]), r"\percent", labels=labels,
+               ref_type="lidarcal_relativeExpandedUncertainty")
+    tol = np.array([max((v for key, v in rows[c].items() if key.startswith("tolerance_") and np.isfinite(v)),
+                        default=np.nan) for c in cells])
+    if np.isfinite(tol).all():
+        _real_list(lst, "Largest numerical tolerance of the bin's values (Monte Carlo)", tol, r"\percent",
+                   labels=labels, ref_type="lidarcal_numericalTolerance")
 
 
 def _sensitivity_results(root: etree._Element, cert: xr.Dataset) -> None:

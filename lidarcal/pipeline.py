@@ -104,9 +104,10 @@ class CalibrationConfig:
     in ``certified_range``, m/s) and a sensitivity bin needs to enter the regression: one rule
     (docs/certificate.md); a short run (a few hundred periods) may need fewer than the default.
     ``significant_digits`` and ``max_replicas`` drive the adaptive Monte Carlo (JCGM 101 7.9,
-    :mod:`lidarcal.campaign.adaptive`).  ``model_form_periods`` is the most periods per (height,
-    wind-speed bin) each model-form alternative re-simulates (:mod:`lidarcal.campaign.model_form`;
-    0: no model-form term).
+    :mod:`lidarcal.campaign.adaptive`); ``coverage_interval`` chooses the Monte Carlo coverage
+    interval of each bin (JCGM 101 7.7: ``"symmetric"`` or ``"shortest"``).  ``model_form_periods``
+    is the most periods per (height, wind-speed bin) each model-form alternative re-simulates
+    (:mod:`lidarcal.campaign.model_form`; 0: no model-form term).
     """
 
     bench_rtd: str | None = None
@@ -126,6 +127,8 @@ class CalibrationConfig:
     certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE
     significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS
     max_replicas: int = DEFAULT_MAX_REPLICAS
+    #: The Monte Carlo coverage interval (JCGM 101 7.7): "symmetric" or "shortest"
+    coverage_interval: str = "symmetric"
     model_form_periods: int = DEFAULT_PER_BIN
     #: LOS error model (``LidarModel.los_noise_model``); None: the mixture when the cube has residuals
     los_noise_model: str | None = None
@@ -255,7 +258,8 @@ class _Run:
     def rule(self) -> dict[str, Any]:
         """The certification rule shared by the adaptive replicas and the budget."""
         return dict(min_periods=self.cfg.min_periods, certified_range=tuple(self.cfg.certified_range),
-                    significant_digits=self.cfg.significant_digits)
+                    significant_digits=self.cfg.significant_digits,
+                    coverage_interval=self.cfg.coverage_interval)
 
 
 def _output_paths(outdir: Path, *, overwrite: bool) -> dict[str, Path]:

@@ -33,10 +33,15 @@ def make_records(
     noise=0.5,
     bias=0.0,
     lidar_serial="WLS7-TEST",
+    replicas=1,
 ):
     """Records whose relative difference (%) is ``bias + slope * (alpha - 0.15) + N(0, noise)``.
 
     ``shear_slope`` is the true sensitivity to the shear exponent per height (% per unit alpha).
+    With ``replicas`` > 1 the records carry Monte Carlo replicas of every period as the adaptive
+    Monte Carlo stores them (``period_key`` and the ``trial_*`` variables): the same conditions,
+    a fresh N(0, noise) draw each (from a stream of their own, so replica 0 is the same as
+    without replicas).
     """
     rng = np.random.default_rng(np.random.SeedSequence([seed, 2024]))
     nh = len(heights)
@@ -78,4 +83,21 @@ def make_records(
         var_attrs("reference wind speed", "m s-1", "wind_speed"),
     )
     ds.attrs = {"lidarcal_artefact": "simulated_rtd", "lidar_serial": lidar_serial}
+    if replicas > 1:
+        from lidarcal.campaign.adaptive import with_trials
+        from lidarcal.schema import output_attrs
+
+        ds["period_key"] = ("time", 1_704_067_200 + 600 * np.arange(n, dtype=np.int64),
+                            output_attrs("simulated_rtd", "period_key"))
+        more = np.random.default_rng(np.random.SeedSequence([seed, 2024, 1]))
+        deterministic = rel - (rel - bias - np.resize(np.asarray(shear_slope, dtype=float), nh)[None, :]
+                               * (alpha - 0.15) - ti_slope * (ti - 0.1))
+        trials = []
+        for r in range(1, replicas):
+            rel_r = deterministic + more.normal(0.0, noise, shape)
+            period, height = np.nonzero(np.ones(shape, dtype=bool))
+            trials.append({"replica": r, "period": period, "height": np.asarray(heights, dtype=float)[height],
+                           "lidar_wind_speed": (ref * (1 + rel_r / 100.0))[period, height],
+                           "reference_wind_speed": ref[period, height]})
+        ds = with_trials(ds, trials)
     return ds

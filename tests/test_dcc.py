@@ -48,9 +48,15 @@ def certs(tmp_path_factory):
     """An issued certificate (admin file) and a demonstration one (simulated bench run)."""
     d = tmp_path_factory.mktemp("dcc")
     rec_path = d / "records.nc"
-    make_records(n=500, lidar_serial=SERIAL, shear_slope=(4.0, -3.0)).to_netcdf(rec_path)
+    make_records(n=500, lidar_serial=SERIAL, shear_slope=(4.0, -3.0), replicas=8).to_netcdf(rec_path)
     records = open_artefact(rec_path)
-    bud = write_artefact(budget(records), d / "budget.nc")
+    bud = budget(records, significant_digits=1)
+    # one bin certified but for its Monte Carlo values, as if they had not settled (listed apart)
+    j = int(np.argmin(abs(bud["wind_speed"].values - 10.0)))
+    assert int(bud["bin_flag"].isel(height=0, wind_speed=j)) == 0
+    bud["bin_flag"][{"height": 0, "wind_speed": j}] = 4
+    bud["numerical_flag"][{"height": 0, "wind_speed": j}] = 1
+    bud = write_artefact(bud, d / "budget.nc")
     sens = [write_artefact(sensitivity(records, v), d / f"sens_{v}.nc")
             for v in ("wind_shear_exponent", "turbulence_intensity")]
     run = simulate_run(seed=3, accumulation_time="20 s", lidar_serial=SERIAL)
@@ -129,19 +135,24 @@ def test_dcc_results_are_the_certificates_values(certs, xml):
         rel = np.asarray(nc["budget_relative_expanded_uncertainty"][:])
         absolute = np.asarray(nc["budget_expanded_uncertainty"][:])
         count = np.asarray(nc["budget_sample_count"][:])
+        flag = np.asarray(nc["budget_bin_flag"][:])
+        upper = np.asarray(nc["budget_relative_coverage_interval_upper"][:])
+        statement = np.asarray(nc["budget_certified_statement"][:])
+        assert nc["budget_bin_flag"].getncattr("flag_meanings").split()[4] == "not_settled"
         comps = json.loads(nc.getncattr("lidarcal_components"))
         # the budget's global attributes are those of its provenance variable
         holder = next(c for c in comps if c["name"] == "budget")["variable"]
         k = float(nc[holder].getncattr("coverage_factor"))
     assert k == 2.0
     if dims[0] != "budget_height":
-        rel, absolute, count = rel.T, absolute.T, count.T
-    results = tree.xpath("//dcc:measurementResult[@refType='lidarcal_windSpeedUncertainty']//dcc:result",
-                         namespaces=NS)
+        rel, absolute, count, flag, upper, statement = (a.T for a in (rel, absolute, count, flag, upper,
+                                                                      statement))
+    results = tree.xpath("//dcc:measurementResult[@refType='lidarcal_windSpeedUncertainty']"
+                         "//dcc:result[@refType='lidarcal_heightResult']", namespaces=NS)
     assert len(results) == len(heights)
     for i, result in enumerate(results):
         assert _texts(result, "dcc:name/dcc:content") == [f"Height {heights[i]:g} m"]
-        keep = np.isfinite(rel[i]) & np.isfinite(absolute[i])
+        keep = np.isfinite(rel[i]) & np.isfinite(absolute[i]) & (flag[i] != 4)  # not settled: apart
         q = result.xpath(".//dcc:quantity[@refType='lidarcal_windSpeedBinCentre']", namespaces=NS)[0]
         values = np.array(q.findtext("si:realListXMLList/si:valueXMLList", namespaces=NS).split(), float)
         np.testing.assert_array_equal(values, speeds[keep])
@@ -157,6 +168,27 @@ def test_dcc_results_are_the_certificates_values(certs, xml):
         n = result.xpath(".//dcc:quantity[@refType='lidarcal_sampleCount']//si:valueXMLList",
                          namespaces=NS)[0]
         np.testing.assert_array_equal(np.array(n.text.split(), float), count[i][keep])
+        # the Monte Carlo interval's upper ends, labelled with what each certified bin certifies
+        q = result.xpath(".//dcc:quantity[@refType='lidarcal_coverageIntervalUpper']", namespaces=NS)[0]
+        mc = keep & np.isfinite(upper[i])
+        found = np.array(q.findtext(".//si:valueXMLList", namespaces=NS).split(), float)
+        np.testing.assert_array_equal(found, upper[i][mc])
+        labels = q.findtext(".//si:labelXMLList", namespaces=NS).split()
+        said = {0: "expanded_uncertainty", 1: "coverage_interval"}
+        other = {1: "too_few_periods", 3: "outside_certified_range"}
+        assert labels == [said[int(st)] if f == 0 else other[int(f)]
+                          for st, f in zip(statement[i][mc], flag[i][mc], strict=True)]
+    # the bin that did not settle is listed apart, with its value and tolerance, in no height's results
+    apart = tree.xpath("//dcc:result[@refType='lidarcal_notSettled']", namespaces=NS)
+    assert len(apart) == 1
+    i, j = (int(v[0]) for v in np.nonzero(flag == 4))
+    centre = apart[0].xpath(".//dcc:quantity[@refType='lidarcal_windSpeedBinCentre']//si:valueXMLList",
+                            namespaces=NS)[0].text
+    assert float(centre) == speeds[j]
+    value = apart[0].xpath(".//dcc:quantity[@refType='lidarcal_relativeExpandedUncertainty']"
+                           "//si:valueXMLList", namespaces=NS)[0].text
+    assert float(value) == rel[i, j]
+    assert apart[0].xpath(".//dcc:quantity[@refType='lidarcal_numericalTolerance']", namespaces=NS)
     # significant sensitivities: the slopes of the heights flagged significant in the netCDF
     with netCDF4.Dataset(certs["issued"]) as nc:
         sig = np.asarray(nc["sensitivity_wind_shear_exponent_significant"][:]).astype(bool)
@@ -263,8 +295,8 @@ def test_dcc_validates_against_ptb_xsd(xml, tmp_path):
 
 
 def test_numerical_tolerance_and_monte_carlo_figures_when_the_budget_has_them():
-    records = make_records(n=400, lidar_serial=SERIAL)
-    bud = budget(records)
+    records = make_records(n=400, lidar_serial=SERIAL, replicas=8)
+    bud = budget(records, significant_digits=1)
     tol = (bud["relative_expanded_uncertainty"] * 0.01).assign_attrs(units="%",
                                                                      long_name="numerical tolerance")
     bud = bud.assign(numerical_tolerance=tol)
@@ -273,11 +305,12 @@ def test_numerical_tolerance_and_monte_carlo_figures_when_the_budget_has_them():
     tree = dcc_tree(cert, certificate_sha256="0" * 64)
     z = float(bud["height"][0])
     rel = bud["relative_expanded_uncertainty"].sel(height=z).values
-    keep = np.isfinite(rel) & np.isfinite(bud["expanded_uncertainty"].sel(height=z).values)
+    keep = (np.isfinite(rel) & np.isfinite(bud["expanded_uncertainty"].sel(height=z).values)
+            & (bud["bin_flag"].sel(height=z).values != 4))
     q = tree.xpath("//dcc:result[1]//dcc:quantity[@refType='lidarcal_numericalTolerance']", namespaces=NS)[0]
     values = np.array(q.findtext(".//si:valueXMLList", namespaces=NS).split(), float)
     np.testing.assert_array_equal(values, tol.sel(height=z).values[keep])
     mc = _texts(tree, "//dcc:metaData[@refType='lidarcal_monteCarlo']//dcc:content")
-    assert mc == ["Monte Carlo: replicas 4, trials 8000, significant digits 2"]  # the budget states N
+    assert mc == ["Monte Carlo: replicas 4, trials 8000, significant digits 1"]  # the budget states N
     if os.environ.get("LIDARCAL_DCC_XSD"):
         assert validate_dcc(tree, os.environ["LIDARCAL_DCC_XSD"]) == []

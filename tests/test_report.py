@@ -45,12 +45,13 @@ CHROMIUM_FLAGS = [
 
 @pytest.fixture(scope="module")
 def inputs():
-    records = make_records(n=600, heights=(80.0, 100.0, 120.0))
+    # eight Monte Carlo replicas, settled to one significant digit: certified bins to draw
+    records = make_records(n=600, heights=(80.0, 100.0, 120.0), replicas=8)
     run = simulate_run(seed=5, accumulation_time="20 s", lidar_serial="WLS7-TEST")
     cube, _ = build_cube(run.rtd, run.control)
     return {
         "records": records,
-        "budget": budget(records),
+        "budget": budget(records, significant_digits=1),
         "sensitivities": [
             sensitivity(records, "wind_shear_exponent"),
             sensitivity(records, "turbulence_intensity"),
@@ -95,7 +96,7 @@ def test_budget_plot_shows_every_height_and_marks_thin_bins(inputs):
     from bokeh.models import GlyphRenderer, Line, Scatter, Select
 
     # the factory fills every bin with 10-39 periods: min_periods=20 leaves bins not certified with a finite U
-    b = budget(inputs["records"], min_periods=20)
+    b = budget(inputs["records"], min_periods=20, significant_digits=1)
     figs = report_figures(budget=b)
     assert list(figs) == ["budget", "budget_contributors"]
     page = figs["budget"].bokeh()
@@ -382,11 +383,21 @@ def test_certificate_document_pages(report, poppler):
     header = [f"{h:g} m" for h in budget.height.values]
     assert " ".join(header) in first
     first = " ".join(" ".join(page.split()) for page in pages if "Certified result" in page)
-    rel = budget.relative_expanded_uncertainty.transpose("wind_speed", "height")
-    ok = (budget.bin_flag.transpose("wind_speed", "height") == 0).values
+
+    def grid(name):
+        return budget[name].transpose("wind_speed", "height").values
+
+    rel, tol = grid("relative_expanded_uncertainty"), grid("numerical_tolerance")
+    lo_end, hi_end = grid("relative_coverage_interval_lower"), grid("relative_coverage_interval_upper")
+    statement = grid("certified_statement")
+    ok = grid("bin_flag") == 0
+    assert (statement[ok] == 1).any() and (statement[ok] == 0).any()  # both kinds of statement on the page
     for i, u in enumerate(budget.wind_speed.values):
         if 4 <= u <= 16 and ok[i].any():
-            cells = [f"{v:.2f}" if good else "–" for v, good in zip(rel.values[i], ok[i], strict=True)]
+            # U ± its tolerance, or the certified interval low…high where the bin certifies it
+            cells = [("–" if not ok[i, j] else f"{lo_end[i, j]:+.2f}…{hi_end[i, j]:+.2f}"
+                      if statement[i, j] == 1 else f"{rel[i, j]:.2f} ± {tol[i, j]:.2g}")
+                     for j in range(rel.shape[1])]
             assert f"{u:g} " + " ".join(cells) in first, u
     # the SHA-256 of every input comes last
     last = " ".join(pages[-1].split())
@@ -424,7 +435,7 @@ def test_budget_figure_is_scaled_to_the_certified_range(inputs):
 
     from lidarcal.document.figures import draw_budget
 
-    b = budget(inputs["records"], min_periods=20)
+    b = budget(inputs["records"], min_periods=20, significant_digits=1)
     fig = Figure()
     draw_budget(fig, b)
     top, bottom = fig.axes

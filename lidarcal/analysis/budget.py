@@ -10,7 +10,8 @@ contributors are, for the two approaches of Figure 9:
     ``uncertainty_terms`` artefact (interpolated) or computed with :mod:`lidarcal.analysis.terms`;
     ``mean_difference`` — \\|mean(lidar − reference)\\|;
     ``std_difference`` — standard deviation σ_diff of lidar − reference (ddof = 1);
-    ``statistical`` — σ_diff / √N;
+    ``statistical`` — σ_diff / √N, N the distinct 10-minute periods in the bin (``period_count``:
+    replicas add trials, not periods of the atmosphere);
     ``model_form`` — the simulation's model form, when the records carry the model-form runs
     (:mod:`lidarcal.analysis.model_form`): raises the combined standard uncertainty by the
     spread of its value across the defensible alternative models.
@@ -21,29 +22,37 @@ contributors are, for the two approaches of Figure 9:
 
 They are combined in quadrature into ``uncertainty`` (m s-1); ``relative_uncertainty`` (%)
 is relative to the bin's mean reference wind speed Ū; ``expanded_uncertainty`` is
-k × ``uncertainty`` (k = 2 by default).
+k × ``uncertainty`` (k = 2 by default): the value of the IEC-style tables.
 
-**What is certified** — one rule, :func:`certified_bins`, used by the budget, the certificate,
-``lidarcal table``, the report and the headline: a bin is certified when its centre lies in the
-certified wind-speed range (:data:`DEFAULT_CERTIFIED_RANGE`, 4 to 16 m s-1) and it holds at
-least ``min_periods`` distinct 10-minute periods of the conditions record
-(:data:`DEFAULT_MIN_PERIODS` = 10).  ``bin_flag`` says which bins are (``certified``) and why
-the others are not (``too_few_periods``, ``empty``, ``outside_certified_range``); no bin is
-dropped.
+**The Monte Carlo distribution** (JCGM 101, Monte Carlo approach): the measurand of a bin is the
+error of one 10-minute mean of the lidar at that height and bin.  The trials represent the
+contributors of :data:`EMPIRICAL_CONTRIBUTORS` (the mean and spread of lidar − reference); every
+other contributor of the approach (the Table 4 terms, the statistical term, and any contributor
+added to :data:`CONTRIBUTORS`) enters as one normal of their quadrature sum, convolved with the
+trials (:mod:`lidarcal.analysis.distribution`).  Per bin the budget records the estimate
+(``mean_difference``), its standard uncertainty (``error_standard_uncertainty``), the 95 %
+coverage interval (``coverage_interval_lower``/``_upper``, probabilistically symmetric or
+``shortest``), the effective degrees of freedom that widen it in thin bins, the probability
+the distribution gives to ±U (``expanded_uncertainty_coverage``) and which statement the bin
+certifies (``certified_statement``: ±U, or the interval where they differ materially).
 
-**Monte Carlo replicas** (JCGM 101 §7.9) — ``simulated_rtd`` records may carry further trials
-of the same periods with independent seed streams (variables ``trial_*`` on a ``trial`` dim,
-written by :mod:`lidarcal.campaign.adaptive`).  Every trial enters the bin statistics:
-``sample_count`` counts trials, ``period_count`` distinct periods.  Each replica's own estimate
-of a certified bin's relative expanded uncertainty gives the numerical tolerance of the value,
-``numerical_tolerance`` = the smallest ½·10^ℓ at least 2·s/√h (s: standard deviation of the h
-replica estimates, JCGM 101 §7.9.4), and ``numerical_flag`` says whether it settled to
-``significant_digits`` significant digits (:func:`numerical_state`).
+**What is certified** — one rule, :func:`lidarcal.analysis.certification.certified_bins`,
+applied here and read by the certificate, ``lidarcal table``, the documents and the DCC: a bin
+is certified when its centre lies in the certified wind-speed range
+(:data:`DEFAULT_CERTIFIED_RANGE`, 4 to 16 m s-1), it holds at least ``min_periods`` distinct
+10-minute periods (:data:`DEFAULT_MIN_PERIODS` = 10) and, for the Monte Carlo approach, each of
+its values has settled (JCGM 101 §7.9, :func:`lidarcal.analysis.certification.numerical_state`:
+the estimate, u, both endpoints and U, to ``significant_digits`` significant digits of U, from
+the replicas with a Student factor and from all trials by the delta method).  ``bin_flag``
+says which bins are (``certified``) and why the others are not (``too_few_periods``,
+``empty``, ``outside_certified_range``, ``not_settled``); no bin is dropped.
+
+Replicas (``trial_*`` variables on a ``trial`` dim, :mod:`lidarcal.analysis.trials`) enter
+every statistic; ``sample_count`` counts trials, ``period_count`` distinct periods.
 """
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Iterable, Mapping
 from typing import Any
 
@@ -51,10 +60,24 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis import kernels
-from lidarcal.analysis._records import checked, select_heights
+from lidarcal.analysis._records import select_heights
+from lidarcal.analysis.certification import (
+    DEFAULT_CERTIFIED_RANGE,
+    DEFAULT_MIN_PERIODS,
+    DEFAULT_SIGNIFICANT_DIGITS,
+    SETTLED_VALUES,
+    certified_bins,
+    certified_statement,
+    effective_dof,
+    numerical_state,
+    settle_target,
+)
+from lidarcal.analysis.distribution import bin_values, delta_sds, grouped
 from lidarcal.analysis.model_form import model_form_term
+from lidarcal.analysis.montecarlo import COVERAGE_PROBABILITY, tolerance_exponent
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
-from lidarcal.binning import bin_index, binned_statistics
+from lidarcal.analysis.trials import TRIAL_VARIABLES
+from lidarcal.analysis.trials import binned as binned_trials
 from lidarcal.cf import with_bounds
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import source_name
@@ -63,7 +86,8 @@ from lidarcal.schema import with_output_attrs
 from lidarcal.units import Q_, convert_values, to_magnitude
 
 __all__ = ["budget", "certified_bins", "numerical_state", "tolerance_exponent", "CONTRIBUTORS",
-           "DEFAULT_CERTIFIED_RANGE", "DEFAULT_MIN_PERIODS", "DEFAULT_SIGNIFICANT_DIGITS", "TRIAL_VARIABLES"]
+           "EMPIRICAL_CONTRIBUTORS", "COVERAGE_INTERVALS", "DEFAULT_CERTIFIED_RANGE", "DEFAULT_MIN_PERIODS",
+           "DEFAULT_SIGNIFICANT_DIGITS", "TRIAL_VARIABLES"]
 
 #: Contributors of each approach, in the order of the ``contributor`` dimension.
 CONTRIBUTORS = {
@@ -71,12 +95,24 @@ CONTRIBUTORS = {
     "iec": ("reference_sensor", "mean_difference", "statistical", "mounting", "separation",
             "flow_inhomogeneity"),
 }
+#: Monte Carlo contributors the trials themselves represent (their mean and spread); every other
+#: contributor of the approach is convolved with the trials as a normal.
+EMPIRICAL_CONTRIBUTORS = ("mean_difference", "std_difference")
+#: Contributors estimated from the bin's N distinct periods: N − 1 degrees of freedom each
+#: (Welch–Satterthwaite); the others are Type B, with infinitely many.
+PERIOD_CONTRIBUTORS = ("std_difference", "statistical")
+#: Kinds of coverage interval (JCGM 101 §7.7).
+COVERAGE_INTERVALS = ("symmetric", "shortest")
+#: The values of a bin JCGM 101 7.9 settles.
+SETTLED = tuple(SETTLED_VALUES)
+#: Replicas beyond which no bin's need is predicted (``replicas_needed``).
+_NEED_CAP = 1000
 
 _CONTRIBUTOR_NAMES = {
     "virtual_reference": "virtual reference uncertainty (Table 4 total, Eqs. 6-11)",
     "mean_difference": "absolute mean lidar minus reference difference",
     "std_difference": "standard deviation of the lidar minus reference difference",
-    "statistical": "standard uncertainty of the mean difference, sigma_diff / sqrt(N)",
+    "statistical": "standard uncertainty of the mean difference, sigma_diff / sqrt(N), N distinct periods",
     "model_form": "simulation model form, the spread of the combined uncertainty across the defensible "
                   "alternative models (common random numbers)",
     "reference_sensor": "reference anemometer standard uncertainty",
@@ -84,22 +120,6 @@ _CONTRIBUTOR_NAMES = {
     "separation": "separation between lidar and reference mast",
     "flow_inhomogeneity": "flow inhomogeneity across the lidar measurement volume",
 }
-
-#: Certified wind-speed range: bin centres (m s-1, inclusive) a certified bin may have.
-DEFAULT_CERTIFIED_RANGE = (4.0, 16.0)
-#: Fewest distinct 10-minute periods of the conditions record in a certified bin, and in a bin
-#: entering a sensitivity regression (:mod:`lidarcal.analysis.sensitivity`): one rule for a bin
-#: that counts.  IEC 61400-50-2 drops bins "that do not contain sufficient sample number" without
-#: a number in any text available here, so this is lidarcal's documented choice: 10 periods give
-#: the bin variance 9 degrees of freedom, enough for its inverse (the weight n / s²) to have a
-#: finite mean (inflated 9/7) and variance, and for the bin mean to be close to normal
-#: (docs/sensitivity.md).
-DEFAULT_MIN_PERIODS = 10
-#: Significant digits the Monte Carlo settles every certified value to (JCGM 101 §7.9).
-DEFAULT_SIGNIFICANT_DIGITS = 2
-#: Variables (dim ``trial``) of the further Monte Carlo replicas in ``simulated_rtd`` records.
-TRIAL_VARIABLES = ("trial_replica", "trial_period_key", "trial_height", "trial_lidar_wind_speed",
-                   "trial_reference_wind_speed")
 
 
 def _fraction(value: Any, name: str) -> float:
@@ -167,66 +187,6 @@ def _terms_total(
     return np.asarray(arr, dtype=float), origin
 
 
-def certified_bins(centres: np.ndarray, period_count: np.ndarray, *,
-                   certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE,
-                   min_periods: int = DEFAULT_MIN_PERIODS) -> np.ndarray:
-    """Return the ``bin_flag`` of every bin (int8, ``(..., bin)``): the one rule for what is certified.
-
-    0 ``certified`` (centre in ``certified_range`` m s-1, inclusive, and at least ``min_periods``
-    distinct periods), 1 ``too_few_periods``, 2 ``empty`` (no period), 3
-    ``outside_certified_range`` (a non-empty bin whose centre is outside the range).
-
-    >>> certified_bins(np.array([2.0, 8.0, 8.5, 9.0]), np.array([50, 12, 9, 0])).tolist()
-    [3, 0, 1, 2]
-    """
-    lo, hi = (float(v) for v in certified_range)
-    centres = np.asarray(centres, dtype=float)
-    n = np.asarray(period_count)
-    inside = (centres >= lo - 1e-9) & (centres <= hi + 1e-9)
-    flag = np.where(n >= int(min_periods), 0, 1)
-    flag = np.where(inside, flag, 3)
-    return np.where(n > 0, flag, 2).astype(np.int8)
-
-
-def tolerance_exponent(spread: np.ndarray) -> np.ndarray:
-    """Smallest integer ℓ with ½·10^ℓ ≥ ``spread`` (= 2 s/√h); NaN where ``spread`` is NaN.
-
-    >>> tolerance_exponent(np.array([0.04, 0.05, 0.051, 0.3])).astype(int).tolist()
-    [-1, -1, 0, 0]
-    """
-    spread = np.asarray(spread, dtype=float)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        ell = np.ceil(np.log10(2.0 * spread) - 1e-12)
-    return np.where(spread > 0, ell, np.where(spread == 0, -np.inf, np.nan))
-
-
-def numerical_state(value: np.ndarray, estimates: np.ndarray, certified: np.ndarray,
-                    significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Numerical tolerance of each value from its replica estimates (JCGM 101 §7.9.4).
-
-    ``estimates`` (..., replica) holds every replica's own estimate of ``value`` (...) (NaN where
-    a replica did not estimate it).  With h ≥ 2 estimates and s their standard deviation, the
-    value reached the tolerance δ = ½·10^ℓ, ℓ the smallest integer with δ ≥ 2 s/√h; it has
-    settled to ``significant_digits`` digits when δ ≤ ½·10^(e − N + 1), e the decimal exponent of
-    ``value`` (JCGM 101 §7.9.2).  Returns (tolerance, flag, h): flag 0 ``settled``, 1
-    ``not_settled``, 2 ``not_certified`` (``certified`` False: not assessed).
-    """
-    est = np.asarray(estimates, dtype=float)
-    h = np.isfinite(est).sum(axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN cells: NaN, no warning
-        s = np.nanstd(est, axis=-1, ddof=1)
-        spread = np.where(h >= 2, 2.0 * s / np.sqrt(np.maximum(h, 1)), np.nan)
-        ell = tolerance_exponent(spread)
-        tol = np.where(np.isfinite(ell) | (ell == -np.inf), 0.5 * 10.0 ** ell, np.nan)
-        v = np.abs(np.asarray(value, dtype=float))
-        target = np.floor(np.log10(np.where(v > 0, v, np.nan))) - int(significant_digits) + 1
-    settled = np.isfinite(tol) & np.isfinite(target) & (ell <= target)
-    flag = np.where(np.asarray(certified, dtype=bool), np.where(settled, 0, 1), 2).astype(np.int8)
-    return tol, flag, h
-
-
 #: Relative (fraction of the bin mean reference speed) inputs of the IEC approach.
 _IEC_FRACTIONS = ("reference_relative_uncertainty", "mounting", "separation", "flow_inhomogeneity")
 
@@ -248,6 +208,7 @@ def budget(
     separation: Any = 0.0,
     flow_inhomogeneity: Any = 0.0,
     noise_terms: str = "printed",
+    coverage_interval: str = "symmetric",
     model_form: bool = True,
     source: str | None = None,
     call: str | None = None,
@@ -273,8 +234,13 @@ def budget(
     certified_range : (float, float)
         Bin centres (m s-1, inclusive) a certified bin may have (default 4 to 16).
     significant_digits : int
-        Digits the Monte Carlo must settle every certified value to (``numerical_flag``;
-        default 2).  Needs records with replicas (``trial_*`` variables) to be assessed.
+        Significant digits of each bin's expanded uncertainty U that the Monte Carlo must settle
+        the bin's values to (``numerical_flag``; default 2).  A value settles only with at least
+        two replicas (``trial_*`` variables); a certified bin whose values have not settled is
+        flagged ``not_settled`` and not certified.
+    coverage_interval : {"symmetric", "shortest"}
+        The Monte Carlo coverage interval (JCGM 101 §7.7): probabilistically symmetric (default)
+        or the shortest.
     heights : sequence of float, optional
         Heights (m) to include; a height not in the records is an error.
     coverage_factor : float
@@ -308,23 +274,33 @@ def budget(
     width = float(to_magnitude(bin_width, "m s-1", name="bin_width"))
     if not width > 0:
         raise InputError(f"bin_width must be positive; got {bin_width!r}")
+    if coverage_interval not in COVERAGE_INTERVALS:
+        raise InputError(f"coverage_interval must be one of {list(COVERAGE_INTERVALS)}; "
+                         f"got {coverage_interval!r}")
     k = float(coverage_factor)
     records = select_heights(records, heights, source=source)
-    edges, binned = _binned(records, width, source)
+    edges, binned = binned_trials(records, width, source)
     centres = 0.5 * (edges[:-1] + edges[1:])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        binned["statistical"] = binned["std_difference"] / np.sqrt(binned["period_count"])
     config: dict[str, Any] = {"approach": approach, "bin_width_m_s-1": width, "min_periods": int(min_periods),
                               "certified_range_m_s-1": list(certified_range),
                               "significant_digits": int(significant_digits),
                               "coverage_factor": k, "binned_by": "reference_wind_speed",
                               "relative_to": "mean reference wind speed in the bin"}
+    rule = {"min_periods": int(min_periods), "certified_range": certified_range,
+            "significant_digits": int(significant_digits), "coverage_interval": coverage_interval}
+    mc = None
     if approach == "monte_carlo":
         vref, config["virtual_reference_terms"] = _terms_total(
             terms, centres, np.asarray(records["height"].values, dtype=float), noise_terms)
         parts = _monte_carlo_parts(binned, vref)
+        config["coverage_interval"] = coverage_interval
+        config["coverage_probability"] = COVERAGE_PROBABILITY
         mf = model_form_term(records, edges, binned, vref, k, source=source) if model_form else None
         if mf is not None:
             parts["model_form"], config["model_form"] = mf["contribution"], mf["config"]
-        binned["estimates"] = _replica_estimates(binned, vref, k, parts.get("model_form"))
+        mc = _monte_carlo_values(binned, parts, vref, k, centres, rule)
     else:
         u_abs, rel = _iec_inputs(terms, reference_uncertainty, dict(zip(_IEC_FRACTIONS, (
             reference_relative_uncertainty, mounting, separation, flow_inhomogeneity), strict=True)))
@@ -333,9 +309,91 @@ def budget(
         mf = None
     names = tuple(c for c in CONTRIBUTORS[approach] if c in parts)
     contribution = np.stack([np.broadcast_to(parts[c], binned["n"].shape) for c in names], axis=-1)
-    rule = {"min_periods": int(min_periods), "certified_range": certified_range,
-            "significant_digits": int(significant_digits)}
-    return _assemble(records, terms, names, edges, binned, contribution, rule, k, config, call, mf)
+    return _assemble(records, terms, names, edges, binned, contribution, rule, k, config, call, mc, mf)
+
+
+def _quadrature(parts: Mapping[str, np.ndarray], names: Iterable[str], shape: tuple[int, ...]) -> np.ndarray:
+    return kernels.quadrature(*(np.broadcast_to(parts[c], shape) for c in names))
+
+
+def _distribution_inputs(stats: Mapping[str, Any], parts: Mapping[str, np.ndarray], k: float
+                         ) -> dict[str, np.ndarray]:
+    """Per (height, bin), in % of the bin mean reference: σ of the terms not simulated, U, ν_eff, scale."""
+    shape = stats["n"].shape
+    names = [c for c in CONTRIBUTORS["monte_carlo"] if c in parts]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        scale = 100.0 / stats["mean_reference"]
+        periods = np.asarray(stats["period_count"], dtype=float)
+        nu = effective_dof({c: np.broadcast_to(parts[c], shape) for c in names if c != "mean_difference"},
+                           {c: periods - 1 for c in PERIOD_CONTRIBUTORS})
+    return {"scale": scale, "sigma": _quadrature(parts, [c for c in names if c not in EMPIRICAL_CONTRIBUTORS],
+                                                  shape) * scale,
+            "combined": _quadrature(parts, names, shape) * scale,
+            "expanded": k * _quadrature(parts, names, shape) * scale, "nu": nu}
+
+
+def _monte_carlo_values(binned: Mapping[str, Any], parts: Mapping[str, np.ndarray], vref: np.ndarray,
+                        k: float, centres: np.ndarray, rule: Mapping[str, Any]) -> dict[str, Any]:
+    """Return the Monte Carlo distribution of every bin and the numerical state of the certified ones.
+
+    Pooled values from all trials (in % of the bin mean reference speed); each replica's own
+    values for the bins it estimates; JCGM 101 §7.9 on the bins certified but for their
+    numerical state (:func:`lidarcal.analysis.certification.numerical_state`).
+    """
+    shape = binned["n"].shape
+    ncell = int(np.prod(shape))
+    shortest = rule["coverage_interval"] == "shortest"
+    pooled_in = _distribution_inputs(binned, parts, k)
+    tr = binned["trials"]
+    samples = grouped(tr["diff"] * pooled_in["scale"].ravel()[tr["cell"]], tr["cell"], ncell)
+    flat = {name: v.ravel() for name, v in pooled_in.items()}
+    values = bin_values(samples, flat["sigma"], flat["expanded"], flat["nu"], shortest=shortest)
+    values["expanded_uncertainty"] = flat["expanded"]
+    period_count = np.asarray(binned["period_count"]).ravel()
+    strata = grouped(tr["period"], tr["cell"], ncell, fill=-1)
+    sds = delta_sds(samples, strata, flat["sigma"], values, period_count, flat["combined"], k)
+    # JCGM 101 7.9 on the bins that are certified but for their numerical state
+    cand = certified_bins(centres, binned["period_count"], certified_range=rule["certified_range"],
+                          min_periods=rule["min_periods"]).ravel() == 0
+    idx = np.flatnonzero(cand)
+    reps = binned["replicas"]
+    per = {name: np.full((idx.size, len(reps)), np.nan) for name in SETTLED}
+    if idx.size:
+        pos = np.full(ncell, -1)
+        pos[idx] = np.arange(idx.size)
+        for j, d in enumerate(reps):
+            mine = (tr["replica"] == binned["replica_numbers"][j]) & (pos[tr["cell"]] >= 0)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                stats = {**d, "period_count": d["n"], "statistical": d["std_difference"] / np.sqrt(d["n"])}
+            rparts = _monte_carlo_parts(stats, vref)
+            if "model_form" in parts:  # the same in every replica (its error: model_form_standard_error)
+                rparts["model_form"] = parts["model_form"]
+            rin = {name: v.ravel()[idx] for name, v in _distribution_inputs(stats, rparts, k).items()}
+            cells = tr["cell"][mine]
+            rs = grouped(tr["diff"][mine] * rin["scale"][pos[cells]], pos[cells], idx.size)
+            rv = bin_values(rs, rin["sigma"], rin["expanded"], rin["nu"], shortest=shortest)
+            rv["expanded_uncertainty"] = rin["expanded"]
+            targeted = d["targeted"].ravel()[idx]
+            for name in SETTLED:
+                per[name][:, j] = np.where(targeted, rv[name], np.nan)
+    state = numerical_state({name: values[name][idx] for name in SETTLED}, per,
+                            {name: sds[name][idx] for name in SETTLED},
+                            settle_target(flat["expanded"][idx], rule["significant_digits"]),
+                            np.ones(idx.size, dtype=bool), max_replicas=_NEED_CAP)
+    settled = np.ones(ncell, dtype=bool)
+    settled[idx] = state["settled"]
+    out: dict[str, Any] = {"values": {n: v.reshape(shape) for n, v in values.items()},
+                           "nu": pooled_in["nu"], "settled": settled.reshape(shape),
+                           "replicas": int(max(binned["replica_numbers"])) + 1}
+    full = {"flag": np.full(ncell, 2, dtype=np.int8), "needed": np.zeros(ncell, dtype=np.int64),
+            "h": np.zeros(ncell, dtype=np.int64)}
+    full["flag"][idx], full["needed"][idx], full["h"][idx] = state["flag"], state["needed"], state["h"]
+    for name in SETTLED:
+        t = np.full(ncell, np.nan)
+        t[idx] = state[f"tolerance_{name}"]
+        full[f"tolerance_{name}"] = t
+    out["state"] = {n: v.reshape(shape) for n, v in full.items()}
+    return out
 
 
 def _certified_range(value: Any) -> tuple[float, float]:
@@ -351,156 +409,6 @@ def _certified_range(value: Any) -> tuple[float, float]:
     if not 0 <= lo <= hi:
         raise InputError(f"certified_range must satisfy 0 <= low <= high; got {lo:g} to {hi:g} m s-1")
     return lo, hi
-
-
-def _binned(records: xr.Dataset, width: float, source: str) -> tuple[np.ndarray, dict[str, Any]]:
-    """Bin edges centred on multiples of ``width`` and the per-(height, bin) statistics.
-
-    Without replicas (no ``trial_*`` variables) the records are binned lazily (Dask-friendly);
-    with them every trial of every replica enters the statistics, and each replica's own
-    statistics are kept for its estimates (:func:`_replica_estimates`).
-    """
-    lidar = checked(records, "lidar_wind_speed", source=source)
-    ref = checked(records, "reference_wind_speed", source=source)
-    if "trial_replica" in records.variables:
-        return _binned_replicas(records, lidar, ref, width, source)
-    ok = np.isfinite(lidar) & np.isfinite(ref)
-    diff = (lidar - ref).where(ok)
-    refv = ref.where(ok)
-    lo, hi = float(refv.min().compute()), float(refv.max().compute())
-    if not np.isfinite(lo):
-        raise InputError(f"{source}: no period has both lidar_wind_speed and reference_wind_speed; "
-                         "nothing to put in a budget")
-    edges = kernels.centred_edges(lo, hi, width)
-    nb = len(edges) - 1
-
-    def _stats(x, y, z):
-        n, md, sd, mref = binned_statistics(x, y, edges)
-        _, mlid, _, _ = binned_statistics(x, z, edges)
-        return n, md, sd, mref, mlid
-
-    outs = xr.apply_ufunc(
-        _stats, refv, diff, lidar.where(ok), input_core_dims=[["time"]] * 3,
-        output_core_dims=[["wind_speed"]] * 5, dask="parallelized",
-        output_dtypes=[np.int64, float, float, float, float],
-        dask_gufunc_kwargs={"output_sizes": {"wind_speed": nb}, "allow_rechunk": True},
-    )
-    n, mean_diff, std_diff, mean_ref, mean_lidar = (np.asarray(o.compute().values) for o in outs)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        statistical = std_diff / np.sqrt(n)
-    # one record per period and height: the trials are the periods
-    return edges, {"n": n, "mean_difference": mean_diff, "std_difference": std_diff,
-                   "mean_reference": mean_ref, "mean_lidar": mean_lidar, "statistical": statistical,
-                   "period_count": n, "replicas": [{"n": n, "mean_difference": mean_diff,
-                                                     "std_difference": std_diff, "mean_reference": mean_ref,
-                                                     "targeted": n > 0}]}
-
-
-def _trial_arrays(records: xr.Dataset, heights: np.ndarray, source: str) -> dict[str, np.ndarray]:
-    """Return the ``trial_*`` variables as arrays, each trial's height as an index into ``heights``."""
-    missing = [n for n in TRIAL_VARIABLES if n not in records.variables]
-    if missing:
-        raise MissingVariableError(f"{source}: replica trials need the variables {list(TRIAL_VARIABLES)}; "
-                                   f"missing {missing}")
-    out = {}
-    for name in ("trial_lidar_wind_speed", "trial_reference_wind_speed"):
-        var = records[name]
-        out[name] = convert_values(np.asarray(var.values, dtype=float), var.attrs.get("units"), "m s-1",
-                                   where=f"{source}: variable {name!r}")
-    th = convert_values(np.asarray(records["trial_height"].values, dtype=float),
-                        records["trial_height"].attrs.get("units"), "m",
-                        where=f"{source}: variable 'trial_height'")
-    hidx = np.full(th.shape, -1)
-    for i, z in enumerate(heights):
-        hidx[np.abs(th - z) < 1e-3] = i
-    out["height_index"] = hidx
-    out["replica"] = np.asarray(records["trial_replica"].values, dtype=np.int64)
-    out["period_key"] = np.asarray(records["trial_period_key"].values, dtype=np.int64)
-    return out
-
-
-def _binned_replicas(records: xr.Dataset, lidar: xr.DataArray, ref: xr.DataArray, width: float,
-                     source: str) -> tuple[np.ndarray, dict[str, Any]]:
-    """:func:`_binned` over replica 0 (the (time, height) records) and every further trial."""
-    heights = np.asarray(records["height"].values, dtype=float)
-    lid0, ref0 = np.asarray(lidar.values), np.asarray(ref.values)  # (time, height)
-    if "period_key" not in records.variables:
-        raise MissingVariableError(f"{source}: replica trials need the variable 'period_key' of replica 0")
-    key0 = np.asarray(records["period_key"].values, dtype=np.int64)
-    tr = _trial_arrays(records, heights, source)
-    t_ok = (tr["height_index"] >= 0) & np.isfinite(tr["trial_lidar_wind_speed"]) & np.isfinite(
-        tr["trial_reference_wind_speed"])
-    ok0 = np.isfinite(lid0) & np.isfinite(ref0)
-    allref = np.concatenate([ref0[ok0], tr["trial_reference_wind_speed"][t_ok]])
-    if not allref.size:
-        raise InputError(f"{source}: no period has both lidar_wind_speed and reference_wind_speed; "
-                         "nothing to put in a budget")
-    edges = kernels.centred_edges(float(allref.min()), float(allref.max()), width)
-    nh, nb = len(heights), len(edges) - 1
-    replicas = sorted({0, *(int(r) for r in np.unique(tr["replica"]))})
-    shape = (nh, nb)
-    pooled = {k: np.full(shape, np.nan) for k in ("mean_difference", "std_difference", "mean_reference",
-                                                  "mean_lidar")}
-    pooled["n"] = np.zeros(shape, dtype=np.int64)
-    pooled["period_count"] = np.zeros(shape, dtype=np.int64)
-    per = [{"n": np.zeros(shape, dtype=np.int64), "mean_difference": np.full(shape, np.nan),
-            "std_difference": np.full(shape, np.nan), "mean_reference": np.full(shape, np.nan),
-            "targeted": np.zeros(shape, dtype=bool)} for _ in replicas]
-    pos = {r: j for j, r in enumerate(replicas)}
-    for i in range(nh):
-        sel = t_ok & (tr["height_index"] == i)
-        x = np.concatenate([ref0[ok0[:, i], i], tr["trial_reference_wind_speed"][sel]])
-        lid = np.concatenate([lid0[ok0[:, i], i], tr["trial_lidar_wind_speed"][sel]])
-        keys = np.concatenate([key0[ok0[:, i]], tr["period_key"][sel]])
-        rep = np.concatenate([np.zeros(int(ok0[:, i].sum()), dtype=np.int64), tr["replica"][sel]])
-        n, md, sd, mref = binned_statistics(x, lid - x, edges)
-        _, mlid, _, _ = binned_statistics(x, lid, edges)
-        pooled["n"][i], pooled["mean_difference"][i], pooled["std_difference"][i] = n, md, sd
-        pooled["mean_reference"][i], pooled["mean_lidar"][i] = mref, mlid
-        b = bin_index(x, edges)
-        pairs = np.unique(np.stack([b[b >= 0], keys[b >= 0]]), axis=1)
-        pooled["period_count"][i] = np.bincount(pairs[0], minlength=nb)
-        # the replica-0 bin of every period with a reference value: the cells a replica targets
-        has_ref0 = np.isfinite(ref0[:, i])
-        b0 = bin_index(ref0[has_ref0, i], edges)
-        k0 = key0[has_ref0]
-        for r in replicas:
-            mine = rep == r
-            rn, rmd, rsd, rmref = binned_statistics(x[mine], (lid - x)[mine], edges)
-            d = per[pos[r]]
-            d["n"][i], d["mean_difference"][i] = rn, rmd
-            d["std_difference"][i], d["mean_reference"][i] = rsd, rmref
-            if r == 0:
-                d["targeted"][i] = rn > 0
-                continue
-            # replica r estimates a cell only if it re-simulated every period replica 0 put in it
-            done = np.isin(k0, tr["period_key"][(tr["replica"] == r) & (tr["height_index"] == i)])
-            missed = np.bincount(b0[(b0 >= 0) & ~done], minlength=nb)
-            present = np.bincount(b0[b0 >= 0], minlength=nb)
-            d["targeted"][i] = (present > 0) & (missed == 0) & (rn > 0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        pooled["statistical"] = pooled["std_difference"] / np.sqrt(pooled["n"])
-    pooled["replicas"] = per
-    return edges, pooled
-
-
-def _replica_estimates(binned: Mapping[str, Any], vref: np.ndarray, k: float,
-                       model_form: np.ndarray | None = None) -> np.ndarray:
-    """Each replica's own relative expanded uncertainty (%) per (height, bin, replica); NaN where none.
-
-    ``model_form`` (the pooled contributor, one value per bin) enters every replica's estimate alike.
-    """
-    out = []
-    for d in binned["replicas"]:
-        with np.errstate(invalid="ignore", divide="ignore"):
-            parts = _monte_carlo_parts({**d, "statistical": d["std_difference"] / np.sqrt(d["n"])}, vref)
-            if model_form is not None:
-                parts["model_form"] = model_form
-            combined = kernels.quadrature(*(np.broadcast_to(parts[c], d["n"].shape)
-                                            for c in CONTRIBUTORS["monte_carlo"] if c in parts))
-            value = k * combined * 100.0 / d["mean_reference"]
-        out.append(np.where(d["targeted"], value, np.nan))
-    return np.stack(out, axis=-1)
 
 
 def _monte_carlo_parts(binned: Mapping[str, np.ndarray], vref: np.ndarray) -> dict[str, np.ndarray]:
@@ -536,13 +444,17 @@ def _iec_parts(binned: Mapping[str, np.ndarray], u_abs: float,
 
 def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, ...], edges: np.ndarray,
               binned: Mapping[str, Any], contribution: np.ndarray, rule: Mapping[str, Any], k: float,
-              config: dict[str, Any], call: str | None, mf: Mapping[str, Any] | None = None) -> xr.Dataset:
+              config: dict[str, Any], call: str | None, mc: Mapping[str, Any] | None,
+              mf: Mapping[str, Any] | None = None) -> xr.Dataset:
     """Build the ``uncertainty_budget`` artefact with the attributes of its schema, stamped."""
     n, approach = binned["n"], config["approach"]
     combined = kernels.quadrature(contribution, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         pct = 100.0 / binned["mean_reference"]
     hw, hwc = ("height", "wind_speed"), ("height", "wind_speed", "contributor")
+    flag = certified_bins(0.5 * (edges[:-1] + edges[1:]), binned["period_count"],
+                          certified_range=rule["certified_range"], min_periods=rule["min_periods"],
+                          settled=None if mc is None else mc["settled"])
     values = {
         "uncertainty": (hw, combined), "relative_uncertainty": (hw, combined * pct),
         "expanded_uncertainty": (hw, k * combined), "relative_expanded_uncertainty": (hw, k * combined * pct),
@@ -553,27 +465,47 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, .
         "mean_lidar_wind_speed": (hw, binned["mean_lidar"]),
         "mean_difference": (hw, binned["mean_difference"]),
         "std_difference": (hw, binned["std_difference"]),
-        "bin_flag": (hw, certified_bins(0.5 * (edges[:-1] + edges[1:]), binned["period_count"],
-                                        certified_range=rule["certified_range"],
-                                        min_periods=rule["min_periods"])),
+        "bin_flag": (hw, flag),
     }
+    extra: dict[str, Any] = {}
+    if mc is not None:  # the Monte Carlo distribution of each bin, and how far its values settled
+        v, st = mc["values"], mc["state"]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ref = binned["mean_reference"] / 100.0  # % of the bin mean reference -> m s-1
+        values.update({
+            "relative_mean_difference": (hw, v["mean_difference"]),
+            "error_standard_uncertainty": (hw, v["error_standard_uncertainty"] * ref),
+            "relative_error_standard_uncertainty": (hw, v["error_standard_uncertainty"]),
+            "coverage_interval_lower": (hw, v["coverage_interval_lower"] * ref),
+            "coverage_interval_upper": (hw, v["coverage_interval_upper"] * ref),
+            "relative_coverage_interval_lower": (hw, v["coverage_interval_lower"]),
+            "relative_coverage_interval_upper": (hw, v["coverage_interval_upper"]),
+            "effective_degrees_of_freedom": (hw, np.where(np.isfinite(mc["nu"]), mc["nu"], np.nan)),
+            "expanded_uncertainty_coverage": (hw, 100.0 * v["coverage"]),
+            "certified_statement": (hw, certified_statement(v["coverage"], flag == 0)),
+            "numerical_flag": (hw, st["flag"]),
+            "replicas_needed": (hw, st["needed"].astype(np.int32)),
+            "replica_count": (hw, st["h"].astype(np.int32)),
+        })
+        for name, var in SETTLED_VALUES.items():
+            values["numerical_tolerance" + (f"_{var}" if var else "")] = (hw, st[f"tolerance_{name}"])
+        statement = values["certified_statement"][1]
+        extra = {"monte_carlo_replicas": int(mc["replicas"]), "monte_carlo_trials": int(n.sum()),
+                 "monte_carlo_significant_digits": int(rule["significant_digits"]),
+                 "monte_carlo_settled": int((st["flag"] == 0).sum()),
+                 "monte_carlo_not_settled": int((st["flag"] == 1).sum()),
+                 "coverage_probability": COVERAGE_PROBABILITY,
+                 "coverage_interval": rule["coverage_interval"],
+                 "certified_coverage_intervals": int((statement == 1).sum())}
     if mf is not None:  # the model-form contributor's companions (lidarcal.analysis.model_form)
         values["model_form_standard_error"] = (hw, mf["standard_error"])
         values["model_form_sample_count"] = (hw, mf["sample_count"].astype(np.int32))
         values["model_form_shift"] = (hw + ("model_form_alternative",), mf["shift"])
-    mc: dict[str, Any] = {}
-    if "estimates" in binned:  # the Monte Carlo approach: how far its own numbers have settled
-        tol, nflag, h = numerical_state(values["relative_expanded_uncertainty"][1], binned["estimates"],
-                                        values["bin_flag"][1] == 0, rule["significant_digits"])
-        values["numerical_tolerance"] = (hw, tol)
-        values["numerical_flag"] = (hw, nflag)
-        mc = {"monte_carlo_replicas": int(binned["estimates"].shape[-1]), "monte_carlo_trials": int(n.sum()),
-              "monte_carlo_significant_digits": int(rule["significant_digits"]),
-              "monte_carlo_settled": int((nflag == 0).sum()),
-              "monte_carlo_not_settled": int((nflag == 1).sum())}
     lo, hi = rule["certified_range"]
     context = {"k": f"{k:g}", "coverage_factor": k, "min_periods": rule["min_periods"], "lo": lo, "hi": hi,
-               "digits": rule["significant_digits"],
+               "digits": rule["significant_digits"], "coverage_probability": COVERAGE_PROBABILITY,
+               "interval": {"symmetric": "probabilistically symmetric",
+                            "shortest": "shortest"}[rule["coverage_interval"]],
                "contributor_description": "; ".join(f"{c}: {_CONTRIBUTOR_NAMES[c]}" for c in names)}
     ds = xr.Dataset(
         {name: (dims, data) for name, (dims, data) in values.items()},
@@ -588,7 +520,7 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, .
     ds = with_bounds(ds, "wind_speed", edges)
     ds.attrs = {"approach": approach, "coverage_factor": k, "min_periods": rule["min_periods"],
                 "certified_range_m_s": np.array([lo, hi]),
-                "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")), **mc}
+                "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")), **extra}
     serial = records.attrs.get("lidar_serial") or records.attrs.get("lidar_serial_number")  # .sta: _number
     if serial:
         ds.attrs["lidar_serial"] = serial

@@ -8,7 +8,8 @@ the subsample's periods (errors e = lidar − reference of the nominal run and o
 * δμ_a = mean(e_a − e) — the shift of the mean difference;
 * δσ_a = std(e_a) − std(e) — the shift of the standard deviation of the difference.
 
-With the bin's own contributors (the pooled μ, σ and N of every trial, and the virtual reference
+With the bin's own contributors (the μ and σ pooled over every trial, N its distinct 10-minute
+periods as in the ``statistical`` term, and the virtual reference
 v of Table 4) the combined standard uncertainty is u = √(v² + μ² + σ²(1 + 1/N)); under
 alternative *a* it is u_a, the same with μ + δμ_a and σ + δσ_a, and δu_a = u_a − u (k·δu_a is
 the shift of the certified value, ``model_form_shift`` in %).  Each alternative is one end of a
@@ -90,7 +91,7 @@ def _bin_shifts(e0: np.ndarray, ea: np.ndarray, mu: float, sigma: float, n: floa
     """δu per alternative, its per-period influence (alternative, period) and u, for one bin.
 
     ``e0`` (m,) nominal errors; ``ea`` (alternative, m) the alternatives'; ``mu``, ``sigma``, ``n`` the
-    bin's pooled mean, standard deviation and trial count; ``vref`` its Table 4 total.
+    bin's pooled mean, standard deviation and distinct-period count; ``vref`` its Table 4 total.
     """
     m = e0.size
     u0 = np.sqrt(vref**2 + mu**2 + sigma**2 * (1.0 + 1.0 / n))
@@ -130,13 +131,14 @@ def model_form_term(records: xr.Dataset, edges: np.ndarray, binned: Mapping[str,
     e0 = n_lid - n_ref
     ea = a_lid - a_ref
     shape = binned["n"].shape
+    periods = np.asarray(binned.get("period_count", binned["n"]), dtype=float)  # N of sigma/sqrt(N)
     u_mf, u_mf_se = np.full(shape, np.nan), np.full(shape, np.nan)
     count = np.zeros(shape, dtype=np.int64)
     shift = np.full((*shape, len(alts)), np.nan)
     for i in range(shape[0]):
         for j in np.unique(b[(hidx == i) & (b >= 0)]):
             sel = (hidx == i) & (b == j)
-            n = float(binned["n"][i, j])
+            n = float(periods[i, j])
             count[i, j] = int(sel.sum())
             if count[i, j] < MIN_SAMPLES or not n > 0 or not np.isfinite(vref[i, j]):
                 continue
@@ -152,7 +154,7 @@ def model_form_term(records: xr.Dataset, edges: np.ndarray, binned: Mapping[str,
     u_mf, u_mf_se = _borrow(u_mf, u_mf_se, binned["mean_reference"], occupied, 0.5 * (edges[:-1] + edges[1:]))
     with np.errstate(invalid="ignore", divide="ignore"):
         u = np.sqrt(vref**2 + binned["mean_difference"] ** 2
-                    + binned["std_difference"] ** 2 * (1.0 + 1.0 / np.where(occupied, binned["n"], np.nan)))
+                    + binned["std_difference"] ** 2 * (1.0 + 1.0 / np.where(occupied, periods, np.nan)))
         contribution = np.sqrt(np.maximum((u + u_mf) ** 2 - u**2, 0.0))
         # d(contribution)/d(u_mf) = (u + u_mf) / contribution
         se = np.where(contribution > 0, (u + u_mf) / contribution * u_mf_se, np.nan)

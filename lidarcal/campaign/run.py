@@ -33,7 +33,7 @@ from __future__ import annotations
 import logging
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -171,7 +171,7 @@ def simulate_campaign(
 def simulate_replicas(
     conditions: str | os.PathLike | xr.Dataset,
     model,
-    cells: np.ndarray,
+    cells: np.ndarray | Mapping[int, np.ndarray],
     replicas: Sequence[int],
     *,
     heights: Sequence[float] | None = None,
@@ -188,13 +188,14 @@ def simulate_replicas(
     """Monte Carlo replicas (>= 1) of the (period, height) ``cells`` of a campaign (JCGM 101 7.9).
 
     Replica ``r`` re-simulates the cells marked in ``cells`` ((time, height) bool over the
-    simulated heights) with the seed entropy ``(base_seed, r, period_key)`` (docs/seeds.md), as
-    Dask tasks of ``chunk`` selected periods, one set of tasks per replica, all submitted
-    together.  Replica 0 re-uses the campaign's own streams ``(base_seed, period_key)``: with
-    another ``model`` that is a common-random-numbers run (:mod:`lidarcal.campaign.model_form`).  As
-    :func:`simulate_campaign` the result does not depend on the chunk size, the
-    workers or the scheduler, and with ``workdir`` finished chunks are kept (in
-    ``workdir/replica-<r>``) so an interrupted run resumes.
+    simulated heights; or a mapping replica -> such a mask, each replica its own) with the seed
+    entropy ``(base_seed, r, period_key)`` (docs/seeds.md), as Dask tasks of ``chunk`` selected
+    periods, one set of tasks per replica, all submitted together.  Replica 0 re-uses the
+    campaign's own streams ``(base_seed, period_key)``: with another ``model`` that is a
+    common-random-numbers run (:mod:`lidarcal.campaign.model_form`).  Like
+    :func:`simulate_campaign` the result does not depend on the chunk size, the workers or the
+    scheduler, and with ``workdir`` finished chunks are kept (in ``workdir/replica-<r>``) so an
+    interrupted run resumes.
 
     Returns
     -------
@@ -206,26 +207,29 @@ def simulate_replicas(
     with warnings.catch_warnings():  # replica 0 has reported the periods it skips
         warnings.simplefilter("ignore", SkippedPeriodsWarning)
         camp = _prepare(conditions, model, heights, chunk, ())
-    cells = np.asarray(cells, dtype=bool)
-    if cells.shape != camp.valid.shape:
-        raise InputError(f"cells has shape {cells.shape}; expected {camp.valid.shape} (time, height)")
-    if any(int(r) < 0 for r in replicas):
+    replicas = [int(r) for r in replicas]
+    masks = {r: np.asarray(cells[r] if isinstance(cells, Mapping) else cells, dtype=bool) for r in replicas}
+    for r, mask in masks.items():
+        if mask.shape != camp.valid.shape:
+            raise InputError(f"cells{'' if not isinstance(cells, Mapping) else f' of replica {r}'} has shape "
+                             f"{mask.shape}; expected {camp.valid.shape} (time, height)")
+    if any(r < 0 for r in replicas):
         raise InputError(f"replicas are numbered from 0 (replica 0: the campaign's own streams); "
-                         f"got {list(replicas)}")
+                         f"got {replicas}")
     chunk = int(chunk)
-    todo = camp.valid & cells
-    sel = np.flatnonzero(todo.any(axis=1))
+    todo = {r: camp.valid & masks[r] for r in replicas}
+    sel = {r: np.flatnonzero(todo[r].any(axis=1)) for r in replicas}
     model_dict, transport = model.to_dict(), model.to_dict(residuals=True)
     results: dict[tuple[int, int], dict] = {}
     tasks: list[tuple[str, dict]] = []
     bounds: dict[str, tuple[int, int]] = {}
-    for r in (int(r) for r in replicas):
+    for r in replicas:
         where = None if workdir is None else os.path.join(os.fspath(workdir), f"replica-{r:04d}")
         if where is not None:
             os.makedirs(where, exist_ok=True)
-        for a in range(0, sel.size, chunk):
-            idx = sel[a:a + chunk]
-            extra = {"replica": r, "periods": idx.tolist(), "cells": todo[idx].astype(int).tolist()}
+        for a in range(0, sel[r].size, chunk):
+            idx = sel[r][a:a + chunk]
+            extra = {"replica": r, "periods": idx.tolist(), "cells": todo[r][idx].astype(int).tolist()}
             key = chunk_key(camp.checksum, model_dict, base_seed, a, a + idx.size, camp.z, duration, (),
                             keys=camp.keys[idx], extra=extra)
             if where is not None:
@@ -237,7 +241,7 @@ def simulate_replicas(
             bounds[name] = (r, a)
             tasks.append((name, {
                 "model": transport, "heights": camp.z, **{k: v[idx] for k, v in camp.arrays.items()},
-                "valid": todo[idx], "period_index": idx, "period_key": camp.keys[idx],
+                "valid": todo[r][idx], "period_index": idx, "period_key": camp.keys[idx],
                 "los": np.zeros(idx.size, dtype=bool), "base_seed": int(base_seed), "replica": r,
                 "duration": float(duration), "workdir": where, "key": key, "start": a, "stop": a + idx.size,
             }))
@@ -245,12 +249,12 @@ def simulate_replicas(
     for name, result in execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
         results[bounds[name]] = result
     out: dict[int, dict[str, np.ndarray]] = {}
-    rows, cols = np.nonzero(todo[sel])
-    for r in (int(r) for r in replicas):
-        parts = [results[(r, a)] for a in range(0, sel.size, chunk)]
+    for r in replicas:
+        rows, cols = np.nonzero(todo[r][sel[r]])
+        parts = [results[(r, a)] for a in range(0, sel[r].size, chunk)]
         full = {name: (np.concatenate([p[name] for p in parts], axis=0) if parts
                        else np.empty((0, camp.z.size))) for name in OUTPUTS}
-        out[r] = {"period": sel[rows], "height": camp.z[cols],
+        out[r] = {"period": sel[r][rows], "height": camp.z[cols],
                   **{name: full[name][rows, cols] for name in OUTPUTS}}
     return out
 

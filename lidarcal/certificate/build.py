@@ -36,7 +36,7 @@ from lidarcal.certificate.layout import (
     scalar_coords,
 )
 from lidarcal.certificate.measurand import MEASURAND, model_form_summary
-from lidarcal.certificate.results import headline_sentence, not_settled
+from lidarcal.certificate.results import headline_sentence, not_settled_rows
 from lidarcal.errors import InputError
 from lidarcal.provenance import jsonable, read_json_attr, stamp
 
@@ -243,9 +243,19 @@ def _summary_attributes(budget: xr.Dataset, *, serial: str | None, cube: xr.Data
     for key in ("monte_carlo_replicas", "monte_carlo_trials", "monte_carlo_significant_digits"):
         if key in budget.attrs:
             attrs[key] = int(budget.attrs[key])
-    if "numerical_flag" in budget:
-        missed = not_settled(budget)
-        attrs["monte_carlo_not_settled"] = "; ".join(f"{z:g} m {u:g} m/s" for z, u in missed) or "none"
+    if "numerical_flag" in budget:  # listed apart with the largest tolerance of their values
+        missed = not_settled_rows(budget)
+        attrs["monte_carlo_not_settled"] = "; ".join(
+            f"{r['height_m']:g} m {r['wind_speed_m_s']:g} m/s (U {r['expanded_uncertainty_pct']:.2f} %, "
+            f"tolerance {max(v for c, v in r.items() if c.startswith('tolerance_')):.2g} %)"
+            for r in missed) or "none"
+    if "certified_statement" in budget:
+        attrs["certified_statement_rule"] = (
+            "per certified bin: the error of one 10-minute mean lies within +-U (k = "
+            f"{float(budget.attrs.get('coverage_factor', 2)):g}) where that interval holds 95 % to 97.5 % "
+            "of the Monte Carlo distribution; elsewhere (the two differ materially) the Monte Carlo "
+            f"{budget.attrs.get('coverage_interval', 'symmetric')} 95 % coverage interval (JCGM 101 7.7) "
+            "is certified")
     if serial:
         attrs["lidar_serial"] = serial
     if records is not None:

@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate.results import _budget_of, _headline_mask
+from lidarcal.certificate.results import _budget_of, certified_mask
 
 __all__ = ["MEASURAND", "model_form_values", "model_form_summary"]
 
@@ -44,7 +44,7 @@ def model_form_values(obj: xr.Dataset) -> dict[str, np.ndarray] | None:
         total = b["relative_uncertainty"].values
         raised = k * (total - np.sqrt(np.maximum(total**2 - rel**2, 0.0)))
     return {"value": rel, "standard_error": se, "raise": raised,
-            "certified": _headline_mask(budget).transpose("wind_speed", "height").values}
+            "certified": certified_mask(budget).transpose("wind_speed", "height").values}
 
 
 def model_form_summary(obj: xr.Dataset) -> str | None:

@@ -1,12 +1,18 @@
 """What a certificate certifies, read from its budget: the headline and the result table.
 
 The certified bins are those the budget's ``bin_flag`` calls ``certified`` (centre in the
-certified wind-speed range and enough distinct periods, :func:`lidarcal.analysis.budget.certified_bins`).
-:func:`headline_range` and :func:`headline_sentence` give the range of their k = 2 relative
-expanded uncertainty quoted on the certificate, :func:`not_settled` the values the Monte Carlo
-did not settle, and :func:`result_table` (``lidarcal table``) one row per height and wind-speed
-bin, with why a bin is not certified, its main contributors and the significant sensitivities.
-Each takes a certificate or an ``uncertainty_budget``.
+certified wind-speed range, enough distinct periods and, for the Monte Carlo, every value
+settled; :func:`lidarcal.analysis.certification.certified_bins`); :func:`certified_mask` reads
+that flag, for every reader here and in the documents and the DCC.  A certificate written before
+the flag had the meaning ``not_settled`` marked such values only in ``numerical_flag``; they are
+read as not settled, and not certified, all the same.  :func:`headline_range` and
+:func:`headline_sentence` give the range of the k = 2 relative expanded uncertainty quoted on the
+certificate (settled certified values only), :func:`not_settled` and :func:`not_settled_rows`
+the values the Monte Carlo did not settle (listed apart, with their tolerances), and
+:func:`result_table` (``lidarcal table``) one row per height and wind-speed bin, with why a bin
+is not certified, what it certifies (±U or the Monte Carlo coverage interval), its main
+contributors and the significant sensitivities.  Each takes a certificate or an
+``uncertainty_budget``.
 """
 
 from __future__ import annotations
@@ -21,10 +27,13 @@ from lidarcal.io import source_name
 from lidarcal.seal import require_valid_seal
 
 __all__ = [
+    "certified_mask",
     "certified_rule",
     "not_settled",
+    "not_settled_rows",
     "headline_range",
     "headline_sentence",
+    "coverage_interval_bins",
     "result_table",
 ]
 
@@ -56,26 +65,81 @@ def _certified_value(budget: xr.Dataset) -> int:
     return names["certified"]
 
 
-def _headline_mask(budget: xr.Dataset) -> xr.DataArray:
+def _not_settled_mask(budget: xr.Dataset) -> xr.DataArray:
+    """Return the bins whose Monte Carlo values did not settle.
+
+    ``bin_flag`` ``not_settled``, or (a certificate written before that meaning) ``certified``
+    with ``numerical_flag`` ``not_settled``.
+    """
+    names = {m: v for v, m in _flag_names(budget["bin_flag"]).items()}
+    if "not_settled" in names:
+        return budget["bin_flag"] == names["not_settled"]
+    if "numerical_flag" in budget and "certified" in names:
+        numerical = {m: v for v, m in _flag_names(budget["numerical_flag"]).items()}
+        unsettled = budget["numerical_flag"] == numerical.get("not_settled", 1)
+        return (budget["bin_flag"] == names["certified"]) & unsettled
+    return xr.zeros_like(budget["bin_flag"], dtype=bool)
+
+
+def certified_mask(obj: xr.Dataset) -> xr.DataArray:
+    """Bins the certificate certifies: ``bin_flag`` ``certified``, settled, with a finite value.
+
+    The one reader of the certification rule (:func:`lidarcal.analysis.certification.certified_bins`)
+    for the headline, the table, the documents and the DCC.
+    """
+    budget = _budget_of(obj)
     certified = budget["bin_flag"] == _certified_value(budget)
-    return certified & np.isfinite(budget["relative_expanded_uncertainty"])
+    return certified & ~_not_settled_mask(budget) & np.isfinite(budget["relative_expanded_uncertainty"])
 
 
 def certified_rule(obj: xr.Dataset) -> str:
-    """Return the budget's certification rule in words, e.g. ``centres 4 to 16 m/s, >= 10 periods``."""
+    """Return the budget's certification rule in words, e.g. ``centres 4 to 16 m/s, >= 10 periods``.
+
+    With a Monte Carlo numerical state, ``, settled to N significant digits`` follows.
+    """
     budget = _budget_of(obj)
     lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
-    return f"centres {lo:g} to {hi:g} m/s, >= {int(budget.attrs.get('min_periods', 0))} periods"
+    text = f"centres {lo:g} to {hi:g} m/s, >= {int(budget.attrs.get('min_periods', 0))} periods"
+    if "numerical_flag" in budget and "monte_carlo_significant_digits" in budget.attrs:
+        text += f", settled to {int(budget.attrs['monte_carlo_significant_digits'])} significant digits"
+    return text
 
 
 def not_settled(obj: xr.Dataset) -> list[tuple[float, float]]:
-    """(height m, bin centre m/s) of the certified values the Monte Carlo did not settle."""
+    """(height m, bin centre m/s) of the bins not certified because their values did not settle."""
     budget = _budget_of(obj)
-    if "numerical_flag" not in budget:
-        return []
-    flag = budget["numerical_flag"].transpose("height", "wind_speed").values
+    flag = _not_settled_mask(budget).transpose("height", "wind_speed").values
     return [(float(budget["height"].values[i]), float(budget["wind_speed"].values[j]))
-            for i, j in zip(*np.nonzero(flag == 1), strict=True)]
+            for i, j in zip(*np.nonzero(flag), strict=True)]
+
+
+#: The tolerances a not-settled value is listed with, and the columns they go to.
+_TOLERANCES = {"numerical_tolerance": "tolerance_expanded_pct",
+               "numerical_tolerance_mean_difference": "tolerance_mean_difference_pct",
+               "numerical_tolerance_error_standard_uncertainty": "tolerance_standard_uncertainty_pct",
+               "numerical_tolerance_coverage_interval_lower": "tolerance_interval_lower_pct",
+               "numerical_tolerance_coverage_interval_upper": "tolerance_interval_upper_pct"}
+
+
+def not_settled_rows(obj: xr.Dataset) -> list[dict[str, float]]:
+    """Return the values not certified because they did not settle, apart, with their tolerances.
+
+    One dict per bin: ``height_m``, ``wind_speed_m_s``, the relative expanded uncertainty
+    ``expanded_uncertainty_pct`` (k as the budget's), the tolerance each value reached
+    (``tolerance_expanded_pct``, ``tolerance_mean_difference_pct``, ... where the budget has
+    them) and the replicas that estimated it.
+    """
+    budget = _budget_of(obj).transpose("height", "wind_speed", ...)
+    out = []
+    for z, u in not_settled(budget):
+        cell = budget.sel(height=z, wind_speed=u)
+        row = {"height_m": z, "wind_speed_m_s": u,
+               "expanded_uncertainty_pct": float(cell["relative_expanded_uncertainty"])}
+        row.update({col: float(cell[name]) for name, col in _TOLERANCES.items() if name in budget})
+        if "replicas_needed" in budget:
+            row["replicas_needed"] = int(cell["replicas_needed"])
+        out.append(row)
+    return out
 
 
 def headline_range(obj: xr.Dataset, *, wind_speeds: tuple[float, float] | None = None
@@ -88,7 +152,7 @@ def headline_range(obj: xr.Dataset, *, wind_speeds: tuple[float, float] | None =
     ``uncertainty_budget``; None when no bin qualifies.
     """
     budget = _budget_of(obj)
-    mask = _headline_mask(budget)
+    mask = certified_mask(budget)
     if wind_speeds is not None:
         mask = mask & (budget["wind_speed"] >= wind_speeds[0]) & (budget["wind_speed"] <= wind_speeds[1])
     rel = budget["relative_expanded_uncertainty"].where(mask)
@@ -98,20 +162,43 @@ def headline_range(obj: xr.Dataset, *, wind_speeds: tuple[float, float] | None =
 
 
 def headline_sentence(obj: xr.Dataset) -> str | None:
-    """Return the certificate's headline: the certified range and any values that did not settle."""
+    """Return the certificate's headline: the certified range, what is certified, what did not settle."""
     budget = _budget_of(obj)
     rng = headline_range(budget)
     if rng is None:
         return None
     text = (f"{rng[0]:.2f} % to {rng[1]:.2f} % (k = {float(budget.attrs.get('coverage_factor', 2)):g}; "
             f"certified bins: {certified_rule(budget)}; lidarcal table lists every bin)")
+    intervals = coverage_interval_bins(budget)
+    if intervals:
+        lows = [lo for lo, _ in intervals.values()]
+        highs = [hi for _, hi in intervals.values()]
+        text += (f"; in {len(intervals)} of them the Monte Carlo 95 % coverage interval of the error is "
+                 "certified instead of +-U (they differ materially; ends "
+                 f"{min(lows):+.2f} % to {max(highs):+.2f} %)")
     missed = not_settled(budget)
     if missed:
-        text += (f"; {len(missed)} certified value(s) did not settle to "
-                 f"{int(budget.attrs['monte_carlo_significant_digits'])} significant digits within "
-                 f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas "
-                 "(monte_carlo_not_settled)")
+        digits, replicas = (int(budget.attrs[a]) for a in ("monte_carlo_significant_digits",
+                                                           "monte_carlo_replicas"))
+        text += (f"; {len(missed)} bin(s) did not settle to {digits} "
+                 f"significant digits within {replicas} Monte Carlo replicas "
+                 "and are not certified (listed apart)")
     return text
+
+
+def coverage_interval_bins(obj: xr.Dataset) -> dict[tuple[float, float], tuple[float, float]]:
+    """Return the certified bins that certify the Monte Carlo interval: (height, centre) -> (low, high) %."""
+    budget = _budget_of(obj)
+    if "certified_statement" not in budget:
+        return {}
+    names = {m: v for v, m in _flag_names(budget["certified_statement"]).items()}
+    pick = (certified_mask(budget) & (budget["certified_statement"] == names.get("coverage_interval", 1)))
+    pick = pick.transpose("height", "wind_speed").values
+    lo = budget["relative_coverage_interval_lower"].transpose("height", "wind_speed").values
+    hi = budget["relative_coverage_interval_upper"].transpose("height", "wind_speed").values
+    return {(float(budget["height"].values[i]), float(budget["wind_speed"].values[j])): (float(lo[i, j]),
+                                                                                          float(hi[i, j]))
+            for i, j in zip(*np.nonzero(pick), strict=True)}
 
 
 def _flag_names(var: xr.DataArray) -> dict[int, str]:
@@ -150,10 +237,29 @@ def _significant_sensitivities(cert: xr.Dataset | xr.DataTree) -> dict[float, st
 def _reason(flag: str, periods: int, budget: xr.Dataset) -> str:
     """Why a bin is not certified, in words ("" when it is)."""
     lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
+    digits = budget.attrs.get("monte_carlo_significant_digits")
     return {"certified": "",
             "too_few_periods": f"{periods} periods (fewer than {int(budget.attrs.get('min_periods', 0))})",
             "empty": "no period",
-            "outside_certified_range": f"centre outside {lo:g} to {hi:g} m/s"}.get(flag, flag)
+            "outside_certified_range": f"centre outside {lo:g} to {hi:g} m/s",
+            "not_settled": (f"not settled to {digits} significant digits within "
+                            f"{budget.attrs.get('monte_carlo_replicas')} Monte Carlo replicas"),
+            }.get(flag, flag)
+
+
+def _value(budget: xr.Dataset, name: str, i: int, j: int) -> float:
+    return float(budget[name].values[i, j]) if name in budget else np.nan
+
+
+#: The Monte Carlo columns of the result table: column -> budget variable (JCGM 101).
+_MONTE_CARLO_COLUMNS = {
+    "mean_difference_pct": "relative_mean_difference",
+    "standard_uncertainty_pct": "relative_error_standard_uncertainty",
+    "coverage_interval_lower_pct": "relative_coverage_interval_lower",
+    "coverage_interval_upper_pct": "relative_coverage_interval_upper",
+    "expanded_uncertainty_coverage_pct": "expanded_uncertainty_coverage",
+    "effective_degrees_of_freedom": "effective_degrees_of_freedom",
+}
 
 
 def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow_invalid: bool = False):
@@ -162,13 +268,19 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
     Columns: ``height_m``, ``wind_speed_m_s`` (bin centre) and its bounds, ``sample_count``
     (Monte Carlo trials), ``period_count`` (distinct 10-minute periods), ``bin_flag`` (the
     budget's flag meaning: ``certified``, ``too_few_periods``, ``empty``,
-    ``outside_certified_range``), ``certified`` (counted in :func:`headline_range`),
-    ``not_certified_reason``, the k = 2 expanded uncertainty in m/s and in % of the bin's mean
-    reference wind speed, ``numerical_tolerance_pct`` (the Monte Carlo's tolerance on that %,
-    JCGM 101 7.9) and ``numerically_settled``, ``model_form_pct`` (the simulation's model-form
-    contributor, k = 1, in %; NaN without it), ``main_contributors`` (the largest
-    ``contributors`` standard-uncertainty contributions, in %) and ``significant_sensitivities``
-    (per height, Eqs. 12-13).  Numbers are the certificate's own values, not rounded.
+    ``outside_certified_range``, ``not_settled``), ``certified`` (counted in
+    :func:`headline_range`), ``not_certified_reason``, ``certified_statement`` (``expanded_uncertainty``:
+    ±U; ``coverage_interval``: the Monte Carlo interval; empty when not certified), the k = 2
+    expanded uncertainty in m/s and in % of the bin's mean reference wind speed,
+    ``numerical_tolerance_pct`` (the Monte Carlo's tolerance on that %, JCGM 101 7.9) and
+    ``numerically_settled``; the Monte Carlo distribution of the error of one 10-minute mean
+    (``mean_difference_pct``, ``standard_uncertainty_pct``, ``coverage_interval_lower_pct`` and
+    ``_upper_pct``, each with its ``tolerance_*`` column, ``expanded_uncertainty_coverage_pct``
+    and ``effective_degrees_of_freedom``); ``model_form_pct`` (the simulation's model-form
+    contributor, k = 1, in %; NaN without it), ``main_contributors`` (the largest ``contributors``
+    standard-uncertainty contributions, in %) and ``significant_sensitivities`` (per height, Eqs.
+    12-13).  Numbers are the certificate's own values, not rounded.  The table's attributes
+    carry the headline range, the rule and ``not_settled_rows`` (:func:`not_settled_rows`).
 
     ``cert`` is a certificate Dataset (or a budget), or the tree :func:`lidarcal.open_certificate`
     returns.  A certificate read from a file has its seal checked first
@@ -189,8 +301,9 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
     budget = _budget_of(cert).load()
     k = float(budget.attrs.get("coverage_factor", 2.0))
     flags = _flag_names(budget["bin_flag"])
+    statements = _flag_names(budget["certified_statement"]) if "certified_statement" in budget else {}
     # rows run over (height, wind speed): index by those names, whatever the stored order
-    headline = _headline_mask(budget).transpose("height", "wind_speed")
+    headline = certified_mask(budget).transpose("height", "wind_speed")
     budget = budget.transpose("height", "wind_speed", ...)
     sens = _significant_sensitivities(cert) if is_certificate else {}
     names = [str(c) for c in budget["contributor"].values]
@@ -204,33 +317,47 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
             main = "; ".join(f"{names[n]} {rel_c[n]:.2f} %" for n in order[:contributors])
             flag = int(budget["bin_flag"].values[i, j])
             periods = int(budget["period_count"].values[i, j]) if "period_count" in budget else -1
-            tol = (float(budget["numerical_tolerance"].values[i, j]) if "numerical_tolerance" in budget
-                   else np.nan)
+            tol = _value(budget, "numerical_tolerance", i, j)
             nflag = int(budget["numerical_flag"].values[i, j]) if "numerical_flag" in budget else 2
-            rows.append({
+            certified = bool(headline.values[i, j])
+            label = flags.get(flag, str(flag))
+            if label == "certified" and not certified and nflag == 1:
+                label = "not_settled"  # a certificate written before bin_flag had that meaning
+            row = {
                 "height_m": float(z),
                 "wind_speed_m_s": float(u),
                 "wind_speed_min_m_s": float(bounds[j, 0]) if bounds is not None else np.nan,
                 "wind_speed_max_m_s": float(bounds[j, 1]) if bounds is not None else np.nan,
                 "sample_count": int(budget["sample_count"].values[i, j]),
                 "period_count": periods,
-                "bin_flag": flags.get(flag, str(flag)),
-                "certified": bool(headline.values[i, j]),
-                "not_certified_reason": _reason(flags.get(flag, str(flag)), periods, budget),
+                "bin_flag": label,
+                "certified": certified,
+                "not_certified_reason": _reason(label, periods, budget),
+                "certified_statement": (statements.get(int(budget["certified_statement"].values[i, j]), "")
+                                        if certified and "certified_statement" in budget else
+                                        ("expanded_uncertainty" if certified else "")),
                 f"expanded_uncertainty_k{k:g}_m_s": float(budget["expanded_uncertainty"].values[i, j]),
                 f"expanded_uncertainty_k{k:g}_pct": float(
                     budget["relative_expanded_uncertainty"].values[i, j]),
                 "numerical_tolerance_pct": tol,
                 "numerically_settled": {0: "yes", 1: "no"}.get(nflag, ""),
-                "model_form_pct": float(rel_c[mf]) if mf is not None else np.nan,
-                "main_contributors": main,
-                "significant_sensitivities": sens.get(float(z), ""),
-            })
+            }
+            for col, name in _MONTE_CARLO_COLUMNS.items():
+                row[col] = _value(budget, name, i, j)
+            for name, col in _TOLERANCES.items():
+                if name != "numerical_tolerance":
+                    row[col] = _value(budget, name, i, j)
+            row["model_form_pct"] = float(rel_c[mf]) if mf is not None else np.nan
+            row["main_contributors"] = main
+            row["significant_sensitivities"] = sens.get(float(z), "")
+            rows.append(row)
     table = pd.DataFrame(rows)
     table.attrs["coverage_factor"] = k
     table.attrs["certified_rule"] = certified_rule(budget)
     table.attrs["headline_range_pct"] = headline_range(budget)
     table.attrs["not_settled"] = not_settled(budget)
+    table.attrs["not_settled_rows"] = not_settled_rows(budget)
+    table.attrs["coverage_interval_bins"] = len(coverage_interval_bins(budget))
     table.attrs["significant_digits"] = budget.attrs.get("monte_carlo_significant_digits")
     return table
 

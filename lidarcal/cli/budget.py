@@ -95,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         min_periods=args.min_periods,
         certified_range=tuple(args.certified_range),
         significant_digits=args.significant_digits,
+        coverage_interval=args.coverage_interval,
         heights=args.height,
         coverage_factor=args.coverage_factor,
         noise_terms=args.noise_terms,
@@ -126,6 +127,6 @@ def run(args: argparse.Namespace) -> int:
         bad = int((ds.numerical_flag == 1).sum())
         print(f"  Monte Carlo: {ds.attrs['monte_carlo_replicas']} replica(s), "
               f"{ds.attrs['monte_carlo_trials']} "
-              f"trials; {bad} certified value(s) not settled to {ds.attrs['monte_carlo_significant_digits']} "
-              "significant digits")
+              f"trials; {bad} bin(s) not settled to {ds.attrs['monte_carlo_significant_digits']} "
+              "significant digits (not certified: bin_flag not_settled)")
     return 0

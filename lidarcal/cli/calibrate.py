@@ -123,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers, scheduler=args.scheduler, fft_size=args.fft_size, chunk=args.chunk,
         min_periods=args.min_periods, certified_range=tuple(args.certified_range),
         significant_digits=args.significant_digits, max_replicas=args.max_replicas,
+        coverage_interval=args.coverage_interval,
         model_form_periods=args.model_form_periods,
         los_noise_model=args.los_noise,
         reference_turbulence=args.reference_turbulence,

@@ -422,7 +422,9 @@ def add_certification_options(parser: argparse.ArgumentParser) -> None:
 
 def add_monte_carlo_options(parser: argparse.ArgumentParser, *, replicas: bool = True,
                             max_replicas: int | None = None) -> None:
-    """``--significant-digits N`` and (if ``replicas``) ``--max-replicas M`` (JCGM 101 7.9, docs/seeds.md).
+    """``--significant-digits N``, ``--coverage-interval`` and (if ``replicas``) ``--max-replicas M``.
+
+    JCGM 101 7.7 and 7.9; docs/seeds.md, docs/certificate.md.
 
     ``max_replicas`` is the default of ``--max-replicas`` (None: the calibration's default).
     """
@@ -434,7 +436,11 @@ def add_monte_carlo_options(parser: argparse.ArgumentParser, *, replicas: bool =
                        reason=f"a certified value is a float64, which holds {MAX_SIGNIFICANT_DIGITS} "
                        "significant decimal digits: no number of replicas settles more"),
                    default=DEFAULT_SIGNIFICANT_DIGITS, metavar="N",
-                   help="significant digits every certified value must settle to (default %(default)s)")
+                   help="significant digits (of each bin's expanded uncertainty U) every certified value "
+                   "must settle to (default %(default)s)")
+    g.add_argument("--coverage-interval", choices=("symmetric", "shortest"), default="symmetric",
+                   help="the Monte Carlo 95 %% coverage interval of each bin (JCGM 101 7.7): "
+                   "probabilistically symmetric (default) or the shortest")
     if replicas:
         from lidarcal.campaign.adaptive import DEFAULT_MAX_REPLICAS  # deferred: light CLI start
 

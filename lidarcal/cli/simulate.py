@@ -10,11 +10,12 @@ Examples::
 Without ``--cube``/``--rwf`` the ideal lidar of ``docs/contracts.md`` is used, configured by the
 conditions file's ``lidar_*`` global attributes when present.
 
-With ``--max-replicas M`` (> 1) the periods of the certified bins whose relative expanded
-uncertainty has not settled to ``--significant-digits`` are simulated again with independent
-seeds (JCGM 101 7.9; docs/certificate.md), judged with the Table 4 terms ``lidarcal budget``
-uses without ``--terms``; the trials are stored beside replica 0 (``trial_*`` variables) and
-``lidarcal budget`` uses them all.
+With ``--max-replicas M`` (> 1) the periods of the certified bins whose values (estimate,
+standard uncertainty, coverage interval, U) have not settled to ``--significant-digits`` are
+simulated again with independent seeds (JCGM 101 7.9; docs/certificate.md), judged with the
+Table 4 terms ``lidarcal budget`` uses without ``--terms``; the trials are stored beside
+replica 0 (``trial_*`` variables) and ``lidarcal budget`` uses them all.  Without replicas (the
+default here) no value can settle, so ``lidarcal budget`` then certifies no bin.
 """
 
 from __future__ import annotations
@@ -147,9 +148,9 @@ def run(args: argparse.Namespace) -> int:
         ds, bud = adaptive_replicas(
             ds, conditions, model, significant_digits=args.significant_digits, max_replicas=args.max_replicas,
             min_periods=args.min_periods, certified_range=tuple(args.certified_range), base_seed=base_seed,
-            duration=args.duration, **opts)
+            coverage_interval=args.coverage_interval, duration=args.duration, **opts)
         print(f"Monte Carlo: {bud.attrs['monte_carlo_replicas']} replica(s), {ds.sizes.get('trial', 0)} "
-              f"further trials; {int((bud.numerical_flag == 1).sum())} certified value(s) not settled to "
+              f"further trials; {int((bud.numerical_flag == 1).sum())} bin(s) not settled to "
               f"{args.significant_digits} significant digits")
     if not args.model and args.cube and cube.attrs.get("lidar_serial"):  # records of the cube's lidar
         ds.attrs["lidar_serial"] = cube.attrs["lidar_serial"]

@@ -6,11 +6,14 @@ periods, with the combined standard uncertainty, both routes and every contribut
 
 One row per height and wind-speed bin: the k = 2 expanded uncertainty in m/s and in % of the
 bin's mean reference wind speed with the Monte Carlo's numerical tolerance beside it (JCGM 101
-7.9), the largest standard-uncertainty contributors, the number of Monte Carlo trials and of
-distinct 10-minute periods in the bin and whether the bin is certified (centre in the
-certified range, by default 4 to 16 m/s, and at least ``min_periods`` periods, by default 10)
-or why not, then the sensitivities that are significant by Eq. 12 or Eq. 13 at that height.
-The headline range quoted above the table covers the certified bins only.
+7.9), the Monte Carlo distribution of the error (estimate, standard uncertainty, 95 % coverage
+interval, each with its tolerance) and what a certified bin certifies (±U, or the interval
+where the two differ materially), the largest standard-uncertainty contributors, the number of
+Monte Carlo trials and of distinct 10-minute periods in the bin and whether the bin is
+certified (centre in the certified range, by default 4 to 16 m/s, at least ``min_periods``
+periods, by default 10, and its Monte Carlo values settled) or why not, then the sensitivities
+that are significant by Eq. 12 or Eq. 13 at that height.  The headline range quoted above the
+table covers the settled certified bins only; the bins that did not settle are listed apart.
 CSV (the default) carries every column with the certificate's unrounded values; Markdown and
 HTML round for reading and list the sensitivities once per height.  Without ``-o`` the table
 goes to stdout.
@@ -63,11 +66,25 @@ def _headline(table) -> str:
     if rng is None:
         return f"Expanded uncertainty (k = {k:g}): no {where}"
     text = f"Expanded uncertainty (k = {k:g}), {where}: {rng[0]:.2f} % to {rng[1]:.2f} %"
+    if table.attrs.get("coverage_interval_bins"):
+        text += (f"; in {table.attrs['coverage_interval_bins']} bin(s) the Monte Carlo 95 % coverage "
+                 "interval is certified instead (certified statement: coverage_interval)")
     missed = table.attrs.get("not_settled") or []
     if missed:
-        text += (f"; {len(missed)} certified value(s) not settled to {table.attrs['significant_digits']} "
-                 "significant digits by the Monte Carlo (numerically settled: no)")
+        text += (f"; {len(missed)} bin(s) not settled to {table.attrs['significant_digits']} "
+                 "significant digits by the Monte Carlo: not certified (listed apart)")
     return text
+
+
+def _not_settled_lines(table) -> list[str]:
+    """Return the bins left out because their values did not settle, a line each, with tolerances."""
+    out = []
+    for r in table.attrs.get("not_settled_rows") or []:
+        tol = [v for c, v in r.items() if c.startswith("tolerance_") and v == v]
+        out.append(f"{r['height_m']:g} m, {r['wind_speed_m_s']:g} m/s: "
+                   f"U {r['expanded_uncertainty_pct']:.2f} %"
+                   + (f", numerical tolerance up to {max(tol):.2g} %" if tol else ""))
+    return out
 
 
 def _rounded(table):
@@ -85,8 +102,17 @@ def _rounded(table):
         f"expanded_uncertainty_k{k:g}_pct": f"U (k = {k:g}) (%)",
         "numerical_tolerance_pct": "± numerical tolerance (%)",
         "numerically_settled": "settled",
+        "certified_statement": "certifies",
+        "mean_difference_pct": "estimate (%)",
+        "standard_uncertainty_pct": "u (%)",
+        "coverage_interval_lower_pct": "95 % interval low (%)",
+        "coverage_interval_upper_pct": "95 % interval high (%)",
+        "expanded_uncertainty_coverage_pct": "coverage of ±U (%)",
+        "effective_degrees_of_freedom": "ν_eff",
         "main_contributors": "main contributors (standard uncertainty, %)",
-    }).round({f"U (k = {k:g}) (m/s)": 3, f"U (k = {k:g}) (%)": 2})
+    }).drop(columns=[c for c in table.columns if c.startswith("tolerance_")]).round(
+        {f"U (k = {k:g}) (m/s)": 3, f"U (k = {k:g}) (%)": 2, "estimate (%)": 2, "u (%)": 2,
+         "95 % interval low (%)": 2, "95 % interval high (%)": 2, "coverage of ±U (%)": 1, "ν_eff": 0})
 
 
 def _sensitivities(table) -> list[tuple[float, str]]:
@@ -105,6 +131,9 @@ def _markdown(table) -> str:
              _headline(table), "",
              "| " + " | ".join(body.columns) + " |", "|" + "---|" * len(body.columns)]
     lines += ["| " + " | ".join(_cell(v) for v in row) + " |" for row in body.itertuples(index=False)]
+    if missed := _not_settled_lines(table):
+        lines += ["", "## Not certified: Monte Carlo values not settled (JCGM 101 7.9)", ""]
+        lines += [f"- {line}" for line in missed]
     lines += ["", "## Significant sensitivities (Eqs. 12-13)", ""]
     lines += [f"- {z:g} m: {s or 'none'}" for z, s in _sensitivities(table)]
     return "\n".join(lines) + "\n"
@@ -116,6 +145,10 @@ def _html(table) -> str:
     grid = _rounded(table).to_html(index=False, na_rep="", border=0)
     status = table.attrs.get("status")
     status = f"<p><strong>{html.escape(status)}</strong></p>\n" if status else ""
+    missed = "".join(f"<li>{html.escape(line)}</li>" for line in _not_settled_lines(table))
+    if missed:
+        grid += ("\n<h2>Not certified: Monte Carlo values not settled (JCGM 101 7.9)</h2>\n"
+                 f"<ul>{missed}</ul>")
     return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{title}</title></head><body>\n"
             f"<h1>{title}</h1>\n{status}<p>{html.escape(_headline(table))}</p>\n{grid}\n"
             f"<h2>Significant sensitivities (Eqs. 12-13)</h2>\n<ul>{sens}</ul>\n</body></html>\n")

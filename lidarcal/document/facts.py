@@ -5,8 +5,10 @@ same words and numbers, taken from here: :func:`certificate_facts` turns the cer
 attributes into page 1's sections (an attribute it does not carry is shown as
 :data:`NOT_STATED`), :func:`signature_status` says what its seal attributes state,
 :func:`headline_text` is the certified range in one sentence, :func:`certified_grid` the
-certified relative expanded uncertainty per wind-speed bin and height, :func:`model_form_grid`
-the simulation's model-form contributor on the same grid, and :func:`fmt`,
+certified statement per wind-speed bin and height (±U, or the Monte Carlo coverage interval
+where the two differ materially), :func:`not_settled_text` the values left out because they did
+not settle, listed apart with their tolerances, :func:`model_form_grid` the simulation's
+model-form contributor on the same grid, and :func:`fmt`,
 :func:`units_suffix` and :data:`VARIABLE_NAMES` the one way numbers, units and variables are
 written.
 """
@@ -20,7 +22,15 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
-from lidarcal.certificate import certified_rule, headline_range, model_form_values, not_settled
+from lidarcal.certificate.measurand import model_form_values
+from lidarcal.certificate.results import (
+    certified_mask,
+    certified_rule,
+    coverage_interval_bins,
+    headline_range,
+    not_settled,
+    not_settled_rows,
+)
 from lidarcal.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
 
 __all__ = [
@@ -37,6 +47,8 @@ __all__ = [
     "certified_grid",
     "certified_rows",
     "extent_text",
+    "not_settled_text",
+    "grid_cell",
     "model_form_grid",
 ]
 
@@ -192,7 +204,11 @@ def certificate_id(attrs: Mapping[str, Any]) -> str:
 
 
 def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE) -> str:
-    """Return the headline: the range of the certified relative expanded uncertainty (k = 2)."""
+    """Return the headline: the range of the certified relative expanded uncertainty (k = 2).
+
+    Settled certified values only; it says in how many bins the Monte Carlo coverage interval is
+    certified instead of ±U and how many values did not settle (listed apart).
+    """
     k = float(budget.attrs.get("coverage_factor", 2.0))
     lo, hi = wind_speeds
     where = f"bins flagged ok with centres {lo:g} to {hi:g} m/s"
@@ -200,16 +216,51 @@ def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT
         where, wind_speeds = f"certified bins ({certified_rule(budget)})", None  # the budget's own rule
     rng = headline_range(budget, wind_speeds=wind_speeds)
     if rng is None:
-        return f"Relative expanded uncertainty (k = {k:g}): no {where}, nothing is certified."
-    text = (
-        f"Relative expanded uncertainty (k = {k:g}) of the lidar's horizontal wind speed, {where}: "
-        f"{rng[0]:.2f} % to {rng[1]:.2f} %."
-    )
+        text = f"Relative expanded uncertainty (k = {k:g}): no {where}, nothing is certified."
+    else:
+        text = (
+            f"Relative expanded uncertainty (k = {k:g}) of the lidar's horizontal wind speed, {where}: "
+            f"{rng[0]:.2f} % to {rng[1]:.2f} %."
+        )
+    intervals = coverage_interval_bins(budget)
+    if intervals:
+        text += (f" In {len(intervals)} bin(s) the Monte Carlo 95 % coverage interval of the error is "
+                 "certified instead (it differs materially from ±U: shown as low…high).")
     missed = not_settled(budget)
     if missed:  # JCGM 101 7.9: the Monte Carlo stopped at --max-replicas before these settled
-        text += (f" {len(missed)} certified value(s) did not settle to "
+        text += (f" {len(missed)} value(s) did not settle to "
                  f"{int(budget.attrs['monte_carlo_significant_digits'])} significant digits within "
-                 f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas.")
+                 f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas and are not certified "
+                 "(listed apart, with their tolerances).")
+    return text
+
+
+def not_settled_text(budget: xr.Dataset) -> str:
+    """Return the values left out because they did not settle, with their tolerances ("" if none)."""
+    rows = not_settled_rows(budget)
+    if not rows:
+        return ""
+    k = float(budget.attrs.get("coverage_factor", 2.0))
+    items = []
+    for r in rows:
+        tol = [r[c] for c in r if c.startswith("tolerance_") and np.isfinite(r[c])]
+        item = (f"{fmt(r['height_m'])} m, {fmt(r['wind_speed_m_s'])} m/s: "
+                f"U {r['expanded_uncertainty_pct']:.2f} %")
+        items.append(item + (f" (± {max(tol):.2g} % numerically)" if tol else ""))
+    return (f"Not certified, not settled (U for k = {k:g}, with the largest numerical tolerance of the bin's "
+            "values): " + "; ".join(items) + ".")
+
+
+def grid_cell(g: dict[str, Any], i: int, j: int, *, tolerance: bool = True) -> str:
+    """Return the text of one bin of :func:`certified_grid`: "U ± tol", or "low…high" for an interval."""
+    if g["statement"] is not None and g["certified"][i, j] and int(g["statement"][i, j]) == 1:
+        return f"{g['lower'][i, j]:+.2f}…{g['upper'][i, j]:+.2f}"
+    v = g["value"][i, j]
+    if not np.isfinite(v):
+        return "–"
+    text = f"{v:.2f}"
+    if tolerance and g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]):
+        text += f" ± {g['tolerance'][i, j]:.2g}"
     return text
 
 
@@ -258,8 +309,11 @@ def certified_grid(
     """Return the certified result: per (wind speed, height) bin the relative U (k = 2) and its tolerance.
 
     ``certified`` marks the bins of the headline (flag ok, centre in ``wind_speeds``), or the
-    bins the budget's ``bin_flag`` itself calls ``certified`` when its ``flag_meanings`` have
-    that meaning; ``tolerance`` is the budget's ``numerical_tolerance`` (same units) or None.
+    bins the certificate certifies (:func:`lidarcal.certificate.results.certified_mask`) when the
+    budget's ``flag_meanings`` have the meaning ``certified``; ``tolerance`` is the budget's
+    ``numerical_tolerance`` (same units) or None; ``statement`` the budget's
+    ``certified_statement`` (1: the coverage interval ``lower``…``upper``, %) or None;
+    ``not_settled`` the bins left out because their values did not settle.
     """
     b = budget.transpose("wind_speed", "height", ...)
     rel = b["relative_expanded_uncertainty"].values
@@ -273,24 +327,31 @@ def certified_grid(
         )
     )
     good = (
-        flag.values == meanings["certified"]
+        certified_mask(b).transpose("wind_speed", "height").values
         if "certified" in meanings
         else (flag.values == 0) & inside[:, None]
     )
     certified = good & np.isfinite(rel)
-    tol = (
-        b["numerical_tolerance"].transpose("wind_speed", "height").values
-        if "numerical_tolerance" in b
-        else None
-    )
+    missed = np.zeros(rel.shape, dtype=bool)
+    for z, u in not_settled(b) if "certified" in meanings else []:
+        i, j = np.flatnonzero(b["wind_speed"].values == u)[0], np.flatnonzero(b["height"].values == z)[0]
+        missed[i, j] = True
+
+    def optional(name: str) -> np.ndarray | None:
+        return b[name].transpose("wind_speed", "height").values if name in b else None
+
     return {
         "wind_speed": b["wind_speed"].values,
         "height": b["height"].values,
         "value": rel,
-        "tolerance": tol,
+        "tolerance": optional("numerical_tolerance"),
         "certified": certified,
         "inside": inside,
         "flag": b["bin_flag"].values,
+        "statement": optional("certified_statement"),
+        "lower": optional("relative_coverage_interval_lower"),
+        "upper": optional("relative_coverage_interval_upper"),
+        "not_settled": missed,
     }
 
 

@@ -149,7 +149,7 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFA
     _small(
         top,
         f"Relative expanded uncertainty (k = {k:g}) of the certified bins ({fmt(lo + step / 2)} to "
-        f"{fmt(hi - step / 2)} m/s{bars})",
+        f"{fmt(hi - step / 2)} m/s, settled{bars})",
         f"reference wind speed bin{units_suffix(budget.wind_speed)}",
         f"U, k = {k:g} (%)",
     )
@@ -164,8 +164,8 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFA
     bottom.axvspan(wind_speeds[0] - step / 2, wind_speeds[1] + step / 2, color="0.9", zorder=0)
     _small(
         bottom,
-        f"Not certified: bins outside {wind_speeds[0]:g} to {wind_speeds[1]:g} m/s (grey: inside) or with "
-        "too few periods (own scale)",
+        f"Not certified: bins outside {wind_speeds[0]:g} to {wind_speeds[1]:g} m/s (grey: inside), with "
+        "too few periods or not settled (own scale)",
         f"reference wind speed bin{units_suffix(budget.wind_speed)}",
         f"U, k = {k:g} (%)",
     )

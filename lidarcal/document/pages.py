@@ -42,8 +42,10 @@ from lidarcal.document.facts import (
     certified_rows,
     extent_text,
     fmt,
+    grid_cell,
     headline_text,
     model_form_grid,
+    not_settled_text,
     stated,
 )
 from lidarcal.document.figures import A4, FONT, STYLE, draw, figure_names, parts_of
@@ -230,16 +232,20 @@ def _grid(fig, y: float, table: _Table, rows: list[int]) -> float:
 
 
 def _relative_cell(g: dict[str, Any], only_certified: bool) -> Callable[[int, int], tuple[str, bool]]:
-    """Cells of U (%): the value, ± its numerical tolerance, and t/o marks for bins not certified."""
+    """Cells of U (%): what each bin certifies (:func:`grid_cell`), n/t/o marks on those not certified.
+
+    A certified bin shows U ± its numerical tolerance, or its coverage interval.  Every bin's table
+    (``only_certified`` false) shows U (k = 2) for all, the IEC-style value.
+    """
+    shown = g if only_certified else {**g, "statement": None}
+
     def cell(i: int, j: int) -> tuple[str, bool]:
         v, ok = g["value"][i, j], bool(g["certified"][i, j])
         if (only_certified and not ok) or not np.isfinite(v):
             return "–", ok
-        text = f"{v:.2f}"
-        if g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]):
-            text += f" ± {g['tolerance'][i, j]:.2g}"
+        text = grid_cell(shown, i, j)
         if not ok:
-            text += " t" if int(g["flag"][i, j]) == 1 else " o"
+            text += " n" if g["not_settled"][i, j] else " t" if int(g["flag"][i, j]) == 1 else " o"
         return text, ok
     return cell
 
@@ -250,8 +256,11 @@ def _result_tables(budget: xr.Dataset) -> list[_Table]:
     g = certified_grid(budget)
     rows = certified_rows(g)
     tol = "; ± its numerical tolerance (Monte Carlo)" if g["tolerance"] is not None else ""
+    intervals = g["statement"] is not None and bool((g["certified"] & (g["statement"] == 1)).any())
     heading = [
-        (f"Certified result: relative expanded uncertainty U (%), k = {k:g}", FONT + 1.5, {"weight": "bold"}),
+        (f"Certified result: relative expanded uncertainty U (%), k = {k:g}"
+         + ("; low…high: the Monte Carlo 95 % coverage interval of the error (%)" if intervals else ""),
+         FONT + 1.5, {"weight": "bold"}),
         (textwrap.fill(headline_text(budget), 105), FONT + 0.5, {"weight": "bold"}),
     ]
     extent = extent_text(budget, g)
@@ -261,7 +270,7 @@ def _result_tables(budget: xr.Dataset) -> list[_Table]:
         model_form_grid(budget) is not None) else ""
     heading.append((textwrap.fill(MEASURAND + mf, 125), FONT - 0.5, {}))
     heading.append((f"Per height and wind-speed bin (bin centre){tol}; – : bin not certified (too few "
-                    "periods or no data).", FONT - 0.5, {"color": "0.3"}))
+                    "periods, not settled or no data).", FONT - 0.5, {"color": "0.3"}))
     tables = [_Table(heading, g, rows, _relative_cell(g, True), "Certified result (continued)")]
     if "expanded_uncertainty" in budget and rows.size:
         absolute = budget["expanded_uncertainty"].transpose("wind_speed", "height").values
@@ -325,13 +334,17 @@ def _all_bins_pages(pages: _Pages, budget: xr.Dataset) -> None:
     _title(
         fig,
         f"Every bin of the budget: U (%), k = {k:g}",
-        "Grey: not certified (t: too few periods; o: outside the certified wind-speed range); "
-        "– : no data. Only the black values are certified.",
+        "Grey: not certified (t: too few periods; o: outside the certified range; n: not settled); "
+        "– : no data. Black: certified (page 1 says what each certifies).",
     )
     g = certified_grid(budget)
-    table = _Table([], g, np.arange(g["wind_speed"].size), _relative_cell(g, False),
-                   "Every bin of the budget (continued)")
-    _flow_table(pages, fig, _TOP, table)
+    continued = "Every bin of the budget (continued)"
+    table = _Table([], g, np.arange(g["wind_speed"].size), _relative_cell(g, False), continued)
+    fig, y = _flow_table(pages, fig, _TOP, table)
+    missed = not_settled_text(budget)
+    if missed:  # listed apart from the certified result, with their tolerances (JCGM 101 7.9)
+        _text_rows(pages, fig, y - 0.004, [("Not settled", missed, {"color": "#8a5a00"})],
+                   continued=continued, x1=0.2, width=110)
 
 
 def _model_form_pages(pages: _Pages, budget: xr.Dataset) -> None:

@@ -30,8 +30,10 @@ from lidarcal.document.facts import (
     certified_rows,
     extent_text,
     fmt,
+    grid_cell,
     headline_text,
     model_form_grid,
+    not_settled_text,
 )
 from lidarcal.document.figures import A4, STYLE, draw, drawn_cnr_range, figure_names, parts_of
 from lidarcal.document.pages import gc_paused, write_document
@@ -61,25 +63,25 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None
             out.append(f"<p>{html.escape(extent)}</p>")
         rows = []
         for i in certified_rows(g):
-            cells = []
-            for j in range(g["height"].size):
-                v = g["value"][i, j]
-                text = f"{v:.2f}" if g["certified"][i, j] else "–"
-                if g["certified"][i, j] and g["tolerance"] is not None and np.isfinite(g["tolerance"][i, j]):
-                    text += f" ± {g['tolerance'][i, j]:.2g}"
-                cells.append(text)
+            cells = [grid_cell(g, i, j) if g["certified"][i, j] else "–" for j in range(g["height"].size)]
             rows.append([fmt(g["wind_speed"][i]), *cells])
         k = float(budget.attrs.get("coverage_factor", 2.0))
+        intervals = g["statement"] is not None and bool((g["certified"] & (g["statement"] == 1)).any())
         header = ["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]]
         out.append(html_table(header, rows,
                           f"Certified result: relative expanded uncertainty U (%), k = {k:g}, per height and "
-                          "wind-speed bin; – : not certified (too few periods or no data)"))
+                          "wind-speed bin"
+                          + ("; low…high: the Monte Carlo 95 % coverage interval of the error (%), certified "
+                             "where it differs materially from ±U" if intervals else "")
+                          + "; – : not certified (too few periods, not settled, or no data)"))
         if "expanded_uncertainty" in budget:
             absolute = budget["expanded_uncertainty"].transpose("wind_speed", "height").values
             out.append(html_table(header, [[fmt(g["wind_speed"][i]), *[
                 f"{absolute[i, j]:.3f}" if g["certified"][i, j] and np.isfinite(absolute[i, j]) else "–"
                 for j in range(g["height"].size)]] for i in certified_rows(g)],
                 f"Certified result in m/s: expanded uncertainty U (m/s), k = {k:g}, the same bins"))
+        if missed := not_settled_text(budget):
+            out.append(f'<p class="not-settled">{html.escape(missed)}</p>')
         out.append(f'<p class="measurand">{html.escape(MEASURAND)}</p>')
         out.append(_model_form_table(budget))
     if cert is not None:

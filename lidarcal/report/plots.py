@@ -162,17 +162,25 @@ def _budget_figure(budget: xr.Dataset) -> Figure:
             y, f = rel.sel(height=h).values, flag.sel(height=h).values
             data[f"U|{fmt(h)} m"] = np.where(f == 0, y, np.nan)
             data[f"thin|{fmt(h)} m"] = np.where((f == 1) & np.isfinite(y), y, np.nan)
+            missed = g["not_settled"][:, list(heights).index(h)] & np.isfinite(y)
+            if missed.any():  # a column only where a bin did not settle: no empty renderers
+                data[f"missed|{fmt(h)} m"] = np.where(missed, y, np.nan)
         src, view = ColumnDataSource(data), None
         for i, h in enumerate(heights):
             color, name = _COLORS[i % len(_COLORS)], f"{fmt(h)} m"
-            for r in (
+            renderers = [
                 p.line("wind_speed", f"U|{name}", source=src, color=color, line_width=2, legend_label=name,
                        name=name, **({"view": view} if view else {})),
                 p.scatter("wind_speed", f"U|{name}", source=src, color=color, size=5, legend_label=name,
                           name=name),
                 p.scatter("wind_speed", f"thin|{name}", source=src, marker="x", size=11, line_width=2,
                           color=_THIN, legend_label="thin bin (too few periods)", name=name),
-            ):
+            ]
+            if f"missed|{name}" in data:
+                renderers.append(p.scatter("wind_speed", f"missed|{name}", source=src, marker="triangle",
+                                           size=9, color=_THIN, fill_alpha=0.2,
+                                           legend_label="not settled (Monte Carlo)", name=name))
+            for r in renderers:
                 view = view or r.view
                 r.view = view
         _legend_outside(p, "none")
@@ -182,8 +190,9 @@ def _budget_figure(budget: xr.Dataset) -> Figure:
     return Figure(
         f"Expanded uncertainty (k = {fmt(k)}) vs wind speed", build,
         note="<p>The axes show the certified bins (enough periods, 4 to 16 m/s); pan or zoom out for the "
-             "others. Red crosses: thin bins (fewer periods than the minimum); they are kept in the budget "
-             "but left out of the certificate's headline range. Empty bins are not drawn.</p>",
+             "others. Red crosses: thin bins (fewer periods than the minimum); red triangles: bins whose "
+             "Monte Carlo values did not settle; both are kept in the budget but not certified and left "
+             "out of the certificate's headline range. Empty bins are not drawn.</p>",
     )
 
 
