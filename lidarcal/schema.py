@@ -99,8 +99,8 @@ WRITTEN_ATTRIBUTES = frozenset({
     # ACDD-1.3
     "coverage_content_type",
     # lidarcal: the setting that shaped the variable (rwf, turbulence_box, uncertainty_budget)
-    "coverage_factor", "description", "fft_size", "pulse_shape", "sigma_target", "window_length_m",
-    "window_std_fraction",
+    "coverage_factor", "coverage_probability", "description", "fft_size", "pulse_shape", "sigma_target",
+    "window_length_m", "window_std_fraction",
 })
 #: Attributes :func:`output_attrs` writes first, in this order (the rest follow as declared).
 _LEADING_ATTRS = ("long_name", "units", "coverage_content_type", "standard_name")

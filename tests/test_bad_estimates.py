@@ -199,24 +199,27 @@ def test_drawn_bad_estimates_follow_p_bad(clean):
     assert stats.kstest((los[off] - lo) / (hi - lo), "uniform").pvalue > 1e-3  # about 200 values
 
 
-def test_replicas_draw_their_rate_curve_from_the_fit(clean):
+def test_trials_draw_their_rate_curve_from_the_fit(clean):
     cube, _ = clean
     bad = LidarModel.from_artefacts(cube=cube).bad_estimates
-    assert bad.for_replica(7, 0) == bad and bad.for_replica(7, 0).parameters == bad.rate_parameters
-    one = bad.for_replica(7, 1)
-    assert one == bad.for_replica(7, 1) and one.drawn != bad.for_replica(7, 2).drawn  # keyed, deterministic
-    assert one.drawn != bad.for_replica(8, 1).drawn
-    draws = np.array([bad.for_replica(7, r).drawn for r in range(1, 4001)])
+    assert bad.for_trial(7, 0, 5) == bad and bad.for_trial(7, 0, 5).parameters == bad.rate_parameters
+    one = bad.for_trial(7, 1, 5)
+    assert one == bad.for_trial(7, 1, 5)  # keyed, deterministic
+    assert one.drawn != bad.for_trial(7, 2, 5).drawn and one.drawn != bad.for_trial(7, 1, 6).drawn
+    assert one.drawn != bad.for_trial(8, 1, 5).drawn
+    assert bad.for_trial(7, 1, -5).drawn == bad.for_trial(7, 1, 2**64 - 5).drawn  # keys before 1970 wrap
+    # 4000 trials: replicas and periods both vary the draw
+    draws = np.array([bad.for_trial(7, r, key).drawn for r in range(1, 41) for key in range(100)])
     cov = np.asarray(bad.rate_covariance)
     # the mean of 4000 draws is within 4 standard errors of the estimate; the sample covariance within
     # 10 % (relative standard error sqrt(2 / 4000) = 2.2 % of a variance)
     se = np.sqrt(np.diag(cov) / draws.shape[0])
     assert np.all(np.abs(draws.mean(axis=0) - bad.rate_parameters) < 4 * se)
     np.testing.assert_allclose(np.cov(draws.T), cov, rtol=0.1, atol=0.1 * np.sqrt(cov[0, 0] * cov[1, 1]))
-    # the replica model simulates the drawn curve: the other models are the same for every replica
+    # the trial's model simulates the drawn curve: the other models are the same for every trial
     model = LidarModel.from_artefacts(cube=cube)
-    assert model.for_replica(7, 1).bad_estimates.drawn == one.drawn
-    assert LidarModel.ideal().for_replica(7, 1) == LidarModel.ideal()
+    assert model.for_trial(7, 1, 5).bad_estimates.drawn == one.drawn
+    assert LidarModel.ideal().for_trial(7, 1, 5) == LidarModel.ideal()
 
 
 REPLICAS = {"duration": 120.0, "base_seed": 99}
@@ -238,11 +241,13 @@ def test_a_replica_trial_is_the_engine_with_its_own_rate_curve(replica_case):
     p, h = 3, 1
     inputs = {n: [float(cond[n].values[p, h])] for n in CONDITION_NAMES}
     t = int(np.flatnonzero((sync[2]["period"] == p) & (sync[2]["height"] == 120.0))[0])
-    direct = simulate_period(model.for_replica(99, 2), heights=[120.0], **inputs, seed=(99, 2, int(keys[p])),
+    direct = simulate_period(model.for_trial(99, 2, keys[p]), heights=[120.0], **inputs, seed=(99, 2, int(keys[p])),
                              duration=120.0)
     assert sync[2]["lidar_wind_speed"][t] == direct["lidar_wind_speed"][0]
     nominal = simulate_period(model, heights=[120.0], **inputs, seed=(99, 2, int(keys[p])), duration=120.0)
-    assert model.for_replica(99, 2).bad_estimates.drawn != model.bad_estimates.rate_parameters
+    assert model.for_trial(99, 2, keys[p]).bad_estimates.drawn != model.bad_estimates.rate_parameters
+    # another period of the same replica simulates another curve
+    assert model.for_trial(99, 2, keys[p + 1]).bad_estimates.drawn != model.for_trial(99, 2, keys[p]).bad_estimates.drawn
     assert nominal["reference_wind_speed"][0] == direct["reference_wind_speed"][0]  # the same turbulence
 
 

@@ -178,8 +178,8 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
     ``base_seed``, ``duration``, and optionally ``workdir``/``key`` to cache the result atomically.
     Returns ``{output: (n, h) array}`` plus ``los`` (``{period_index: {name: array}}``).
     """
-    # replica r >= 1 of the mixture noise model simulates its own draw of p_bad(CNR) (docs/seeds.md)
-    model = LidarModel.from_dict(task["model"]).for_replica(task["base_seed"], task.get("replica", 0))
+    model = LidarModel.from_dict(task["model"])
+    replica = task.get("replica", 0)
     heights = np.asarray(task["heights"], dtype=float)
     valid = np.asarray(task["valid"], dtype=bool)
     n, nh = valid.shape
@@ -195,10 +195,11 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
             pidx = int(task["period_index"][i])
             want_los = bool(task["los"][i])
             res = simulate_period(
-                model,
+                # in replica r >= 1 of the mixture noise model each period draws p_bad(CNR) (docs/seeds.md)
+                model.for_trial(task["base_seed"], replica, task["period_key"][i]),
                 heights=heights[cols],
                 **{name: np.asarray(task[name][i, cols], dtype=float) for name in INPUTS},
-                seed=seed_entropy(task["base_seed"], task["period_key"][i], task.get("replica", 0)),
+                seed=seed_entropy(task["base_seed"], task["period_key"][i], replica),
                 duration=float(task["duration"]),
                 return_los=want_los,
             )

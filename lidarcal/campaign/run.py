@@ -229,7 +229,9 @@ def simulate_replicas(
             os.makedirs(where, exist_ok=True)
         for a in range(0, sel[r].size, chunk):
             idx = sel[r][a:a + chunk]
-            extra = {"replica": r, "periods": idx.tolist(), "cells": todo[r][idx].astype(int).tolist()}
+            # "rate_draw": a replica's p_bad(CNR) curves are drawn per period (were per replica)
+            extra = {"replica": r, "periods": idx.tolist(), "cells": todo[r][idx].astype(int).tolist(),
+                     "rate_draw": "trial"}
             key = chunk_key(camp.checksum, model_dict, base_seed, a, a + idx.size, camp.z, duration, (),
                             keys=camp.keys[idx], extra=extra)
             if where is not None:

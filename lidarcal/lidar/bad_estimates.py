@@ -32,10 +32,16 @@ floats, no files, no xarray) does that:
   (½ log det I(θ), Jeffreys' prior: finite estimates when a CNR has no bad estimate at all,
   and the O(1/n) bias of a rare-event logistic fit removed; Firth, Biometrika 80 (1993) 27).
   The covariance of (a, b) is the inverse Fisher information at the estimate.
-* **Propagation** (:meth:`BadEstimates.for_replica`): Monte Carlo replica r >= 1 draws its
-  curve's (a, b) from the bivariate normal N((â, b̂), Σ) of the fit (JCGM 101 §6.4.8), from
-  ``SeedSequence([base_seed, r], spawn_key=(BAD_RATE_STREAM,))``; replica 0 simulates the best
-  estimate (â, b̂).
+* **Propagation** (:meth:`BadEstimates.for_trial`): in Monte Carlo replica r >= 1 each
+  period draws its curve's (a, b) from the bivariate normal N((â, b̂), Σ) of the fit (JCGM 101
+  §6.4.8: every trial draws every input), from
+  ``SeedSequence([base_seed, r, period_key], spawn_key=(BAD_RATE_STREAM,))``; replica 0
+  simulates the best estimate (â, b̂).  A draw per trial, not one per replica: the distribution
+  of one period's error is the same either way, but a curve shared by a whole replica shifts
+  every period of a bin together, and that shift, not the bin's values, would then set how many
+  replicas the bin needs to settle.  The rate's uncertainty is nevertheless one lidar's: it is
+  systematic across the periods of a campaign, and whoever averages many 10-minute means must
+  not average it down (``docs/certificate.md``).
 
 The virtual lidar then draws each line-of-sight estimate as bad with probability
 ``p_bad(CNR)`` at the period's CNR (its value uniform over the band, whatever the true
@@ -65,7 +71,7 @@ MIN_SCALE = 0.005
 #: relative standard uncertainty of 1/sqrt(2 (n - 1)), 24 % at n = 10 (and the bin's mean one of
 #: 0.32 sigma); a bin with fewer pools the good residuals of its CNR neighbours (:func:`good_pools`).
 MIN_GOOD = 10
-#: ``spawn_key`` of the replicas' draws of the rate curve (never a period's or height's stream).
+#: ``spawn_key`` of the trials' draws of the rate curve (never a period's or height's own stream).
 BAD_RATE_STREAM = 0xBAD
 
 
@@ -276,8 +282,8 @@ class BadEstimates:
     ``fit_chi2`` / ``fit_dof`` the Pearson chi-square of the per-CNR flagged counts against the
     fit; ``band_uniformity_p`` the p-value of :func:`uniformity_pvalue`.  ``k`` and
     ``min_good`` are the classification's multiple and the fewest good residuals a bin is
-    resampled from.  ``drawn`` (a, b): the curve one Monte Carlo replica simulates
-    (:meth:`for_replica`); ``None``: the best estimate.
+    resampled from.  ``drawn`` (a, b): the curve one Monte Carlo trial simulates
+    (:meth:`for_trial`); ``None``: the best estimate.
     """
 
     cnr: tuple[float, ...]
@@ -393,17 +399,19 @@ class BadEstimates:
         var_eta = cov[0, 0] + 2 * x * cov[0, 1] + x * x * cov[1, 1]
         return p * (1.0 - p) * np.sqrt(var_eta)
 
-    def for_replica(self, base_seed: int, replica: int) -> BadEstimates:
-        """Return the curve Monte Carlo replica ``replica`` simulates (module docstring).
+    def for_trial(self, base_seed: int, replica: int, key: int) -> BadEstimates:
+        """Return the curve one Monte Carlo trial simulates: period ``key`` in replica ``replica``.
 
         Replica 0: the best estimate (``self`` without a draw).  Replica r >= 1: (a, b) =
         (â, b̂) + L z, L the Cholesky factor of the covariance (written out for 2 x 2, so the
         draw is the same on any BLAS) and z two standard normals from
-        ``SeedSequence([base_seed, r], spawn_key=(BAD_RATE_STREAM,))``.
+        ``SeedSequence([base_seed, r, key mod 2**64], spawn_key=(BAD_RATE_STREAM,))``: every
+        (period, replica) its own curve, the same at all heights of the period (module docstring).
         """
         if int(replica) == 0:
             return dataclasses.replace(self, drawn=None)
-        seq = np.random.SeedSequence([int(base_seed), int(replica)], spawn_key=(BAD_RATE_STREAM,))
+        seq = np.random.SeedSequence([int(base_seed), int(replica), int(key) % 2**64],
+                                     spawn_key=(BAD_RATE_STREAM,))
         z = np.random.default_rng(seq).standard_normal(2)
         (s00, s01), (_, s11) = self.rate_covariance
         l00 = np.sqrt(s00)

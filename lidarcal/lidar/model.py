@@ -356,17 +356,17 @@ class LidarModel:
             model = model.with_residuals(cube)
         return model
 
-    def for_replica(self, base_seed: int, replica: int) -> LidarModel:
-        """Return the model Monte Carlo replica ``replica`` simulates (``docs/seeds.md``).
+    def for_trial(self, base_seed: int, replica: int, key: int) -> LidarModel:
+        """Return the model that period ``key`` in Monte Carlo replica ``replica`` simulates (``docs/seeds.md``).
 
-        With the ``"mixture"`` noise model, replica r >= 1 simulates its own p_bad(CNR) curve drawn
-        from the fit's distribution (:meth:`BadEstimates.for_replica
-        <lidarcal.lidar.bad_estimates.BadEstimates.for_replica>`, keyed by ``(base_seed, r)``),
-        replica 0 the best estimate; every other model is the same for all replicas.
+        With the ``"mixture"`` noise model, in replica r >= 1 each period simulates its own
+        p_bad(CNR) curve drawn from the fit's distribution (:meth:`BadEstimates.for_trial
+        <lidarcal.lidar.bad_estimates.BadEstimates.for_trial>`, keyed by ``(base_seed, r, key)``),
+        replica 0 the best estimate; every other model is the same for all trials.
         """
         if self.bad_estimates is None:
             return self
-        return self.replace(bad_estimates=self.bad_estimates.for_replica(base_seed, replica))
+        return self.replace(bad_estimates=self.bad_estimates.for_trial(base_seed, replica, key))
 
     # -- serialisation ------------------------------------------------------------------
     def to_dict(self, *, residuals: bool = False) -> dict[str, Any]:
