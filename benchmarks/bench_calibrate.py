@@ -3,7 +3,7 @@
 Run (takes several minutes)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_calibrate.py [--periods 2016] [--workers 2]
-        [--significant-digits 2] [--repeat 3] [--keep DIR]
+        [--significant-digits N] [--repeat 3] [--keep DIR]
 
 Runs :func:`lidarcal.pipeline.calibrate` on the embedded sample data (2,016 periods x 8 heights
 by default) twice on one warmed-up ``distributed.LocalCluster`` of ``--workers`` single-threaded
@@ -22,7 +22,7 @@ not raise it much above the first's), and the SHA-256
 of replica 0's simulated records in both runs (they must be equal: replicas never change
 replica 0).
 
-Target (docs/performance.md): the default calibration to 2 significant digits in <= 5 min on 2 cores.
+Target (docs/performance.md): the default calibration (1 significant digit) in <= 5 min on 2 cores.
 """
 
 from __future__ import annotations

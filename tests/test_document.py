@@ -27,6 +27,16 @@ from lidarcal.document import seal_statement, write_document
 from lidarcal.document.pages import BOTTOM, FOOTER_RULE
 
 HEIGHTS = (40.0, 60.0, 80.0, 100.0, 120.0, 140.0, 160.0, 200.0)
+
+
+def settled_records(**kwargs):
+    """Records with 6 Monte Carlo replicas: JCGM 101 7.9 certifies only values that settled (h >= 2)."""
+    return make_records(replicas=6, **kwargs)
+
+
+def settled_budget(records):
+    """The budget to one significant digit, which 6 replicas of these records reach in every bin."""
+    return budget(records, significant_digits=1)
 _WORD = re.compile(r'<word xMin="([\d.]+)" yMin="([\d.]+)" xMax="([\d.]+)" yMax="([\d.]+)">(.*?)</word>')
 
 
@@ -89,9 +99,9 @@ def check_document(pdf: Path, poppler: tuple[str, str], tmp_path: Path) -> list[
 @pytest.fixture(scope="module")
 def long_certificate(tmp_path_factory):
     """A certificate of 8 heights whose bins are all certified from 4.5 to 15.5 m/s (23 rows)."""
-    records = make_records(n=3000, heights=HEIGHTS, seed=3)
+    records = settled_records(n=3000, heights=HEIGHTS, seed=3)
     sens = [sensitivity(records, "wind_shear_exponent")]
-    cert = make_certificate(budget=budget(records), sensitivities=sens, config={}, call="test",
+    cert = make_certificate(budget=settled_budget(records), sensitivities=sens, config={}, call="test",
                             demonstration=True)
     # a long reason (and, in other branches, more lines of results): page 1 cannot hold the table
     cert.attrs["calibration_status_reason"] = " ".join(["the inputs are lidarcal's sample data"] * 12)
@@ -106,6 +116,10 @@ def test_a_long_result_table_continues_on_the_next_page(long_certificate, tmp_pa
                                  if v.startswith("budget_")})
     rel = b.relative_expanded_uncertainty.transpose("wind_speed", "height").values
     absolute = b.expanded_uncertainty.transpose("wind_speed", "height").values
+    tol = b.numerical_tolerance.transpose("wind_speed", "height").values
+    statement = b.certified_statement.transpose("wind_speed", "height").values
+    lo = b.relative_coverage_interval_lower.transpose("wind_speed", "height").values
+    hi = b.relative_coverage_interval_upper.transpose("wind_speed", "height").values
     ok = (b.bin_flag.transpose("wind_speed", "height") == 0).values
     rows = [i for i, u in enumerate(b.wind_speed.values) if ok[i].any()]
     assert len(rows) == 23 and all(ok[rows].ravel())
@@ -118,7 +132,10 @@ def test_a_long_result_table_continues_on_the_next_page(long_certificate, tmp_pa
     # every certified value in its row, in %, then in m/s
     for i in rows:
         u = b.wind_speed.values[i]
-        assert f"{u:g} " + " ".join(f"{v:.2f}" for v in rel[i]) in joined, u
+        # U ± its numerical tolerance, or the coverage interval low…high where the bin certifies that
+        cells = [f"{lo[i, j]:+.2f}…{hi[i, j]:+.2f}" if statement[i, j] == 1 else f"{rel[i, j]:.2f} ± {tol[i, j]:.2g}"
+                 for j in range(rel.shape[1])]
+        assert f"{u:g} " + " ".join(cells) in joined, u
         assert f"{u:g} " + " ".join(f"{v:.3f}" for v in absolute[i]) in joined, u
     assert "Certified result in m/s: expanded uncertainty U (m/s), k = 2" in joined
     # the seal line names the file that is checked, not a placeholder
@@ -148,10 +165,12 @@ def test_the_lines_above_the_result_are_evenly_spaced(long_certificate, tmp_path
 
 def test_the_certified_range_says_where_the_values_stop(tmp_path, poppler):
     """Winds of 4.5-11 m/s only: the table stops at 11 m/s and says why, not 'promising' 4-16 m/s."""
-    records = make_records(n=1200, heights=(80.0, 120.0), seed=5)
+    records = settled_records(n=1200, heights=(80.0, 120.0), seed=5)
     ref = records.reference_wind_speed
     calm = records.where(ref <= 11.2)  # no period above 11.2 m/s: bins above 11 m/s empty
-    cert = make_certificate(budget=budget(calm), sensitivities=[], config={}, call="test", demonstration=True)
+    calm["period_key"] = records["period_key"]  # a per-period key: not broadcast over heights by where
+    calm = calm.isel(trial=np.flatnonzero(records.trial_reference_wind_speed.values <= 11.2))  # nor replica
+    cert = make_certificate(budget=settled_budget(calm), sensitivities=[], config={}, call="test", demonstration=True)
     pdf = tmp_path / "doc.pdf"
     write_document(pdf, cert)
     texts = check_document(pdf, poppler, tmp_path)
@@ -187,7 +206,7 @@ def test_budget_plot_bars_are_the_numerical_tolerance():
 
     from lidarcal.document.figures import draw_budget
 
-    b = budget(make_records(n=1200, heights=(80.0, 120.0), seed=5))
+    b = settled_budget(settled_records(n=1200, heights=(80.0, 120.0), seed=5))
     b["numerical_tolerance"] = b["relative_expanded_uncertainty"] * 0 + 0.05
     fig = Figure()
     draw_budget(fig, b)
@@ -207,7 +226,7 @@ def test_contributor_bars_are_wide_and_the_legend_is_always_there():
 
     from lidarcal.document.figures import draw_contributors
 
-    b = budget(make_records(n=3000, heights=HEIGHTS, seed=3))
+    b = settled_budget(settled_records(n=3000, heights=HEIGHTS, seed=3))
     # a short run: the lowest height has no certified bin at all, yet the legend names everything
     b["bin_flag"] = b["bin_flag"].where(b.height != 40.0, 1)
     fig = Figure(figsize=(8.27, 11.69))

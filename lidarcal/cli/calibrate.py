@@ -20,7 +20,7 @@ says how many it reused.
 
 The Monte Carlo states its own accuracy (JCGM 101 7.9): replicas of the periods of the certified
 bins that have not settled are simulated with independent seeds until every certified value is
-stable to --significant-digits (default 2), or --max-replicas is reached; the certificate then
+stable to --significant-digits (default 1), or --max-replicas is reached; the certificate then
 says which values did not settle.
 """
 

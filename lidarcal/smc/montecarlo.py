@@ -23,8 +23,10 @@ and then:
 **Numerical tolerance, adaptively** (JCGM 101 §7.9): the trials of a bin are split into h = 4
 sequences (:func:`lidarcal.smc.kernels.group_of`: trial (period p, replica r) goes to sequence
 (p + r) mod 4); each sequence's estimate of the bin's relative expanded uncertainty gives the
-tolerance :func:`lidarcal.analysis.budget.numerical_state` reports (2 s/√h rounded up to
-½·10^ℓ), and a bin has settled when it is within the certificate's significant digits.  A bin
+tolerance t₀.₉₇₅(h − 1)·s/√h rounded up to ½·10^ℓ (the Student factor, since s rests on h − 1
+degrees of freedom: :func:`lidarcal.analysis.montecarlo.replica_half_width`), and a bin has
+settled when that is within the certificate's significant digits
+(:func:`lidarcal.analysis.certification.settle_target`).  A bin
 the campaign fills with many periods settles from its own periods; only the periods of bins
 that have not settled are re-simulated as further replicas (:func:`lidarcal.campaign.run.simulate_replicas`,
 seed entropy ``(base_seed, r, period_key)``), in batches of 3, 4, 8, 8 … replicas up to
@@ -43,7 +45,9 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.analysis.budget import budget, numerical_state
+from lidarcal.analysis.budget import budget
+from lidarcal.analysis.certification import settle_target
+from lidarcal.analysis.montecarlo import replica_half_width, tolerance_exponent
 from lidarcal.binning import binned_statistics
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.adaptive import BATCH_SCHEDULE, with_trials
@@ -194,7 +198,13 @@ def _assess(
     keys = np.asarray(records["period_key"].values, dtype=np.int64)
     est = _sequence_estimates(_trials(records, heights), keys, bud, k)
     value = bud["relative_expanded_uncertainty"].transpose("height", "wind_speed").values
-    tol, flag, _ = numerical_state(value, est, targets, digits)
+    # JCGM 101 7.9 on the sequences' estimates, with the Student factor of h - 1 degrees of freedom
+    half, _ = replica_half_width(est)
+    ell = tolerance_exponent(half)
+    with np.errstate(over="ignore"):
+        tol = np.where(targets & (np.isfinite(ell) | (ell == -np.inf)), 0.5 * 10.0**ell, np.nan)
+    settled = np.isfinite(tol) & (tol <= settle_target(value, digits) * (1 + 1e-9))
+    flag = np.where(targets, np.where(settled, 0, 1), 2).astype(np.int8)
     return tol, flag
 
 
