@@ -42,6 +42,7 @@ for _v in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
 import numpy as np  # noqa: E402
 import xarray as xr  # noqa: E402
 
+from lidarcal.analysis.certification import DEFAULT_SIGNIFICANT_DIGITS  # noqa: E402
 from lidarcal.campaign import local_cluster  # noqa: E402
 from lidarcal.pipeline import CalibrationConfig, calibrate  # noqa: E402
 
@@ -84,7 +85,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--periods", type=int, default=2016)
     p.add_argument("--workers", type=int, default=2)
-    p.add_argument("--significant-digits", type=int, default=2)
+    p.add_argument("--significant-digits", type=int, default=DEFAULT_SIGNIFICANT_DIGITS)
     p.add_argument("--repeat", type=int, default=1, help="adaptive runs (the median wall time is printed)")
     p.add_argument("--keep", metavar="DIR",
                    help="keep both runs' outputs here (default: a temporary directory)")
