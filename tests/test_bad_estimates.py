@@ -241,13 +241,14 @@ def test_a_replica_trial_is_the_engine_with_its_own_rate_curve(replica_case):
     p, h = 3, 1
     inputs = {n: [float(cond[n].values[p, h])] for n in CONDITION_NAMES}
     t = int(np.flatnonzero((sync[2]["period"] == p) & (sync[2]["height"] == 120.0))[0])
-    direct = simulate_period(model.for_trial(99, 2, keys[p]), heights=[120.0], **inputs, seed=(99, 2, int(keys[p])),
-                             duration=120.0)
+    direct = simulate_period(model.for_trial(99, 2, keys[p]), heights=[120.0], **inputs,
+                             seed=(99, 2, int(keys[p])), duration=120.0)
     assert sync[2]["lidar_wind_speed"][t] == direct["lidar_wind_speed"][0]
     nominal = simulate_period(model, heights=[120.0], **inputs, seed=(99, 2, int(keys[p])), duration=120.0)
     assert model.for_trial(99, 2, keys[p]).bad_estimates.drawn != model.bad_estimates.rate_parameters
     # another period of the same replica simulates another curve
-    assert model.for_trial(99, 2, keys[p + 1]).bad_estimates.drawn != model.for_trial(99, 2, keys[p]).bad_estimates.drawn
+    other = model.for_trial(99, 2, keys[p + 1]).bad_estimates.drawn
+    assert other != model.for_trial(99, 2, keys[p]).bad_estimates.drawn
     assert nominal["reference_wind_speed"][0] == direct["reference_wind_speed"][0]  # the same turbulence
 
 

@@ -133,8 +133,8 @@ def test_a_long_result_table_continues_on_the_next_page(long_certificate, tmp_pa
     for i in rows:
         u = b.wind_speed.values[i]
         # U ± its numerical tolerance, or the coverage interval low…high where the bin certifies that
-        cells = [f"{lo[i, j]:+.2f}…{hi[i, j]:+.2f}" if statement[i, j] == 1 else f"{rel[i, j]:.2f} ± {tol[i, j]:.2g}"
-                 for j in range(rel.shape[1])]
+        cells = [f"{lo[i, j]:+.2f}…{hi[i, j]:+.2f}" if statement[i, j] == 1
+                 else f"{rel[i, j]:.2f} ± {tol[i, j]:.2g}" for j in range(rel.shape[1])]
         assert f"{u:g} " + " ".join(cells) in joined, u
         assert f"{u:g} " + " ".join(f"{v:.3f}" for v in absolute[i]) in joined, u
     assert "Certified result in m/s: expanded uncertainty U (m/s), k = 2" in joined
@@ -169,7 +169,8 @@ def test_the_certified_range_says_where_the_values_stop(tmp_path, poppler):
     ref = records.reference_wind_speed
     calm = records.where(ref <= 11.2)  # no period above 11.2 m/s: bins above 11 m/s empty
     calm["period_key"] = records["period_key"]  # a per-period key: not broadcast over heights by where
-    calm = calm.isel(trial=np.flatnonzero(records.trial_reference_wind_speed.values <= 11.2))  # nor replica
+    # nor replicas
+    calm = calm.isel(trial=np.flatnonzero(records.trial_reference_wind_speed.values <= 11.2))
     cert = make_certificate(budget=settled_budget(calm), sensitivities=[], config={}, call="test", demonstration=True)
     pdf = tmp_path / "doc.pdf"
     write_document(pdf, cert)

@@ -357,7 +357,7 @@ class LidarModel:
         return model
 
     def for_trial(self, base_seed: int, replica: int, key: int) -> LidarModel:
-        """Return the model that period ``key`` in Monte Carlo replica ``replica`` simulates (``docs/seeds.md``).
+        """Return the model period ``key`` simulates in Monte Carlo replica ``replica`` (docs/seeds.md).
 
         With the ``"mixture"`` noise model, in replica r >= 1 each period simulates its own
         p_bad(CNR) curve drawn from the fit's distribution (:meth:`BadEstimates.for_trial
