@@ -171,7 +171,8 @@ def test_the_certified_range_says_where_the_values_stop(tmp_path, poppler):
     calm["period_key"] = records["period_key"]  # a per-period key: not broadcast over heights by where
     # nor replicas
     calm = calm.isel(trial=np.flatnonzero(records.trial_reference_wind_speed.values <= 11.2))
-    cert = make_certificate(budget=settled_budget(calm), sensitivities=[], config={}, call="test", demonstration=True)
+    cert = make_certificate(budget=settled_budget(calm), sensitivities=[], config={}, call="test",
+                            demonstration=True)
     pdf = tmp_path / "doc.pdf"
     write_document(pdf, cert)
     texts = check_document(pdf, poppler, tmp_path)
