@@ -113,7 +113,7 @@ def test_headline_leaves_out_flagged_and_out_of_range_bins(cert_path):
     reasons = table.set_index(["height_m", "wind_speed_m_s"])["not_certified_reason"]
     assert reasons.loc[(80.0, 2.0)] == "centre outside 4 to 16 m/s"
     assert reasons.loc[(120.0, 8.0)].endswith("periods (fewer than 10)")
-    assert reasons.loc[(80.0, 10.0)] == "not settled to 1 significant digits within 8 Monte Carlo replicas"
+    assert reasons.loc[(80.0, 10.0)] == "not settled to 1 significant digit within 8 Monte Carlo replicas"
     inside = table[table["certified"]]
     pct = inside["expanded_uncertainty_k2_pct"]
     assert (pct.min(), pct.max()) == (lo, hi)

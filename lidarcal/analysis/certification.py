@@ -116,6 +116,16 @@ def certified_bins(centres, period_count, *,
     return np.where(n > 0, flag, 2).astype(np.int8)
 
 
+def digits_text(significant_digits) -> str:
+    """``"1 significant digit"``, ``"2 significant digits"``: how every document says the settling rule.
+
+    >>> digits_text(1), digits_text(2)
+    ('1 significant digit', '2 significant digits')
+    """
+    n = int(significant_digits)
+    return f"{n} significant digit" + ("" if n == 1 else "s")
+
+
 def settle_target(expanded, significant_digits: int) -> np.ndarray:
     """δ a bin's values must reach: ½·10^(e − N + 1), e the decimal exponent of U = ``expanded``.
 

@@ -48,6 +48,7 @@ from lidarcal.analysis.budget import (
     TRIAL_VARIABLES,
     budget,
 )
+from lidarcal.analysis.certification import digits_text
 from lidarcal.binning import bin_index
 from lidarcal.campaign.progress import Progress
 from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_replicas
@@ -202,9 +203,9 @@ def adaptive_replicas(
         if not cells:
             break
         first, last = min(cells), max(cells)
-        log.info("Monte Carlo replicas %s: %d certified bin(s) not settled to %d digits; re-simulating %d "
+        log.info("Monte Carlo replicas %s: %d certified bin(s) not settled to %s; re-simulating %d "
                  "(period, height) cells", f"{first}-{last}" if last > first else first,
-                 int((bud["numerical_flag"] == 1).sum()), int(significant_digits),
+                 int((bud["numerical_flag"] == 1).sum()), digits_text(significant_digits),
                  int(sum(c.sum() for c in cells.values())))
         label = f"replicas {first}-{last}" if last > first else f"replica {first}"
         done = simulate_replicas(conditions, model, cells, list(cells), heights=heights, base_seed=base_seed,

@@ -21,6 +21,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
+from lidarcal.analysis.certification import digits_text
 from lidarcal.certificate.layout import components, extract_component
 from lidarcal.errors import InputError
 from lidarcal.io import source_name
@@ -101,7 +102,7 @@ def certified_rule(obj: xr.Dataset) -> str:
     lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
     text = f"centres {lo:g} to {hi:g} m/s, >= {int(budget.attrs.get('min_periods', 0))} periods"
     if "numerical_flag" in budget and "monte_carlo_significant_digits" in budget.attrs:
-        text += f", settled to {int(budget.attrs['monte_carlo_significant_digits'])} significant digits"
+        text += f", settled to {digits_text(budget.attrs['monte_carlo_significant_digits'])}"
     return text
 
 
@@ -180,8 +181,8 @@ def headline_sentence(obj: xr.Dataset) -> str | None:
     if missed:
         digits, replicas = (int(budget.attrs[a]) for a in ("monte_carlo_significant_digits",
                                                            "monte_carlo_replicas"))
-        text += (f"; {len(missed)} bin(s) did not settle to {digits} "
-                 f"significant digits within {replicas} Monte Carlo replicas "
+        text += (f"; {len(missed)} bin(s) did not settle to {digits_text(digits)} "
+                 f"within {replicas} Monte Carlo replicas "
                  "and are not certified (listed apart)")
     return text
 
@@ -242,7 +243,7 @@ def _reason(flag: str, periods: int, budget: xr.Dataset) -> str:
             "too_few_periods": f"{periods} periods (fewer than {int(budget.attrs.get('min_periods', 0))})",
             "empty": "no period",
             "outside_certified_range": f"centre outside {lo:g} to {hi:g} m/s",
-            "not_settled": (f"not settled to {digits} significant digits within "
+            "not_settled": (f"not settled to {digits_text(digits)} within "
                             f"{budget.attrs.get('monte_carlo_replicas')} Monte Carlo replicas"),
             }.get(flag, flag)
 

@@ -13,6 +13,7 @@ import argparse
 import numpy as np
 
 from lidarcal.analysis.budget import budget
+from lidarcal.analysis.certification import digits_text
 from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_certification_options,
@@ -127,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
         bad = int((ds.numerical_flag == 1).sum())
         print(f"  Monte Carlo: {ds.attrs['monte_carlo_replicas']} replica(s), "
               f"{ds.attrs['monte_carlo_trials']} "
-              f"trials; {bad} bin(s) not settled to {ds.attrs['monte_carlo_significant_digits']} "
-              "significant digits (not certified: bin_flag not_settled)")
+              f"trials; {bad} bin(s) not settled to "
+              f"{digits_text(ds.attrs['monte_carlo_significant_digits'])} "
+              "(not certified: bin_flag not_settled)")
     return 0

@@ -23,6 +23,7 @@ from __future__ import annotations
 import argparse
 import os
 
+from lidarcal.analysis.certification import digits_text
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.scheduler import WORKER_TIMEOUT
 from lidarcal.cli import COMMANDS, command_line
@@ -151,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
             coverage_interval=args.coverage_interval, duration=args.duration, **opts)
         print(f"Monte Carlo: {bud.attrs['monte_carlo_replicas']} replica(s), {ds.sizes.get('trial', 0)} "
               f"further trials; {int((bud.numerical_flag == 1).sum())} bin(s) not settled to "
-              f"{args.significant_digits} significant digits")
+              f"{digits_text(args.significant_digits)}")
     if not args.model and args.cube and cube.attrs.get("lidar_serial"):  # records of the cube's lidar
         ds.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
     write_artefact(ds, args.output, overwrite=args.overwrite)

@@ -32,6 +32,7 @@ import sys
 from pathlib import Path
 
 from lidarcal.admin import status_line
+from lidarcal.analysis.certification import digits_text
 from lidarcal.certificate import result_table
 from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import add_overwrite_option
@@ -71,8 +72,8 @@ def _headline(table) -> str:
                  "interval is certified instead (certified statement: coverage_interval)")
     missed = table.attrs.get("not_settled") or []
     if missed:
-        text += (f"; {len(missed)} bin(s) not settled to {table.attrs['significant_digits']} "
-                 "significant digits by the Monte Carlo: not certified (listed apart)")
+        text += (f"; {len(missed)} bin(s) not settled to {digits_text(table.attrs['significant_digits'])} "
+                 "by the Monte Carlo: not certified (listed apart)")
     return text
 
 

@@ -22,6 +22,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
+from lidarcal.analysis.certification import digits_text
 from lidarcal.certificate.measurand import model_form_values
 from lidarcal.certificate.results import (
     certified_mask,
@@ -229,7 +230,7 @@ def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT
     missed = not_settled(budget)
     if missed:  # JCGM 101 7.9: the Monte Carlo stopped at --max-replicas before these settled
         text += (f" {len(missed)} value(s) did not settle to "
-                 f"{int(budget.attrs['monte_carlo_significant_digits'])} significant digits within "
+                 f"{digits_text(budget.attrs['monte_carlo_significant_digits'])} within "
                  f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas and are not certified "
                  "(listed apart, with their tolerances).")
     return text
