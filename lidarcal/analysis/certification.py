@@ -220,7 +220,7 @@ def thin_bin_factor(nu, p: float = COVERAGE_PROBABILITY) -> np.ndarray:
     """t_((1+p)/2)(ν) / Φ⁻¹((1+p)/2): how much GUM G.4 widens a large-sample 95 % interval (1 at ν = ∞).
 
     >>> round(float(thin_bin_factor(9.0)), 4)
-    1.1541
+    1.1542
     """
     nu = np.asarray(nu, dtype=float)
     with np.errstate(invalid="ignore"):
