@@ -37,9 +37,8 @@ floats, no files, no xarray) does that:
   §6.4.8: every trial draws every input), from
   ``SeedSequence([base_seed, r, period_key], spawn_key=(BAD_RATE_STREAM,))``; replica 0
   simulates the best estimate (â, b̂).  A draw per trial, not one per replica: the distribution
-  of one period's error is the same either way, but a curve shared by a whole replica shifts
-  every period of a bin together, and that shift, not the bin's values, would then set how many
-  replicas the bin needs to settle.  The rate's uncertainty is nevertheless one lidar's: it is
+  of one period's error is the same either way, and a curve shared by a whole replica would
+  shift every period of a bin together, a shift the replicas must then average out.  The rate's uncertainty is nevertheless one lidar's: it is
   systematic across the periods of a campaign, and whoever averages many 10-minute means must
   not average it down (``docs/certificate.md``).
 
