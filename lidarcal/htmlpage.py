@@ -48,7 +48,8 @@ def legend_outside(p: Any, click_policy: str = "hide", location: str = "right") 
 
     ``location`` other than ``"right"`` (``"top_right"``) keeps it inside the plot, there.  The
     plot's own legend is moved, not hidden beside a copy: a hidden legend is one more model to
-    build and write into the page.
+    build and write into the page.  A plot whose menu hides renderers takes ``"none"``: BokehJS
+    greys an item that has a hidden renderer.
     """
     if p.legend:
         legend = p.legend[0]
