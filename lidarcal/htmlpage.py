@@ -1,7 +1,12 @@
-"""Offline HTML pages: bokeh models on one self-contained page, written atomically.
+"""Offline HTML pages: plain bokeh figures on one self-contained page, written atomically.
 
-Shared by the calibration report (:mod:`lidarcal.report`) and the diagnosis report
-(:mod:`lidarcal.diagnose.report`).
+The one HTML plotting API of lidarcal: every interactive page (the calibration report
+:mod:`lidarcal.report`, the diagnosis :mod:`lidarcal.diagnose.report` and the comparison
+:mod:`lidarcal.compare.report`) draws plain bokeh models with :func:`plot`,
+:func:`legend_outside` and :func:`grid`, and writes them with :func:`offline_html`.  Plain
+bokeh, not holoviews/hvplot: importing and rendering through holoviews costs about a second of
+CPU per page before anything is drawn (``docs/performance.md``); ``.hvplot`` stays for users
+exploring an artefact themselves (``docs/analyst.md``).
 """
 
 from __future__ import annotations
@@ -15,7 +20,53 @@ from typing import Any
 from lidarcal.errors import InputError
 from lidarcal.io import atomic_path
 
-__all__ = ["offline_html", "html_table", "write_text", "check_models"]
+__all__ = ["COLORS", "plot", "legend_outside", "grid", "offline_html", "html_table", "write_text",
+           "check_models"]
+
+#: The categorical colours of every page (bokeh's and matplotlib's Category10).
+COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
+          "#17becf", "#000000"]
+_TOOLS = "pan,box_zoom,wheel_zoom,reset,save"
+
+
+def plot(title: str, xlabel: str, ylabel: str, *, width: int = 900, height: int = 380,
+         tools: str = _TOOLS, **kw: Any) -> Any:
+    """Return a bokeh figure with the pages' tools (pan, box and wheel zoom, reset, save) on the right.
+
+    ``kw`` goes to :func:`bokeh.plotting.figure` (``x_range``, ``y_range`` ...).
+    """
+    from bokeh.plotting import figure
+
+    p = figure(title=title, width=width, height=height, x_axis_label=xlabel, y_axis_label=ylabel,
+               tools=tools, toolbar_location="right", **kw)
+    p.title.text_font_size = "12pt"
+    return p
+
+
+def legend_outside(p: Any, click_policy: str = "hide", location: str = "right") -> None:
+    """Give ``p``'s legend a click policy (``"hide"``, ``"mute"``, ``"none"``) and move it right of the plot.
+
+    ``location`` other than ``"right"`` (``"top_right"``) keeps it inside the plot, there.  The
+    plot's own legend is moved, not hidden beside a copy: a hidden legend is one more model to
+    build and write into the page.  A plot whose menu hides renderers takes ``"none"``: BokehJS
+    greys an item that has a hidden renderer.
+    """
+    if p.legend:
+        legend = p.legend[0]
+        legend.click_policy = click_policy
+        legend.label_text_font_size = "9pt"
+        if location == "right":
+            p.center.remove(legend)
+            p.add_layout(legend, "right")
+        else:
+            legend.location = location
+
+
+def grid(plots: list, ncols: int = 2) -> Any:
+    """Lay ``plots`` out ``ncols`` to a row, with one toolbar for all of them (above)."""
+    from bokeh.layouts import gridplot
+
+    return gridplot(plots, ncols=ncols, toolbar_location="above")
 
 
 def html_table(header: list[str], rows: list[list[str]], caption: str) -> str:
@@ -34,10 +85,10 @@ def offline_html(models: Mapping[str, Any], *, title: str, header: str = "",
     Each model gets a ``<section>`` (with an ``<h2>`` of ``titles[name]``, default the name, if
     ``headings``, then
     ``after[name]`` if given) below the ``<h1>`` title and the ``header`` HTML.  Only the
-    BokehJS bundles the models need are embedded.  Importing hvplot imports panel, which adds
-    URL-loaded files (its ES-module shims) to every bokeh Resources object; the plots here are
-    plain bokeh models, so those URLs are dropped, and a model from outside bokeh (which would
-    need them) is refused.  ``footer`` HTML goes after the sections.
+    BokehJS bundles the models need are embedded.  In a session that imported hvplot (a user's
+    notebook), panel adds URL-loaded files (its ES-module shims) to every bokeh Resources
+    object; the plots here are plain bokeh models, so those URLs are dropped, and a model from
+    outside bokeh (which would need them) is refused.  ``footer`` HTML goes after the sections.
     """
     from bokeh.embed import components as bokeh_components
     from bokeh.embed.bundle import Bundle, bundle_for_objs_and_resources

@@ -251,6 +251,12 @@ def test_cli_json_contract_and_recovery(zd_run, capsys):
     html = report.read_text()
     # INLINE resources: bokeh's JavaScript is embedded and nothing is fetched (CDN or relative)
     assert "Bokeh" in html and not re.search(r"<(script|link)[^>]+(src|href)=", html)
+    # offline_html skips bokeh's document checks (its E-/W- codes): the plain bokeh figures pass them
+    from lidarcal.diagnose.report import report_layout
+    from lidarcal.htmlpage import check_models
+
+    with xr.open_dataset(out) as diagnosis:
+        assert check_models({"diagnosis": report_layout(diagnosis)}) == []
 
     # never overwrites silently, and fails before simulating anything
     capsys.readouterr()

@@ -438,3 +438,20 @@ def test_kernel_checker_follows_imports(tmp_path):
     assert kernel_problems(root) == [
         "pkg.conditions.kernels imports pandas",
         "pkg.conditions.kernels imports pkg.lidar.model, which brings in pint, xarray"]
+
+
+# -- one HTML plotting API: plain bokeh (lidarcal.htmlpage), matplotlib for the PDFs ---------------
+
+#: Libraries that draw another way in HTML; users may call ``.hvplot`` on an artefact themselves.
+OTHER_HTML_PLOTTING = {"holoviews", "hvplot", "panel", "plotly", "altair"}
+
+
+def test_one_html_plotting_api():
+    # every module's imports, function-local ones included (ast.walk reaches them)
+    found = {module_name(p, PACKAGE): sorted(third_party_imports(p, PACKAGE) & OTHER_HTML_PLOTTING)
+             for p in PACKAGE.rglob("*.py")}
+    assert {m: libs for m, libs in found.items() if libs} == {}
+    # bokeh's figures are made through htmlpage.plot: no page builds its own
+    makers = [module_name(p, PACKAGE) for p in PACKAGE.rglob("*.py")
+              if "from bokeh.plotting import figure" in p.read_text(encoding="utf-8")]
+    assert makers == ["lidarcal.htmlpage"]

@@ -12,7 +12,7 @@ from lidarcal.analysis import budget, sensitivity
 from lidarcal.bench import build_cube, simulate_run
 from lidarcal.cli import main
 from lidarcal.document.facts import fmt
-from lidarcal.document.figures import confidence_band
+from lidarcal.document.figure_data import confidence_band
 from lidarcal.errors import OutputExistsError
 from lidarcal.io import write_artefact
 from lidarcal.provenance import stamp
@@ -169,6 +169,39 @@ def test_confidence_band_matches_numpy_polyfit_covariance(inputs):
     # without the stored standard error the band comes from the bins' residuals: the same numbers
     _, lo2, hi2 = confidence_band(ds.drop_vars("slope_standard_error"), h, x)
     np.testing.assert_allclose(hi2 - lo2, 2 * half, rtol=1e-9)
+
+
+def test_pdf_and_html_draw_one_preparation_of_a_sensitivity(inputs):
+    """The PDF panel and the HTML plot of a sensitivity draw the same bin means and regression line,
+    prepared once (lidarcal.document.figure_data), and that line is intercept + slope * x."""
+    from matplotlib.figure import Figure as MplFigure
+
+    from lidarcal.document.figures import draw_sensitivity
+
+    ds = inputs["sensitivities"][0]
+    fig = MplFigure()
+    draw_sensitivity(fig, ds)
+    ax = fig.axes[0]  # the first height's panel
+    h = float(ds.height[0])
+    one = ds.sel(height=h)
+    (regression,) = ax.lines[-1:]  # the fitted line, drawn last
+    x_pdf, fit_pdf = regression.get_xdata(), regression.get_ydata()
+    # hand computation: the line through the artefact's own slope and intercept
+    np.testing.assert_allclose(fit_pdf, float(one.intercept) + float(one.slope) * x_pdf, rtol=1e-12)
+    model = report_figures(sensitivities=[ds])[f"sensitivity_{ds.attrs['environmental_variable']}"].bokeh()
+    label = f"{fmt(h)} m"
+    curve = next(r.data_source.data for r in model.children[1].renderers
+                 if f"fit|{label}" in r.data_source.data)
+    points = next(r.data_source.data for r in model.children[1].renderers
+                  if f"y|{label}" in r.data_source.data)
+    drawn = np.isfinite(curve[f"xf|{label}"])
+    np.testing.assert_array_equal(curve[f"xf|{label}"][drawn], x_pdf)  # the same points, not a re-sampling
+    np.testing.assert_array_equal(curve[f"fit|{label}"][drawn], fit_pdf)
+    # the kept bins (bin_flag 0), the same in both: PDF error-bar markers and HTML points
+    kept = (one.bin_flag.values == 0) & np.isfinite(one.mean_difference.values)
+    x_html = np.asarray(points[f"x|{label}"], float)
+    np.testing.assert_array_equal(x_html[np.isfinite(x_html)], one.bin.values[kept])
+    np.testing.assert_array_equal(ax.lines[0].get_xdata(), one.bin.values[kept])
 
 
 def test_fmt_rounds_to_three_significant_digits():
@@ -456,7 +489,7 @@ def test_budget_figure_is_scaled_to_the_certified_range(inputs):
 
 
 def test_cube_colour_scale_from_the_cnr_bins_drawn(inputs):
-    from lidarcal.document.figures import cube_colour_limits, drawn_cnr_range
+    from lidarcal.document.figure_data import cube_colour_limits, drawn_cnr_range
 
     cube = inputs["cube"]
     axis = np.sort(cube.cnr.values)

@@ -1,7 +1,7 @@
 """Offline HTML report of a ``comparison`` artefact: the paper's Figures 8 and 9 for one campaign.
 
-Two figures, drawn with holoviews/bokeh and written by :func:`lidarcal.htmlpage.offline_html`
-(BokehJS inline, nothing from the network):
+Two figures, drawn with plain bokeh and written by :func:`lidarcal.htmlpage.offline_html` (BokehJS
+inline, nothing from the network):
 
 1. per environmental variable, the sensitivity slope against height, measured and simulated,
    each with its 95 % interval (slope ± 1.96 standard errors); the heights of a disagreeing
@@ -19,10 +19,9 @@ import os
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import xarray as xr
 
-from lidarcal.htmlpage import offline_html, write_text
+from lidarcal.htmlpage import grid, legend_outside, offline_html, plot, write_text
 
 __all__ = ["write_report", "slope_figure", "budget_figure"]
 
@@ -53,77 +52,63 @@ def _header(ds: xr.Dataset) -> str:
     )
 
 
-def slope_figure(ds: xr.Dataset):
-    """Figure 1: slope vs height with 95 % intervals, measured vs simulated, one panel per variable."""
-    import holoviews as hv
+def _side(p, x: np.ndarray, y: np.ndarray, side: str, label: str | None, size: int,
+          err: np.ndarray | None = None) -> None:
+    """Draw one side's finite points: line and markers (legend ``label``), and ± ``err`` whiskers."""
+    from bokeh.models import ColumnDataSource, Whisker
 
+    ok = np.isfinite(y) & (np.isfinite(err) if err is not None else True)
+    data = {"x": x[ok], "y": y[ok]}
+    if err is not None:
+        data.update(lower=y[ok] - err[ok], upper=y[ok] + err[ok])
+    src = ColumnDataSource(data)
+    if err is not None:
+        whisker = Whisker(base="x", lower="lower", upper="upper", source=src, line_color=COLOURS[side])
+        for head in (whisker.upper_head, whisker.lower_head):
+            head.line_color = COLOURS[side]
+        p.add_layout(whisker)
+    legend = {"legend_label": label} if label else {}
+    p.line("x", "y", source=src, color=COLOURS[side], line_width=2, **legend)
+    p.scatter("x", "y", source=src, color=COLOURS[side], size=size, **legend)
+
+
+def slope_figure(ds: xr.Dataset) -> list:
+    """Figure 1: slope vs height with 95 % intervals, measured vs simulated, one panel per variable."""
     panels = []
     h = np.asarray(ds.height.values, dtype=float)
     shift = 0.01 * (h.max() - h.min() if h.size > 1 else 10.0)  # side by side, not on top of each other
     for v in map(str, ds.variable.values):
-        layers = []
         units = ds[f"{v}_measured_slope"].attrs["units"]
-        for k, side in enumerate(("measured", "simulated")):
-            s = np.asarray(ds[f"{v}_{side}_slope"].values, float)
-            e = Z95 * np.asarray(ds[f"{v}_{side}_slope_stderr"].values, float)
-            x = h + (k - 0.5) * shift
-            ok = np.isfinite(s) & np.isfinite(e)
-            df = pd.DataFrame({"height": x[ok], "slope": s[ok], "err": e[ok]})
-            layers.append(hv.ErrorBars(df, "height", ["slope", "err"]).opts(color=COLOURS[side]))
-            layers.append(hv.Curve(df, "height", "slope", label=side).opts(color=COLOURS[side]))
-            layers.append(hv.Scatter(df, "height", "slope").opts(color=COLOURS[side], size=7))
         bad = [f"{x:g}" for x, a in zip(h, ds["agree"].sel(variable=v).values, strict=True) if int(a) == 0]
-        title = v + (f": disagree at {', '.join(bad)} m" if bad else ": agree")
-        panels.append(
-            hv.Overlay(layers).opts(
-                title=title,
-                xlabel="height (m)",
-                ylabel=f"slope ({units})",
-                width=540,
-                height=320,
-                legend_position="right",
-                show_grid=True,
-            )
-        )
+        p = plot(v + (f": disagree at {', '.join(bad)} m" if bad else ": agree"), "height (m)",
+                 f"slope ({units})", width=540, height=320)
+        for k, side in enumerate(("measured", "simulated")):
+            _side(p, h + (k - 0.5) * shift, np.asarray(ds[f"{v}_{side}_slope"].values, float), side, side, 7,
+                  err=Z95 * np.asarray(ds[f"{v}_{side}_slope_stderr"].values, float))
+        legend_outside(p, "mute")
+        panels.append(p)
     return panels
 
 
-def budget_figure(ds: xr.Dataset):
+def budget_figure(ds: xr.Dataset) -> list:
     """Figure 2: relative combined uncertainty vs wind speed, IEC (measured) vs Monte Carlo, per height."""
-    import holoviews as hv
-
     panels = []
     ws = np.asarray(ds.wind_speed.values, dtype=float)
     label = {"measured": "IEC field approach (measured)", "simulated": "Monte Carlo (simulated)"}
     for h in ds.height.values:
-        layers = []
+        p = plot(f"Budget vs wind speed at {float(h):g} m", "reference wind speed (m s-1)",
+                 "combined standard uncertainty (%)", width=460, height=320)
         for side in ("measured", "simulated"):
-            u = np.asarray(ds[f"{side}_relative_uncertainty"].sel(height=h).values, float)
-            ok = np.isfinite(u)
-            df = pd.DataFrame({"wind_speed": ws[ok], "u": u[ok]})
-            layers.append(hv.Curve(df, "wind_speed", "u", label=label[side]).opts(color=COLOURS[side]))
-            layers.append(hv.Scatter(df, "wind_speed", "u").opts(color=COLOURS[side], size=6))
-        panels.append(
-            hv.Overlay(layers).opts(
-                title=f"Budget vs wind speed at {float(h):g} m",
-                xlabel="reference wind speed (m s-1)",
-                ylabel="combined standard uncertainty (%)",
-                width=460,
-                height=320,
-                legend_position="top_right",
-                show_grid=True,
-            )
-        )
+            _side(p, ws, np.asarray(ds[f"{side}_relative_uncertainty"].sel(height=h).values, float), side,
+                  label[side], 6)
+        legend_outside(p, "mute", location="top_right")
+        panels.append(p)
     return panels
 
 
 def write_report(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
     """Write the self-contained HTML report (both figures) atomically."""
-    import holoviews as hv
-
-    hv.extension("bokeh", logo=False)
-    slopes = hv.render(hv.Layout(slope_figure(ds)).cols(2).opts(shared_axes=False), backend="bokeh")
-    budgets = hv.render(hv.Layout(budget_figure(ds)).cols(2).opts(shared_axes=False), backend="bokeh")
+    slopes, budgets = grid(slope_figure(ds)), grid(budget_figure(ds))
     titles = {
         "slopes": "Figure 1. Sensitivity slopes against height: measured and simulated (95 % intervals)",
         "budgets": "Figure 2. Uncertainty budgets against wind speed: IEC field approach and Monte Carlo",

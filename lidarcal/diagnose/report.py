@@ -1,4 +1,4 @@
-"""Offline HTML report of a ``diagnosis`` artefact (hvplot/bokeh with INLINE resources).
+"""Offline HTML report of a ``diagnosis`` artefact (plain bokeh, :mod:`lidarcal.htmlpage`; BokehJS inline).
 
 Plots: the gap per height before and after the correction; for every environmental variable
 the binned residual before and after; the Eq. 12 sensitivity statistic m·std of the measured
@@ -14,10 +14,9 @@ import os
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import xarray as xr
 
-from lidarcal.htmlpage import offline_html, write_text
+from lidarcal.htmlpage import COLORS, grid, legend_outside, offline_html, plot, write_text
 
 __all__ = ["write_report", "report_layout"]
 
@@ -50,62 +49,68 @@ def _header(ds: xr.Dataset) -> str:
     )
 
 
-def report_layout(ds: xr.Dataset):
-    """Build the holoviews layout of the report's plots."""
-    import holoviews as hv
-    import hvplot.pandas  # noqa: F401  (registers .hvplot)
+def _lines(p, groups: list[tuple[str, np.ndarray, np.ndarray]], x: str, y: str, by: str, *,
+           points: bool = False) -> None:
+    """Draw one line (and its points) per group ``(label, x, y)``, legend by label, hover naming all three."""
+    from bokeh.models import ColumnDataSource, HoverTool
 
-    hv.extension("bokeh", logo=False)
+    renderers = []
+    for i, (label, xs, ys) in enumerate(groups):
+        src = ColumnDataSource({x: xs, y: ys, by: [label] * len(xs)})
+        color = COLORS[i % len(COLORS)]
+        renderers.append(p.line(x, y, source=src, color=color, line_width=2, legend_label=label))
+        if points:
+            renderers.append(p.scatter(x, y, source=src, color=color, size=6, legend_label=label))
+    p.add_tools(HoverTool(renderers=renderers, tooltips=[(by, f"@{{{by}}}"), (x, f"@{{{x}}}"),
+                                                         (y, f"@{{{y}}}")]))
+    legend_outside(p, "mute")
+
+
+def report_layout(ds: xr.Dataset):
+    """Build the report's plots (plain bokeh), two to a row: gap, binned residuals, sensitivities, scores."""
+    from bokeh.models import ColumnDataSource, HoverTool
+
+    size = {"width": 450, "height": 300}
     plots = []
-    gaps = pd.DataFrame({"height": ds.height.values, "before": ds.gap_before.values,
-                         "after": ds.gap_after.values}).melt("height", var_name="model", value_name="gap")
-    plots.append(gaps.hvplot.line(x="height", y="gap", by="model", title="Gap per height (%)",
-                                  xlabel="height (m)", ylabel="gap (%)", width=450, height=300)
-                 * gaps.hvplot.scatter(x="height", y="gap", by="model"))
-    for var in ds.variable.values:
-        var = str(var)
+    h = ds.height.values
+    p = plot("Gap per height (%)", "height (m)", "gap (%)", **size)
+    _lines(p, [(when, h, ds[f"gap_{when}"].values) for when in ("before", "after")], "height", "gap", "model",
+           points=True)
+    plots.append(p)
+    for var in map(str, ds.variable.values):
         centre = ds[f"{var}_bin_mean"]
-        frames = []
+        groups = []
         for when in ("before", "after"):
             r = ds[f"binned_residual_{when}"].sel(variable=var)
-            for h in ds.height.values:
-                frames.append(pd.DataFrame({"x": centre.sel(height=h).values,
-                                            "residual": r.sel(height=h).values,
-                                            "series": f"{when}, {h:g} m"}))
-        df = pd.concat(frames).dropna().rename(columns={"x": var})
-        plots.append(df.hvplot.line(x=var, y="residual", by="series", width=450, height=300,
-                                    title=f"Binned residual vs {var} (%)",
-                                    xlabel=f"{var} ({ds[f'{var}_bin_mean'].attrs['units']})",
-                                    ylabel="field − model (%)"))
+            for z in h:
+                xs, ys = centre.sel(height=z).values, r.sel(height=z).values
+                ok = np.isfinite(xs) & np.isfinite(ys)  # the bins with a residual, joined by the line
+                groups.append((f"{when}, {z:g} m", xs[ok], ys[ok]))
+        p = plot(f"Binned residual vs {var} (%)", f"{var} ({centre.attrs['units']})", "field − model (%)",
+                 **size)
+        _lines(p, groups, var, "residual", "series")
+        plots.append(p)
     if "sensitivity_measured" in ds:
-        for var in ds.variable.values:
-            var = str(var)
-            df = pd.concat([pd.DataFrame({"height": ds.height.values,
-                                          "m_std": ds[f"sensitivity_{k}"].sel(variable=var).values,
-                                          "source": label})
-                            for k, label in (("measured", "measured"), ("before", "simulated, nominal"),
-                                             ("after", "simulated, corrected"))])
-            plots.append(df.hvplot.line(x="height", y="m_std", by="source", width=450, height=300,
-                                        title=f"Sensitivity m·std to {var} (%)", xlabel="height (m)",
-                                        ylabel="m·std (%)"))
-    scores = pd.DataFrame({"candidate": [str(c) for c in ds.candidate.values],
-                           "score": np.asarray(ds.candidate_score.values, float)})
-    plots.append(scores.hvplot.bar(x="candidate", y="score", rot=30, width=450, height=300,
-                                   title="Candidate score (ΔBIC vs none; lower is better)"))
-    return hv.Layout(plots).cols(2).opts(shared_axes=False)
+        for var in map(str, ds.variable.values):
+            p = plot(f"Sensitivity m·std to {var} (%)", "height (m)", "m·std (%)", **size)
+            _lines(p, [(label, h, ds[f"sensitivity_{k}"].sel(variable=var).values)
+                       for k, label in (("measured", "measured"), ("before", "simulated, nominal"),
+                                        ("after", "simulated, corrected"))], "height", "m_std", "source")
+            plots.append(p)
+    names = [str(c) for c in ds.candidate.values]
+    p = plot("Candidate score (ΔBIC vs none; lower is better)", "candidate", "score", x_range=names, **size)
+    bars = p.vbar(x="candidate", top="score", width=0.8, source=ColumnDataSource(
+        {"candidate": names, "score": np.asarray(ds.candidate_score.values, float)}))
+    p.add_tools(HoverTool(renderers=[bars], tooltips=[("candidate", "@{candidate}"), ("score", "@{score}")]))
+    p.xaxis.major_label_orientation = np.deg2rad(30)
+    p.xgrid.visible = False
+    plots.append(p)
+    return grid(plots, ncols=2)
 
 
 def write_report(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = False) -> Path:
-    """Write the self-contained HTML report atomically.
-
-    The layout is rendered to bokeh and written by :func:`lidarcal.htmlpage.offline_html` (the
-    page writer shared with the calibration report: BokehJS inline).  ``hvplot.save`` would go
-    through panel, whose page template links its CSS from a CDN, so the page would try the
-    network when opened offline.
-    """
-    import holoviews as hv
-
-    model = hv.render(report_layout(ds), backend="bokeh")
+    """Write the self-contained HTML report atomically (:func:`lidarcal.htmlpage.offline_html`)."""
+    model = report_layout(ds)
     title = f"lidarcal diagnosis: {ds.attrs.get('diagnosis_effect', '')}"
     page = offline_html({"diagnosis": model}, title=title, header=_header(ds), headings=False)
     return write_text(path, page, overwrite=overwrite)

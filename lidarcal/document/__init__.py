@@ -7,6 +7,8 @@ the headline), then the figures, every bin of the budget and the inputs with the
 - :mod:`lidarcal.document.facts` — what the documents state (page 1's facts, the headline, the
   certified grid) and how numbers and units are written (:func:`fmt`, :func:`units_suffix`,
   :data:`VARIABLE_NAMES`, shared by every report); the HTML report states the same.
+- :mod:`lidarcal.document.figure_data` — each figure's data, prepared once; the HTML report's
+  bokeh figures draw the same records.
 - :mod:`lidarcal.document.figures` — the figures' drawings, shared with the HTML report's PNGs.
 - :mod:`lidarcal.document.pages` — the PDF's page layout and :func:`write_document`.
 """

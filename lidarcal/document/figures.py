@@ -1,12 +1,13 @@
 """The figures of the certificate's documents, drawn with matplotlib on a given Figure.
 
-One small function per figure (:data:`DRAWERS`, :func:`draw`): the budget's expanded
-uncertainty on the certified range (bins outside it drawn apart, in their own panel, never
-setting the axes), its contributors, each sensitivity with its regression and 95 % confidence
-band (:func:`confidence_band`), their significance (Eq. 12), the bench cube's heatmaps (colour
-scale from the CNR bins the simulation drew from, :func:`drawn_cnr_range`) and the RWF with its
-zero distance.  The PDF's pages (:mod:`lidarcal.document.pages`) and the HTML report's static
-PNGs are the same drawings, in the same style (:data:`STYLE`).
+One small function per figure (:data:`DRAWERS`, :func:`draw`), each drawing the data its
+:mod:`lidarcal.document.figure_data` function prepares (the HTML report's bokeh figures draw
+the same records): the budget's expanded uncertainty on the certified range (bins outside it
+drawn apart, in their own panel, never setting the axes), its contributors, each sensitivity
+with its regression and 95 % confidence band, their significance (Eq. 12), the bench cube's
+heatmaps (colour scale from the CNR bins the simulation drew from) and the RWF with its zero
+distance.  The PDF's pages (:mod:`lidarcal.document.pages`) and the HTML report's static PNGs
+are the same drawings, in the same style (:data:`STYLE`).
 """
 
 from __future__ import annotations
@@ -20,7 +21,17 @@ import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
 from lidarcal.certificate import components, extract_component
-from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, certified_rows, fmt, units_suffix
+from lidarcal.document.facts import fmt
+from lidarcal.document.figure_data import (
+    CubeData,
+    budget_data,
+    contributors_data,
+    cube_data,
+    drawn_cnr_range,
+    rwf_data,
+    sensitivity_data,
+    significance_data,
+)
 
 __all__ = [
     "A4",
@@ -30,17 +41,12 @@ __all__ = [
     "draw",
     "figure_names",
     "parts_of",
-    "confidence_band",
-    "drawn_cnr_range",
-    "cube_colour_limits",
     "draw_budget",
     "draw_contributors",
     "draw_sensitivity",
     "draw_significance",
     "draw_cube",
     "draw_rwf",
-    "bin_means",
-    "rwf_window",
 ]
 
 A4 = (8.27, 11.69)  # inches, portrait
@@ -116,21 +122,12 @@ def _small(ax, title: str, xlabel: str, ylabel: str) -> None:
             axis.get_major_locator().set_params(nbins=4)
 
 
-def _extent(g: Mapping[str, Any], wind_speeds: tuple[float, float], step: float) -> tuple[float, float]:
-    """Return the x limits of the certified values' bins (the range when none), half a bin beyond."""
-    rows = certified_rows(g)
-    lo, hi = (g["wind_speed"][rows[0]], g["wind_speed"][rows[-1]]) if rows.size else wind_speeds
-    return float(lo) - step / 2, float(hi) + step / 2
-
-
 def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE) -> None:
     """U (k = 2) per height on the certified bins, ± numerical tolerance; the others in their own panel."""
-    g = certified_grid(budget, wind_speeds)
-    k = float(budget.attrs.get("coverage_factor", 2.0))
-    ws, val, cert, tol = g["wind_speed"], g["value"], g["certified"], g["tolerance"]
+    d = budget_data(budget, wind_speeds)
+    k, ws, val, cert, tol, step = d.k, d.wind_speed, d.value, d.certified, d.tolerance, d.step
     top, bottom = _axes(fig, 2, 1, height_ratios=[2.2, 1], top=0.9, bottom=0.1, hspace=0.45, right=0.8)
-    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
-    for j, h in enumerate(g["height"]):
+    for j, h in enumerate(d.height):
         c = _COLORS[j % len(_COLORS)]
         y = np.where(cert[:, j], val[:, j], np.nan)
         if tol is not None:  # JCGM 101 7.9: how far each value has settled
@@ -138,19 +135,18 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFA
                          elinewidth=1.2, capsize=2.5, label=f"{fmt(h)} m")
         else:
             top.plot(ws, y, "-o", color=c, ms=3, lw=1.5, label=f"{fmt(h)} m")
-        apart = ~cert[:, j] & np.isfinite(val[:, j])
+        apart = d.apart[:, j]
         bottom.plot(ws[apart], val[apart, j], "x", color=c, ms=4, label=f"{fmt(h)} m")
     certified_values = val[cert] + (np.nan_to_num(tol[cert]) if tol is not None else 0)  # with its bar
     finite = certified_values[np.isfinite(certified_values)]
-    top.set_xlim(*_extent(g, wind_speeds, step))
+    top.set_xlim(d.held[0] - step / 2, d.held[1] + step / 2)
     top.set_ylim(0, float(finite.max()) * 1.15 if finite.size else 1.0)
-    lo, hi = _extent(g, wind_speeds, step)
     bars = "; bars: ± numerical tolerance (Monte Carlo)" if tol is not None else ""
     _small(
         top,
-        f"Relative expanded uncertainty (k = {k:g}) of the certified bins ({fmt(lo + step / 2)} to "
-        f"{fmt(hi - step / 2)} m/s, settled{bars})",
-        f"reference wind speed bin{units_suffix(budget.wind_speed)}",
+        f"Relative expanded uncertainty (k = {k:g}) of the certified bins ({fmt(d.held[0])} to "
+        f"{fmt(d.held[1])} m/s, settled{bars})",
+        f"reference wind speed bin{d.wind_speed_units}",
         f"U, k = {k:g} (%)",
     )
     top.legend(
@@ -161,12 +157,12 @@ def draw_budget(fig, budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFA
 
         bottom.set_yscale("log")
         bottom.yaxis.set_minor_locator(NullLocator())  # minor ticks of a log axis: dozens of texts
-    bottom.axvspan(wind_speeds[0] - step / 2, wind_speeds[1] + step / 2, color="0.9", zorder=0)
+    bottom.axvspan(*d.range_limits, color="0.9", zorder=0)
     _small(
         bottom,
         f"Not certified: bins outside {wind_speeds[0]:g} to {wind_speeds[1]:g} m/s (grey: inside), with "
         "too few periods or not settled (own scale)",
-        f"reference wind speed bin{units_suffix(budget.wind_speed)}",
+        f"reference wind speed bin{d.wind_speed_units}",
         f"U, k = {k:g} (%)",
     )
 
@@ -182,24 +178,17 @@ def draw_contributors(
     """
     from matplotlib.patches import Patch
 
-    g = certified_grid(budget, wind_speeds)
-    b = budget.transpose("wind_speed", "height", ...)
-    names = [str(c).replace("_", " ") for c in b.contributor.values] + ["combined"]
-    heights = g["height"]
+    d = contributors_data(budget, wind_speeds)
+    names, heights, ws = d.names, d.height, d.wind_speed
     ncol = 1 if len(heights) <= 8 else 2
     nrow = int(np.ceil(len(heights) / ncol))
     axes = _axes(fig, nrow, ncol, sharex=True, sharey=True, top=0.9, bottom=0.1, hspace=0.25)
-    ws = g["wind_speed"]
-    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
-    width = 0.85 * step / len(names)
-    xlim = _extent(g, wind_speeds, 1.2 * step)
-    contrib = b["relative_contribution"].transpose("wind_speed", "height", "contributor").values
-    combined = b["relative_uncertainty"].values
+    width = 0.85 * d.step / len(names)
+    xlim = (d.held[0] - 0.6 * d.step, d.held[1] + 0.6 * d.step)
     points = axes[0].get_position().width * fig.get_figwidth() * 72 / (xlim[1] - xlim[0])  # points per m/s
     for j, (ax, h) in enumerate(zip(axes, heights, strict=False)):
-        ok = g["certified"][:, j]
-        values = np.concatenate([contrib[ok, j, :].T, combined[ok, j][None, :]])
-        for i, v in enumerate(values):
+        ok = d.certified[:, j]
+        for i, v in enumerate(d.values[ok, j, :].T):
             # bars as one line collection each (butt caps, width in points): ~1,000 rectangles are slow
             ax.vlines(ws[ok] + (i - (len(names) - 1) / 2) * width, 0, v, color=_COLORS[i % 10],
                       linewidth=0.9 * points * width, capstyle="butt")
@@ -209,7 +198,7 @@ def draw_contributors(
     for ax in axes[len(heights):]:
         ax.set_visible(False)
     for ax in axes[len(heights) - ncol:len(heights)]:
-        ax.set_xlabel(f"wind speed bin{units_suffix(budget.wind_speed)}")
+        ax.set_xlabel(f"wind speed bin{d.wind_speed_units}")
     fig.legend(handles=[Patch(color=_COLORS[i % 10], label=n) for i, n in enumerate(names)],
                loc="upper center", bbox_to_anchor=(0.5, 0.945), ncol=min(len(names), 6), fontsize=FONT - 1,
                frameon=False)
@@ -217,199 +206,73 @@ def draw_contributors(
                  fontsize=FONT + 3, y=0.985)
 
 
-def confidence_band(
-    ds: xr.Dataset, height: Any, x: np.ndarray, level: float = 0.95
-) -> tuple[np.ndarray, ...]:
-    """Fitted line and its two-sided ``level`` confidence band at ``x`` for one height.
-
-    The regression is of the kept bin means (``bin_flag == 0``) on the bins' mean of the
-    variable (``variable_mean``) with weights ``regression_weight`` (weighted least squares,
-    ``docs/sensitivity.md``); an artefact without them was fitted on the bin centres with equal
-    weights.  With ``S = Σ w (x_i − x̄_w)²`` and the scale ``c²`` of the weights' errors, the band
-    of the mean line is ``t(k-2) · c · sqrt(1/Σw + (x − x̄_w)² / S)``; ``c² = s_m² S`` from the
-    slope's standard error ``s_m`` (``slope_standard_error``), else ``max(1, χ²_ν)`` of the
-    residuals (equal weights: their variance).
-
-    Returns
-    -------
-    fit, lower, upper : arrays like ``x`` (band NaN with fewer than three bins)
-    """
-    from scipy.special import stdtrit  # the t quantile; scipy.stats costs ~0.4 s more to import
-
-    one = ds.sel(height=height)
-    weighted = "regression_weight" in one and "variable_mean" in one
-    xs = one["variable_mean"].values if weighted else one["bin"].values
-    ws = one["regression_weight"].values if weighted else np.ones(xs.shape)
-    yb_all = one["mean_difference"].values
-    used = (one["bin_flag"] == 0).values & np.isfinite(yb_all) & np.isfinite(xs) & np.isfinite(ws) & (ws > 0)
-    xb, yb, wb = xs[used], yb_all[used], ws[used]
-    slope, intercept = float(one["slope"]), float(one["intercept"])
-    fit = intercept + slope * x
-    n = int(used.sum())
-    if n < 3:
-        return fit, np.full_like(fit, np.nan), np.full_like(fit, np.nan)
-    xm = float((wb * xb).sum() / wb.sum())
-    sxx = float((wb * (xb - xm) ** 2).sum())
-    if "slope_standard_error" in one and np.isfinite(float(one["slope_standard_error"])):
-        scale2 = float(one["slope_standard_error"]) ** 2 * sxx
-    else:
-        chi2 = float((wb * (yb - (intercept + slope * xb)) ** 2).sum() / (n - 2))
-        scale2 = max(1.0, chi2) if weighted else chi2
-    half = stdtrit(n - 2, 0.5 + level / 2) * np.sqrt(scale2 * (1.0 / wb.sum() + (x - xm) ** 2 / sxx))
-    return fit, fit - half, fit + half
-
-
-def bin_means(one: xr.Dataset) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Return one height's kept bins (``bin_flag`` 0, finite mean): centres, mean differences, s.e.
-
-    The standard error of a bin mean is its standard deviation over the square root of its periods.
-    """
-    used = (one["bin_flag"] == 0).values & np.isfinite(one["mean_difference"].values)
-    sem = one["std_difference"].values / np.sqrt(np.maximum(one["sample_count"].values, 1))
-    return one["bin"].values[used], one["mean_difference"].values[used], sem[used]
-
-
 def draw_sensitivity(fig, ds: xr.Dataset) -> None:
     """Bin means (± s.e.), the regression and its 95 % band, one panel per height."""
-    var = str(ds.attrs.get("environmental_variable", "variable"))
-    readable = VARIABLE_NAMES.get(var, var.replace("_", " "))
-    units = ds["slope"].attrs.get("units", "")
-    heights = np.atleast_1d(ds.height.values)
-    axes = _axes(fig, int(np.ceil(len(heights) / 2)), 2, top=0.9, bottom=0.1, hspace=0.7)
-    for ax, h in zip(axes, heights, strict=False):
-        one = ds.sel(height=h)
-        xb, yb, sem = bin_means(one)
-        ax.errorbar(xb, yb, yerr=sem, fmt="o", color="black", ms=3, lw=0.8, label="bin mean ± s.e.")
-        if xb.size >= 2 and np.isfinite(float(one["slope"])):
-            x = np.linspace(xb.min(), xb.max(), 40)
-            fit, lo, hi = confidence_band(ds, h, x)
+    d = sensitivity_data(ds)
+    axes = _axes(fig, int(np.ceil(len(d.heights) / 2)), 2, top=0.9, bottom=0.1, hspace=0.7)
+    for ax, one in zip(axes, d.heights, strict=False):
+        ax.errorbar(one.x, one.y, yerr=one.sem, fmt="o", color="black", ms=3, lw=0.8, label="bin mean ± s.e.")
+        if one.line is not None:
+            x, fit, lo, hi = one.line
             ax.fill_between(x, lo, hi, color="#1f77b4", alpha=0.25, lw=0, label="95 % band")
             ax.plot(x, fit, color="#1f77b4", lw=1.5, label="regression")
-        se = float(one["slope_standard_error"]) if "slope_standard_error" in one else np.nan
         _small(
             ax,
-            f"{fmt(h)} m: m = {fmt(float(one['slope']))} ± {fmt(se)} {units}, "
-            f"R = {fmt(float(one['correlation']), 2)}",
-            f"{readable}{units_suffix(ds['bin'])}",
-            f"lidar – ref.{units_suffix(ds['mean_difference'])}",
+            f"{fmt(one.height)} m: m = {fmt(one.slope)} ± {fmt(one.slope_standard_error)} {d.slope_units}, "
+            f"R = {fmt(one.correlation, 2)}",
+            f"{d.readable}{d.bin_units}",
+            f"lidar – ref.{d.difference_units}",
         )
-    for ax in axes[len(heights) :]:
+    for ax in axes[len(d.heights) :]:
         ax.set_visible(False)
     axes[0].legend(fontsize=FONT - 1)
-    fig.suptitle(f"Sensitivity to {readable}", fontsize=FONT + 3)
+    fig.suptitle(f"Sensitivity to {d.readable}", fontsize=FONT + 3)
 
 
 def draw_significance(fig, sens: Iterable[xr.Dataset]) -> None:
     """Eq. 12 statistic m·std per height for every variable, against the ±0.5 % threshold."""
+    d = significance_data(sens)
     ax = _axes(fig, 1, 1, top=0.85, bottom=0.15, right=0.75)[0]
-    values = []
-    for i, ds in enumerate(sens):
-        var = str(ds.attrs.get("environmental_variable", "variable"))
-        y = np.atleast_1d(ds["slope_times_std"].values)
-        values.append(y)
-        ax.plot(
-            np.atleast_1d(ds.height.values),
-            y,
-            "-o",
-            ms=3,
-            color=_COLORS[i % 10],
-            label=VARIABLE_NAMES.get(var, var.replace("_", " ")),
-        )
+    for i, (name, h, y) in enumerate(d.variables):
+        ax.plot(h, y, "-o", ms=3, color=_COLORS[i % 10], label=name)
     for s in (0.5, -0.5):
         ax.axhline(s, color="grey", ls="--", lw=0.8)
-    finite = np.concatenate(values) if values else np.array([])
-    finite = finite[np.isfinite(finite)]
-    lim = max(0.6, 1.1 * float(np.abs(finite).max())) if finite.size else 0.6
-    ax.set_ylim(-lim, lim)
+    ax.set_ylim(-d.limit, d.limit)
     ax.legend(fontsize=FONT - 1, loc="upper left", bbox_to_anchor=(1.01, 1))
     _small(ax, "Significance (Eq. 12): m · std per height; threshold ±0.5 %", "height (m)", "m · std (%)")
 
 
-def drawn_cnr_range(
-    cube: xr.Dataset, records_summary: Mapping[str, Any] | None
-) -> tuple[float, float] | None:
-    """CNR (dB) span of the cube bins the simulation drew from, from the records' CNR range.
-
-    The virtual lidar interpolates the cube between the two CNR bins around a period's CNR
-    (clamped at the ends), so the bins used are those bracketing the records' CNR range;
-    None when the certificate does not state that range.
-    """
-    if not records_summary or "cnr_min_db" not in records_summary:
-        return None
-    axis = np.sort(np.atleast_1d(cube["cnr"].values).astype(float))
-    lo, hi = float(records_summary["cnr_min_db"]), float(records_summary["cnr_max_db"])
-    i0 = int(np.clip(np.searchsorted(axis, lo, side="right") - 1, 0, axis.size - 1))
-    i1 = int(np.clip(np.searchsorted(axis, hi, side="left"), 0, axis.size - 1))
-    return float(axis[i0]), float(axis[i1])
-
-
-def cube_colour_limits(
-    da: xr.DataArray, drawn: tuple[float, float] | None, symmetric: bool
-) -> tuple[float, float]:
-    """Colour limits of a cube heatmap: the 99th percentile of the bins the simulation draws from.
-
-    All bins when ``drawn`` (dB) is unknown; cells beyond the limits show the end colours.
-    """
-    used = da if drawn is None else da.where((da["cnr"] >= drawn[0]) & (da["cnr"] <= drawn[1]))
-    finite = used.values[np.isfinite(used.values)]
-    if not finite.size:
-        return (-1.0, 1.0) if symmetric else (0.0, 1.0)
-    if symmetric:
-        top = float(np.percentile(np.abs(finite), 99))
-        return -top, top
-    return float(finite.min()), float(np.percentile(finite, 99))
-
-
-def _heatmap(ax, da: xr.DataArray, cmap: str, vmin: float, vmax: float) -> Any:
-    """Draw a (cnr, velocity) heatmap: an image on a regular grid (cheap in a PDF), else a mesh."""
-    da = da.sortby("cnr").sortby("velocity").transpose("cnr", "velocity")
-    x, y = da["velocity"].values.astype(float), da["cnr"].values.astype(float)
-    dx, dy = (np.diff(x) if x.size > 1 else np.ones(1)), (np.diff(y) if y.size > 1 else np.ones(1))
-    if np.allclose(dx, dx[0]) and np.allclose(dy, dy[0]):
-        extent = (x[0] - dx[0] / 2, x[-1] + dx[0] / 2, y[0] - dy[0] / 2, y[-1] + dy[0] / 2)
-        return ax.imshow(
-            da.values,
-            origin="lower",
-            extent=extent,
-            aspect="auto",
-            interpolation="nearest",
-            cmap=cmap,
-            vmin=vmin,
-            vmax=vmax,
-        )
-    return ax.pcolormesh(x, y, da.values, cmap=cmap, vmin=vmin, vmax=vmax, shading="nearest")
+def _heatmap(ax, d: CubeData, i: int, cmap: str) -> Any:
+    """Draw line of sight ``i``'s heatmap: an image on a regular grid (cheap in a PDF), else a mesh."""
+    vmin, vmax = d.limits
+    if d.regular:
+        return ax.imshow(d.values[i], origin="lower", extent=d.extent, aspect="auto", interpolation="nearest",
+                         cmap=cmap, vmin=vmin, vmax=vmax)
+    return ax.pcolormesh(d.velocity, d.cnr, d.values[i], cmap=cmap, vmin=vmin, vmax=vmax, shading="nearest")
 
 
 def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | None = None) -> None:
     """CNR × programmed velocity heatmaps of ``los_bias`` or ``los_std``, one per line of sight."""
-    symmetric = name == "los_bias"
-    da = cube[name].transpose("los", "cnr", "velocity")
-    vmin, vmax = cube_colour_limits(da, drawn, symmetric)
-    los = list(da.los.values)
-    axes = _axes(fig, int(np.ceil(len(los) / 2)), 2, top=0.87, bottom=0.1, right=0.86, hspace=0.6,
+    d = cube_data(cube, name, drawn)
+    n = len(d.los_labels)
+    axes = _axes(fig, int(np.ceil(n / 2)), 2, top=0.87, bottom=0.1, right=0.86, hspace=0.6,
                  sharex=True, sharey=True)
     mesh = None
-    for ax, one in zip(axes, los, strict=False):
+    for i, (ax, label) in enumerate(zip(axes, d.los_labels, strict=False)):
         ax.grid(False)  # a heatmap fills its axes: grid lines would cross the cells
-        mesh = _heatmap(ax, da.sel(los=one), "RdBu_r" if symmetric else "viridis", vmin, vmax)
+        mesh = _heatmap(ax, d, i, "RdBu_r" if d.symmetric else "viridis")
         if drawn is not None:
             for y in drawn:
                 ax.axhline(y, color="black", lw=0.8, ls=":")
-        label = f"LOS {one}"
-        if "los_azimuth" in cube.coords and str(one).upper() != "V":
-            label += f" (azimuth {fmt(cube.los_azimuth.sel(los=one).item())}°)"
-        _small(ax, label, f"programmed radial velocity{units_suffix(cube.velocity)}",
-               f"CNR{units_suffix(cube.cnr)}")
-    for ax in axes[len(los) :]:
+        _small(ax, label, f"programmed radial velocity{d.velocity_units}", f"CNR{d.cnr_units}")
+    for ax in axes[n:]:
         ax.set_visible(False)
     if mesh is not None:
         cax = fig.add_axes([0.89, 0.3, 0.02, 0.4])
-        fig.colorbar(mesh, cax=cax, extend="both").set_label(
-            f"{name.replace('_', ' ')}{units_suffix(da)}", fontsize=FONT
-        )
+        fig.colorbar(mesh, cax=cax, extend="both").set_label(d.label, fontsize=FONT)
     what = (
         "mean LOS velocity error (measured – programmed)"
-        if symmetric
+        if d.symmetric
         else "standard deviation of the measured LOS velocity"
     )
     scale = (
@@ -421,43 +284,21 @@ def draw_cube(fig, cube: xr.Dataset, name: str, drawn: tuple[float, float] | Non
     fig.suptitle(f"Bench: {what}\n{scale}\nblank cells had no bench samples", fontsize=FONT + 2)
 
 
-def rwf_window(rwf: xr.Dataset) -> tuple[np.ndarray, slice, list[int]]:
-    """Return the RWF at zero CNR gradient over its peak, the range offsets drawn and the gradients drawn.
-
-    The offsets span where the RWF exceeds 1e-3 of its peak, padded by a quarter of that span
-    (at least 5 points); up to five CNR gradients, evenly spread, are drawn.
-    """
-    column = rwf["rwf"].sel(cnr_gradient=0.0, method="nearest")
-    norm = column.values / float(column.max())
-    support = np.flatnonzero(norm > 1e-3)
-    n = rwf.sizes["range_offset"]
-    lo, hi = (support.min(), support.max()) if support.size else (0, n - 1)
-    pad = max(5, (hi - lo) // 4)
-    g = rwf["cnr_gradient"].values
-    pick = sorted(set(np.linspace(0, len(g) - 1, min(5, len(g))).round().astype(int).tolist()))
-    return norm, slice(max(lo - pad, 0), min(hi + pad, n - 1) + 1), pick
-
-
 def draw_rwf(fig, rwf: xr.Dataset) -> None:
     """Pulse, apodization and RWF (normalised) with Zd; the RWF for a few CNR gradients."""
-    zd = float(rwf["zero_distance"]) if "zero_distance" in rwf else float("nan")
-    norm, sl, pick = rwf_window(rwf)
-    x = rwf["range_offset"].values[sl]
+    d = rwf_data(rwf)
     a, b = _axes(fig, 2, 1, top=0.92, bottom=0.1, right=0.78, hspace=0.35)
-    a.plot(x, norm[sl], label="RWF")
-    for name in ("pulse", "apodization"):
-        if name in rwf:
-            a.plot(x, (rwf[name] / float(rwf[name].max())).values[sl], label=name)
+    for name, y in d.shapes.items():
+        a.plot(d.x, y, label=name)
     a.legend(fontsize=FONT - 1, loc="upper left", bbox_to_anchor=(1.01, 1))
     _small(
         a,
-        f"Pulse, apodization and RWF (normalised), Zd = {fmt(zd)} m",
+        f"Pulse, apodization and RWF (normalised), Zd = {fmt(d.zero_distance)} m",
         "range offset from gate centre (m)",
         "normalised amplitude",
     )
-    g = rwf["cnr_gradient"].values
-    for i in pick:
-        b.plot(x, rwf["rwf"].isel(cnr_gradient=i).values[sl], label=f"{fmt(g[i])} dB/m")
+    for label, y in d.gradients:
+        b.plot(d.x, y, label=label)
     b.legend(
         fontsize=FONT - 1,
         loc="upper left",
@@ -465,12 +306,8 @@ def draw_rwf(fig, rwf: xr.Dataset) -> None:
         title="CNR gradient",
         title_fontsize=FONT,
     )
-    _small(
-        b,
-        "RWF for several CNR gradients (Eq. 2)",
-        "range offset from gate centre (m)",
-        f"RWF{units_suffix(rwf['rwf'])}",
-    )
+    _small(b, "RWF for several CNR gradients (Eq. 2)", "range offset from gate centre (m)",
+           f"RWF{d.rwf_units}")
 
 
 #: Figure name -> drawer(fig, parts); names match the HTML report's sections.

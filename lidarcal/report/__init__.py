@@ -1,6 +1,7 @@
 """Offline HTML report of a calibration (interactive bokeh plots) and the certificate document.
 
-- :mod:`lidarcal.report.plots` — the page's figures (:class:`Figure`, :func:`report_figures`).
+- :mod:`lidarcal.report.plots` — the page's figures (:class:`Figure`, :func:`report_figures`),
+  plain bokeh through :mod:`lidarcal.htmlpage`, drawn from :mod:`lidarcal.document.figure_data`.
 - :mod:`lidarcal.report.page` — :func:`write_report`: the page (status, headline, certified
   result, the certificate's facts, the figures, the inputs), the PDF and the PNGs beside it.
 """

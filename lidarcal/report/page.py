@@ -35,7 +35,8 @@ from lidarcal.document.facts import (
     model_form_grid,
     not_settled_text,
 )
-from lidarcal.document.figures import A4, STYLE, draw, drawn_cnr_range, figure_names, parts_of
+from lidarcal.document.figure_data import drawn_cnr_range
+from lidarcal.document.figures import A4, STYLE, draw, figure_names, parts_of
 from lidarcal.document.pages import gc_paused, write_document
 from lidarcal.htmlpage import html_table, offline_html, write_text
 from lidarcal.io import atomic_path, check_writable

@@ -18,8 +18,9 @@ As available (:func:`report_figures`, in page order):
   CNR gradients, with the zero distance Zd.
 
 A menu shows one height's renderers of a single plot (or copies its columns into the drawn
-ones), which keeps the page cheap to write.  Numbers and words are those of the PDF
-(:mod:`lidarcal.document.facts`).
+ones), which keeps the page cheap to write.  Each figure draws the record its
+:mod:`lidarcal.document.figure_data` function prepares, the one the PDF draws too; numbers and
+words are those of the PDF (:mod:`lidarcal.document.facts`).
 """
 
 from __future__ import annotations
@@ -32,18 +33,22 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
-from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, fmt, units_suffix
-from lidarcal.document.figures import bin_means, confidence_band, cube_colour_limits, rwf_window
+from lidarcal.document.facts import fmt
+from lidarcal.document.figure_data import (
+    budget_data,
+    contributors_data,
+    cube_data,
+    rwf_data,
+    sensitivity_data,
+    significance_data,
+)
 from lidarcal.errors import InputError
-from lidarcal.htmlpage import html_table
+from lidarcal.htmlpage import COLORS, html_table, legend_outside, plot
 
 __all__ = ["Figure", "report_figures"]
 
-_WIDTH, _HEIGHT = 900, 380
+_WIDTH = 900
 _THIN = "#d62728"  # marker colour of thin bins (fewer periods than min_periods)
-_COLORS = ["#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22",
-           "#17becf", "#000000"]
 
 
 @dataclass
@@ -80,31 +85,6 @@ class Figure:
         return model
 
 
-def _plot(title: str, xlabel: str, ylabel: str, *, width: int = _WIDTH, height: int = _HEIGHT, **kw) -> Any:
-    from bokeh.plotting import figure
-
-    p = figure(title=title, width=width, height=height, x_axis_label=xlabel, y_axis_label=ylabel,
-               tools="pan,box_zoom,wheel_zoom,reset,save", toolbar_location="right", **kw)
-    p.title.text_font_size = "12pt"
-    return p
-
-
-def _legend_outside(p: Any, click_policy: str = "hide") -> None:
-    """Move the legend right of the plot.
-
-    A menu's plot takes ``"none"``: BokehJS greys an item that has a hidden renderer, and the
-    menu hides the other heights' renderers of every item.
-    """
-    if p.legend:
-        # the plot's own legend is moved, not hidden beside a copy: a hidden legend is one more
-        # model to build and write into the page
-        legend = p.legend[0]
-        p.center.remove(legend)
-        legend.click_policy = click_policy
-        legend.label_text_font_size = "9pt"
-        p.add_layout(legend, "right")
-
-
 def _menu(p: Any, groups: Mapping[str, list], shown: str, titles: Mapping[str, str]) -> Any:
     """Add a drop-down above ``p`` choosing which group of its renderers is shown (and the title)."""
     from bokeh.layouts import column
@@ -129,45 +109,37 @@ def _by_name(p: Any) -> dict[str, list]:
     return groups
 
 
-def _wind_speed_axis(budget: xr.Dataset) -> tuple[str, np.ndarray, float, tuple[float, float]]:
-    """Label, bin centres, bin width and x range (the certified range) of the budget's plots."""
-    ws = budget.wind_speed.values
-    step = float(np.median(np.diff(ws))) if ws.size > 1 else 1.0
-    xlim = (DEFAULT_CERTIFIED_RANGE[0] - step / 2, DEFAULT_CERTIFIED_RANGE[1] + step / 2)
-    return f"reference wind speed bin{units_suffix(budget.wind_speed)}", ws, step, xlim
+def _wind_speed_label(units: str) -> str:
+    return f"reference wind speed bin{units}"
 
 
 def _budget_figure(budget: xr.Dataset) -> Figure:
     """Plot U (k = 2) per height on the certified range (menu: all heights or one), thin bins marked."""
-    k = float(budget.attrs.get("coverage_factor", 2.0))
-    xl, ws, _, xlim = _wind_speed_axis(budget)
-    rel = budget["relative_expanded_uncertainty"]
-    flag = budget["bin_flag"]
-    heights = budget.height.values
+    d = budget_data(budget)
+    k, heights = d.k, d.height
     # the axes show the certified bins (flag ok, 4-16 m/s); the others stay reachable by panning
-    g = certified_grid(budget)
-    certified = g["value"][g["certified"]]
+    certified = d.value[d.certified]
     ylim = (0.0, float(certified.max()) * 1.15) if certified.size else (0.0, 1.0)
     yl = f"relative expanded uncertainty, k = {fmt(k)} (%)"
-    title = f"Expanded uncertainty (k = {fmt(k)}), {budget.attrs.get('approach', '')} approach".rstrip(", ")
+    title = f"Expanded uncertainty (k = {fmt(k)}), {d.approach} approach".rstrip(", ")
     labels = ["all heights", *[f"{fmt(h)} m" for h in heights]]
 
     def build() -> Any:
         from bokeh.models import ColumnDataSource
 
-        p = _plot(f"{title}, all heights", xl, yl, x_range=xlim, y_range=ylim)
+        p = plot(f"{title}, all heights", _wind_speed_label(d.wind_speed_units), yl, x_range=d.range_limits,
+                 y_range=ylim)
         # one source (and view) for every height's columns: a source per renderer is 4 more models
-        data: dict[str, np.ndarray] = {"wind_speed": ws}
-        for h in heights:
-            y, f = rel.sel(height=h).values, flag.sel(height=h).values
-            data[f"U|{fmt(h)} m"] = np.where(f == 0, y, np.nan)
-            data[f"thin|{fmt(h)} m"] = np.where((f == 1) & np.isfinite(y), y, np.nan)
-            missed = g["not_settled"][:, list(heights).index(h)] & np.isfinite(y)
-            if missed.any():  # a column only where a bin did not settle: no empty renderers
-                data[f"missed|{fmt(h)} m"] = np.where(missed, y, np.nan)
+        data: dict[str, np.ndarray] = {"wind_speed": d.wind_speed}
+        for j, h in enumerate(heights):
+            y = d.value[:, j]
+            data[f"U|{fmt(h)} m"] = np.where(d.kept[:, j], y, np.nan)
+            data[f"thin|{fmt(h)} m"] = np.where(d.thin[:, j], y, np.nan)
+            if d.not_settled[:, j].any():  # a column only where a bin did not settle: no empty renderers
+                data[f"missed|{fmt(h)} m"] = np.where(d.not_settled[:, j], y, np.nan)
         src, view = ColumnDataSource(data), None
         for i, h in enumerate(heights):
-            color, name = _COLORS[i % len(_COLORS)], f"{fmt(h)} m"
+            color, name = COLORS[i % len(COLORS)], f"{fmt(h)} m"
             renderers = [
                 p.line("wind_speed", f"U|{name}", source=src, color=color, line_width=2, legend_label=name,
                        name=name, **({"view": view} if view else {})),
@@ -183,7 +155,7 @@ def _budget_figure(budget: xr.Dataset) -> Figure:
             for r in renderers:
                 view = view or r.view
                 r.view = view
-        _legend_outside(p, "none")
+        legend_outside(p, "none")
         groups = {"all heights": list(p.renderers), **_by_name(p)}
         return _menu(p, groups, "all heights", {lab: f"{title}, {lab}" for lab in labels})
 
@@ -198,32 +170,28 @@ def _budget_figure(budget: xr.Dataset) -> Figure:
 
 def _contributors_figure(budget: xr.Dataset) -> Figure:
     """Plot the contributors as grouped bars per certified wind-speed bin (menu: the height)."""
-    xl, ws, step, xlim = _wind_speed_axis(budget)
-    g = certified_grid(budget)
-    contrib = budget["relative_contribution"].transpose("wind_speed", "height", "contributor")
-    names = [str(c).replace("_", " ") for c in budget.contributor.values] + ["combined"]
-    combined = budget["relative_uncertainty"].transpose("wind_speed", "height").values
+    d = contributors_data(budget)
+    names, step, xlim = d.names, d.step, d.range_limits
     default = f"{fmt(float(budget.height.sel(height=120.0, method='nearest')))} m"
-    hlabels = [f"{fmt(h)} m" for h in budget.height.values]
+    hlabels = [f"{fmt(h)} m" for h in d.height]
 
     def build() -> Any:
         from bokeh.layouts import column
         from bokeh.models import ColumnDataSource, CustomJS, Select
 
         width = 0.85 * step / len(names)
-        p = _plot(f"Standard uncertainty contributors at {default}", xl, "relative standard uncertainty (%)",
-                  width=_WIDTH + 140, x_range=(xlim[0] - step / 2, xlim[1] + step / 2))
-        ok = g["certified"]  # (wind_speed, height): the bins on the certificate
+        p = plot(f"Standard uncertainty contributors at {default}", _wind_speed_label(d.wind_speed_units),
+                 "relative standard uncertainty (%)", width=_WIDTH + 140,
+                 x_range=(xlim[0] - step / 2, xlim[1] + step / 2))
         j0 = hlabels.index(default)
         for i, name in enumerate(names):
-            values = combined if name == "combined" else contrib.values[:, :, i]
-            data = {"x": ws + (i - (len(names) - 1) / 2) * width}
+            data = {"x": d.wind_speed + (i - (len(names) - 1) / 2) * width}
             for j, lab in enumerate(hlabels):
-                data[lab] = np.where(ok[:, j], values[:, j], np.nan)
+                data[lab] = np.where(d.certified[:, j], d.values[:, j, i], np.nan)
             data["top"] = data[hlabels[j0]]
-            p.vbar(x="x", top="top", width=width, source=ColumnDataSource(data), color=_COLORS[i % 10],
+            p.vbar(x="x", top="top", width=width, source=ColumnDataSource(data), color=COLORS[i % 10],
                    legend_label=name)
-        _legend_outside(p)
+        legend_outside(p)
         select = Select(title="Show:", value=default, options=hlabels, width=220)
         select.js_on_change("value", CustomJS(
             args={"renderers": p.renderers, "plot": p},
@@ -240,31 +208,19 @@ def _contributors_figure(budget: xr.Dataset) -> Figure:
 
 
 def _sensitivity_figure(ds: xr.Dataset) -> Figure:
-    var = str(ds.attrs.get("environmental_variable", "variable"))
-    readable = VARIABLE_NAMES.get(var, var.replace("_", " "))
-    xl = f"{readable}{units_suffix(ds['bin'])}"
-    yl = f"mean lidar − reference difference{units_suffix(ds['mean_difference'])}"
-    units = ds["slope"].attrs.get("units", "")
-    rows, titles, layers = [], {}, []
-    for h in ds.height.values:
-        one = ds.sel(height=h)
-        xb, yb, sem = bin_means(one)
-        slope, se, r = (float(one[k]) if k in one else np.nan
-                        for k in ("slope", "slope_standard_error", "correlation"))
-        label = f"{fmt(h)} m"
-        line = None
-        if xb.size >= 2 and np.isfinite(slope):
-            x = np.linspace(xb.min(), xb.max(), 60)
-            line = (x, *confidence_band(ds, h, x))
-        layers.append((label, xb, yb, sem, line))
-        titles[label] = f"{fmt(h)} m: m = {fmt(slope)} ± {fmt(se)} {units}, R = {fmt(r, 2)}"
-        sig = [name for name, key in (("Eq. 12", "significant_eq12"), ("Eq. 13", "significant_eq13"))
-               if key in one and int(one[key]) == 1]
-        rows.append([fmt(h), f"{fmt(slope)} ± {fmt(se)}", fmt(r, 2),
-                     fmt(float(one["slope_times_std"])) if "slope_times_std" in one else "–",
-                     fmt(float(one["slope_times_std_times_r"])) if "slope_times_std_times_r" in one else "–",
-                     str(int(one["bins_used"])) if "bins_used" in one else str(int(xb.size)),
-                     ", ".join(sig) or "no"])
+    d = sensitivity_data(ds)
+    xl = f"{d.readable}{d.bin_units}"
+    yl = f"mean lidar − reference difference{d.difference_units}"
+    units = d.slope_units
+    rows, titles = [], {}
+    for one in d.heights:
+        titles[f"{fmt(one.height)} m"] = (f"{fmt(one.height)} m: m = {fmt(one.slope)} ± "
+                                          f"{fmt(one.slope_standard_error)} {units}, "
+                                          f"R = {fmt(one.correlation, 2)}")
+        rows.append([fmt(one.height), f"{fmt(one.slope)} ± {fmt(one.slope_standard_error)}",
+                     fmt(one.correlation, 2),
+                     fmt(one.slope_times_std), fmt(one.slope_times_std_times_r),
+                     str(one.bins_used), ", ".join(one.significant) or "no"])
 
     def build() -> Any:
         # one source of points and one of curves, holding every height's columns ("x|40 m" ...);
@@ -272,8 +228,8 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
         from bokeh.layouts import column
         from bokeh.models import ColumnDataSource, CustomJS, Select
 
-        n_pts = max(1, max(x.size for _, x, _, _, _ in layers))
-        n_line = max([1] + [line[0].size for *_, line in layers if line is not None])
+        n_pts = max(1, max(one.x.size for one in d.heights))
+        n_line = max([1] + [one.line[0].size for one in d.heights if one.line is not None])
 
         def pad(v: np.ndarray, n: int) -> np.ndarray:
             out = np.full(n, np.nan)
@@ -282,23 +238,24 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
 
         pts: dict[str, np.ndarray] = {}
         crv: dict[str, np.ndarray] = {}
-        for label, x, y, s, line in layers:
+        for label, one in zip(titles, d.heights, strict=True):
+            x, y, s = one.x, one.y, one.sem
             pts.update({f"x|{label}": pad(x, n_pts), f"y|{label}": pad(y, n_pts),
                         f"y0|{label}": pad(y - s, n_pts), f"y1|{label}": pad(y + s, n_pts)})
-            xf, fit, lo, hi = line if line is not None else (np.array([]),) * 4
+            xf, fit, lo, hi = one.line if one.line is not None else (np.array([]),) * 4
             crv.update({f"xf|{label}": pad(xf, n_line), f"fit|{label}": pad(fit, n_line),
                         f"lo|{label}": pad(lo, n_line), f"hi|{label}": pad(hi, n_line)})
         shown = list(titles)[0]
         for data in (pts, crv):
             data.update({k.split("|")[0]: v for k, v in list(data.items()) if k.endswith(f"|{shown}")})
         points, curve = ColumnDataSource(pts), ColumnDataSource(crv)
-        p = _plot(titles[shown], xl, yl, width=_WIDTH - 80)
+        p = plot(titles[shown], xl, yl, width=_WIDTH - 80)
         p.varea("xf", "lo", "hi", source=curve, color="#1f77b4", alpha=0.25,
                 legend_label="95 % confidence band")
         p.line("xf", "fit", source=curve, color="#1f77b4", line_width=2, legend_label="regression")
         p.segment("x", "y0", "x", "y1", source=points, color="black")
         p.scatter("x", "y", source=points, color="black", size=7, legend_label="bin mean ± s.e.")
-        _legend_outside(p)
+        legend_outside(p)
         select = Select(title="Show:", value=shown, options=list(titles), width=220)
         select.js_on_change("value", CustomJS(
             args={"sources": [points, curve], "plot": p, "titles": dict(titles)},
@@ -316,52 +273,33 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
         "band: its 95 % confidence band (from the slope's standard error).</p>"
         + html_table(["height (m)", f"slope m ({units})", "R", "m·std (%)", "m·std·R (%)", "bins",
                       "significant"],
-                     rows, f"Sensitivity to {readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
+                     rows, f"Sensitivity to {d.readable} (3 significant digits; Eq. 12: |m·std| > 0.5 %, "
                            "Eq. 13: |m·std·R| > 0.1 %)")
     )
-    return Figure(f"Sensitivity to {readable}", build, note=note)
+    return Figure(f"Sensitivity to {d.readable}", build, note=note)
 
 
 def _sensitivity_plots(sens: Iterable[xr.Dataset]) -> dict[str, Figure]:
-    out = {}
-    for ds in sens:
-        var = str(ds.attrs.get("environmental_variable", "variable"))
-        out[f"sensitivity_{var}"] = _sensitivity_figure(ds)
+    sens = list(sens)
+    out = {f"sensitivity_{ds.attrs.get('environmental_variable', 'variable')}": _sensitivity_figure(ds)
+           for ds in sens}
     if out:
         def build() -> Any:
             from bokeh.models import Span
 
-            p = _plot("m · std of each variable per height; threshold ±0.5 %", "height (m)", "m · std (%)")
-            values = []
-            for i, ds in enumerate(sens):
-                var = str(ds.attrs.get("environmental_variable", "variable"))
-                y = np.atleast_1d(ds["slope_times_std"].values)
-                values.append(y)
-                h = np.atleast_1d(ds.height.values)
-                name = VARIABLE_NAMES.get(var, var.replace("_", " "))
-                p.line(h, y, color=_COLORS[i % 10], line_width=2, legend_label=name)
-                p.scatter(h, y, color=_COLORS[i % 10], size=7, legend_label=name)
+            d = significance_data(sens)
+            p = plot("m · std of each variable per height; threshold ±0.5 %", "height (m)", "m · std (%)")
+            for i, (name, h, y) in enumerate(d.variables):
+                p.line(h, y, color=COLORS[i % 10], line_width=2, legend_label=name)
+                p.scatter(h, y, color=COLORS[i % 10], size=7, legend_label=name)
             for s in (0.5, -0.5):
                 p.add_layout(Span(location=s, dimension="width", line_color="grey", line_dash="dashed"))
-            finite = np.concatenate(values)
-            finite = finite[np.isfinite(finite)]
-            lim = max(0.6, 1.1 * float(np.abs(finite).max())) if finite.size else 0.6
-            p.y_range.start, p.y_range.end = -lim, lim
-            _legend_outside(p)
+            p.y_range.start, p.y_range.end = -d.limit, d.limit
+            legend_outside(p)
             return p
 
-        sens = list(sens)
         out["sensitivity_slopes"] = Figure("Significance of the sensitivities (Eq. 12)", build)
     return out
-
-
-def _los_label(cube: xr.Dataset, los: Any) -> str:
-    name = str(los)
-    if name.upper() == "V":
-        return "LOS V (vertical beam)"
-    if "los_azimuth" in cube.coords:
-        return f"LOS {name} (azimuth {fmt(cube.los_azimuth.sel(los=los).item())}°)"
-    return f"LOS {name}"
 
 
 def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) -> dict[str, Figure]:
@@ -372,70 +310,60 @@ def _cube_plots(cube: xr.Dataset, drawn_cnr: tuple[float, float] | None = None) 
     (axes, grids, ranges, tools), for the same pictures the PDF shows side by side.
     """
     out = {}
-    for name, heading, palette, symmetric in (
-        ("los_bias", "Bench: mean LOS velocity error (measured − programmed)", "RdBu11", True),
-        ("los_std", "Bench: standard deviation of the measured LOS velocity", "Viridis256", False),
+    for name, heading, palette in (
+        ("los_bias", "Bench: mean LOS velocity error (measured − programmed)", "RdBu11"),
+        ("los_std", "Bench: standard deviation of the measured LOS velocity", "Viridis256"),
     ):
         if name not in cube:
             continue
-        da = cube[name].transpose("los", "cnr", "velocity")
-        clim = cube_colour_limits(da, drawn_cnr, symmetric)
-        label = f"{name.replace('_', ' ')}{units_suffix(da)}"
+        d = cube_data(cube, name, drawn_cnr)
 
-        def build(da=da, clim=clim, label=label, palette=palette, heading=heading) -> Any:
+        def build(d=d, palette=palette, heading=heading) -> Any:
             from bokeh.models import ColorBar, LinearColorMapper
             from bokeh.palettes import Viridis256, all_palettes
 
             # bokeh's RdBu runs blue (low) to red (high), as matplotlib's RdBu_r in the PDF
             colors = Viridis256 if palette == "Viridis256" else list(all_palettes["RdBu"][11])
-            mapper = LinearColorMapper(palette=colors, low=clim[0], high=clim[1], nan_color=(0, 0, 0, 0))
-            v, c = cube.velocity.values, cube.cnr.values
-            dv = float(np.median(np.diff(v))) if v.size > 1 else 1.0
-            dc = float(np.median(np.diff(c))) if c.size > 1 else 1.0
-            labels = [_los_label(cube, los) for los in da.los.values]
-            p = _plot(labels[0], f"programmed radial velocity{units_suffix(cube.velocity)}",
-                      f"CNR{units_suffix(cube.cnr)}", width=620, height=420)
-            for los, text in zip(da.los.values, labels, strict=True):
-                p.image(image=[da.sel(los=los).values], x=v.min() - dv / 2, y=c.min() - dc / 2,
-                        dw=float(np.ptp(v)) + dv, dh=float(np.ptp(c)) + dc, color_mapper=mapper, name=text)
-            p.add_layout(ColorBar(color_mapper=mapper, title=label), "right")
+            mapper = LinearColorMapper(palette=colors, low=d.limits[0], high=d.limits[1],
+                                       nan_color=(0, 0, 0, 0))
+            x0, x1, y0, y1 = d.extent
+            labels = [f"{label} (vertical beam)" if v else label
+                      for label, v in zip(d.los_labels, d.vertical, strict=True)]
+            p = plot(labels[0], f"programmed radial velocity{d.velocity_units}", f"CNR{d.cnr_units}",
+                     width=620, height=420)
+            for values, text in zip(d.values, labels, strict=True):
+                p.image(image=[values], x=x0, y=y0, dw=x1 - x0, dh=y1 - y0, color_mapper=mapper, name=text)
+            p.add_layout(ColorBar(color_mapper=mapper, title=d.label), "right")
             return _menu(p, _by_name(p), labels[0], {text: f"{heading}: {text}" for text in labels})
 
         scale = (f"99th percentile of the CNR bins the simulation draws from, {fmt(drawn_cnr[0])} to "
                  f"{fmt(drawn_cnr[1])} dB" if drawn_cnr else "99th percentile of all bins")
         out[f"cube_{name}"] = Figure(
             f"{heading}, per line of sight", build,
-            note=f"<p>Colour: {html.escape(label)}; blank cells had no bench samples. The menu chooses the "
+            note=f"<p>Colour: {html.escape(d.label)}; blank cells had no bench samples. The menu chooses the "
                  "line of sight; the colour scale is the same for every one "
-                 f"({fmt(clim[0])} to {fmt(clim[1])}, {scale}).</p>",
+                 f"({fmt(d.limits[0])} to {fmt(d.limits[1])}, {scale}).</p>",
         )
     return out
 
 
 def _rwf_plots(rwf: xr.Dataset) -> dict[str, Figure]:
-    zd = float(rwf["zero_distance"]) if "zero_distance" in rwf else float("nan")
-    norm, sl, pick = rwf_window(rwf)
-    curves = {"RWF": norm}
-    for name in ("pulse", "apodization"):
-        if name in rwf:
-            curves[name] = (rwf[name] / float(rwf[name].max())).values
-    x = rwf["range_offset"].values[sl]
+    d = rwf_data(rwf)
     xl = "range offset from gate centre (m)"
-    g = rwf["cnr_gradient"].values
 
     def shape() -> Any:
-        p = _plot(f"Pulse, apodization and RWF (normalised), Zd = {fmt(zd)} m", xl, "normalised amplitude")
-        for i, (name, y) in enumerate(curves.items()):
-            p.line(x, y[sl], color=_COLORS[i], line_width=2, legend_label=name)
-        _legend_outside(p)
+        p = plot(f"Pulse, apodization and RWF (normalised), Zd = {fmt(d.zero_distance)} m", xl,
+                 "normalised amplitude")
+        for i, (name, y) in enumerate(d.shapes.items()):
+            p.line(d.x, y, color=COLORS[i], line_width=2, legend_label=name)
+        legend_outside(p)
         return p
 
     def gradients() -> Any:
-        p = _plot("RWF for several CNR gradients (Eq. 2)", xl, f"RWF{units_suffix(rwf['rwf'])}")
-        for k, i in enumerate(pick):
-            p.line(x, rwf["rwf"].isel(cnr_gradient=i).values[sl], color=_COLORS[k % 10], line_width=2,
-                   legend_label=f"{fmt(g[i])} dB/m")
-        _legend_outside(p)
+        p = plot("RWF for several CNR gradients (Eq. 2)", xl, f"RWF{d.rwf_units}")
+        for k, (label, y) in enumerate(d.gradients):
+            p.line(d.x, y, color=COLORS[k % 10], line_width=2, legend_label=label)
+        legend_outside(p)
         return p
 
     return {"rwf_shape": Figure("Range-weighting function", shape),
