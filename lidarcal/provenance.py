@@ -24,7 +24,6 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal import __version__
 from lidarcal.cf import canonical_order
 from lidarcal.errors import InputError
 
@@ -33,6 +32,22 @@ __all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "jsonable",
            "CONVENTIONS", "CONTACT_ENV", "SITE_ENV", "USER_ATTRIBUTES", "ACDD_SPELLINGS", "REFERENCES"]
 
 CONVENTIONS = "CF-1.11, ACDD-1.3"
+
+
+def _lidarcal_version() -> str:
+    """Return lidarcal's version from its package metadata, as ``lidarcal.__version__`` reads it.
+
+    Read here rather than imported from the package face, so that provenance (under every
+    stage) stands on the package metadata alone; a checkout run without install has none and
+    says ``0.0.0+unknown``, as the package face does.
+    """
+    try:
+        return metadata.version("lidarcal")
+    except metadata.PackageNotFoundError:  # running from a checkout without install
+        return "0.0.0+unknown"
+
+
+__version__ = _lidarcal_version()
 _PACKAGES = ("lidarcal", "numpy", "scipy", "pandas", "xarray", "dask", "distributed", "netCDF4", "pint",
              "pint-xarray", "cf-xarray", "pyconturb")
 
