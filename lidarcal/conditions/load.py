@@ -20,6 +20,7 @@ from lidarcal.cf import height_coord
 from lidarcal.conditions.variables import CANONICAL_UNITS, CONDITION_NAMES, FIELD_NAMES, variable_attrs
 from lidarcal.errors import InputError, MissingVariableError, ValidationError, raise_first_bad
 from lidarcal.io import open_artefact, source_name
+from lidarcal.provenance import LEGACY_SERIAL, lidar_serial
 from lidarcal.schema import declared_variables, output_attrs, validate_dataset
 from lidarcal.units import convert_values, convert_variable
 
@@ -198,6 +199,10 @@ def load_conditions(
         out[name] = (dims, data[name], variable_attrs(name))
     out["input_complete"] = (dims, complete.astype(np.int8), output_attrs("conditions", "input_complete"))
     attrs = {k: v for k, v in raw.attrs.items() if not k.startswith("lidarcal_conditions_")}
+    if LEGACY_SERIAL in attrs:  # a file written before the serial number had one name
+        serial = lidar_serial(attrs)
+        attrs = {("lidar_serial" if k == LEGACY_SERIAL else k): (serial if k == LEGACY_SERIAL else v)
+                 for k, v in attrs.items() if k != "lidar_serial"}
     out.attrs = attrs
     out.attrs["lidarcal_conditions_checksum"] = conditions_checksum(out, needed)
     n_skip = int((~complete).sum())

@@ -381,7 +381,7 @@ def sta_field_campaign(
               "cone_angle": cone_angle}
     return stamp(
         out, "field_campaign",
-        title=f"Field campaign: WindCube {out.attrs['lidar_serial_number']} against a met mast",
+        title=f"Field campaign: WindCube {out.attrs['lidar_serial']} against a met mast",
         summary=f"{out.sizes['time']} ten-minute periods at {out.sizes['height']} mast heights: lidar speed "
                 f"from {len(sta_paths)} .sta file(s), reference speed from {out.attrs['reference_file']}.",
         call=call or "lidarcal.conditions.mast.sta_field_campaign(...)",
