@@ -400,12 +400,12 @@ def _number(x: float) -> str:
 def catalogue_table() -> str:
     """Return the catalogue as the Markdown table of ``docs/diagnose.md`` (``none`` last).
 
-    Columns: the id; each parameter's name, unit and physical range; what is wrong (the
-    description); the drivers and the expected signature.
+    Columns: the id; each parameter's name, unit, physical range and the ``LidarModel`` field it
+    sets; what is wrong (the description); the drivers and the expected signature.
     """
     def params(e: Effect) -> str:
-        return ", ".join(f"`{p.name}` ({p.units}, [{_number(p.bounds[0])}, {_number(p.bounds[1])}])"
-                         for p in e.parameters) or "—"
+        return ", ".join(f"`{p.name}` ({p.units}, [{_number(p.bounds[0])}, {_number(p.bounds[1])}]; "
+                         f"sets `{p.model_field}`)" for p in e.parameters) or "—"
 
     rows = ["| id | parameters | what is wrong | acts through |", "|---|---|---|---|"]
     for e in sorted(EFFECTS.values(), key=lambda e: e.id == "none"):
