@@ -134,7 +134,7 @@ def campaign(d: Path, n: int, heights, name: str) -> Path:
     from lidarcal.conditions import synthetic_conditions
 
     ds = synthetic_conditions(n, heights, seed=7, start="2024-01-01T00:00")
-    ds.attrs.update(lidar_serial_number=SERIAL, lidar_cone_angle=28.0)
+    ds.attrs.update(lidar_serial=SERIAL, lidar_cone_angle=28.0)
     path = d / f"{name}.nc"
     ds.to_netcdf(path)
     return path

@@ -24,15 +24,35 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal import __version__
 from lidarcal.cf import canonical_order
 from lidarcal.errors import InputError
 
-__all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "jsonable", "contact",
+__all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "jsonable", "contact", "lidar_serial",
            "contact_attributes", "merge_history", "check_text", "text_problems",
            "CONVENTIONS", "CONTACT_ENV", "SITE_ENV", "USER_ATTRIBUTES", "ACDD_SPELLINGS", "REFERENCES"]
 
 CONVENTIONS = "CF-1.11, ACDD-1.3"
+
+#: The lidar's serial number is the global attribute ``lidar_serial``; field campaigns and
+#: conditions read from .sta files wrote it as ``lidar_serial_number`` before it had one name.
+#: Files written before are read through :func:`lidar_serial`.
+LEGACY_SERIAL = "lidar_serial_number"
+
+
+def _lidarcal_version() -> str:
+    """Return lidarcal's version from its package metadata, as ``lidarcal.__version__`` reads it.
+
+    Read here rather than imported from the package face, so that provenance (under every
+    stage) stands on the package metadata alone; a checkout run without install has none and
+    says ``0.0.0+unknown``, as the package face does.
+    """
+    try:
+        return metadata.version("lidarcal")
+    except metadata.PackageNotFoundError:  # running from a checkout without install
+        return "0.0.0+unknown"
+
+
+__version__ = _lidarcal_version()
 _PACKAGES = ("lidarcal", "numpy", "scipy", "pandas", "xarray", "dask", "distributed", "netCDF4", "pint",
              "pint-xarray", "cf-xarray", "pyconturb")
 
@@ -128,6 +148,18 @@ def sha256(path: str | os.PathLike) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+def lidar_serial(attrs: Mapping[str, Any]) -> str | None:
+    """Return the lidar serial number ``attrs`` record, or None.
+
+    ``lidar_serial``; in a file written before the name was one, ``lidar_serial_number``.
+
+    >>> lidar_serial({"lidar_serial_number": "WLS7-164"}), lidar_serial({"title": "t"})
+    ('WLS7-164', None)
+    """
+    value = attrs.get("lidar_serial") or attrs.get(LEGACY_SERIAL)
+    return str(value) if value else None
 
 
 def software_versions() -> dict[str, str]:

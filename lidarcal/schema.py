@@ -39,6 +39,22 @@ checked attribute is not checked.
 Keeping ``standard_name`` in an include turns it into a required ``standard_name`` attribute;
 other metadata is not copied by an include.  A spec the including schema writes itself under the
 same name is merged over the copy (its keys win).
+
+A schema whose variables follow a catalogue that lives in code (one ``fit_*`` set per parameter
+of every diagnose effect) declares them once, as templates expanded over the catalogue's rows::
+
+    expand:
+      - over: diagnose_effect_parameters   # rows registered by the stage that owns the catalogue
+        registered_by: lidarcal.diagnose   # named in the error when it is not registered
+        variables:
+          "fit_{effect}_{name}": {dims: [], units: "{units}", range: "{range}",
+                                  long_name: "fitted {parameter} ({effect})"}
+
+Each row (a mapping) fills every ``{placeholder}`` of the names and specs (a value that is one
+placeholder alone takes the row's value as it is: a list stays a list), giving one exact entry
+per row and template.  The fixed metadata stays here; the rows come from
+:func:`register_catalogue`, which the owning stage calls on import (infrastructure never imports
+a stage), so a new catalogue entry needs no schema edit.
 """
 
 from __future__ import annotations
@@ -47,6 +63,7 @@ import difflib
 import functools
 import re
 import string
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 import numpy as np
@@ -58,8 +75,8 @@ from lidarcal.errors import InputError, SchemaError, ValidationError
 from lidarcal.units import LOG_UNITS, parse_unit
 
 __all__ = ["load_schema", "declared_variables", "declared_spec", "list_kinds", "validate_dataset",
-           "output_attrs", "with_output_attrs", "check_schema_keys", "COMMON_ATTRIBUTES",
-           "WRITTEN_ATTRIBUTES"]
+           "output_attrs", "with_output_attrs", "check_schema_keys", "register_catalogue", "catalogue_owners",
+           "COMMON_ATTRIBUTES", "WRITTEN_ATTRIBUTES"]
 
 #: Global attributes every artefact written by lidarcal must carry.
 COMMON_ATTRIBUTES = (
@@ -83,7 +100,12 @@ def list_kinds() -> list[str]:
 _INCLUDE_KEYS = {"from", "into", "only", "name", "keep", "set"}
 #: Top-level keys of a schema file.
 _TOP_KEYS = frozenset({"kind", "description", "provenance", "dims", "stackable_dims",
-                       "units_on_every_variable", "include", "coordinates", "variables", "attributes"})
+                       "units_on_every_variable", "include", "expand", "coordinates", "variables",
+                       "attributes"})
+#: Keys an ``expand`` entry may have.
+_EXPAND_KEYS = frozenset({"over", "registered_by", "variables"})
+#: Catalogue name -> its rows, as registered by the stage that owns the catalogue.
+_CATALOGUES: dict[str, tuple[dict[str, Any], ...]] = {}
 #: Spec keys that are checks (``units`` and ``attributes`` are also written).
 _CHECK_KEYS = frozenset({"dims", "units", "convertible", "allow_nan", "range", "required", "attributes"})
 #: Variable attributes a spec may write (directly or under ``attributes``): CF-1.11 Appendix A's
@@ -108,7 +130,7 @@ _LEADING_ATTRS = ("long_name", "units", "coverage_content_type", "standard_name"
 
 @functools.cache
 def _read_schema(kind: str) -> dict[str, Any]:
-    """Read the YAML of ``kind`` as written (includes not resolved) and sanity-check it."""
+    """Read the YAML of ``kind`` (``expand`` entries expanded, includes not resolved) and check it."""
     path = _schema_dir() / f"{kind}.yaml"
     if not path.is_file():
         raise InputError(f"unknown artefact kind {kind!r}; known kinds: {', '.join(list_kinds())}")
@@ -119,7 +141,73 @@ def _read_schema(kind: str) -> dict[str, Any]:
     if schema["kind"] != kind:
         raise SchemaError(f"schema {path.name}: declares kind {schema['kind']!r}")
     check_schema_keys(schema, path.name)
+    if schema.get("expand"):
+        variables = dict(schema.get("variables") or {})
+        for entry in schema["expand"]:
+            for name, spec in _expanded(entry, path.name).items():
+                if name in variables:
+                    raise SchemaError(f"schema {path.name}: variable {name!r} is declared and also "
+                                      f"expanded over the catalogue {entry['over']!r}")
+                variables[name] = spec
+        schema["variables"] = variables
     return schema
+
+
+def register_catalogue(name: str, rows: Iterable[Mapping[str, Any]]) -> None:
+    """Give the catalogue ``name`` the ``rows`` a schema's ``expand`` entries range over.
+
+    Called on import by the stage that owns the catalogue (``lidarcal.diagnose.effects``
+    registers ``diagnose_effect_parameters``); registering again replaces the rows.
+    """
+    _CATALOGUES[name] = tuple(dict(row) for row in rows)
+    _read_schema.cache_clear()
+    load_schema.cache_clear()
+
+
+def catalogue_owners(kind: str) -> list[str]:
+    """Modules that register a catalogue ``kind``'s ``expand`` entries need and that is not registered.
+
+    Their ``registered_by``: a caller that validates any kind (``lidarcal validate``), being above
+    every stage, imports them; infrastructure never does.
+    """
+    path = _schema_dir() / f"{kind}.yaml"
+    raw = yaml.safe_load(path.read_text()) if path.is_file() else None
+    entries = [e for e in (raw or {}).get("expand") or [] if isinstance(e, dict)]
+    return [str(e["registered_by"]) for e in entries
+            if e.get("over") not in _CATALOGUES and e.get("registered_by")]
+
+
+def _expand_value(value: Any, row: Mapping[str, Any], where: str) -> Any:
+    """``value`` with every ``{placeholder}`` filled from ``row`` (one alone: the row's value as is)."""
+    if isinstance(value, list):
+        return [_expand_value(v, row, where) for v in value]
+    if isinstance(value, dict):
+        return {k: _expand_value(v, row, where) for k, v in value.items()}
+    if not _is_template(value):
+        return value
+    fields = [f for _, f, _, _ in string.Formatter().parse(value) if f]
+    missing = sorted(set(fields) - set(row))
+    if missing:
+        raise SchemaError(f"{where}: the template {value!r} needs {missing}; the catalogue's rows "
+                          f"have {sorted(row)}")
+    if len(fields) == 1 and value == "{" + fields[0] + "}":
+        return row[fields[0]]
+    return value.format_map(row)
+
+
+def _expanded(entry: dict[str, Any], filename: str) -> dict[str, dict[str, Any]]:
+    """Return the exact variable specs of one ``expand`` entry: every template, for every row."""
+    over = entry.get("over")
+    if over not in _CATALOGUES:
+        owner = f" ({entry['registered_by']} registers it on import)" if entry.get("registered_by") else ""
+        raise SchemaError(f"schema {filename}: expands over the catalogue {over!r}, which is not "
+                          f"registered{owner}; registered: {sorted(_CATALOGUES)}")
+    out: dict[str, dict[str, Any]] = {}
+    for row in _CATALOGUES[over]:
+        for template, spec in (entry.get("variables") or {}).items():
+            where = f"schema {filename}, expand over {over!r}, variable {template!r}"
+            out[_expand_value(template, row, where)] = _expand_value(dict(spec or {}), row, where)
+    return out
 
 
 def _unknown(key: str, allowed: frozenset[str] | set[str], where: str) -> SchemaError:
@@ -133,29 +221,38 @@ def check_schema_keys(schema: dict[str, Any], filename: str) -> None:
 
     Top-level keys, the keys of every coordinate and variable spec (:data:`_CHECK_KEYS` and
     :data:`WRITTEN_ATTRIBUTES`), the names under a spec's checked ``attributes`` and an
-    ``include`` entry's ``keep`` and ``set`` (checks only: an include copies checks) are all
-    closed sets.  A misspelt check would otherwise be written as an attribute and never checked.
+    ``include`` entry's ``keep`` and ``set`` (checks only: an include copies checks), an
+    ``expand`` entry's keys and its template specs are all closed sets.  A misspelt check would
+    otherwise be written as an attribute and never checked.
     """
     for key in schema:
         if key not in _TOP_KEYS:
             raise _unknown(str(key), _TOP_KEYS, f"schema {filename}")
     spec_keys = _CHECK_KEYS | WRITTEN_ATTRIBUTES
-    for section in ("coordinates", "variables"):
-        role = section[:-1] if section == "variables" else "coordinate"
-        for name, spec in (schema.get(section) or {}).items():
-            where = f"schema {filename}, {role} {name!r}"
-            if not isinstance(spec or {}, dict):
-                raise SchemaError(f"{where}: expected a mapping of keys; found {spec!r}")
-            for key in spec or {}:
-                if key not in spec_keys:
-                    raise _unknown(str(key), spec_keys, where)
-            checked = (spec or {}).get("attributes") or {}
-            if not isinstance(checked, dict):
-                raise SchemaError(f"{where}: 'attributes' must map attribute names to values; "
-                                  f"found {checked!r}")
-            for key in checked:
-                if key not in WRITTEN_ATTRIBUTES:
-                    raise _unknown(str(key), WRITTEN_ATTRIBUTES, f"{where}, attributes")
+    specs = [("coordinate", name, spec) for name, spec in (schema.get("coordinates") or {}).items()]
+    specs += [("variable", name, spec) for name, spec in (schema.get("variables") or {}).items()]
+    for entry in schema.get("expand") or []:
+        if not isinstance(entry, dict):
+            raise SchemaError(f"schema {filename}: an expand entry is a mapping; found {entry!r}")
+        for key in entry:
+            if key not in _EXPAND_KEYS:
+                where = f"schema {filename}, expand over {entry.get('over')!r}"
+                raise _unknown(str(key), _EXPAND_KEYS, where)
+        specs += [("variable", name, spec) for name, spec in (entry.get("variables") or {}).items()]
+    for role, name, spec in specs:
+        where = f"schema {filename}, {role} {name!r}"
+        if not isinstance(spec or {}, dict):
+            raise SchemaError(f"{where}: expected a mapping of keys; found {spec!r}")
+        for key in spec or {}:
+            if key not in spec_keys:
+                raise _unknown(str(key), spec_keys, where)
+        checked = (spec or {}).get("attributes") or {}
+        if not isinstance(checked, dict):
+            raise SchemaError(f"{where}: 'attributes' must map attribute names to values; "
+                              f"found {checked!r}")
+        for key in checked:
+            if key not in WRITTEN_ATTRIBUTES:
+                raise _unknown(str(key), WRITTEN_ATTRIBUTES, f"{where}, attributes")
     keep_keys = _CHECK_KEYS | {"standard_name"}
     for entry in schema.get("include") or []:
         if not isinstance(entry, dict):
@@ -220,7 +317,7 @@ def load_schema(kind: str) -> dict[str, Any]:
     :func:`output_attrs`.
     """
     raw = _read_schema(kind)
-    schema = {k: v for k, v in raw.items() if k != "include"}
+    schema = {k: v for k, v in raw.items() if k not in ("include", "expand")}
     sections: dict[str, dict[str, Any]] = {"coordinates": {}, "variables": {}}
     for entry in raw.get("include") or []:
         into, specs = _included(entry, f"{kind}.yaml")

@@ -151,7 +151,7 @@ def conditions_file(
             "height": height_coord(heights),
         },
     )
-    ds.attrs["lidar_serial_number"] = serial
+    ds.attrs["lidar_serial"] = serial  # tests/test_smc_montecarlo.py writes the old name, lidar_serial_number
     if cone_angle is not None:
         ds.attrs["lidar_cone_angle"] = cone_angle
     ds.to_netcdf(path)

@@ -147,6 +147,17 @@ def test_load_canonical_units_sorted_heights_and_checksum(tmp_path):
     )
 
 
+def test_a_file_written_before_names_the_serial_as_lidar_serial_once_loaded(tmp_path):
+    # lidar_serial is the one name; .sta-derived files written before said lidar_serial_number
+    old = make_conditions().assign_attrs(lidar_serial_number="WLS7-164", lidar_site="a field")
+    old.to_netcdf(tmp_path / "old.nc")
+    out = load_conditions(tmp_path / "old.nc")
+    assert out.attrs["lidar_serial"] == "WLS7-164" and "lidar_serial_number" not in out.attrs
+    assert out.attrs["lidar_site"] == "a field"
+    new = load_conditions(make_conditions().assign_attrs(lidar_serial="WLS866-001"))
+    assert new.attrs["lidar_serial"] == "WLS866-001" and "lidar_serial_number" not in new.attrs
+
+
 def test_wind_speed_in_kelvin_refused_naming_file_and_variable(tmp_path):
     ds = make_conditions()
     ds.wind_speed.attrs["units"] = "K"

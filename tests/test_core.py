@@ -10,6 +10,7 @@ from analysis_factories import var_attrs
 
 from lidarcal.cf import height_coord, time_coord
 from lidarcal.compliance import check_compliance
+from lidarcal.diagnose import EFFECTS  # registers the catalogue schemas/diagnosis.yaml expands over
 from lidarcal.errors import InputError, OutputExistsError, UnitError, ValidationError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.provenance import sha256, stamp
@@ -90,6 +91,7 @@ def test_validator_reports_every_problem_at_once():
 
 
 def test_every_schema_is_complete():
+    assert EFFECTS  # its catalogue registered, the diagnosis schema loads
     for kind in list_kinds():
         schema = load_schema(kind)
         assert schema["kind"] == kind

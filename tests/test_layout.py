@@ -209,6 +209,24 @@ def test_no_import_cycles_between_modules():
     assert not cycles, "import cycles:\n" + "\n".join(" -> ".join(c) for c in cycles)
 
 
+def test_provenance_reads_the_version_from_package_metadata(monkeypatch):
+    # provenance sits under every stage: it reads lidarcal's version from the package metadata,
+    # not from the package face (whose entry points import the stages)
+    from importlib import metadata
+
+    from lidarcal import provenance
+
+    edges = import_graph(PACKAGE)["lidarcal.provenance"]
+    assert "lidarcal" not in {target for _, _, target in edges}, edges
+    assert provenance.__version__ == lidarcal.__version__
+
+    def missing(name):
+        raise metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(metadata, "version", missing)  # a checkout run without install
+    assert provenance._lidarcal_version() == "0.0.0+unknown"
+
+
 # -- the checker itself, on a tiny package written to tmp_path -----------------------------
 
 def _package(tmp_path: Path, files: dict[str, str]) -> Path:

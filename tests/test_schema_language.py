@@ -14,6 +14,7 @@ import pytest
 import xarray as xr
 import yaml
 
+import lidarcal.diagnose  # noqa: F401  (registers the catalogue schemas/diagnosis.yaml expands over)
 from lidarcal import schema
 from lidarcal.data import packaged_dir
 from lidarcal.errors import InputError, SchemaError
@@ -94,3 +95,61 @@ def test_a_misspelt_key_is_not_written_as_an_attribute(toy_schemas):
     assert schema.output_attrs("toy", "speed") == {"long_name": "speed", "units": "m s-1",
                                                    "coverage_content_type": "modelResult"}
     assert schema.load_schema("toy")["variables"]["speed"]["allow_nan"] is True
+
+
+EXPAND = """variables: {}
+expand:
+  - over: toy_rows
+    registered_by: a toy stage
+    variables:
+      "fit_{effect}_{name}": {dims: [height], units: "{units}", range: "{range}",
+                              long_name: "fitted {parameter} ({effect})"}
+"""
+
+
+@pytest.fixture
+def toy_catalogue(monkeypatch):
+    """An empty catalogue registry of our own (the real one keeps the diagnose stage's rows)."""
+    monkeypatch.setattr(schema, "_CATALOGUES", {})
+
+
+def test_a_template_is_expanded_over_the_registered_rows(toy_schemas, toy_catalogue):
+    toy_schemas(EXPAND)
+    assert schema.catalogue_owners("toy") == ["a toy stage"]  # what `lidarcal validate` imports first
+    with pytest.raises(SchemaError, match=r"toy\.yaml: expands over the catalogue 'toy_rows', which is not "
+                                          r"registered \(a toy stage registers it on import\)"):
+        schema.load_schema("toy")
+    schema.register_catalogue("toy_rows", [
+        {"effect": "gain", "name": "g", "parameter": "relative gain", "units": "1", "range": [-0.2, 0.2]},
+        {"effect": "shift", "name": "dz", "parameter": "height shift", "units": "m", "range": [-3.0, 3.0]}])
+    assert schema.catalogue_owners("toy") == []
+    variables = schema.load_schema("toy")["variables"]
+    assert variables == {"fit_gain_g": {"dims": ["height"], "units": "1", "range": [-0.2, 0.2]},
+                         "fit_shift_dz": {"dims": ["height"], "units": "m", "range": [-3.0, 3.0]}}
+    assert schema.output_attrs("toy", "fit_shift_dz") == {
+        "long_name": "fitted height shift (shift)", "units": "m", "coverage_content_type": "modelResult"}
+    # the expanded entries check like written ones: a fit outside its range is a problem
+    ds = xr.Dataset({"fit_shift_dz": ("height", [4.0]), "fit_gain_g": ("height", [0.1])},
+                    coords={"height": ("height", [40.0], {"units": "m"})})
+    for name in ds.data_vars:
+        ds[name].attrs = schema.output_attrs("toy", name)
+    problems = [p for p in schema.validate_dataset(ds, "toy") if "global attribute" not in p]
+    assert problems == ["variable 'fit_shift_dz' has maximum 4, above the physical range [-3.0, 3.0]"]
+
+
+def test_an_expand_template_needs_every_placeholder_from_the_rows(toy_schemas, toy_catalogue):
+    schema.register_catalogue("toy_rows", [{"effect": "gain", "name": "g", "units": "1", "range": [0, 1]}])
+    toy_schemas(EXPAND)
+    with pytest.raises(SchemaError, match=r"expand over 'toy_rows'.*needs \['parameter'\]"):
+        schema.load_schema("toy")
+    toy_schemas(EXPAND.replace("registered_by", "registerd_by"))
+    with pytest.raises(SchemaError, match="unknown key 'registerd_by'.*did you mean 'registered_by'"):
+        schema.load_schema("toy")
+    toy_schemas(EXPAND.replace("long_name", "longname"))
+    with pytest.raises(SchemaError, match="unknown key 'longname'"):
+        schema.load_schema("toy")
+    toy_schemas(EXPAND.replace("variables: {}", "variables:\n  fit_gain_g: {dims: [height]}"))
+    schema.register_catalogue("toy_rows", [{"effect": "gain", "name": "g", "parameter": "gain",
+                                            "units": "1", "range": [0, 1]}])
+    with pytest.raises(SchemaError, match="'fit_gain_g' is declared and also expanded"):
+        schema.load_schema("toy")

@@ -15,6 +15,7 @@ from pathlib import Path
 import pytest
 
 import lidarcal
+import lidarcal.diagnose  # noqa: F401  (registers the catalogue schemas/diagnosis.yaml expands over)
 from lidarcal.conditions import variables
 from lidarcal.errors import InputError
 from lidarcal.schema import _included, _read_schema, declared_variables, list_kinds, load_schema
@@ -136,6 +137,15 @@ def test_diagnosis_schema_fit_entries_match_the_effect_catalogue():
             assert tuple(schema[base]["range"]) == p.bounds, base  # fits are clipped to the bounds
     # every schema entry names an effect and a parameter of the catalogue, and vice versa
     assert in_schema == expected
+    # expanded from one template per variable, the entries are those written out by hand before
+    # (schemas/diagnosis.yaml at d0ee482, copied here)
+    assert schema["fit_beam_angle_offset_offset"] == {"required": False, "dims": [], "units": "degree",
+                                                      "range": [-3.0, 3.0]}
+    assert schema["fit_reference_gain_gain_stderr"] == {"required": False, "dims": [], "units": "1",
+                                                        "allow_nan": True, "range": [0, None]}
+    assert declared_variables("diagnosis")["fit_reference_flow_distortion_width_upper"]["long_name"] == (
+        "upper limit of the 95 % block-bootstrap interval of fitted full width of the shadowed sector "
+        "(reference_flow_distortion)")
     # a constant reference gain acts through no condition; every other effect names its drivers
     assert all((e.drivers or eid == "reference_gain") and set(e.drivers) <= set(variables.CONDITION_NAMES)
                for eid, e in EFFECTS.items() if eid != "none")

@@ -337,7 +337,7 @@ def test_what_an_old_certificate_cannot_give_is_named(tmp_path, capsys):
 def test_conditions_file_needs_unit_and_cone_angle(tmp_path, cert, capsys):
     v = campaign_values(10, HEIGHTS)
     for kwargs, words in (
-        ({"serial": "WLS7-9982"}, ["lidar_serial_number", "WLS7-9982", SERIAL]),
+        ({"serial": "WLS7-9982"}, ["lidar_serial", "WLS7-9982", SERIAL]),
         ({"cone_angle": None}, ["lidar_cone_angle", "missing"]),
         ({"cone_angle": 30.0}, ["lidar_cone_angle", "30", "28"]),
     ):

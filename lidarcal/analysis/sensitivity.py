@@ -59,7 +59,7 @@ from lidarcal.cf import with_bounds
 from lidarcal.conditions.variables import STANDARD_NAMES
 from lidarcal.errors import InputError
 from lidarcal.io import source_name
-from lidarcal.provenance import stamp
+from lidarcal.provenance import lidar_serial, stamp
 from lidarcal.schema import output_attrs
 from lidarcal.units import LOG_UNITS, to_magnitude
 
@@ -377,7 +377,7 @@ def _assemble(records: xr.Dataset, variable: str, units: str, relative: bool, ed
         "min_samples": config["min_samples"],
         "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")),
     }
-    serial = records.attrs.get("lidar_serial") or records.attrs.get("lidar_serial_number")  # .sta: _number
+    serial = lidar_serial(records.attrs)
     if serial:
         ds.attrs["lidar_serial"] = serial
     return stamp(

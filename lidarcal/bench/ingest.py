@@ -180,24 +180,22 @@ def check_agreement(rtd: RtdTable, control: ControlLog, bin_idx: np.ndarray, sta
     # beam cannot be a matter of phase
     n_beams = len(np.unique(rtd.los))
     no_los = (count == 0) & (n_in >= 2 * n_beams)
-    bad = off | no_los
-    if not bad.any():
-        return
-    i = int(np.argmax(bad))
-    if no_los[i]:
-        found = (f"none of its {int(n_in[i])} RTD records is of LOS {LOS_LABELS[control.los[i]]} "
-                 "(the beam the bench feeds)")
-        expected_txt = "records of the fed LOS"
-    else:
-        found = (f"median measured velocity {control.velocity[i] + median[i]:.3f} m s-1 over {int(count[i])} "
-                 f"records (measured - programmed {median[i]:+.3f} m s-1)")
-        expected_txt = (f"measured - programmed within +-{tolerance[i]:.3g} m s-1 (max of "
-                        f"{AGREEMENT_FLOOR:g} m s-1, {AGREEMENT_K:g} x the bin's robust spread "
-                        f"{scale[i]:.3g} m s-1 and {AGREEMENT_Z:g} standard errors of its median)")
-    raise InputError(
-        f"{both} do not describe the same run (another bin length, start or LOS order?): programmed bin "
-        f"{_bin_name(control, i)}: expected {expected_txt}, found {found}; {int(bad.sum())} of {n_bins} "
-        "bins disagree")
+
+    def message(i: int, n: int) -> str:
+        if no_los[i]:
+            found = (f"none of its {int(n_in[i])} RTD records is of LOS {LOS_LABELS[control.los[i]]} "
+                     "(the beam the bench feeds)")
+            expected_txt = "records of the fed LOS"
+        else:
+            found = (f"median measured velocity {control.velocity[i] + median[i]:.3f} m s-1 over "
+                     f"{int(count[i])} records (measured - programmed {median[i]:+.3f} m s-1)")
+            expected_txt = (f"measured - programmed within +-{tolerance[i]:.3g} m s-1 (max of "
+                            f"{AGREEMENT_FLOOR:g} m s-1, {AGREEMENT_K:g} x the bin's robust spread "
+                            f"{scale[i]:.3g} m s-1 and {AGREEMENT_Z:g} standard errors of its median)")
+        return (f"{both} do not describe the same run (another bin length, start or LOS order?): programmed "
+                f"bin {_bin_name(control, i)}: expected {expected_txt}, found {found}; {n} of {n_bins} "
+                "bins disagree")
+    raise_first_bad(off | no_los, message)
 
 
 def build_cube(

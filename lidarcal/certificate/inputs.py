@@ -15,7 +15,7 @@ from typing import Any
 import xarray as xr
 
 from lidarcal.errors import InputError
-from lidarcal.provenance import read_json_attr
+from lidarcal.provenance import lidar_serial, read_json_attr
 
 __all__ = ["check_kind", "check_consistent", "input_label"]
 
@@ -43,9 +43,8 @@ def _find_key(obj: Any, key: str) -> Any:
 
 
 def _serial(ds: xr.Dataset) -> str | None:
-    for name in ("lidar_serial", "lidar_serial_number"):  # the latter: field campaigns from .sta files
-        if ds.attrs.get(name):
-            return str(ds.attrs[name])
+    if serial := lidar_serial(ds.attrs):
+        return serial
     model = read_json_attr(ds, "lidarcal_lidar_model")
     found = _find_key(model, "lidar_serial") if model is not None else None
     return str(found) if found else None

@@ -15,13 +15,14 @@ all of them are listed once, after the files, with the option that gives each.
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 
 from lidarcal.cli import COMMANDS
 from lidarcal.compliance import check_compliance, missing_attributes, missing_lines, summary_lines
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
-from lidarcal.schema import validate_dataset
+from lidarcal.schema import catalogue_owners, validate_dataset
 from lidarcal.seal import INTEGRITY_ATTR, verify_certificate
 
 
@@ -53,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
         kind = args.kind or ds.attrs.get("lidarcal_artefact")
         sealed = kind == "certificate" or INTEGRITY_ATTR in ds.attrs
         try:
+            for owner in catalogue_owners(str(kind)):  # the stage whose catalogue the schema expands over
+                importlib.import_module(owner)
             problems = validate_dataset(ds, args.kind, source=path)
         except InputError as exc:
             problems = [str(exc)]

@@ -18,8 +18,9 @@ import xarray as xr
 
 from lidarcal.cf import height_coord
 from lidarcal.conditions.variables import CANONICAL_UNITS, CONDITION_NAMES, FIELD_NAMES, variable_attrs
-from lidarcal.errors import InputError, MissingVariableError, ValidationError
+from lidarcal.errors import InputError, MissingVariableError, ValidationError, raise_first_bad
 from lidarcal.io import open_artefact, source_name
+from lidarcal.provenance import LEGACY_SERIAL, lidar_serial
 from lidarcal.schema import declared_variables, output_attrs, validate_dataset
 from lidarcal.units import convert_values, convert_variable
 
@@ -30,8 +31,9 @@ class SkippedPeriodsWarning(UserWarning):
     """Some periods lack a needed value at some height and will be skipped there."""
 
 
-def _where_first(mask: np.ndarray, ds: xr.Dataset) -> str:
-    t, h = np.argwhere(mask)[0]
+def _where(i: int, shape: tuple[int, ...], ds: xr.Dataset) -> str:
+    """Where the flat index ``i`` of a (time, height) array lies."""
+    t, h = np.unravel_index(i, shape)
     return f"time={ds.time.values[t]!s} (index {t}), height={float(ds.height.values[h]):g} m"
 
 
@@ -46,17 +48,16 @@ def _check_time(raw: xr.Dataset, source: str) -> None:
         raise InputError(f"{source}: coordinate 'time' holds {t.dtype} values; expected timestamps "
                          "(CF units 'seconds since ...' or datetime64)")
     missing = np.isnat(t) if t.dtype.kind in "Mm" else ~np.isfinite(t)
-    if missing.any():
-        i = int(np.argmax(missing))
-        raise InputError(f"{source}: coordinate 'time' has {int(missing.sum())} missing value(s) "
-                         f"(NaT or NaN), first at index {i}; expected a timestamp for every period")
-    step = t[1:] > t[:-1]
-    if not step.all():
-        i = int(np.argmax(~step)) + 1
+    raise_first_bad(missing, lambda i, n: (
+        f"{source}: coordinate 'time' has {n} missing value(s) "
+        f"(NaT or NaN), first at index {i}; expected a timestamp for every period"))
+
+    def out_of_order(k: int, n: int) -> str:
+        i = k + 1
         kind = "repeats" if t[i] == t[i - 1] else "comes before"
-        raise InputError(
-            f"{source}: coordinate 'time' must be strictly increasing; {int((~step).sum())} value(s) are "
-            f"duplicated or out of order, first at index {i}: {t[i]!s} {kind} the previous time {t[i - 1]!s}")
+        return (f"{source}: coordinate 'time' must be strictly increasing; {n} value(s) are duplicated "
+                f"or out of order, first at index {i}: {t[i]!s} {kind} the previous time {t[i - 1]!s}")
+    raise_first_bad(~(t[1:] > t[:-1]), out_of_order)
 
 
 def _check_values(name: str, values: np.ndarray, unit: str, spec: dict, ds_shape: xr.Dataset,
@@ -66,23 +67,18 @@ def _check_values(name: str, values: np.ndarray, unit: str, spec: dict, ds_shape
     Runs on the values as converted to canonical units, before any folding (a direction of
     1000 degree is refused, not wrapped), naming the first offending value, time and height.
     """
-    inf = np.isinf(values)
-    if inf.any():
-        t, h = np.argwhere(inf)[0]
-        raise InputError(
-            f"{source}: variable {name!r} has {int(inf.sum())} infinite value(s), first {values[t, h]:g} at "
-            f"{_where_first(inf, ds_shape)}; expected finite values (NaN marks a missing value)")
+    raise_first_bad(np.isinf(values), lambda i, n: (
+        f"{source}: variable {name!r} has {n} infinite value(s), first {values.flat[i]:g} at "
+        f"{_where(i, values.shape, ds_shape)}; expected finite values (NaN marks a missing value)"))
     lo, hi = (None, None) if spec.get("range") is None else spec["range"]
     lo = -np.inf if lo is None else float(lo)
     hi = np.inf if hi is None else float(hi)
     with np.errstate(invalid="ignore"):
         bad = (values < lo) | (values > hi)
-    if bad.any():
-        t, h = np.argwhere(bad)[0]
-        u, conv = ("", "") if unit == "1" else (f" {unit}", f" (after conversion to {unit})")
-        raise InputError(
-            f"{source}: variable {name!r} has {int(bad.sum())} value(s) outside [{lo:g}, {hi:g}]{u}{conv}, "
-            f"first {values[t, h]:.6g}{u} at {_where_first(bad, ds_shape)}{hint}")
+    u, conv = ("", "") if unit == "1" else (f" {unit}", f" (after conversion to {unit})")
+    raise_first_bad(bad, lambda i, n: (
+        f"{source}: variable {name!r} has {n} value(s) outside [{lo:g}, {hi:g}]{u}{conv}, "
+        f"first {values.flat[i]:.6g}{u} at {_where(i, values.shape, ds_shape)}{hint}"))
 
 
 def _check_height(ds: xr.Dataset, source: str) -> np.ndarray:
@@ -203,6 +199,10 @@ def load_conditions(
         out[name] = (dims, data[name], variable_attrs(name))
     out["input_complete"] = (dims, complete.astype(np.int8), output_attrs("conditions", "input_complete"))
     attrs = {k: v for k, v in raw.attrs.items() if not k.startswith("lidarcal_conditions_")}
+    if LEGACY_SERIAL in attrs:  # a file written before the serial number had one name
+        serial = lidar_serial(attrs)
+        attrs = {("lidar_serial" if k == LEGACY_SERIAL else k): (serial if k == LEGACY_SERIAL else v)
+                 for k, v in attrs.items() if k != "lidar_serial"}
     out.attrs = attrs
     out.attrs["lidarcal_conditions_checksum"] = conditions_checksum(out, needed)
     n_skip = int((~complete).sum())
@@ -218,7 +218,7 @@ def load_conditions(
         rows = np.unique(np.argwhere(~complete)[:, 0])
         warnings.warn(
             f"{source}: {n_skip} (period, height) value(s) in {rows.size} period(s) lack a needed variable "
-            f"(NaN) and will be skipped; first at {_where_first(~complete, out)}",
+            f"(NaN) and will be skipped; first at {_where(int(np.argmax(~complete)), complete.shape, out)}",
             SkippedPeriodsWarning,
             stacklevel=2,
         )

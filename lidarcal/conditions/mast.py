@@ -34,7 +34,7 @@ from lidarcal.conditions.readings import (
 )
 from lidarcal.conditions.sta import STA_COMMENTS, measured_conditions
 from lidarcal.conditions.variables import variable_attrs
-from lidarcal.errors import InputError, LidarcalError, MissingVariableError
+from lidarcal.errors import InputError, LidarcalError, MissingVariableError, raise_first_bad
 from lidarcal.io import check_input_file
 from lidarcal.provenance import stamp
 from lidarcal.units import convert_values
@@ -96,13 +96,10 @@ def _start_times(path: Path, cells: pd.Series, column: int, timestamp: str) -> n
     tcol = cells.name
     text = cells.astype(str).str.strip()
     offsets = text.str.extract(_OFFSET, expand=False).fillna("none")
-    if offsets.nunique() > 1:
-        r = int(np.flatnonzero((offsets != offsets.iloc[0]).to_numpy())[0])
-        raise InputError(
-            f"{path}: line {r + 2}, column {column} ({tcol!r}): timestamp {text.iloc[r]!r} "
-            f"has UTC offset {offsets.iloc[r]!r} but line 2 has {offsets.iloc[0]!r}; expected one offset "
-            f"throughout (a daylight-saving switch? convert the record to one clock, e.g. UTC, first)"
-        )
+    raise_first_bad((offsets != offsets.iloc[0]).to_numpy(), lambda r, n: (
+        f"{path}: line {r + 2}, column {column} ({tcol!r}): timestamp {text.iloc[r]!r} "
+        f"has UTC offset {offsets.iloc[r]!r} but line 2 has {offsets.iloc[0]!r}; expected one offset "
+        f"throughout (a daylight-saving switch? convert the record to one clock, e.g. UTC, first)"))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # format inference notices; unparsable cells are reported below
         try:
@@ -110,13 +107,8 @@ def _start_times(path: Path, cells: pd.Series, column: int, timestamp: str) -> n
         except (ValueError, TypeError) as exc:  # mixtures pandas refuses even with errors="coerce"
             raise InputError(f"{path}: column {column} ({tcol!r}): timestamps cannot be "
                              f"read together: {exc}") from None
-    bad = times.isna().to_numpy()
-    if bad.any():
-        r = int(np.flatnonzero(bad)[0])
-        raise InputError(
-            f"{path}: line {r + 2}, column {column} ({tcol!r}): expected a timestamp; found "
-            f"{text.iloc[r]!r}"
-        )
+    raise_first_bad(times.isna().to_numpy(), lambda r, n: (
+        f"{path}: line {r + 2}, column {column} ({tcol!r}): expected a timestamp; found {text.iloc[r]!r}"))
     start = times.to_numpy(dtype="datetime64[ns]") - (PERIOD if timestamp == "end" else np.timedelta64(0))
     _, first, counts = np.unique(start, return_index=True, return_counts=True)
     if (counts > 1).any():
@@ -189,8 +181,8 @@ def read_reference_csv(
             raise InputError(f"{exc} (--reference-units or the unit in the column name)") from None
         (lo, hi), _ = RAW_RANGES[role]
         bad = sentinel | (np.isfinite(converted) & ((converted < lo) | (converted > hi)))
-        if bad.any():
-            r = int(np.flatnonzero(bad)[0])
+
+        def message(r: int, n: int) -> str:
             v = float(values[r])
             if sentinel[r] or v < 0:
                 problem = value_problem(v, role, lo, hi, unit)
@@ -199,7 +191,8 @@ def read_reference_csv(
                            f"[{lo:g}, {hi:g}] m/s")
                 if unit == "m/s" and v <= 360 and role == "speed":
                     problem += " (a wind direction? are the column names swapped?)"
-            raise InputError(f"{path}: line {r + 2}, column {number} ({col!r}): {problem}")
+            return f"{path}: line {r + 2}, column {number} ({col!r}): {problem}"
+        raise_first_bad(bad, message)
         return converted
 
     means = {h: numbers(c, "speed") for h, c in columns.items()}
@@ -388,7 +381,7 @@ def sta_field_campaign(
               "cone_angle": cone_angle}
     return stamp(
         out, "field_campaign",
-        title=f"Field campaign: WindCube {out.attrs['lidar_serial_number']} against a met mast",
+        title=f"Field campaign: WindCube {out.attrs['lidar_serial']} against a met mast",
         summary=f"{out.sizes['time']} ten-minute periods at {out.sizes['height']} mast heights: lidar speed "
                 f"from {len(sta_paths)} .sta file(s), reference speed from {out.attrs['reference_file']}.",
         call=call or "lidarcal.conditions.mast.sta_field_campaign(...)",

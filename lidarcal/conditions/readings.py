@@ -19,7 +19,7 @@ from collections.abc import Callable
 import numpy as np
 import pandas as pd
 
-from lidarcal.errors import InputError
+from lidarcal.errors import raise_first_bad
 from lidarcal.schema import declared_variables
 
 __all__ = ["PERIOD", "MISSING_MARKERS", "SENTINELS", "RAW_RANGES", "DERIVED_LIMITS", "read_numbers",
@@ -67,12 +67,9 @@ def read_numbers(cells: pd.Series, where: Callable[[int], str]) -> np.ndarray:
     text = cells.fillna("").astype(str).str.strip()
     missing = (text == "") | text.str.lower().isin(MISSING_MARKERS)
     values = pd.to_numeric(text.where(~missing, "NaN"), errors="coerce").to_numpy(dtype=float)
-    bad = ~np.isfinite(values) & ~missing.to_numpy()
-    if bad.any():
-        r = int(np.flatnonzero(bad)[0])
-        raise InputError(
-            f"{where(r)}: expected a number; found {text.iloc[r]!r} ({int(bad.sum())} such cell(s)); a "
-            f"missing value is an empty cell or one of NaN, NA, N/A, null, none, -")
+    raise_first_bad(~np.isfinite(values) & ~missing.to_numpy(), lambda r, n: (
+        f"{where(r)}: expected a number; found {text.iloc[r]!r} ({n} such cell(s)); a "
+        f"missing value is an empty cell or one of NaN, NA, N/A, null, none, -"))
     return values
 
 

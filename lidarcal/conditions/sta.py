@@ -67,7 +67,7 @@ def sta_attributes(files: list[StaFile], min_availability: float) -> dict:
         "lidar_cone_angle": float(first.scan_angle),
         "lidar_scan_angle": float(first.scan_angle),
         "lidar_cone_angle_source": first.scan_angle_source,
-        "lidar_serial_number": serial or "not given",
+        "lidar_serial": serial or "not given",
         "lidar_site": first.get("location", "localisation") or "not given",
         "lidar_gps_location": first.get("gpslocation", "gpslocalisation") or "not given",
         "lidar_cnr_threshold": cnr_thr_value if cnr_thr_value is not None else "not given",
@@ -187,7 +187,7 @@ def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
     ds.attrs["license"] = "not specified: the licence of the source .sta files applies"
     return stamp(
         ds, "conditions",
-        title=f"Measured 10-minute conditions from WindCube {ds.attrs['lidar_serial_number']}",
+        title=f"Measured 10-minute conditions from WindCube {ds.attrs['lidar_serial']}",
         summary=f"{ds.sizes['time']} ten-minute periods at {ds.sizes['height']} heights read from "
                 f"{len(paths)} WindCube .sta file(s); CNR and CNR gradient measured; periods below "
                 f"{float(min_availability):g} % availability missing.",

@@ -44,7 +44,7 @@ import numpy as np
 import pandas as pd
 
 from lidarcal.conditions.readings import MISSING_MARKERS, PERIOD, RAW_RANGES, read_numbers, value_problem
-from lidarcal.errors import InputError
+from lidarcal.errors import InputError, raise_first_bad
 from lidarcal.io import check_input_file
 
 __all__ = ["StaFile", "read_sta", "read_sta_files", "resolve_cone_angle", "check_spacing", "DIALECTS",
@@ -156,16 +156,16 @@ def check_spacing(path_of, end: np.ndarray, lines: np.ndarray) -> None:
     order = np.argsort(end, kind="stable")
     step = np.diff(end[order])
     bad = (step % PERIOD != np.timedelta64(0, "ns")) | (step <= np.timedelta64(0, "ns"))
-    if bad.any():
-        k = int(np.flatnonzero(bad)[0])
+
+    def message(k: int, n: int) -> str:
         a, b = int(order[k]), int(order[k + 1])
-        where_a = path_of(a)
-        raise InputError(
+        return (
             f"{path_of(b)}: line {lines[b]}, column 1: interval ending {pd.Timestamp(end[b])} is "
             f"{step[k] / np.timedelta64(1, 's'):g} s after the one ending {pd.Timestamp(end[a])} "
-            f"({where_a}, line {lines[a]}); 10-minute statistics must be whole multiples of 600 s apart "
+            f"({path_of(a)}, line {lines[a]}); 10-minute statistics must be whole multiples of 600 s apart "
             f"(overlapping or shifted periods are refused)"
         )
+    raise_first_bad(bad, message)
 
 
 def _float(text: str, where: str, what: str) -> float:
@@ -432,13 +432,9 @@ def read_sta(path: str | os.PathLike, *, allow_gaps: bool = False) -> StaFile:
     first_line = n + 3
     stamps = df[0].fillna("").astype(str).str.strip()
     end = pd.to_datetime(stamps, format=fmt, errors="coerce")
-    bad = end.isna().to_numpy()
-    if bad.any():
-        r = int(np.flatnonzero(bad)[0])
-        raise InputError(
-            f"{path}: line {first_line + r}, column 1 ({first!r}): expected a timestamp {fmt_text}; found "
-            f"{stamps.iloc[r]!r}"
-        )
+    raise_first_bad(end.isna().to_numpy(), lambda r, n: (
+        f"{path}: line {first_line + r}, column 1 ({first!r}): expected a timestamp {fmt_text}; found "
+        f"{stamps.iloc[r]!r}"))
     end = end.to_numpy(dtype="datetime64[ns]")
     row_lines = first_line + np.arange(n_rows)
     _, inverse, counts = np.unique(end, return_inverse=True, return_counts=True)
@@ -461,14 +457,14 @@ def read_sta(path: str | os.PathLike, *, allow_gaps: bool = False) -> StaFile:
         (lo, hi), unit = RAW_RANGES[role]
         v = values[role]
         bad = np.isfinite(v) & ((v < lo) | (v > hi))
-        if bad.any():
-            r, c = np.argwhere(bad)[0]
+
+        def message(i: int, n: int, v=v, role=role, lo=lo, hi=hi, unit=unit) -> str:
+            r, c = np.unravel_index(i, v.shape)
             j = cols[role][c]
-            more = f" ({int(bad.sum())} such cell(s) in the file)" if bad.sum() > 1 else ""
-            raise InputError(
-                f"{path}: line {first_line + r}, column {j + 1} ({names[j]!r}): "
-                f"{value_problem(float(v[r, c]), role, lo, hi, unit)}{more}"
-            )
+            more = f" ({n} such cell(s) in the file)" if n > 1 else ""
+            return (f"{path}: line {first_line + r}, column {j + 1} ({names[j]!r}): "
+                    f"{value_problem(float(v[r, c]), role, lo, hi, unit)}{more}")
+        raise_first_bad(bad, message)
     return StaFile(
         path=path, dialect=dialect, header_size=n, header=header, header_lines=where, altitudes=alts,
         scan_angle=phi, end=end, lines=row_lines, values=values,

@@ -37,7 +37,7 @@ from lidarcal.conditions.kernels import (
 )
 from lidarcal.conditions.load import load_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES, variable_attrs
-from lidarcal.errors import InputError
+from lidarcal.errors import InputError, raise_first_bad
 from lidarcal.io import source_name
 from lidarcal.lidar.model import LidarModel
 from lidarcal.provenance import stamp
@@ -159,13 +159,14 @@ def _check_extrapolated(vals: dict[str, np.ndarray], times: np.ndarray, z: np.nd
         values = vals[name]
         with np.errstate(invalid="ignore"):
             bad = (values < lo) | (values > hi)
-        if bad.any():
-            t, h = np.argwhere(bad)[0]
-            raise InputError(
-                f"{source}: its wind speeds and turbulence carried to heights {z.tolist()} m give "
-                f"{int(bad.sum())} {name} value(s) outside [{lo:g}, {hi:g}], first {values[t, h]:.4g} at "
-                f"time={times[t]!s} (index {t}), height={z[h]:g} m; expected values that form a plausible "
-                "profile (check the base file's wind_speed at neighbouring heights)")
+
+        def message(i: int, n: int, name=name, values=values, lo=lo, hi=hi) -> str:
+            t, h = np.unravel_index(i, values.shape)
+            return (f"{source}: its wind speeds and turbulence carried to heights {z.tolist()} m give "
+                    f"{n} {name} value(s) outside [{lo:g}, {hi:g}], first {values[t, h]:.4g} at "
+                    f"time={times[t]!s} (index {t}), height={z[h]:g} m; expected values that form a "
+                    "plausible profile (check the base file's wind_speed at neighbouring heights)")
+        raise_first_bad(bad, message)
 
 
 def synthetic_conditions(

@@ -204,13 +204,13 @@ def to_dataset(result: DiagnosisResult, *, call: str = "lidarcal.diagnose.diagno
         np.asarray([0] + [int(c.effect.id in minor) for c in result.candidates], np.int8))
     for c in result.candidates:
         for p in c.effect.parameters:
-            base, about = f"fit_{c.effect.id}_{p.name}", dict(effect=c.effect.id, parameter=p.long_name)
+            base = f"fit_{c.effect.id}_{p.name}"  # long names and units: the schema's, per catalogue row
             lo, hi = c.interval.get(p.name, (np.nan, np.nan))
-            put(base, (), c.estimate[p.name], **about)
-            put(f"{base}_stderr", (), c.stderr[p.name], **about)
-            put(f"{base}_nominal", (), c.nominal[p.name], **about)
-            put(f"{base}_lower", (), lo, **about)
-            put(f"{base}_upper", (), hi, **about)
+            put(base, (), c.estimate[p.name])
+            put(f"{base}_stderr", (), c.stderr[p.name])
+            put(f"{base}_nominal", (), c.nominal[p.name])
+            put(f"{base}_lower", (), lo)
+            put(f"{base}_upper", (), hi)
     if with_sensitivity:
         sens = sensitivity_statistics(result)
         for key, side in (("measured", "field records"), ("before", "nominal model"),

@@ -17,19 +17,12 @@ frozen :class:`Effect` that states
   (``test_exact_shortcuts_equal_a_full_resimulation``) checks each shortcut against a full
   re-simulation.
 
-Expected signatures (first order, cone angle φ from vertical, relative to the reference):
-
-``zero_distance_offset``  +α·δz·cos φ / h (gate higher by δz·cos φ; grows with shear, falls with height)
-``beam_angle_offset``     +cot φ·δφ − α·tan φ·δφ (mostly constant: the horizontal projection
-                          sin(φ+δφ) is divided by sin φ; the gate also sits lower)
-``cnr_gradient_weighting`` +α·cos φ·σ_r²·(ln 10 / 20)·s·g / h (Eq. 2 moves the RWF barycentre by
-                          σ_r²·(ln 10/20)·s·g along the beam for a Gaussian RWF of std σ_r)
-``hybrid_weight``         (p − p₀)·(V_scalar − V_vector)/V_ref (grows with TI²)
-``reference_overspeeding`` −c·TI (the cup over-reads, so the lidar looks low)
-``reference_gain``        −gain/(1 + gain) ≈ −gain (constant: every height and condition alike)
-``reference_flow_distortion`` +deficit/(1 − deficit) for periods whose mean direction lies in the
-                          sector centre ± width/2, 0 elsewhere; the edge is smoothed over the
-                          spread of the instantaneous direction (0.8·TI rad)
+Each entry states its expected first-order signature (``Effect.signature``, cone angle φ from
+vertical, relative to the reference); ``docs/diagnose.md``'s catalogue table is
+:func:`catalogue_table` (``tests/test_diagnose.py`` checks that the page shows it), and the
+``fit_*`` variables of ``schemas/diagnosis.yaml`` are expanded from :func:`schema_rows`, which
+this module registers with the schema loader: a new effect is one entry here (and its model
+field and physics), nothing else.
 
 **Grid parameters.** Some parameters enter non-linearly and the response is not smooth in them
 (the sector's ``centre`` and ``width``).  Such a parameter declares a ``grid`` of candidate
@@ -52,8 +45,10 @@ import numpy as np
 
 from lidarcal.errors import InputError
 from lidarcal.lidar.model import direction_spread, flow_distortion_factor
+from lidarcal.schema import register_catalogue
 
-__all__ = ["Parameter", "Effect", "EFFECTS", "get_effect", "model_form_share", "schema_ranges"]
+__all__ = ["Parameter", "Effect", "EFFECTS", "get_effect", "model_form_share", "realistic_strengths",
+           "schema_rows", "catalogue_table"]
 
 #: Records are dicts of arrays over (time, height) with the simulated_rtd names.
 Records = Mapping[str, np.ndarray]
@@ -73,10 +68,9 @@ class Parameter:
         The parameter's *physical range*, declared once here: the values the physics (or the
         instrument's definition) allows.  Where physics gives the parameter a sign, the range
         says so (a cup over-speeds in turbulence: its coefficient is ≥ 0).  The fitted values
-        in ``schemas/diagnosis.yaml`` carry the same range (``tests/test_diagnose.py`` checks
-        that they agree).  A fit at a bound within its uncertainty is named at the bound; one
-        that wants to go beyond it by more than its uncertainty is out of range
-        (``docs/diagnose.md``).
+        of ``schemas/diagnosis.yaml`` carry this range (expanded from :func:`schema_rows`).  A
+        fit at a bound within its uncertainty is named at the bound; one that wants to go beyond
+        it by more than its uncertainty is out of range (``docs/diagnose.md``).
     model_field : str
         The ``LidarModel`` field this parameter sets (absolute value, not an increment).
     step : float
@@ -90,6 +84,9 @@ class Parameter:
     basis : str
         Why the physical range is what it is (quoted in the diagnosis note when a fit reaches a
         bound or wants to go beyond it).
+    realistic : float
+        A realistic strength, within the bounds: the value ``lidarcal diagnose-generate`` hides
+        by default (:func:`realistic_strengths`).
     """
 
     name: str
@@ -100,6 +97,7 @@ class Parameter:
     long_name: str
     grid: tuple[float, ...] | None = None
     basis: str = ""
+    realistic: float | None = None
 
     @property
     def sign(self) -> int:
@@ -255,7 +253,8 @@ EFFECTS: dict[str, Effect] = {
                     "(a zero-distance Zd error); the measurement height moves up by offset·cos φ.",
         parameters=(Parameter("offset", "m", (-30.0, 30.0), "zero_distance_offset", 4.0,
                               "range-gate offset along the beam (positive away from the lidar)",
-                              basis="either sign; +-30 m bounds a plausible zero-distance error"),),
+                              basis="either sign; +-30 m bounds a plausible zero-distance error",
+                              realistic=4.0),),  # m, a Zd error of 3-5 m
         drivers=("wind_shear_exponent",),
         signature=f"relative bias ≈ +α·offset·cos φ / h ({_CONE}): grows with shear, falls with height",
     ),
@@ -266,7 +265,7 @@ EFFECTS: dict[str, Effect] = {
         parameters=(Parameter("offset", "degree", (-3.0, 3.0), "beam_angle_offset", 0.5,
                               "true minus nominal cone angle of the oblique beams",
                               basis="either sign; +-3 degree bounds a plausible prism or mounting "
-                                    "error"),),
+                                    "error", realistic=0.5),),
         drivers=("wind_shear_exponent",),
         signature=f"relative bias ≈ +cot φ·δφ − α·tan φ·δφ ({_CONE}, δφ in rad): nearly constant",
     ),
@@ -277,7 +276,7 @@ EFFECTS: dict[str, Effect] = {
         parameters=(Parameter("scale", "1", (0.0, 5.0), "cnr_weighting_scale", 1.0,
                               "multiplier of the CNR gradient in the Eq. 2 weighting",
                               basis="0 is no weighting; a negative scale would weight the RWF "
-                                    "against the CNR"),),
+                                    "against the CNR", realistic=1.0),),  # Eq. 2 as written
         drivers=("wind_shear_exponent", "cnr_gradient"),
         signature="relative bias ≈ α·cos φ·σ_r²·(ln10/20)·scale·g / h: sign follows shear × CNR gradient",
     ),
@@ -288,7 +287,8 @@ EFFECTS: dict[str, Effect] = {
         parameters=(Parameter("p", "1", (0.0, 1.0), "hybrid_weight", -1.0 / 6.0,
                               "weight of the scalar-averaged speed in the hybrid reconstruction",
                               basis="a weight: 0 is pure vector, 1 pure scalar averaging, both "
-                                    "legitimate firmware settings"),),
+                                    "legitimate firmware settings",
+                              realistic=0.5),),  # WindCube XP firmware vs nominal 2/3
         drivers=("turbulence_intensity",),
         signature="relative bias ≈ (p − p₀)·(V_scalar − V_vector)/V_ref, growing with TI²",
         shortcut=_hybrid_shortcut,
@@ -310,7 +310,8 @@ EFFECTS: dict[str, Effect] = {
         parameters=(Parameter("coefficient", "1", (0.0, 0.5), "reference_overspeeding", 0.05,
                               "relative over-reading of the reference per unit turbulence intensity",
                               basis="a cup over-speeds in turbulence (it speeds up faster than it "
-                                    "slows down), it never under-reads: coefficient >= 0"),),
+                                    "slows down), it never under-reads: coefficient >= 0",
+                              realistic=0.08),),  # per unit TI
         drivers=("turbulence_intensity",),
         signature="relative bias ≈ −coefficient·TI",
         shortcut=_overspeeding_shortcut,
@@ -321,7 +322,8 @@ EFFECTS: dict[str, Effect] = {
                     "(1 + gain) × the true speed.",
         parameters=(Parameter("gain", "1", (-0.2, 0.2), "reference_gain", 0.01,
                               "relative error of the reference's calibration factor",
-                              basis="either sign; +-20 % bounds a plausible calibration error"),),
+                              basis="either sign; +-20 % bounds a plausible calibration error",
+                              realistic=0.01),),  # a cup calibration factor 1 % off
         drivers=(),
         signature="relative bias ≈ −gain/(1 + gain): constant over heights and conditions",
         shortcut=_ratio_shortcut(_gain_factor),
@@ -336,14 +338,14 @@ EFFECTS: dict[str, Effect] = {
             Parameter("centre", "degree", (0.0, 360.0), "reference_flow_distortion_centre", 10.0,
                       "direction (from) at the centre of the shadowed sector",
                       grid=tuple(float(c) for c in range(0, 360, 10)),
-                      basis="a direction: the whole compass"),
+                      basis="a direction: the whole compass", realistic=250.0),
             Parameter("width", "degree", (0.0, 180.0), "reference_flow_distortion_width", 10.0,
                       "full width of the shadowed sector", grid=(20.0, 40.0, 60.0, 90.0, 120.0),
-                      basis="a mast shadows at most half the compass"),
+                      basis="a mast shadows at most half the compass", realistic=60.0),
             Parameter("deficit", "1", (-0.5, 0.5), "reference_flow_distortion_deficit", 0.02,
                       "relative under-reading of the reference inside the sector",
                       basis="either sign: a mast's wake slows the flow (> 0), the flow around "
-                            "its sides speeds up (< 0)"),
+                            "its sides speeds up (< 0)", realistic=0.04),
         ),
         drivers=("wind_from_direction",),
         signature="relative bias ≈ +deficit/(1 − deficit) inside the sector centre ± width/2, 0 outside",
@@ -372,11 +374,41 @@ def get_effect(effect_id: str) -> Effect:
         raise InputError(f"unknown effect {effect_id!r}; catalogue ids: {', '.join(EFFECTS)}") from None
 
 
-def schema_ranges() -> dict[str, list[float]]:
-    """``range`` of every ``fit_<effect>_<parameter>`` variable of ``schemas/diagnosis.yaml``.
+def realistic_strengths() -> dict[str, dict[str, float]]:
+    """Realistic strength of every effect's parameters (``Parameter.realistic``), by catalogue id."""
+    return {e.id: {p.name: float(p.realistic) for p in e.parameters} for e in EFFECTS.values()}
 
-    The physical ranges are declared once, in the catalogue; the schema repeats them and
-    ``tests/test_diagnose.py`` checks that it agrees with this mapping.
+
+def schema_rows() -> list[dict[str, Any]]:
+    """One row per parameter of every effect: what ``schemas/diagnosis.yaml`` expands its ``fit_*`` over.
+
+    ``effect`` the catalogue id, ``name`` the parameter's name, ``parameter`` its long name,
+    ``units`` its unit and ``range`` its physical range (``Parameter.bounds``).
     """
-    return {f"fit_{e.id}_{p.name}": [float(p.bounds[0]), float(p.bounds[1])]
-            for e in EFFECTS.values() for p in e.parameters}
+    return [{"effect": e.id, "name": p.name, "parameter": p.long_name, "units": p.units,
+             "range": [float(p.bounds[0]), float(p.bounds[1])]}
+            for e in EFFECTS.values() for p in e.parameters]
+
+
+register_catalogue("diagnose_effect_parameters", schema_rows())
+
+
+def _number(x: float) -> str:
+    return f"{x:g}".replace("-", "−")
+
+
+def catalogue_table() -> str:
+    """Return the catalogue as the Markdown table of ``docs/diagnose.md`` (``none`` last).
+
+    Columns: the id; each parameter's name, unit, physical range and the ``LidarModel`` field it
+    sets; what is wrong (the description); the drivers and the expected signature.
+    """
+    def params(e: Effect) -> str:
+        return ", ".join(f"`{p.name}` ({p.units}, [{_number(p.bounds[0])}, {_number(p.bounds[1])}]; "
+                         f"sets `{p.model_field}`)" for p in e.parameters) or "—"
+
+    rows = ["| id | parameters | what is wrong | acts through |", "|---|---|---|---|"]
+    for e in sorted(EFFECTS.values(), key=lambda e: e.id == "none"):
+        drivers = ", ".join(f"`{d}`" for d in e.drivers) or "no driver"
+        rows.append(f"| `{e.id}` | {params(e)} | {e.description} | {drivers}: {e.signature} |")
+    return "\n".join(rows)

@@ -27,7 +27,7 @@ import xarray as xr
 from lidarcal.campaign import simulate_campaign
 from lidarcal.conditions import synthetic_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES, FIELD_NAMES, variable_attrs
-from lidarcal.diagnose.effects import get_effect
+from lidarcal.diagnose.effects import get_effect, realistic_strengths
 from lidarcal.errors import InputError
 from lidarcal.lidar import LidarModel
 from lidarcal.provenance import stamp
@@ -38,17 +38,8 @@ __all__ = ["GENERATOR_SEED", "REALISTIC_STRENGTHS", "DIAGNOSIS_CNR_MODEL", "hidd
 #: Base seed of the hidden-effect simulations (the diagnosis uses core.DEFAULT_SEED).
 GENERATOR_SEED = 777_000_001
 
-#: Realistic strengths of each effect (units of ``docs/diagnose.md``).
-REALISTIC_STRENGTHS: dict[str, dict[str, float]] = {
-    "none": {},
-    "zero_distance_offset": {"offset": 4.0},        # m, a Zd error of 3-5 m
-    "beam_angle_offset": {"offset": 0.5},           # degree
-    "cnr_gradient_weighting": {"scale": 1.0},       # Eq. 2 as written
-    "hybrid_weight": {"p": 0.5},                    # WindCube XP firmware vs nominal 2/3
-    "reference_overspeeding": {"coefficient": 0.08},  # per unit TI
-    "reference_gain": {"gain": 0.01},               # a cup calibration factor 1 % off
-    "reference_flow_distortion": {"centre": 250.0, "width": 60.0, "deficit": 0.04},  # mast shadow
-}
+#: Realistic strengths of each effect (units of ``docs/diagnose.md``), from the catalogue.
+REALISTIC_STRENGTHS: dict[str, dict[str, float]] = realistic_strengths()
 
 #: CNR model (lidarcal.conditions.kernels.cnr_model parameters) for hidden-effect campaigns:
 #: no mean lapse, a 3 dB focus bump at 110 m (vertical gradient +0.03 dB/m below, -0.03 dB/m above

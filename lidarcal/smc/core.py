@@ -43,6 +43,7 @@ from lidarcal.conditions.sta import measured_conditions
 from lidarcal.conditions.stafile import CONE_ANGLE_TOLERANCE
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
+from lidarcal.provenance import lidar_serial
 from lidarcal.smc.certified import Certified, read_certified
 from lidarcal.smc.montecarlo import MonteCarloRoute, monte_carlo_route
 from lidarcal.smc.routes import IecRoute, calibration_part, iec_route, table_edges
@@ -120,8 +121,7 @@ def _from_sta(
 def _from_conditions(cert: Certified, path: str | os.PathLike) -> tuple[xr.Dataset, dict[str, Path], str]:
     raw = open_artefact(path)
     name = source_name(path)
-    found = raw.attrs.get("lidar_serial_number") or raw.attrs.get("lidar_serial")
-    _serial_check(cert, found, f"{name}: global attribute 'lidar_serial_number'")
+    _serial_check(cert, lidar_serial(raw.attrs), f"{name}: global attribute 'lidar_serial'")
     if "lidar_cone_angle" not in raw.attrs:
         raise InputError(
             f"{name}: global attribute 'lidar_cone_angle' is missing; expected the campaign lidar's "
