@@ -38,9 +38,10 @@ floats, no files, no xarray) does that:
   ``SeedSequence([base_seed, r, period_key], spawn_key=(BAD_RATE_STREAM,))``; replica 0
   simulates the best estimate (â, b̂).  A draw per trial, not one per replica: the distribution
   of one period's error is the same either way, and a curve shared by a whole replica would
-  shift every period of a bin together, a shift the replicas must then average out.  The rate's uncertainty is nevertheless one lidar's: it is
-  systematic across the periods of a campaign, and whoever averages many 10-minute means must
-  not average it down (``docs/certificate.md``).
+  shift every period of a bin together, a shift the replicas must then average out.  The
+  rate's uncertainty is nevertheless one lidar's: it is systematic across the periods of a
+  campaign, and whoever averages many 10-minute means must not average it down
+  (``docs/certificate.md``).
 
 The virtual lidar then draws each line-of-sight estimate as bad with probability
 ``p_bad(CNR)`` at the period's CNR (its value uniform over the band, whatever the true
