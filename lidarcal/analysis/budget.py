@@ -81,7 +81,7 @@ from lidarcal.analysis.trials import binned as binned_trials
 from lidarcal.cf import with_bounds
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import source_name
-from lidarcal.provenance import stamp
+from lidarcal.provenance import lidar_serial, stamp
 from lidarcal.schema import with_output_attrs
 from lidarcal.units import Q_, convert_values, to_magnitude
 
@@ -521,7 +521,7 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, .
     ds.attrs = {"approach": approach, "coverage_factor": k, "min_periods": rule["min_periods"],
                 "certified_range_m_s": np.array([lo, hi]),
                 "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")), **extra}
-    serial = records.attrs.get("lidar_serial") or records.attrs.get("lidar_serial_number")  # .sta: _number
+    serial = lidar_serial(records.attrs)  # old .sta records: lidar_serial_number
     if serial:
         ds.attrs["lidar_serial"] = serial
     title = {"monte_carlo": "SAFO-MV and Monte Carlo", "iec": "IEC 61400-50-2 field"}[approach]
