@@ -20,6 +20,7 @@ from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.adaptive import with_trials
 from lidarcal.campaign.model_form import model_form_runs, select_periods, with_model_form
 from lidarcal.campaign.run import simulate_replicas
+from lidarcal.campaign.settings import Execution
 from lidarcal.certificate import MEASURAND, make_certificate, result_table
 from lidarcal.conditions import synthetic_conditions
 from lidarcal.dcc import dcc_tree
@@ -335,13 +336,15 @@ def small_chain(tmp_path_factory):
     cond = synthetic_conditions(30, (60.0, 100.0), seed=7)
     rwf = range_weighting_function()
     model = LidarModel.from_artefacts(rwf=rwf)
-    records = simulate_campaign(cond, model, heights=[100.0], scheduler="synchronous", duration=120.0)
-    records = model_form_runs(records, cond, model, scheduler="synchronous", duration=120.0, per_bin=6)
+    records = simulate_campaign(cond, model, heights=[100.0],
+                                execution=Execution(scheduler="synchronous"), duration=120.0)
+    records = model_form_runs(records, cond, model,
+                              execution=Execution(scheduler="synchronous"), duration=120.0, per_bin=6)
     # 15 Monte Carlo replicas of every period: a value certifies only once it has settled (JCGM 101
     # 7.9) from the replicas and from all trials; with 3-6 periods a bin, 16 replicas settle every bin
     # of 3 periods or more to one significant digit (4 replicas settle one of six)
     done = simulate_replicas(cond, model, np.ones((30, 1), dtype=bool), list(range(1, 16)), heights=[100.0],
-                             scheduler="synchronous", duration=120.0)
+                             execution=Execution(scheduler="synchronous"), duration=120.0)
     records = with_trials(records, [{"replica": r, **{k: done[r][k] for k in ("period", "height",
                                      "lidar_wind_speed", "reference_wind_speed")}} for r in sorted(done)])
     rec_path = write_artefact(records, d / "simulated.nc")

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -49,8 +49,8 @@ from lidarcal.analysis.budget import (
     budget,
 )
 from lidarcal.binning import bin_index
-from lidarcal.campaign.progress import Progress
 from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_replicas
+from lidarcal.campaign.settings import Execution
 from lidarcal.errors import InputError
 from lidarcal.schema import output_attrs
 
@@ -155,12 +155,8 @@ def adaptive_replicas(
     coverage_factor: float = 2.0,
     coverage_interval: str = "symmetric",
     base_seed: int = DEFAULT_BASE_SEED,
-    chunk: int = 64,
-    scheduler: Any = None,
-    workers: int | None = None,
-    workdir: str | os.PathLike | None = None,
-    progress: Any = False,
     duration: float = 600.0,
+    execution: Execution | Mapping[str, Any] | None = None,
 ) -> tuple[xr.Dataset, xr.Dataset]:
     """Add Monte Carlo replicas to ``records`` until every certified value has settled.
 
@@ -169,7 +165,7 @@ def adaptive_replicas(
     records : xarray.Dataset
         Replica 0: the ``simulated_rtd`` records of ``conditions`` simulated with ``model`` and
         ``base_seed`` (at the records' heights).
-    conditions, model, base_seed, chunk, scheduler, workers, workdir, progress, duration
+    conditions, model, base_seed, duration, execution
         As for :func:`~lidarcal.campaign.simulate_campaign` (the same conditions, model, seed and
         duration as replica 0).
     terms, min_periods, certified_range, bin_width, coverage_factor, significant_digits, coverage_interval
@@ -192,7 +188,7 @@ def adaptive_replicas(
                 coverage_factor=coverage_factor, significant_digits=significant_digits,
                 coverage_interval=coverage_interval)
     heights = [float(z) for z in records["height"].values]
-    progress = Progress.of(progress)
+    run = Execution.of(execution)
     trials: list[dict[str, np.ndarray]] = []
     current = with_trials(records, trials)
     bud = budget(current, **opts)
@@ -208,9 +204,8 @@ def adaptive_replicas(
                  int(sum(c.sum() for c in cells.values())))
         label = f"replicas {first}-{last}" if last > first else f"replica {first}"
         done = simulate_replicas(conditions, model, cells, list(cells), heights=heights, base_seed=base_seed,
-                                 chunk=chunk, scheduler=scheduler, workers=workers, workdir=workdir,
-                                 progress=progress.labelled(f"{label} (of at most {int(max_replicas)})"),
-                                 duration=duration)
+                                 duration=duration,
+                                 execution=run.labelled(f"{label} (of at most {int(max_replicas)})"))
         # keep only what the budget and the records need: memory grows by four numbers a trial
         trials += [{"replica": r, **{k: done[r][k] for k in _KEPT}} for r in sorted(done)]
         current = with_trials(records, trials)

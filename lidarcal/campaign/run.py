@@ -12,6 +12,9 @@
   ``xr.open_mfdataset``) equal the whole run bit for bit.  Every record carries its
   ``period_key`` and ``base_seed`` (time variables), so ensemble members with different base
   seeds stay distinguishable after concatenation.
+* **Execution** — where and how the chunks run is one :class:`~lidarcal.campaign.settings.Execution`
+  (``execution``: chunk size, scheduler, workers, chunk cache, progress, timeouts); none of it
+  changes a number.
 * **Schedulers** — ``None``/``"processes"`` (local process pool, the default), ``"threads"``,
   ``"synchronous"``, ``"local"`` (a ``distributed.LocalCluster`` of single-threaded worker
   processes), an address ``"tcp://host:port"`` of a running ``dask.distributed`` scheduler,
@@ -51,8 +54,8 @@ from lidarcal.campaign.chunks import (
     unflatten_los,
 )
 from lidarcal.campaign.los import los_variables
-from lidarcal.campaign.progress import Progress
-from lidarcal.campaign.scheduler import WORKER_TIMEOUT, execute
+from lidarcal.campaign.scheduler import execute
+from lidarcal.campaign.settings import Execution
 from lidarcal.cf import height_coord, time_coord
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES
@@ -94,15 +97,9 @@ def simulate_campaign(
     *,
     heights: Sequence[float] | None = None,
     base_seed: int = DEFAULT_BASE_SEED,
-    chunk: int = 64,
-    scheduler: Any = None,
-    workers: int | None = None,
-    workdir: str | os.PathLike | None = None,
-    progress: Any = False,
     los_periods: Sequence[int] = (),
     duration: float = 600.0,
-    connect_timeout: float = 5.0,
-    worker_timeout: float = WORKER_TIMEOUT,
+    execution: Execution | Mapping[str, Any] | None = None,
     call: str | None = None,
     inputs: dict[str, str | os.PathLike] | None = None,
 ) -> xr.Dataset:
@@ -119,27 +116,16 @@ def simulate_campaign(
     base_seed : int
         A period at time ``t`` uses ``SeedSequence([base_seed, period_key, round(height * 1000)])``
         with ``period_key`` the whole seconds of ``t`` since 1970-01-01T00:00:00 (docs/seeds.md).
-    chunk : int
-        Periods per Dask task (does not change the result).
-    scheduler : None, str or distributed.Client
-        See the module docstring; ``None`` runs a local process pool.
-    workers : int, optional
-        Worker processes/threads for local schedulers (default: number of CPUs).
-    workdir : path, optional
-        Directory for the resumable chunk cache (created if missing).
-    progress : bool, str or Progress
-        How to report progress (:class:`~lidarcal.campaign.progress.Progress`): True a tqdm bar,
-        ``"lines"`` a line every 30 s (periods done, time left), False nothing.
     los_periods : sequence of int
         Period indices whose LOS time series are kept (``return_los=True``).
     duration : float
         Period length in s (600).
-    connect_timeout : float
-        Seconds to wait for a remote scheduler before raising :class:`~lidarcal.errors.InputError`.
-    worker_timeout : float
-        With ``dask.distributed``: seconds to wait while no worker is connected (none joined yet,
-        or every one was lost) before raising :class:`~lidarcal.errors.ComputeError`.  Workers
-        are checked for this lidarcal version before any task is submitted.
+    execution : Execution or mapping, optional
+        Where and how the chunks run (:class:`~lidarcal.campaign.settings.Execution`: ``chunk``,
+        ``scheduler``, ``workers``, ``workdir``, ``progress``, ``connect_timeout``,
+        ``worker_timeout``; a mapping of these fields, or None for the defaults: a local process
+        pool, 64 periods a chunk, no cache).  With ``dask.distributed`` workers are checked for
+        this lidarcal version before any task is submitted.  None of it changes the result.
     call : str, optional
         Command line recorded in the history (default: a description of this call).
     inputs : mapping of role to path, optional
@@ -153,19 +139,19 @@ def simulate_campaign(
         (0 where a period was skipped for missing input), ``period_key`` and ``base_seed`` (the
         seed entropy of each period).
     """
-    camp = _prepare(conditions, model, heights, chunk, los_periods)
-    chunk = int(chunk)
+    run = Execution.of(execution)
+    camp = _prepare(conditions, model, heights, los_periods)
     # the chunk key takes the attribute form (residuals by digest), the workers the full model
-    results, tasks, bounds = _schedule(camp, model.to_dict(), base_seed, chunk, duration, workdir,
+    results, tasks, bounds = _schedule(camp, model.to_dict(), base_seed, run.chunk, duration, run.workdir,
                                        transport=model.to_dict(residuals=True))
-    _say_reused(len(results), len(results) + len(tasks), workdir, Progress.of(progress).label)
-    for name, result in execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
+    _say_reused(len(results), len(results) + len(tasks), run)
+    for name, result in execute(tasks, run):
         results[bounds[name][0]] = result
     out = {name: np.concatenate([results[s][name] for s in sorted(results)], axis=0) for name in OUTPUTS}
     los_data = {p: v for s in sorted(results) for p, v in results[s]["los"].items()}
     ds = _assemble(camp.cond, camp.hidx, out, camp.valid, los_data, camp.keys, base_seed)
-    return _describe(ds, camp, model, base_seed=base_seed, chunk=chunk, duration=duration,
-                     scheduler=scheduler, workers=workers, call=call, inputs=inputs)
+    return _describe(ds, camp, model, base_seed=base_seed, duration=duration, execution=run, call=call,
+                     inputs=inputs)
 
 
 def simulate_replicas(
@@ -176,21 +162,15 @@ def simulate_replicas(
     *,
     heights: Sequence[float] | None = None,
     base_seed: int = DEFAULT_BASE_SEED,
-    chunk: int = 64,
-    scheduler: Any = None,
-    workers: int | None = None,
-    workdir: str | os.PathLike | None = None,
-    progress: Any = False,
     duration: float = 600.0,
-    connect_timeout: float = 5.0,
-    worker_timeout: float = WORKER_TIMEOUT,
+    execution: Execution | Mapping[str, Any] | None = None,
 ) -> dict[int, dict[str, np.ndarray]]:
     """Monte Carlo replicas (>= 1) of the (period, height) ``cells`` of a campaign (JCGM 101 7.9).
 
     Replica ``r`` re-simulates the cells marked in ``cells`` ((time, height) bool over the
     simulated heights; or a mapping replica -> such a mask, each replica its own) with the seed
-    entropy ``(base_seed, r, period_key)`` (docs/seeds.md), as Dask tasks of ``chunk`` selected
-    periods, one set of tasks per replica, all submitted together.  Replica 0 re-uses the
+    entropy ``(base_seed, r, period_key)`` (docs/seeds.md), as Dask tasks of ``execution.chunk``
+    selected periods, one set of tasks per replica, all submitted together.  Replica 0 re-uses the
     campaign's own streams ``(base_seed, period_key)``: with another ``model`` that is a
     common-random-numbers run (:mod:`lidarcal.campaign.model_form`).  Like
     :func:`simulate_campaign` the result does not depend on the chunk size, the workers or the
@@ -206,7 +186,9 @@ def simulate_replicas(
     """
     with warnings.catch_warnings():  # replica 0 has reported the periods it skips
         warnings.simplefilter("ignore", SkippedPeriodsWarning)
-        camp = _prepare(conditions, model, heights, chunk, ())
+        camp = _prepare(conditions, model, heights, ())
+    run = Execution.of(execution)
+    chunk, workdir = run.chunk, run.workdir
     replicas = [int(r) for r in replicas]
     masks = {r: np.asarray(cells[r] if isinstance(cells, Mapping) else cells, dtype=bool) for r in replicas}
     for r, mask in masks.items():
@@ -216,7 +198,6 @@ def simulate_replicas(
     if any(r < 0 for r in replicas):
         raise InputError(f"replicas are numbered from 0 (replica 0: the campaign's own streams); "
                          f"got {replicas}")
-    chunk = int(chunk)
     todo = {r: camp.valid & masks[r] for r in replicas}
     sel = {r: np.flatnonzero(todo[r].any(axis=1)) for r in replicas}
     model_dict, transport = model.to_dict(), model.to_dict(residuals=True)
@@ -247,8 +228,8 @@ def simulate_replicas(
                 "los": np.zeros(idx.size, dtype=bool), "base_seed": int(base_seed), "replica": r,
                 "duration": float(duration), "workdir": where, "key": key, "start": a, "stop": a + idx.size,
             }))
-    _say_reused(len(results), len(results) + len(tasks), workdir, Progress.of(progress).label)
-    for name, result in execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
+    _say_reused(len(results), len(results) + len(tasks), run)
+    for name, result in execute(tasks, run):
         results[bounds[name]] = result
     out: dict[int, dict[str, np.ndarray]] = {}
     for r in replicas:
@@ -261,10 +242,11 @@ def simulate_replicas(
     return out
 
 
-def _say_reused(reused: int, total: int, workdir, label: str) -> None:
-    """Log how many of the chunks were found finished in ``workdir`` (a resumed run)."""
+def _say_reused(reused: int, total: int, run: Execution) -> None:
+    """Log how many of the chunks were found finished in the chunk cache (a resumed run)."""
     if reused:
-        log.info("%s: reusing %d of %d chunks finished earlier (kept in %s)", label, reused, total, workdir)
+        log.info("%s: reusing %d of %d chunks finished earlier (kept in %s)", run.progress.label, reused,
+                 total, run.workdir)
 
 
 @dataclass(frozen=True)
@@ -293,7 +275,7 @@ class _Campaign:
         return self.cond.attrs["lidarcal_conditions_checksum"]
 
 
-def _prepare(conditions, model, heights, chunk, los_periods) -> _Campaign:
+def _prepare(conditions, model, heights, los_periods) -> _Campaign:
     """Check the model and options against the conditions; load the inputs the chunks need."""
     if not isinstance(model, LidarModel):
         raise InputError(f"model must be a lidarcal.lidar.LidarModel; got {type(model).__name__}")
@@ -306,8 +288,6 @@ def _prepare(conditions, model, heights, chunk, los_periods) -> _Campaign:
         raise InputError(
             f"{source}: heights the lidar cannot measure with this RWF/geometry: " + "; ".join(problems)
         )
-    if int(chunk) < 1:
-        raise InputError(f"chunk must be >= 1 period; got {int(chunk)}")
     n = cond.sizes["time"]
     los = sorted({int(i) for i in los_periods})
     bad = [i for i in los if not 0 <= i < n]
@@ -376,7 +356,7 @@ def _schedule(
     return results, tasks, bounds
 
 
-def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, chunk, duration, scheduler, workers,
+def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, duration, execution: Execution,
               call, inputs) -> xr.Dataset:
     """Add the run's attributes and provenance: the ``simulated_rtd`` artefact."""
     z, valid = camp.z, camp.valid
@@ -388,10 +368,8 @@ def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, chunk, durat
     config = {
         "model": model.to_dict(),
         "heights": z.tolist(),
-        "chunk": chunk,
+        **execution.record(),
         "duration": duration,
-        "scheduler": scheduler if isinstance(scheduler, str | type(None)) else "distributed.Client",
-        "workers": workers,
         "los_periods": camp.los,
         "conditions_checksum": camp.checksum,
     }
@@ -405,7 +383,8 @@ def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, chunk, durat
             f"({model.description}) in synthetic turbulence driven by the conditions time series, "
             f"compared with a virtual cup-like point reference."
         ),
-        call=call or f"lidarcal.campaign.simulate_campaign({source!r}, base_seed={base_seed}, chunk={chunk})",
+        call=call or (f"lidarcal.campaign.simulate_campaign({source!r}, base_seed={base_seed}, "
+                      f"chunk={execution.chunk})"),
         inputs={**({"conditions": path} if path else {}), **(inputs or {})},
         input_datasets={"conditions": camp.cond},
         config=config,

@@ -26,6 +26,7 @@ from typing import Any
 from lidarcal import __version__
 from lidarcal.campaign.chunks import run_chunk
 from lidarcal.campaign.progress import Progress, Tracker
+from lidarcal.campaign.settings import WORKER_TIMEOUT, Execution
 from lidarcal.campaign.workers import BLAS_ENV, PARENT_PID_ENV, init_pool_worker, quiet_orphaned_gathers
 from lidarcal.errors import ComputeError, InputError
 
@@ -107,9 +108,6 @@ def _connect(address: str, timeout: float):
         ) from None
 
 
-#: Seconds a distributed run waits while no worker is connected (none yet, or all lost) before
-#: it fails with :class:`~lidarcal.errors.ComputeError`.
-WORKER_TIMEOUT = 60.0
 _POLL = 0.25  # s between checks of the workers while waiting for results
 
 # Run on every worker before any task: defined from source, so cloudpickle ships it by value and
@@ -331,19 +329,19 @@ def _run_local(
     yield from zip((name for name, _ in tasks), results, strict=True)
 
 
-def execute(tasks, scheduler, workers, progress, connect_timeout,
-            worker_timeout=WORKER_TIMEOUT) -> Iterator[tuple[str, dict]]:
-    """Run the ``(name, payload)`` chunk tasks on ``scheduler`` and yield ``(name, result)`` as each finishes.
+def execute(tasks, execution: Execution) -> Iterator[tuple[str, dict]]:
+    """Run the ``(name, payload)`` chunk tasks as ``execution`` says; yield each ``(name, result)``.
 
-    ``scheduler`` is a dask scheduler name, ``"local"``, an address or a ``distributed.Client``
-    (see :mod:`lidarcal.campaign.run`); faults end with one :class:`~lidarcal.errors.ComputeError`.
-    ``progress`` (:meth:`Progress.of`) reports the periods of the finished chunks.
+    ``execution.scheduler`` is a dask scheduler name, ``"local"``, an address or a
+    ``distributed.Client`` (see :mod:`lidarcal.campaign.run`); faults end with one
+    :class:`~lidarcal.errors.ComputeError`.  ``execution.progress`` reports the periods of the
+    finished chunks.
     """
     if not tasks:
         return
-    progress = Progress.of(progress)
-    with progress.tracker(sum(_periods(payload) for _, payload in tasks), len(tasks)) as tracker:
-        yield from _execute(tasks, scheduler, workers, tracker, connect_timeout, worker_timeout)
+    with execution.progress.tracker(sum(_periods(payload) for _, payload in tasks), len(tasks)) as tracker:
+        yield from _execute(tasks, execution.scheduler, execution.workers, tracker, execution.connect_timeout,
+                            execution.worker_timeout)
 
 
 def _execute(tasks, scheduler, workers, tracker: Tracker, connect_timeout,
