@@ -44,6 +44,7 @@ from lidarcal.analysis.budget import (
     DEFAULT_SIGNIFICANT_DIGITS,
     budget,
 )
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.analysis.sensitivity import sensitivity
 from lidarcal.analysis.sweep import analyse_sweep
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
@@ -256,11 +257,12 @@ class _Run:
         return open_artefact(self.paths[key], kind)
 
     @property
-    def rule(self) -> dict[str, Any]:
+    def rule(self) -> CertificationRule:
         """The certification rule shared by the adaptive replicas and the budget."""
-        return dict(min_periods=self.cfg.min_periods, certified_range=tuple(self.cfg.certified_range),
-                    significant_digits=self.cfg.significant_digits,
-                    coverage_interval=self.cfg.coverage_interval)
+        cfg = self.cfg
+        return CertificationRule(min_periods=cfg.min_periods, certified_range=tuple(cfg.certified_range),
+                                 significant_digits=cfg.significant_digits,
+                                 coverage_interval=cfg.coverage_interval)
 
 
 def _output_paths(outdir: Path, *, overwrite: bool) -> dict[str, Path]:
@@ -358,7 +360,7 @@ def _simulate(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, *,
     terms = _terms_per_height(records, cfg.terms)
     records, _ = adaptive_replicas(
         records, paths["conditions"], model, terms=terms, max_replicas=cfg.max_replicas,
-        base_seed=cfg.base_seed, execution=execution, **run.rule)
+        base_seed=cfg.base_seed, execution=execution, rule=run.rule)
     write_artefact(records, paths["simulated"], overwrite=run.overwrite)
     shutil.rmtree(workdir)
     records = open_artefact(paths["simulated"], "simulated_rtd")
@@ -474,7 +476,7 @@ def calibrate(
     terms = run.publish(terms, "terms", "uncertainty_terms")
     run.done("terms", "uncertainty terms not modelled by Monte Carlo (Table 4)")
     sens = _sensitivities(run, records)
-    bud = run.publish(budget(records, terms=terms, call="lidarcal calibrate (budget)", **run.rule),
+    bud = run.publish(budget(records, terms=terms, rule=run.rule, call="lidarcal calibrate (budget)"),
                       "budget", "uncertainty_budget")
     run.done("budget", "uncertainty budget (Monte Carlo approach)")
     # 6. report, then the certificate

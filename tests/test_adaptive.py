@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.campaign import scheduler as campaign_scheduler
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.adaptive import _batches, adaptive_replicas
@@ -128,8 +129,8 @@ def test_two_seeds_agree_on_every_certified_value_within_their_tolerances(model)
         zero = simulate_campaign(cond, model, heights=[120.0], base_seed=seed, duration=DURATION,
                                  execution=Execution(scheduler="synchronous"))
         records, bud = adaptive_replicas(zero, cond, model, base_seed=seed, max_replicas=16,
-                                         duration=DURATION,
-                                         execution=Execution(scheduler="synchronous"), significant_digits=1)
+                                         duration=DURATION, execution=Execution(scheduler="synchronous"),
+                                         rule=CertificationRule(significant_digits=1))
         # replicas never touch replica 0
         for name in ("lidar_wind_speed", "reference_wind_speed"):
             np.testing.assert_array_equal(records[name].values, zero[name].values)

@@ -41,13 +41,8 @@ import numpy as np
 import xarray as xr
 from scipy import stats
 
-from lidarcal.analysis.budget import (
-    DEFAULT_CERTIFIED_RANGE,
-    DEFAULT_MIN_PERIODS,
-    DEFAULT_SIGNIFICANT_DIGITS,
-    TRIAL_VARIABLES,
-    budget,
-)
+from lidarcal.analysis.budget import TRIAL_VARIABLES, budget
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.binning import bin_index
 from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_replicas
 from lidarcal.campaign.settings import Execution
@@ -147,13 +142,9 @@ def adaptive_replicas(
     model,
     *,
     terms: xr.Dataset | None = None,
-    significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS,
+    rule: CertificationRule | Mapping[str, Any] | None = None,
     max_replicas: int = DEFAULT_MAX_REPLICAS,
-    min_periods: int = DEFAULT_MIN_PERIODS,
-    certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE,
     bin_width: Any = "0.5 m s-1",
-    coverage_factor: float = 2.0,
-    coverage_interval: str = "symmetric",
     base_seed: int = DEFAULT_BASE_SEED,
     duration: float = 600.0,
     execution: Execution | Mapping[str, Any] | None = None,
@@ -168,8 +159,9 @@ def adaptive_replicas(
     conditions, model, base_seed, duration, execution
         As for :func:`~lidarcal.campaign.simulate_campaign` (the same conditions, model, seed and
         duration as replica 0).
-    terms, min_periods, certified_range, bin_width, coverage_factor, significant_digits, coverage_interval
-        As for :func:`lidarcal.analysis.budget.budget`: what is certified and the values settled.
+    terms, rule, bin_width
+        As for :func:`lidarcal.analysis.budget.budget`: what is certified and the values settled
+        (:class:`~lidarcal.analysis.rule.CertificationRule`).
     max_replicas : int
         Most replicas, replica 0 included (1: none added).
 
@@ -184,9 +176,8 @@ def adaptive_replicas(
     if int(records.attrs.get("lidarcal_base_seed", base_seed)) != int(base_seed):
         raise InputError(f"records were simulated with base seed {records.attrs['lidarcal_base_seed']}; "
                          f"replicas asked with {base_seed}")
-    opts = dict(terms=terms, min_periods=min_periods, certified_range=certified_range, bin_width=bin_width,
-                coverage_factor=coverage_factor, significant_digits=significant_digits,
-                coverage_interval=coverage_interval)
+    rule = CertificationRule.of(rule)
+    opts = dict(terms=terms, rule=rule, bin_width=bin_width)
     heights = [float(z) for z in records["height"].values]
     run = Execution.of(execution)
     trials: list[dict[str, np.ndarray]] = []
@@ -200,7 +191,7 @@ def adaptive_replicas(
         first, last = min(cells), max(cells)
         log.info("Monte Carlo replicas %s: %d certified bin(s) not settled to %d digits; re-simulating %d "
                  "(period, height) cells", f"{first}-{last}" if last > first else first,
-                 int((bud["numerical_flag"] == 1).sum()), int(significant_digits),
+                 int((bud["numerical_flag"] == 1).sum()), rule.significant_digits,
                  int(sum(c.sum() for c in cells.values())))
         label = f"replicas {first}-{last}" if last > first else f"replica {first}"
         done = simulate_replicas(conditions, model, cells, list(cells), heights=heights, base_seed=base_seed,

@@ -51,6 +51,7 @@ __all__ = [
     "admin_from_args",
     "progress_of",
     "execution_of",
+    "rule_of",
 ]
 
 #: Most significant digits ``--significant-digits`` accepts: what a float64 holds (numpy's
@@ -407,6 +408,24 @@ def execution_of(args: argparse.Namespace) -> Any:
                      workdir=getattr(args, "workdir", None), progress=progress_of(args),
                      connect_timeout=getattr(args, "timeout", CONNECT_TIMEOUT),
                      worker_timeout=getattr(args, "worker_timeout", WORKER_TIMEOUT))
+
+
+def rule_of(args: argparse.Namespace) -> Any:
+    """Return the :class:`~lidarcal.analysis.rule.CertificationRule` the certification options ask for.
+
+    ``--min-periods``, ``--certified-range``, ``--significant-digits``, ``--coverage-interval``
+    and (``budget``) ``--coverage-factor``; an option a command lacks keeps the rule's default.
+    """
+    from lidarcal.analysis.rule import CertificationRule  # deferred: light CLI start
+
+    given = {"min_periods": getattr(args, "min_periods", None),
+             "certified_range": getattr(args, "certified_range", None),
+             "significant_digits": getattr(args, "significant_digits", None),
+             "coverage_factor": getattr(args, "coverage_factor", None),
+             "coverage_interval": getattr(args, "coverage_interval", None)}
+    if given["certified_range"] is not None:
+        given["certified_range"] = tuple(given["certified_range"])
+    return CertificationRule(**{k: v for k, v in given.items() if v is not None})
 
 
 def add_certification_options(parser: argparse.ArgumentParser) -> None:

@@ -40,6 +40,7 @@ from lidarcal.cli.options import (
     execution_of,
     nonnegative_int,
     positive,
+    rule_of,
 )
 from lidarcal.conditions import load_conditions, sample_conditions_path
 from lidarcal.diagnose import corrected_model
@@ -142,10 +143,8 @@ def run(args: argparse.Namespace) -> int:
     if args.max_replicas > 1:
         from lidarcal.campaign.adaptive import adaptive_replicas  # deferred: only with replicas
 
-        ds, bud = adaptive_replicas(
-            ds, conditions, model, significant_digits=args.significant_digits, max_replicas=args.max_replicas,
-            min_periods=args.min_periods, certified_range=tuple(args.certified_range), base_seed=base_seed,
-            coverage_interval=args.coverage_interval, duration=args.duration, execution=execution)
+        ds, bud = adaptive_replicas(ds, conditions, model, rule=rule_of(args), max_replicas=args.max_replicas,
+                                    base_seed=base_seed, duration=args.duration, execution=execution)
         print(f"Monte Carlo: {bud.attrs['monte_carlo_replicas']} replica(s), {ds.sizes.get('trial', 0)} "
               f"further trials; {int((bud.numerical_flag == 1).sum())} bin(s) not settled to "
               f"{args.significant_digits} significant digits")

@@ -45,6 +45,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.budget import budget, numerical_state
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.binning import binned_statistics
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.adaptive import BATCH_SCHEDULE, with_trials
@@ -273,13 +274,9 @@ def monte_carlo_route(
         call="lidarcal smc (Monte Carlo route)",
     )
     records = records.transpose("time", "height", ...)
-    rule = dict(
-        terms=terms,
-        min_periods=2,
-        certified_range=tuple(certified_range),
-        significant_digits=int(significant_digits),
-        coverage_factor=float(coverage_factor),
-    )
+    rule = dict(terms=terms, rule=CertificationRule(min_periods=2, certified_range=tuple(certified_range),
+                                                    significant_digits=int(significant_digits),
+                                                    coverage_factor=float(coverage_factor)))
     trials: list[dict[str, np.ndarray]] = []
     current = records
     bud = with_carried(budget(current, **rule), carried)
