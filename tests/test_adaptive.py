@@ -88,7 +88,7 @@ def test_replicas_resume_from_the_workdir_bit_identical(cond, model, cells, tmp_
     files = sorted(work.glob("replica-*/chunk-*.npz"))
     assert len(files) == 2 * 3  # 8 selected periods in chunks of 3, per replica
     monkeypatch.setattr(campaign_scheduler, "run_chunk",
-                        lambda task: pytest.fail("recomputed a finished chunk"))
+                        lambda task, model: pytest.fail("recomputed a finished chunk"))
     _same(simulate_replicas(cond, model, cells, [1, 2],
                             execution=Execution(scheduler="synchronous", chunk=3, workdir=work),
                             duration=DURATION), first)

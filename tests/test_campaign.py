@@ -167,7 +167,7 @@ def test_workdir_resume_reuses_finished_chunks(cond, model, reference, tmp_path,
     assert_same_results(first, reference)
     # a rerun must not simulate anything: make any attempt fail loudly
     monkeypatch.setattr(campaign_scheduler, "run_chunk",
-                        lambda task: pytest.fail("recomputed a cached chunk"))
+                        lambda task, model: pytest.fail("recomputed a cached chunk"))
     again = simulate_campaign(cond, model,
                               execution=Execution(scheduler="synchronous", chunk=5, workdir=work))
     assert_same_results(again, reference)

@@ -43,16 +43,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.campaign.chunks import (
-    INPUTS,
-    OUTPUTS,
-    chunk_key,
-    chunk_path,
-    load_chunk,
-    make_workdir,
-    period_keys,
-    unflatten_los,
-)
+from lidarcal.campaign.chunks import INPUTS, OUTPUTS, ChunkTask, chunk_key, make_workdir, period_keys
 from lidarcal.campaign.los import los_variables
 from lidarcal.campaign.scheduler import execute
 from lidarcal.campaign.settings import Execution
@@ -141,14 +132,16 @@ def simulate_campaign(
     """
     run = Execution.of(execution)
     camp = _prepare(conditions, model, heights, los_periods)
-    # the chunk key takes the attribute form (residuals by digest), the workers the full model
-    results, tasks, bounds = _schedule(camp, model.to_dict(), base_seed, run.chunk, duration, run.workdir,
-                                       transport=model.to_dict(residuals=True))
-    _say_reused(len(results), len(results) + len(tasks), run)
-    for name, result in execute(tasks, run):
-        results[bounds[name][0]] = result
-    out = {name: np.concatenate([results[s][name] for s in sorted(results)], axis=0) for name in OUTPUTS}
-    los_data = {p: v for s in sorted(results) for p, v in results[s]["los"].items()}
+    if run.workdir is not None:
+        make_workdir(run.workdir)
+    where = None if run.workdir is None else os.fspath(run.workdir)
+    model_dict = model.to_dict()
+    tasks = [_task(camp, model_dict, base_seed, duration, np.arange(start, min(start + run.chunk, camp.n)),
+                   start, name="lidarcal-chunk-{key}-{start}-{stop}", los=camp.los, workdir=where)
+             for start in range(0, camp.n, run.chunk)]
+    results = _run(model, tasks, run)
+    out = {name: np.concatenate([res[name] for res in results], axis=0) for name in OUTPUTS}
+    los_data = {p: v for res in results for p, v in res["los"].items()}
     ds = _assemble(camp.cond, camp.hidx, out, camp.valid, los_data, camp.keys, base_seed)
     return _describe(ds, camp, model, base_seed=base_seed, duration=duration, execution=run, call=call,
                      inputs=inputs)
@@ -200,10 +193,8 @@ def simulate_replicas(
                          f"got {replicas}")
     todo = {r: camp.valid & masks[r] for r in replicas}
     sel = {r: np.flatnonzero(todo[r].any(axis=1)) for r in replicas}
-    model_dict, transport = model.to_dict(), model.to_dict(residuals=True)
-    results: dict[tuple[int, int], dict] = {}
-    tasks: list[tuple[str, dict]] = []
-    bounds: dict[str, tuple[int, int]] = {}
+    model_dict = model.to_dict()
+    tasks: list[ChunkTask] = []
     for r in replicas:
         where = None if workdir is None else os.path.join(os.fspath(workdir), f"replica-{r:04d}")
         if where is not None:
@@ -213,33 +204,53 @@ def simulate_replicas(
             # "rate_draw": a replica's p_bad(CNR) curves are drawn per period (were per replica)
             extra = {"replica": r, "periods": idx.tolist(), "cells": todo[r][idx].astype(int).tolist(),
                      "rate_draw": "trial"}
-            key = chunk_key(camp.checksum, model_dict, base_seed, a, a + idx.size, camp.z, duration, (),
-                            keys=camp.keys[idx], extra=extra)
-            if where is not None:
-                cached = load_chunk(chunk_path(where, a, a + idx.size, key), key, idx.size, camp.z.size)
-                if cached is not None:
-                    results[(r, a)] = cached
-                    continue
-            name = f"lidarcal-replica-{r}-{key[:16]}-{a}"
-            bounds[name] = (r, a)
-            tasks.append((name, {
-                "model": transport, "heights": camp.z, **{k: v[idx] for k, v in camp.arrays.items()},
-                "valid": todo[r][idx], "period_index": idx, "period_key": camp.keys[idx],
-                "los": np.zeros(idx.size, dtype=bool), "base_seed": int(base_seed), "replica": r,
-                "duration": float(duration), "workdir": where, "key": key, "start": a, "stop": a + idx.size,
-            }))
-    _say_reused(len(results), len(results) + len(tasks), run)
-    for name, result in execute(tasks, run):
-        results[bounds[name]] = result
+            tasks.append(_task(camp, model_dict, base_seed, duration, idx, a,
+                               name=f"lidarcal-replica-{r}-{{key}}-{a}", valid=todo[r][idx], replica=r,
+                               extra=extra, workdir=where))
+    results = iter(_run(model, tasks, run))  # in the order of the tasks: replica, then chunk
     out: dict[int, dict[str, np.ndarray]] = {}
     for r in replicas:
         rows, cols = np.nonzero(todo[r][sel[r]])
-        parts = [results[(r, a)] for a in range(0, sel[r].size, chunk)]
+        parts = [next(results) for _ in range(0, sel[r].size, chunk)]
         full = {name: (np.concatenate([p[name] for p in parts], axis=0) if parts
                        else np.empty((0, camp.z.size))) for name in OUTPUTS}
         out[r] = {"period": sel[r][rows], "height": camp.z[cols],
                   **{name: full[name][rows, cols] for name in OUTPUTS}}
     return out
+
+
+def _task(camp: _Campaign, model_dict: dict, base_seed: int, duration: float, rows: np.ndarray, start: int, *,
+          name: str, valid: np.ndarray | None = None, los: Sequence[int] = (), replica: int = 0,
+          extra: dict | None = None, workdir: str | None = None) -> ChunkTask:
+    """Return the chunk simulating the periods ``rows`` of ``camp`` (the cells ``valid``; default: all valid).
+
+    ``start`` is the chunk's first position (its cache entry runs from ``start`` to ``start`` +
+    the periods), ``model_dict`` (the attribute form, residuals by digest) and ``extra`` enter its
+    key (:func:`~lidarcal.campaign.chunks.chunk_key`), ``name`` (with ``{key}``, ``{start}``,
+    ``{stop}``) names its Dask task.
+    """
+    stop = start + rows.size
+    key = chunk_key(camp.checksum, model_dict, base_seed, start, stop, camp.z, duration, tuple(los),
+                    keys=camp.keys[rows], extra=extra)
+    return ChunkTask(
+        name=name.format(key=key[:16], start=start, stop=stop), heights=camp.z,
+        inputs={k: v[rows] for k, v in camp.arrays.items()},
+        valid=camp.valid[rows] if valid is None else valid, period_index=rows, period_key=camp.keys[rows],
+        los=np.isin(rows, list(los)), base_seed=int(base_seed), duration=float(duration), key=key,
+        start=start, stop=stop, replica=int(replica), workdir=workdir,
+    )
+
+
+def _run(model, tasks: list[ChunkTask], run: Execution) -> list[dict[str, Any]]:
+    """Return the result of every chunk in ``tasks`` (in their order): from the cache, else simulated."""
+    results = [task.cached() for task in tasks]
+    todo = [task for task, result in zip(tasks, results, strict=True) if result is None]
+    _say_reused(len(tasks) - len(todo), len(tasks), run)
+    index = {task.name: i for i, task in enumerate(tasks)}
+    # the chunk key takes the attribute form (residuals by digest), the workers the full model
+    for name, result in execute(model.to_dict(residuals=True), todo, run):
+        results[index[name]] = result
+    return results
 
 
 def _say_reused(reused: int, total: int, run: Execution) -> None:
@@ -309,51 +320,6 @@ def _prepare(conditions, model, heights, los_periods) -> _Campaign:
         valid = cond["input_complete"].values[:, hidx].astype(bool) & (arrays["wind_speed"] > 0)
     return _Campaign(cond=cond, path=path, source=source, hidx=hidx, los=los, arrays=arrays, valid=valid,
                      keys=keys)
-
-
-def _schedule(
-    camp: _Campaign, model_dict: dict, base_seed: int, chunk: int, duration: float, workdir,
-    transport: dict | None = None,
-) -> tuple[dict[int, dict], list[tuple[str, dict]], dict[str, tuple[int, int]]]:
-    """Split the periods into chunks; return (cached results by start, tasks to run, task bounds).
-
-    ``model_dict`` (the attribute form) keys the chunks; ``transport`` (the full form, default
-    ``model_dict``) is what the tasks carry to the workers.
-    """
-    if workdir is not None:
-        make_workdir(workdir)
-    z = camp.z
-    results: dict[int, dict] = {}
-    tasks: list[tuple[str, dict]] = []
-    bounds: dict[str, tuple[int, int]] = {}
-    for start in range(0, camp.n, chunk):
-        stop = min(start + chunk, camp.n)
-        key = chunk_key(camp.checksum, model_dict, base_seed, start, stop, z, duration, tuple(camp.los),
-                        keys=camp.keys[start:stop])
-        if workdir is not None:
-            cached = load_chunk(chunk_path(workdir, start, stop, key), key, stop - start, z.size)
-            if cached is not None:
-                results[start] = unflatten_los(cached)
-                continue
-        name = f"lidarcal-chunk-{key[:16]}-{start}-{stop}"
-        bounds[name] = (start, stop)
-        payload = {
-            "model": model_dict if transport is None else transport,
-            "heights": z,
-            **{k: v[start:stop] for k, v in camp.arrays.items()},
-            "valid": camp.valid[start:stop],
-            "period_index": np.arange(start, stop),
-            "period_key": camp.keys[start:stop],
-            "los": np.isin(np.arange(start, stop), camp.los),
-            "base_seed": int(base_seed),
-            "duration": float(duration),
-            "workdir": os.fspath(workdir) if workdir is not None else None,
-            "key": key,
-            "start": start,
-            "stop": stop,
-        }
-        tasks.append((name, payload))
-    return results, tasks, bounds
 
 
 def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, duration, execution: Execution,
