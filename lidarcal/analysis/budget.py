@@ -76,7 +76,7 @@ from lidarcal.analysis.distribution import bin_values, delta_sds, grouped
 from lidarcal.analysis.model_form import model_form_term
 from lidarcal.analysis.montecarlo import COVERAGE_PROBABILITY, tolerance_exponent
 from lidarcal.analysis.rule import COVERAGE_INTERVALS, CertificationRule
-from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
+from lidarcal.analysis.terms import PAPER_INPUTS, table4_total
 from lidarcal.analysis.trials import TRIAL_VARIABLES
 from lidarcal.analysis.trials import binned as binned_trials
 from lidarcal.cf import with_bounds
@@ -141,9 +141,8 @@ def _terms_total(
     positive = centres > 0
     if terms is None:
         out = np.full((len(heights), len(centres)), np.nan)
-        at = uncertainty_terms(Q_(centres[positive], "m s-1"), **{**PAPER_INPUTS, "height": Q_(heights, "m")},
-                               noise_terms=noise_terms)
-        out[:, positive] = at.total.transpose("height", "wind_speed").values
+        inputs = {**PAPER_INPUTS, "height": Q_(heights, "m")}
+        out[:, positive] = table4_total(Q_(centres[positive], "m s-1"), **inputs, noise_terms=noise_terms)
         how = "" if noise_terms == "printed" else f", noise_terms={noise_terms!r}"
         return out, f"lidarcal.analysis.terms.uncertainty_terms(**PAPER_INPUTS{how}) at each budget height"
     if noise_terms != "printed" and terms.attrs.get("noise_terms", "printed") != noise_terms:
