@@ -1,7 +1,7 @@
 """Dask-parallel, resumable Monte Carlo over a campaign of 10-minute periods.
 
 :func:`simulate_campaign` splits the periods of a ``conditions`` input into chunks of
-``chunk`` consecutive periods, runs one Dask task per chunk (deterministic task names
+``execution.chunk`` consecutive periods, runs one Dask task per chunk (deterministic task names
 ``lidarcal-chunk-<key>-<start>-<stop>``) and assembles the ``simulated_rtd`` artefact.
 
 * **Seeds** — a period uses the entropy ``(base_seed, period_key)``, the key being the whole
@@ -19,7 +19,7 @@
   ``"synchronous"``, ``"local"`` (a ``distributed.LocalCluster`` of single-threaded worker
   processes), an address ``"tcp://host:port"`` of a running ``dask.distributed`` scheduler,
   or a ``distributed.Client``.  Worker processes get ``OPENBLAS/MKL/OMP_NUM_THREADS=1``.
-* **Resume** — with ``workdir`` every finished chunk is saved atomically as
+* **Resume** — with ``execution.workdir`` every finished chunk is saved atomically as
   ``chunk-<start>-<stop>-<key>.npz`` where the key hashes (conditions checksum, model, base
   seed, chunk bounds, period keys, heights, duration); a re-run loads finished chunks instead of
   recomputing them, so a killed run resumes and gives the identical result.  With
