@@ -38,6 +38,7 @@ for _v in ("OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "OMP_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from lidarcal.campaign import local_cluster, simulate_campaign  # noqa: E402
+from lidarcal.campaign.settings import Execution  # noqa: E402
 from lidarcal.conditions import synthetic_conditions  # noqa: E402
 from lidarcal.lidar import LidarModel  # noqa: E402
 
@@ -64,11 +65,12 @@ def throughput(n_periods: int, repeats: int, chunk: int) -> dict[int, float]:
     for n in (1, 2):
         cluster, client = _cluster(n)
         try:
-            simulate_campaign(warm, model, scheduler=client, chunk=4)  # imports and first-call costs
+            simulate_campaign(warm, model,
+                              execution=Execution(scheduler=client, chunk=4))  # imports and first-call costs
             rates = []
             for _ in range(repeats):
                 t0 = time.perf_counter()
-                simulate_campaign(cond, model, scheduler=client, chunk=chunk)
+                simulate_campaign(cond, model, execution=Execution(scheduler=client, chunk=chunk))
                 rates.append(n_periods / (time.perf_counter() - t0))
             out[n] = statistics.median(rates)
             print(f"  {n} worker(s): {out[n]:7.2f} periods/s (runs: {', '.join(f'{r:.2f}' for r in rates)})")
@@ -87,7 +89,7 @@ def memory(lengths: tuple[int, ...], chunk: int) -> dict[int, tuple[float, float
         cluster, client = _cluster(2)
         try:
             tracemalloc.start()
-            simulate_campaign(cond, model, scheduler=client, chunk=chunk)
+            simulate_campaign(cond, model, execution=Execution(scheduler=client, chunk=chunk))
             _, peak = tracemalloc.get_traced_memory()
             tracemalloc.stop()
             rss = max(client.run(_peak_rss_mb).values())

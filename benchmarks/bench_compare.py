@@ -40,9 +40,9 @@ def main() -> None:
 
     t0 = time.perf_counter()
     cond = hidden_effect_conditions(args.periods, args.heights, seed=2024)
-    field = generate_field_campaign(cond, args.effect, simulate_options=opts)
+    field = generate_field_campaign(cond, args.effect, execution=opts)
     t1 = time.perf_counter()
-    result = compare(field, simulate_options=opts)
+    result = compare(field, execution=opts)
     t2 = time.perf_counter()
     ds = to_dataset(result)
     t3 = time.perf_counter()

@@ -43,10 +43,10 @@ def main() -> None:
 
     t0 = time.perf_counter()
     cond = hidden_effect_conditions(args.periods, args.heights, seed=2024)
-    field = generate_field_campaign(cond, args.effect, simulate_options=opts)
+    field = generate_field_campaign(cond, args.effect, execution=opts)
     t1 = time.perf_counter()
     logging.basicConfig(level=logging.INFO, format="  [%(relativeCreated)8.0f ms] %(message)s")
-    result = diagnose(field, simulate_options=opts)
+    result = diagnose(field, execution=opts)
     t2 = time.perf_counter()
     to_dataset(result)
     t3 = time.perf_counter()

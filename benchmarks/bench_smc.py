@@ -160,7 +160,7 @@ def run(
 
     tracemalloc.start()
     t0, c0 = time.perf_counter(), cpu_seconds()
-    c = smc(cert, conditions=cond, monte_carlo=monte_carlo, simulate_options=opts)
+    c = smc(cert, conditions=cond, monte_carlo=monte_carlo, execution=opts)
     write_artefact(smc_dataset(c), out, overwrite=True)
     elapsed, cpu = time.perf_counter() - t0, cpu_seconds() - c0
     _, peak = tracemalloc.get_traced_memory()

@@ -44,6 +44,7 @@ from lidarcal.analysis.budget import (
     DEFAULT_SIGNIFICANT_DIGITS,
     budget,
 )
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.analysis.sensitivity import sensitivity
 from lidarcal.analysis.sweep import analyse_sweep
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
@@ -53,6 +54,7 @@ from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
 from lidarcal.campaign.adaptive import DEFAULT_MAX_REPLICAS, adaptive_replicas
 from lidarcal.campaign.model_form import DEFAULT_PER_BIN, model_form_runs
 from lidarcal.campaign.progress import Progress
+from lidarcal.campaign.settings import Execution
 from lidarcal.certificate import make_certificate
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
 from lidarcal.conditions.grid import sweep_conditions
@@ -255,11 +257,12 @@ class _Run:
         return open_artefact(self.paths[key], kind)
 
     @property
-    def rule(self) -> dict[str, Any]:
+    def rule(self) -> CertificationRule:
         """The certification rule shared by the adaptive replicas and the budget."""
-        return dict(min_periods=self.cfg.min_periods, certified_range=tuple(self.cfg.certified_range),
-                    significant_digits=self.cfg.significant_digits,
-                    coverage_interval=self.cfg.coverage_interval)
+        cfg = self.cfg
+        return CertificationRule(min_periods=cfg.min_periods, certified_range=tuple(cfg.certified_range),
+                                 significant_digits=cfg.significant_digits,
+                                 coverage_interval=cfg.coverage_interval)
 
 
 def _output_paths(outdir: Path, *, overwrite: bool) -> dict[str, Path]:
@@ -337,10 +340,11 @@ def _simulate(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, *,
     # with --overwrite resumes instead of starting again (chunk files are keyed by their inputs)
     workdir = paths["simulated"].parent / CHUNK_DIR
     workdir.mkdir(exist_ok=True)
+    execution = Execution(chunk=cfg.chunk, scheduler=cfg.scheduler, workers=cfg.workers, workdir=workdir,
+                          progress=progress)
     records = simulate_campaign(
-        paths["conditions"], model, base_seed=cfg.base_seed, chunk=cfg.chunk,
-        scheduler=cfg.scheduler, workers=cfg.workers, progress=progress.labelled("replica 0"),
-        workdir=workdir, call="lidarcal calibrate (simulate)",
+        paths["conditions"], model, base_seed=cfg.base_seed, execution=execution.labelled("replica 0"),
+        call="lidarcal calibrate (simulate)",
         inputs={"conditions": paths["conditions"], "cube": paths["cube"], "rwf": paths["rwf"]},
     )
     if cube.attrs.get("lidar_serial"):
@@ -348,8 +352,7 @@ def _simulate(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, *,
     if cfg.model_form_periods:  # the alternatives with replica 0's seeds: the budget's model_form term
         records = model_form_runs(records, paths["conditions"], model, per_bin=cfg.model_form_periods,
                                   wind_speeds=tuple(cfg.certified_range), base_seed=cfg.base_seed,
-                                  chunk=cfg.chunk, scheduler=cfg.scheduler,
-                                  workers=cfg.workers, workdir=workdir, progress=progress)
+                                  execution=execution)
         log.info("[%6.1f s] model-form runs: %d alternatives, %d (period, height) samples each",
                  time.perf_counter() - run.t0, records.sizes.get("model_form_alternative", 0),
                  records.sizes.get("model_form_sample", 0))
@@ -357,8 +360,7 @@ def _simulate(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, *,
     terms = _terms_per_height(records, cfg.terms)
     records, _ = adaptive_replicas(
         records, paths["conditions"], model, terms=terms, max_replicas=cfg.max_replicas,
-        base_seed=cfg.base_seed, chunk=cfg.chunk, scheduler=cfg.scheduler, workers=cfg.workers,
-        workdir=workdir, progress=progress, **run.rule)
+        base_seed=cfg.base_seed, execution=execution, rule=run.rule)
     write_artefact(records, paths["simulated"], overwrite=run.overwrite)
     shutil.rmtree(workdir)
     records = open_artefact(paths["simulated"], "simulated_rtd")
@@ -474,7 +476,7 @@ def calibrate(
     terms = run.publish(terms, "terms", "uncertainty_terms")
     run.done("terms", "uncertainty terms not modelled by Monte Carlo (Table 4)")
     sens = _sensitivities(run, records)
-    bud = run.publish(budget(records, terms=terms, call="lidarcal calibrate (budget)", **run.rule),
+    bud = run.publish(budget(records, terms=terms, rule=run.rule, call="lidarcal calibrate (budget)"),
                       "budget", "uncertainty_budget")
     run.done("budget", "uncertainty budget (Monte Carlo approach)")
     # 6. report, then the certificate
@@ -495,11 +497,7 @@ def sweep(
     heights: Sequence[float] = (100.0,),
     repeats: int = 1,
     base_seed: int | None = None,
-    scheduler: Any = None,
-    workers: int | None = None,
-    chunk: int = 64,
-    workdir: Any = None,
-    progress: bool = False,
+    execution: Execution | Mapping[str, Any] | None = None,
     call: str | None = None,
     inputs: Mapping[str, Any] | None = None,
 ) -> tuple[xr.Dataset, xr.Dataset]:
@@ -507,7 +505,8 @@ def sweep(
 
     The grid is built by :func:`lidarcal.conditions.grid.sweep_conditions`, simulated by
     :func:`lidarcal.campaign.simulate_campaign` (seed ``base_seed``, default
-    :data:`~lidarcal.campaign.DEFAULT_BASE_SEED`) and analysed by
+    :data:`~lidarcal.campaign.DEFAULT_BASE_SEED`; where and how: ``execution``,
+    :class:`~lidarcal.campaign.settings.Execution`) and analysed by
     :func:`lidarcal.analysis.sweep.analyse_sweep`.
 
     Returns
@@ -520,11 +519,7 @@ def sweep(
         conditions,
         model,
         base_seed=DEFAULT_BASE_SEED if base_seed is None else int(base_seed),
-        scheduler=scheduler,
-        workers=workers,
-        chunk=chunk,
-        workdir=workdir,
-        progress=progress,
+        execution=execution,
         inputs=dict(inputs or {}),
     )
     out = analyse_sweep(records, grid, repeats=repeats, call=call or "lidarcal.pipeline.sweep", inputs=inputs)

@@ -60,7 +60,7 @@ def fit_one(seed: int, heights, turbulence_scale: float, p_true: float) -> dict:
     fits = {}
     for effect in ("hybrid_weight", "reference_overspeeding"):
         result = diagnose(field, candidates=[effect], model_uncertainty=0.0,
-                          simulate_options={"scheduler": "synchronous"})
+                          execution={"scheduler": "synchronous"})
         # named (refined on the secant) or, if out of its range, as fitted alone: the same object
         fits[effect] = (result, next(c for c in result.candidates if c.effect.id == effect))
     result, hybrid = fits["hybrid_weight"]

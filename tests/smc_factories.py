@@ -16,6 +16,7 @@ import xarray as xr
 from analysis_factories import make_records
 
 from lidarcal.analysis import budget, sensitivity
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.bench import build_cube, simulate_run
 from lidarcal.certificate import make_certificate
@@ -80,7 +81,7 @@ def small_certificate(
     )
     terms = open_artefact(write_artefact(terms, d / "terms.nc", overwrite=True))
     # one significant digit: with 6 replicas of 700 periods every bin settles to it (to 2, none does)
-    bud = budget(records, terms=terms, significant_digits=1)
+    bud = budget(records, terms=terms, rule=CertificationRule(significant_digits=1))
     if flags is not None:
         bud = flags(bud)
     sens = [sensitivity(records, v) for v in ("turbulence_intensity", "wind_shear_exponent", "cnr_gradient")]

@@ -3,11 +3,13 @@
 import numpy as np
 import pytest
 
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.campaign import scheduler as campaign_scheduler
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.adaptive import _batches, adaptive_replicas
 from lidarcal.campaign.chunks import OUTPUTS, period_keys, seed_entropy
 from lidarcal.campaign.run import simulate_replicas
+from lidarcal.campaign.settings import Execution
 from lidarcal.conditions import synthetic_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.lidar import LidarModel, simulate_period
@@ -53,7 +55,8 @@ def test_replica_seeds_are_independent_streams_and_replica_0_keeps_todays():
 
 def test_a_replica_trial_is_the_engine_run_with_its_own_seed(cond, model, cells):
     """Independent reference: each trial equals simulate_period called directly with (base, r, key)."""
-    out = simulate_replicas(cond, model, cells, [1, 3], scheduler="synchronous", chunk=4, duration=DURATION,
+    out = simulate_replicas(cond, model, cells, [1, 3],
+                            execution=Execution(scheduler="synchronous", chunk=4), duration=DURATION,
                             base_seed=99)
     keys = period_keys(cond["time"].values)
     heights = cond["height"].values
@@ -70,7 +73,8 @@ def test_a_replica_trial_is_the_engine_run_with_its_own_seed(cond, model, cells)
             assert out[r]["reference_wind_speed"][t] == direct["reference_wind_speed"][0]
     assert not np.array_equal(out[1]["lidar_wind_speed"], out[3]["lidar_wind_speed"])
     # replica 0 is the campaign itself: (base, key) as before replicas existed
-    zero = simulate_campaign(cond, model, scheduler="synchronous", duration=DURATION, base_seed=99)
+    zero = simulate_campaign(cond, model,
+                             execution=Execution(scheduler="synchronous"), duration=DURATION, base_seed=99)
     inputs = {n: [float(cond[n].values[0, 0])] for n in CONDITION_NAMES}
     direct = simulate_period(model, heights=[40.0], **inputs, seed=(99, int(keys[0])), duration=DURATION)
     assert zero["lidar_wind_speed"].values[0, 0] == direct["lidar_wind_speed"][0]
@@ -78,29 +82,35 @@ def test_a_replica_trial_is_the_engine_run_with_its_own_seed(cond, model, cells)
 
 def test_replicas_resume_from_the_workdir_bit_identical(cond, model, cells, tmp_path, monkeypatch):
     work = tmp_path / "work"
-    first = simulate_replicas(cond, model, cells, [1, 2], scheduler="synchronous", chunk=3, workdir=work,
+    first = simulate_replicas(cond, model, cells, [1, 2],
+                              execution=Execution(scheduler="synchronous", chunk=3, workdir=work),
                               duration=DURATION)
     files = sorted(work.glob("replica-*/chunk-*.npz"))
     assert len(files) == 2 * 3  # 8 selected periods in chunks of 3, per replica
     monkeypatch.setattr(campaign_scheduler, "run_chunk",
-                        lambda task: pytest.fail("recomputed a finished chunk"))
-    _same(simulate_replicas(cond, model, cells, [1, 2], scheduler="synchronous", chunk=3, workdir=work,
+                        lambda task, model: pytest.fail("recomputed a finished chunk"))
+    _same(simulate_replicas(cond, model, cells, [1, 2],
+                            execution=Execution(scheduler="synchronous", chunk=3, workdir=work),
                             duration=DURATION), first)
     monkeypatch.undo()
     files[1].unlink()  # interrupted before this chunk was written: it is simulated again, the same
     files[4].write_bytes(b"torn")
-    _same(simulate_replicas(cond, model, cells, [1, 2], scheduler="synchronous", chunk=3, workdir=work,
+    _same(simulate_replicas(cond, model, cells, [1, 2],
+                            execution=Execution(scheduler="synchronous", chunk=3, workdir=work),
                             duration=DURATION), first)
 
 
 @pytest.mark.slow
 def test_replicas_do_not_depend_on_workers_scheduler_or_chunk(cond, model, cells):
-    one = simulate_replicas(cond, model, cells, [1, 2], scheduler="processes", workers=1, chunk=5,
+    one = simulate_replicas(cond, model, cells, [1, 2],
+                            execution=Execution(scheduler="processes", workers=1, chunk=5),
                             duration=DURATION)
-    two = simulate_replicas(cond, model, cells, [1, 2], scheduler="processes", workers=2, chunk=2,
+    two = simulate_replicas(cond, model, cells, [1, 2],
+                            execution=Execution(scheduler="processes", workers=2, chunk=2),
                             duration=DURATION)
     _same(one, two)
-    _same(one, simulate_replicas(cond, model, cells, [1, 2], scheduler="synchronous", chunk=100,
+    _same(one, simulate_replicas(cond, model, cells, [1, 2],
+                                 execution=Execution(scheduler="synchronous", chunk=100),
                                  duration=DURATION))
 
 
@@ -117,9 +127,10 @@ def test_two_seeds_agree_on_every_certified_value_within_their_tolerances(model)
     results = []
     for seed in (1, 2):
         zero = simulate_campaign(cond, model, heights=[120.0], base_seed=seed, duration=DURATION,
-                                 scheduler="synchronous")
+                                 execution=Execution(scheduler="synchronous"))
         records, bud = adaptive_replicas(zero, cond, model, base_seed=seed, max_replicas=16,
-                                         duration=DURATION, scheduler="synchronous", significant_digits=1)
+                                         duration=DURATION, execution=Execution(scheduler="synchronous"),
+                                         rule=CertificationRule(significant_digits=1))
         # replicas never touch replica 0
         for name in ("lidar_wind_speed", "reference_wind_speed"):
             np.testing.assert_array_equal(records[name].values, zero[name].values)

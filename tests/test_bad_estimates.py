@@ -19,6 +19,7 @@ from lidarcal.bench import ingest
 from lidarcal.bench.response import TrueResponse
 from lidarcal.campaign.chunks import period_keys
 from lidarcal.campaign.run import simulate_replicas
+from lidarcal.campaign.settings import Execution
 from lidarcal.conditions import synthetic_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.data import sample_file
@@ -231,7 +232,8 @@ def replica_case(clean):
     model = LidarModel.from_artefacts(cube=cube, cnr_threshold=None)
     cond = synthetic_conditions(6, (60, 120), seed=4)
     cells = np.ones((6, 2), dtype=bool)
-    return model, cond, cells, simulate_replicas(cond, model, cells, [1, 2], scheduler="synchronous", chunk=4,
+    return model, cond, cells, simulate_replicas(cond, model, cells, [1, 2],
+                                                 execution=Execution(scheduler="synchronous", chunk=4),
                                                  **REPLICAS)
 
 
@@ -255,7 +257,8 @@ def test_a_replica_trial_is_the_engine_with_its_own_rate_curve(replica_case):
 @pytest.mark.slow
 def test_mixture_replicas_do_not_depend_on_workers_or_chunk(replica_case):
     model, cond, cells, sync = replica_case
-    procs = simulate_replicas(cond, model, cells, [1, 2], scheduler="processes", workers=2, chunk=2,
+    procs = simulate_replicas(cond, model, cells, [1, 2],
+                              execution=Execution(scheduler="processes", workers=2, chunk=2),
                               **REPLICAS)
     for r in (1, 2):
         for name in ("period", "height", "lidar_wind_speed", "reference_wind_speed"):

@@ -8,6 +8,7 @@ import xarray as xr
 from analysis_factories import make_records, var_attrs
 
 from lidarcal.analysis import budget
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
 from lidarcal.cf import height_coord, time_coord
 from lidarcal.cli import main
@@ -50,7 +51,7 @@ def linear_terms():
 
 
 def test_monte_carlo_budget_matches_hand_computation():
-    b = budget(tiny_records(), terms=linear_terms(), min_periods=3)
+    b = budget(tiny_records(), terms=linear_terms(), rule=CertificationRule(min_periods=3))
     assert b.wind_speed.values.tolist() == [8.0, 8.5, 9.0, 9.5]
     np.testing.assert_allclose(b.wind_speed_bounds.values[0], [7.75, 8.25])
     assert b.contributor.values.tolist() == [
@@ -105,13 +106,14 @@ def test_certified_rule_is_range_and_distinct_periods():
     b = budget(tiny_records(), terms=linear_terms())  # 4 periods at most: nothing certified by default
     assert not (b.bin_flag == 0).any()
     assert int(b.bin_flag.sel(height=120, wind_speed=8)) == 1  # too_few_periods
-    b = budget(tiny_records(), terms=linear_terms(), min_periods=2, certified_range=(8.4, 9.6))
+    b = budget(tiny_records(), terms=linear_terms(),
+               rule=CertificationRule(min_periods=2, certified_range=(8.4, 9.6)))
     flags = b.bin_flag.sel(height=120).values.tolist()
     # 8: outside the range, 8.5: empty, 9: one period, 9.5: certified but for its Monte Carlo values,
     # which cannot settle without replicas
     assert flags == [3, 2, 1, 4]
     with pytest.raises(InputError, match="min_periods must be >= 2"):
-        budget(tiny_records(), terms=linear_terms(), min_periods=1)
+        budget(tiny_records(), terms=linear_terms(), rule=CertificationRule(min_periods=1))
 
 
 def test_iec_budget_matches_hand_computation():
@@ -268,7 +270,8 @@ def test_monte_carlo_distribution_of_a_bin_by_hand():
     """
     from scipy import optimize, stats
 
-    b = budget(tiny_records(), terms=linear_terms(), min_periods=3).sel(height=120, wind_speed=8)
+    b = budget(tiny_records(), terms=linear_terms(),
+               rule=CertificationRule(min_periods=3)).sel(height=120, wind_speed=8)
     pct = 100 / 8.05
     d = [v * pct for v in (0.1, -0.1, 0.2, 0.0)]
     s = math.sqrt(0.05 / 3) * pct
@@ -335,7 +338,8 @@ def test_thin_bin_with_spread_of_its_own_certifies_the_widened_interval():
     terms = xr.Dataset({"total": ("wind_speed", np.full(19, total), var_attrs("total", "m s-1"))},
                        coords={"wind_speed": ("wind_speed", np.arange(2.0, 21.0), {"units": "m s-1"})},
                        attrs={"lidarcal_source_file": "terms.nc"})
-    b = budget(records, terms=terms, significant_digits=1).sel(height=120, wind_speed=10)
+    b = budget(records, terms=terms,
+               rule=CertificationRule(significant_digits=1)).sel(height=120, wind_speed=10)
     assert int(b.period_count) == 10 and int(b.sample_count) == 80 and int(b.bin_flag) == 0
     # by hand: the trials in % of the bin mean reference, s and s/sqrt(10) on 9 degrees of freedom
     mean_ref = ref.mean()
@@ -366,7 +370,7 @@ def test_thin_bin_with_spread_of_its_own_certifies_the_widened_interval():
 def test_statistical_term_counts_periods_not_trials():
     """Replicas add trials, not periods of the atmosphere: sigma/sqrt(N) with N = period_count."""
     records = make_records(n=300, heights=(80.0,), replicas=4)
-    b = budget(records, significant_digits=1)
+    b = budget(records, rule=CertificationRule(significant_digits=1))
     stat = b.contribution.sel(contributor="statistical")
     filled = b.period_count >= 2
     assert bool((b.sample_count.where(filled) == 4 * b.period_count.where(filled)).where(filled, True).all())
@@ -377,8 +381,8 @@ def test_statistical_term_counts_periods_not_trials():
 def test_shortest_interval_on_request():
     """JCGM 101 7.7: the shortest 95 % interval is no wider than the symmetric one; the choice is recorded."""
     records = make_records(n=400, heights=(80.0,), replicas=4, shear_slope=(8.0,))
-    sym = budget(records, significant_digits=1)
-    short = budget(records, significant_digits=1, coverage_interval="shortest")
+    sym = budget(records, rule=CertificationRule(significant_digits=1))
+    short = budget(records, rule=CertificationRule(significant_digits=1, coverage_interval="shortest"))
     width = {k: (b.relative_coverage_interval_upper - b.relative_coverage_interval_lower)
              for k, b in (("sym", sym), ("short", short))}
     filled = np.isfinite(width["sym"])
@@ -388,4 +392,4 @@ def test_shortest_interval_on_request():
     assert short.attrs["coverage_interval"] == "shortest" and sym.attrs["coverage_interval"] == "symmetric"
     assert "shortest" in short.relative_coverage_interval_upper.attrs["long_name"]
     with pytest.raises(InputError, match="coverage_interval must be one of"):
-        budget(records, coverage_interval="narrow")
+        budget(records, rule=CertificationRule(coverage_interval="narrow"))

@@ -13,6 +13,7 @@ import pytest
 
 from lidarcal.campaign import BLAS_ENV, simulate_campaign
 from lidarcal.campaign import scheduler as campaign_scheduler
+from lidarcal.campaign.settings import Execution
 from lidarcal.compliance import check_compliance
 from lidarcal.conditions import SkippedPeriodsWarning, synthetic_conditions
 from lidarcal.errors import InputError
@@ -46,7 +47,7 @@ def cond():
 @pytest.fixture(scope="module")
 def reference(cond, model):
     """The in-process, single-chunk result every other configuration must reproduce bit for bit."""
-    return simulate_campaign(cond, model, scheduler="synchronous", chunk=1000)
+    return simulate_campaign(cond, model, execution=Execution(scheduler="synchronous", chunk=1000))
 
 
 def assert_same_results(a, b):
@@ -98,15 +99,18 @@ def test_result_is_the_engine_run_per_period(cond, model, reference):
     "scheduler,workers,chunk", [("threads", 2, 3), ("processes", 2, 5), ("synchronous", 1, 7)]
 )
 def test_bit_identical_for_any_scheduler_workers_and_chunk(cond, model, reference, scheduler, workers, chunk):
-    ds = simulate_campaign(cond, model, scheduler=scheduler, workers=workers, chunk=chunk)
+    ds = simulate_campaign(cond, model,
+                           execution=Execution(scheduler=scheduler, workers=workers, chunk=chunk))
     assert_same_results(ds, reference)
 
 
 def test_height_subset_and_seed(cond, model, reference):
-    sub = simulate_campaign(cond, model, heights=[120, 40], scheduler="synchronous", chunk=8)
+    sub = simulate_campaign(cond, model, heights=[120, 40],
+                            execution=Execution(scheduler="synchronous", chunk=8))
     assert sub.height.values.tolist() == [40.0, 120.0]
     np.testing.assert_array_equal(sub.lidar_wind_speed.values, reference.lidar_wind_speed.values[:, [0, 2]])
-    other = simulate_campaign(cond, model, heights=[40], base_seed=7, scheduler="synchronous")
+    other = simulate_campaign(cond, model, heights=[40], base_seed=7,
+                              execution=Execution(scheduler="synchronous"))
     assert not np.array_equal(other.lidar_wind_speed.values[:, 0], reference.lidar_wind_speed.values[:, 0])
     assert other.attrs["lidarcal_base_seed"] == 7
 
@@ -116,7 +120,7 @@ def test_nan_periods_are_skipped_and_reported(cond, model, reference):
     bad["cnr"][3, 1] = np.nan
     bad["wind_speed"][10, :] = np.nan
     with pytest.warns(SkippedPeriodsWarning, match=r"4 \(period, height\)"):
-        ds = simulate_campaign(bad, model, scheduler="synchronous", chunk=4)
+        ds = simulate_campaign(bad, model, execution=Execution(scheduler="synchronous", chunk=4))
     assert ds.attrs["lidarcal_skipped_count"] == 4
     assert ds.simulated.values[3].tolist() == [1, 0, 1] and ds.simulated.values[10].tolist() == [0, 0, 0]
     assert np.isnan(ds.lidar_wind_speed.values[3, 1]) and np.isnan(ds.lidar_wind_speed.values[10]).all()
@@ -128,17 +132,18 @@ def test_nan_periods_are_skipped_and_reported(cond, model, reference):
 def test_unreachable_heights_and_bad_arguments(cond, model):
     low = synthetic_conditions(4, (5, 40), seed=1)
     with pytest.raises(InputError, match=r"height 5 m needs range .* below the lidar"):
-        simulate_campaign(low, model, scheduler="synchronous")
+        simulate_campaign(low, model, execution=Execution(scheduler="synchronous"))
     with pytest.raises(InputError, match=r"height 40 m needs range"):
         simulate_campaign(
-            cond, LidarModel.ideal(zero_distance_offset=-60.0), heights=[40], scheduler="synchronous"
+            cond, LidarModel.ideal(zero_distance_offset=-60.0), heights=[40],
+            execution=Execution(scheduler="synchronous")
         )
     with pytest.raises(InputError, match=r"height 50 m is not in the conditions; available heights"):
         simulate_campaign(cond, model, heights=[50])
     with pytest.raises(InputError, match="los_periods"):
         simulate_campaign(cond, model, los_periods=[99])
     with pytest.raises(InputError, match="unknown scheduler 'gpu'"):
-        simulate_campaign(cond, model, scheduler="gpu")
+        simulate_campaign(cond, model, execution=Execution(scheduler="gpu"))
 
 
 def test_unreachable_scheduler_fails_fast(cond, model):
@@ -147,13 +152,14 @@ def test_unreachable_scheduler_fails_fast(cond, model):
     with pytest.raises(
         InputError, match=r"cannot reach the dask scheduler at 'tcp://127\.0\.0\.1:\d+' within 2 s"
     ):
-        simulate_campaign(cond, model, scheduler=address, connect_timeout=2.0)
+        simulate_campaign(cond, model, execution=Execution(scheduler=address, connect_timeout=2.0))
     assert time.perf_counter() - t0 < 10  # "within a few seconds": 2 s timeout + client teardown
 
 
 def test_workdir_resume_reuses_finished_chunks(cond, model, reference, tmp_path, monkeypatch):
     work = tmp_path / "work"
-    first = simulate_campaign(cond, model, scheduler="synchronous", chunk=5, workdir=work)
+    first = simulate_campaign(cond, model,
+                              execution=Execution(scheduler="synchronous", chunk=5, workdir=work))
     files = sorted(work.glob("chunk-*.npz"))
     assert [f.name[:21] for f in files] == [
         f"chunk-{a:07d}-{b:07d}" for a, b in [(0, 5), (5, 10), (10, 15), (15, 20), (20, 24)]
@@ -161,23 +167,26 @@ def test_workdir_resume_reuses_finished_chunks(cond, model, reference, tmp_path,
     assert_same_results(first, reference)
     # a rerun must not simulate anything: make any attempt fail loudly
     monkeypatch.setattr(campaign_scheduler, "run_chunk",
-                        lambda task: pytest.fail("recomputed a cached chunk"))
-    again = simulate_campaign(cond, model, scheduler="synchronous", chunk=5, workdir=work)
+                        lambda task, model: pytest.fail("recomputed a cached chunk"))
+    again = simulate_campaign(cond, model,
+                              execution=Execution(scheduler="synchronous", chunk=5, workdir=work))
     assert_same_results(again, reference)
     monkeypatch.undo()
     # a corrupt cache file is recomputed, not trusted; a different seed does not reuse the cache
     files[1].write_bytes(b"garbage")
     assert_same_results(
-        simulate_campaign(cond, model, scheduler="synchronous", chunk=5, workdir=work), reference
+        simulate_campaign(cond, model,
+                          execution=Execution(scheduler="synchronous", chunk=5, workdir=work)), reference
     )
-    simulate_campaign(cond, model, base_seed=1, scheduler="synchronous", chunk=5, workdir=work)
+    simulate_campaign(cond, model, base_seed=1,
+                      execution=Execution(scheduler="synchronous", chunk=5, workdir=work))
     assert len(list(work.glob("chunk-*.npz"))) == 10 and not list(work.glob(".*part"))
 
 
 def test_output_is_a_valid_artefact_with_provenance_and_los(cond, model, tmp_path):
     path = tmp_path / "c.nc"
     cond.to_netcdf(path)
-    ds = simulate_campaign(path, model, scheduler="synchronous", los_periods=[2, 5])
+    ds = simulate_campaign(path, model, execution=Execution(scheduler="synchronous"), los_periods=[2, 5])
     assert validate_dataset(ds) == []
     out = write_artefact(ds, tmp_path / "sim.nc")
     report = check_compliance(out)
@@ -272,7 +281,7 @@ def test_killed_cli_run_resumes_bit_identical(tmp_path, model):
     assert all(p.stat().st_mtime_ns == t for p, t in done.items())  # finished chunks were not redone
     assert len(list(work.glob("chunk-*.npz"))) == 24
     resumed = open_artefact(out)
-    uninterrupted = simulate_campaign(cond, model, scheduler="synchronous", chunk=24)
+    uninterrupted = simulate_campaign(cond, model, execution=Execution(scheduler="synchronous", chunk=24))
     assert_same_results(resumed, uninterrupted)
 
 
@@ -346,9 +355,9 @@ def cluster(tmp_path, request):
 
 def test_distributed_cluster_bit_identical(cluster, cond, model, reference):
     c, client = cluster
-    by_address = simulate_campaign(cond, model, scheduler=c.address, chunk=4)
+    by_address = simulate_campaign(cond, model, execution=Execution(scheduler=c.address, chunk=4))
     assert_same_results(by_address, reference)
-    by_client = simulate_campaign(cond, model, scheduler=client, chunk=6)
+    by_client = simulate_campaign(cond, model, execution=Execution(scheduler=client, chunk=6))
     assert_same_results(by_client, reference)
     # each worker ran with one BLAS thread
     envs = client.run(lambda: os.environ.get("OPENBLAS_NUM_THREADS"))
@@ -374,13 +383,14 @@ def test_lost_worker_costs_time_not_data(cluster, model, tmp_path):
 
     c, client = cluster
     cond = synthetic_conditions(100, (40, 80, 120), seed=9)
-    expected = simulate_campaign(cond, model, scheduler="synchronous", chunk=100)
+    expected = simulate_campaign(cond, model, execution=Execution(scheduler="synchronous", chunk=100))
     work = tmp_path / "work"
     box = {}
 
     def target():
         try:
-            box["ds"] = simulate_campaign(cond, model, scheduler=client, chunk=2, workdir=work)
+            box["ds"] = simulate_campaign(cond, model,
+                                          execution=Execution(scheduler=client, chunk=2, workdir=work))
         except BaseException as exc:  # reported by the assertion below
             box["error"] = exc
 
@@ -404,7 +414,7 @@ def test_periods_below_the_cnr_filter_are_flagged_not_silently_nan(cond):
     # a threshold inside the fixture's CNR range, so that both sides are exercised
     threshold = float(np.round(np.median(cond.cnr.values), 1)) + 0.05
     filtered = LidarModel.ideal(cnr_threshold=threshold)
-    ds = simulate_campaign(cond, filtered, scheduler="synchronous", chunk=8)
+    ds = simulate_campaign(cond, filtered, execution=Execution(scheduler="synchronous", chunk=8))
     low = cond.cnr.values < threshold
     assert low.any() and (~low).any()
     np.testing.assert_array_equal(ds.simulated.values == 2, low)

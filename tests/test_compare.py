@@ -283,7 +283,7 @@ HEIGHTS = (40.0, 80.0, 160.0)
 
 def _compare(effects, seed):
     field = make_field_campaign(effects, n_periods=N, heights=HEIGHTS, seed=seed)
-    js = summary(to_dataset(compare(field, simulate_options=SIM)))
+    js = summary(to_dataset(compare(field, execution=SIM)))
     print(
         f"\n[compare] {effects} seed {seed}: {js['verdict']}; "
         + ", ".join(f"{c['variable'][:5]}@{c['height']:g} z {c['z']:+.1f}" for c in js["cells"])

@@ -353,7 +353,7 @@ def test_a_field_campaign_artefact_is_accepted_as_conditions(tmp_path):
 
     cond = hidden_effect_conditions(8, (80.0, 120.0), 1)
     field = generate_field_campaign(cond, "none", {}, base_seed=5,
-                                    simulate_options={"scheduler": "synchronous"})
+                                    execution={"scheduler": "synchronous"})
     path = write_artefact(field, tmp_path / "field.nc")
     assert field.attrs["lidarcal_artefact"] == "field_campaign"
     loaded = load_conditions(path)

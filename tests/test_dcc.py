@@ -20,6 +20,7 @@ from lxml import etree
 
 from lidarcal import __version__
 from lidarcal.analysis import budget, sensitivity
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.bench import build_cube, simulate_run
 from lidarcal.certificate import make_certificate
 from lidarcal.cli import main
@@ -50,7 +51,7 @@ def certs(tmp_path_factory):
     rec_path = d / "records.nc"
     make_records(n=500, lidar_serial=SERIAL, shear_slope=(4.0, -3.0), replicas=8).to_netcdf(rec_path)
     records = open_artefact(rec_path)
-    bud = budget(records, significant_digits=1)
+    bud = budget(records, rule=CertificationRule(significant_digits=1))
     # one bin certified but for its Monte Carlo values, as if they had not settled (listed apart)
     j = int(np.argmin(abs(bud["wind_speed"].values - 10.0)))
     assert int(bud["bin_flag"].isel(height=0, wind_speed=j)) == 0
@@ -296,7 +297,7 @@ def test_dcc_validates_against_ptb_xsd(xml, tmp_path):
 
 def test_numerical_tolerance_and_monte_carlo_figures_when_the_budget_has_them():
     records = make_records(n=400, lidar_serial=SERIAL, replicas=8)
-    bud = budget(records, significant_digits=1)
+    bud = budget(records, rule=CertificationRule(significant_digits=1))
     tol = (bud["relative_expanded_uncertainty"] * 0.01).assign_attrs(units="%",
                                                                      long_name="numerical tolerance")
     bud = bud.assign(numerical_tolerance=tol)

@@ -47,7 +47,7 @@ HEIGHTS_HYBRID = (40.0, 80.0, 160.0)
 
 def run(effects, n_periods, heights, candidates, **campaign):
     field = make_field_campaign(effects, n_periods=n_periods, heights=heights, seed=3, **campaign)
-    js = summary(diagnose(field, candidates=candidates, simulate_options=SIM))
+    js = summary(diagnose(field, candidates=candidates, execution=SIM))
     print(f"\n[edges] {effects} {campaign} -> {js['effect']} "
           + "; ".join(f"{e['effect']} {e['parameters']} in {e['intervals']} tied {e['tied']}"
                       for e in js["effects"])

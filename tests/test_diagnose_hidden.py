@@ -53,8 +53,8 @@ def small_conditions():
 @pytest.mark.parametrize("effect", ["none", "reference_overspeeding"])
 def test_hidden_effect_small_campaign(small_conditions, effect):
     sim = {"scheduler": "synchronous"}
-    field = generate_field_campaign(small_conditions, effect, simulate_options=sim)
-    result = diagnose(field, simulate_options=sim)
+    field = generate_field_campaign(small_conditions, effect, execution=sim)
+    result = diagnose(field, execution=sim)
     js = check_recovery(result, effect, REALISTIC_STRENGTHS[effect])
     if effect == "none":
         # no false alarm: no height/variable bin disagrees after the Holm correction

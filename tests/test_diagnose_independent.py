@@ -45,7 +45,7 @@ LOOK_ALIKE = [{"reference_gain", "beam_angle_offset"}, {"hybrid_weight", "refere
 
 def run(effects, n_periods, heights=(40.0, 80.0, 120.0, 160.0), seed=3, candidates=None, **campaign):
     field = make_field_campaign(effects, n_periods=n_periods, heights=heights, seed=seed, **campaign)
-    js = summary(diagnose(field, candidates=candidates, simulate_options=SIM))
+    js = summary(diagnose(field, candidates=candidates, execution=SIM))
     # one line per campaign (shown with `pytest -s`): the confusion-matrix row
     print(f"\n[independent] {effects} {campaign} -> {js['effect']} "
           + "; ".join(f"{e['effect']} {e['parameters']} in {e['intervals']}" for e in js["effects"])

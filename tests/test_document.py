@@ -22,6 +22,7 @@ import pytest
 from analysis_factories import make_records
 
 from lidarcal.analysis import budget, sensitivity
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.certificate import make_certificate
 from lidarcal.document import seal_statement, write_document
 from lidarcal.document.pages import BOTTOM, FOOTER_RULE
@@ -36,7 +37,7 @@ def settled_records(**kwargs):
 
 def settled_budget(records):
     """The budget to one significant digit, which 6 replicas of these records reach in every bin."""
-    return budget(records, significant_digits=1)
+    return budget(records, rule=CertificationRule(significant_digits=1))
 _WORD = re.compile(r'<word xMin="([\d.]+)" yMin="([\d.]+)" xMax="([\d.]+)" yMax="([\d.]+)">(.*?)</word>')
 
 

@@ -22,6 +22,7 @@ import pytest
 
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.progress import Progress, duration_text
+from lidarcal.campaign.settings import Execution
 from lidarcal.cli import build_parser, interrupted, main
 from lidarcal.cli.options import progress_of
 from lidarcal.conditions import synthetic_conditions
@@ -151,7 +152,8 @@ def test_ctrl_c_says_what_it_kept_and_the_resumed_run_what_it_reused(tmp_path):
     assert f"lidarcal simulate: simulation: reusing {kept} of 24 chunks finished earlier (kept in {work})" \
         in again.stderr.splitlines()
     resumed = open_artefact(out)
-    whole = simulate_campaign(cond, LidarModel.from_attrs(cond), scheduler="synchronous", chunk=24)
+    whole = simulate_campaign(cond, LidarModel.from_attrs(cond),
+                              execution=Execution(scheduler="synchronous", chunk=24))
     for name in ("lidar_wind_speed", "reference_wind_speed", "availability"):
         np.testing.assert_array_equal(resumed[name].values, whole[name].values)
 

@@ -16,10 +16,12 @@ from analysis_factories import make_records
 
 from lidarcal.analysis.budget import budget
 from lidarcal.analysis.model_form import model_form_term
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.adaptive import with_trials
 from lidarcal.campaign.model_form import model_form_runs, select_periods, with_model_form
 from lidarcal.campaign.run import simulate_replicas
+from lidarcal.campaign.settings import Execution
 from lidarcal.certificate import MEASURAND, make_certificate, result_table
 from lidarcal.conditions import synthetic_conditions
 from lidarcal.dcc import dcc_tree
@@ -214,7 +216,7 @@ def test_the_contributor_counts_periods_not_trials():
     idx = np.arange(rec.sizes["time"])
     more = with_trials(runs, [{"replica": r, "period": idx, "height": np.full(idx.size, 100.0),
                                "lidar_wind_speed": lid, "reference_wind_speed": ref} for r in (1, 2, 3)])
-    cell = budget(more, min_periods=3).sel(height=100.0, wind_speed=8.0)
+    cell = budget(more, rule=CertificationRule(min_periods=3)).sel(height=100.0, wind_speed=8.0)
     n, trials = int(cell.period_count), int(cell.sample_count)
     assert (n, trials) == (60, 240)
     v = float(cell.contribution.sel(contributor="virtual_reference"))
@@ -240,10 +242,11 @@ def test_the_contributor_by_hand():
         return ref + e.mean() + 1.3 * (e - e.mean())
 
     both = _with_runs(rec, {"reference_level": lambda lid, ref: lid + 0.02, "coherence": spread})
-    b = budget(both, min_periods=3)
+    b = budget(both, rule=CertificationRule(min_periods=3))
     assert list(b.contributor.values)[-1] == "model_form"
-    assert "model_form" not in budget(rec, min_periods=3).contributor.values  # no runs: no contributor
-    assert "model_form" not in budget(both, min_periods=3, model_form=False).contributor.values
+    three = CertificationRule(min_periods=3)
+    assert "model_form" not in budget(rec, rule=three).contributor.values  # no runs: no contributor
+    assert "model_form" not in budget(both, rule=three, model_form=False).contributor.values
     cell = b.sel(height=100.0, wind_speed=8.0)
     e = (rec["lidar_wind_speed"] - rec["reference_wind_speed"]).values[:, 0]
     n, mu, sigma = e.size, e.mean(), e.std(ddof=1)
@@ -335,18 +338,20 @@ def small_chain(tmp_path_factory):
     cond = synthetic_conditions(30, (60.0, 100.0), seed=7)
     rwf = range_weighting_function()
     model = LidarModel.from_artefacts(rwf=rwf)
-    records = simulate_campaign(cond, model, heights=[100.0], scheduler="synchronous", duration=120.0)
-    records = model_form_runs(records, cond, model, scheduler="synchronous", duration=120.0, per_bin=6)
+    records = simulate_campaign(cond, model, heights=[100.0],
+                                execution=Execution(scheduler="synchronous"), duration=120.0)
+    records = model_form_runs(records, cond, model,
+                              execution=Execution(scheduler="synchronous"), duration=120.0, per_bin=6)
     # 15 Monte Carlo replicas of every period: a value certifies only once it has settled (JCGM 101
     # 7.9) from the replicas and from all trials; with 3-6 periods a bin, 16 replicas settle every bin
     # of 3 periods or more to one significant digit (4 replicas settle one of six)
     done = simulate_replicas(cond, model, np.ones((30, 1), dtype=bool), list(range(1, 16)), heights=[100.0],
-                             scheduler="synchronous", duration=120.0)
+                             execution=Execution(scheduler="synchronous"), duration=120.0)
     records = with_trials(records, [{"replica": r, **{k: done[r][k] for k in ("period", "height",
                                      "lidar_wind_speed", "reference_wind_speed")}} for r in sorted(done)])
     rec_path = write_artefact(records, d / "simulated.nc")
     records = open_artefact(rec_path, "simulated_rtd")
-    b = budget(records, min_periods=3, significant_digits=1)
+    b = budget(records, rule=CertificationRule(min_periods=3, significant_digits=1))
     cert = make_certificate(budget=b, sensitivities=[], rwf=rwf, records=records, demonstration=True)
     return d, records, b, cert, rwf
 

@@ -18,6 +18,7 @@ from scipy.stats import norm
 from lidarcal.bench.kernels import pad_groups
 from lidarcal.bench.simulator import simulate_run
 from lidarcal.campaign import simulate_campaign
+from lidarcal.campaign.settings import Execution
 from lidarcal.conditions import synthetic_conditions
 from lidarcal.diagnose import corrected_model
 from lidarcal.errors import InputError, MissingVariableError
@@ -414,7 +415,8 @@ def test_campaign_workers_resample_from_the_full_model():
     model = LidarModel.from_artefacts(cube=cube, cnr_threshold=None)
     cond = synthetic_conditions(6, (80, 100), seed=5)
     # processes: the task payloads are pickled to the workers
-    ds = simulate_campaign(cond, model, heights=[100], scheduler="processes", workers=2, chunk=3)
+    ds = simulate_campaign(cond, model, heights=[100],
+                           execution=Execution(scheduler="processes", workers=2, chunk=3))
     recorded = json.loads(ds.attrs["lidarcal_lidar_model"])["noise_table"]
     assert "residuals" not in recorded and recorded["residuals_sha256"] == model.noise_table.residuals_sha256
     assert len(ds.attrs["lidarcal_lidar_model"]) < 100_000 and len(ds.attrs["lidarcal_config"]) < 120_000
@@ -428,4 +430,4 @@ def test_campaign_workers_resample_from_the_full_model():
         np.testing.assert_array_equal(got, direct["lidar_wind_speed"][0])
     assert corrected_model(ds, cube=cube) == model
     with pytest.raises(InputError, match="no bench cube given"):
-        simulate_campaign(cond, corrected_model(ds), scheduler="synchronous")
+        simulate_campaign(cond, corrected_model(ds), execution=Execution(scheduler="synchronous"))

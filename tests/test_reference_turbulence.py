@@ -175,7 +175,7 @@ def test_an_effect_free_campaign_with_measured_tis_is_not_a_cup_effect():
     from lidarcal.diagnose import diagnose, summary
 
     field = make_field_campaign({}, n_periods=900, heights=(40.0, 100.0, 160.0), seed=16)
-    js = summary(diagnose(field, simulate_options={"scheduler": "synchronous"}))
+    js = summary(diagnose(field, execution={"scheduler": "synchronous"}))
     assert js["effect"] in ("none", "unexplained") and js["effects"] == [], js["note"]
 
 

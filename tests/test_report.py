@@ -9,6 +9,7 @@ import pytest
 from analysis_factories import make_records
 
 from lidarcal.analysis import budget, sensitivity
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.bench import build_cube, simulate_run
 from lidarcal.cli import main
 from lidarcal.document.facts import fmt
@@ -51,7 +52,7 @@ def inputs():
     cube, _ = build_cube(run.rtd, run.control)
     return {
         "records": records,
-        "budget": budget(records, significant_digits=1),
+        "budget": budget(records, rule=CertificationRule(significant_digits=1)),
         "sensitivities": [
             sensitivity(records, "wind_shear_exponent"),
             sensitivity(records, "turbulence_intensity"),
@@ -96,7 +97,7 @@ def test_budget_plot_shows_every_height_and_marks_thin_bins(inputs):
     from bokeh.models import GlyphRenderer, Line, Scatter, Select
 
     # the factory fills every bin with 10-39 periods: min_periods=20 leaves bins not certified with a finite U
-    b = budget(inputs["records"], min_periods=20, significant_digits=1)
+    b = budget(inputs["records"], rule=CertificationRule(min_periods=20, significant_digits=1))
     figs = report_figures(budget=b)
     assert list(figs) == ["budget", "budget_contributors"]
     page = figs["budget"].bokeh()
@@ -468,7 +469,7 @@ def test_budget_figure_is_scaled_to_the_certified_range(inputs):
 
     from lidarcal.document.figures import draw_budget
 
-    b = budget(inputs["records"], min_periods=20, significant_digits=1)
+    b = budget(inputs["records"], rule=CertificationRule(min_periods=20, significant_digits=1))
     fig = Figure()
     draw_budget(fig, b)
     top, bottom = fig.axes

@@ -9,6 +9,7 @@ from analysis_factories import make_records
 import lidarcal
 import lidarcal.cli.table
 from lidarcal.analysis import budget, sensitivity
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.analysis.terms import PAPER_INPUTS, TABLE4_WIND_SPEEDS, uncertainty_terms
 from lidarcal.certificate import headline_range, make_certificate, result_table
 from lidarcal.cli import main
@@ -34,7 +35,7 @@ def cert_path(tmp_path_factory):
     for name in ("wind_speed", "lidar_wind_speed", "reference_wind_speed", "trial_lidar_wind_speed",
                  "trial_reference_wind_speed"):
         records[name] = records[name] * (12 / 11) - 3.0  # about 1.9 to 13.9 m/s, same relative error
-    bud = budget(records, significant_digits=1)
+    bud = budget(records, rule=CertificationRule(significant_digits=1))
     rel = bud["relative_expanded_uncertainty"]
     j8 = int(np.argmin(abs(bud["wind_speed"].values - 8.0)))
     bud["bin_flag"][{"height": 1, "wind_speed": j8}] = 1
@@ -216,7 +217,7 @@ def test_certificate_written_before_not_settled_still_reads_and_verifies(tmp_pat
     from lidarcal.seal import verify_certificate
 
     records = make_records(n=400, heights=(80.0,), lidar_serial=SERIAL, replicas=8)
-    bud = budget(records, significant_digits=1)
+    bud = budget(records, rule=CertificationRule(significant_digits=1))
     j = int(np.argmin(abs(bud["wind_speed"].values - 9.0)))
     assert int(bud["bin_flag"].isel(height=0, wind_speed=j)) == 0
     # the earlier budget: no JCGM 101 distribution, four flag meanings, the value still flagged certified

@@ -13,6 +13,7 @@ from lidarcal.analysis.kernels import edges_from_width, linear_regression, signi
 from lidarcal.analysis.sensitivity import per_unit, sensitivity_fit
 from lidarcal.binning import binned_statistics
 from lidarcal.campaign import simulate_campaign
+from lidarcal.campaign.settings import Execution
 from lidarcal.cf import height_coord, time_coord
 from lidarcal.cli import main
 from lidarcal.errors import InputError, MissingVariableError, UnitError
@@ -465,7 +466,8 @@ def _deterministic_bias(alpha, h, fwhm=30.0, cone=28.0):
 
 def _check_slopes_against_deterministic(n, heights, seed):
     model = LidarModel.ideal(los_noise_std=0.1, zero_distance_offset=_ZD)
-    recs = simulate_campaign(_shear_conditions(n, heights, seed), model, scheduler="synchronous")
+    recs = simulate_campaign(_shear_conditions(n, heights, seed), model,
+                             execution=Execution(scheduler="synchronous"))
     sens = sensitivity(recs, "wind_shear_exponent")
     rows = []
     for j, h in enumerate(heights):

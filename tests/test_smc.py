@@ -354,7 +354,7 @@ def test_monte_carlo_route_runs_on_a_tiny_campaign(tmp_path, cert):
         cert,
         conditions=conditions_file(tmp_path / "c.nc", v, HEIGHTS[1:]),
         max_replicas=2,
-        simulate_options={"scheduler": "synchronous"},
+        execution={"scheduler": "synchronous"},
     )
     mc = c.monte_carlo
     assert mc.replicas == 2 and mc.records.sizes["time"] == 6

@@ -135,7 +135,7 @@ def test_with_carried_adds_the_certificates_term_by_hand():
 def test_the_monte_carlo_route_carries_the_model_form(tmp_path, cert_mf):
     v = campaign_values(6, HEIGHTS[1:])
     c = smc(cert_mf, conditions=conditions_file(tmp_path / "c.nc", v, HEIGHTS[1:]), max_replicas=1,
-            simulate_options={"scheduler": "synchronous"})
+            execution={"scheduler": "synchronous"})
     sim = c.monte_carlo.budget
     rel = sim.relative_contribution.sel(contributor="model_form").values
     ok = np.isfinite(sim.mean_reference_wind_speed.values)

@@ -70,7 +70,7 @@ def test_the_calibrations_own_conditions_give_the_certificates_budget_back(calib
         conditions=cond,
         base_seed=7,
         max_replicas=8,
-        simulate_options={"workers": 2},
+        execution={"workers": 2},
     )
     b = binned(smc_dataset(c))
     both = (
@@ -104,7 +104,7 @@ def test_higher_turbulence_moves_the_environmental_term_as_the_slopes_say(calibr
         conditions=cond,
         base_seed=CALIBRATION_SEED,
         max_replicas=4,
-        simulate_options={"workers": 2},
+        execution={"workers": 2},
     )
     ds = smc_dataset(c)
     with netCDF4.Dataset(calibrated / "certificate.nc") as nc:
@@ -182,7 +182,7 @@ def test_a_dask_cluster_gives_the_local_result_bit_for_bit(calibrated, tmp_path)
         ("cluster", {"scheduler": "local", "workers": 2, "chunk": 3}),
     ):
         c = smc(
-            calibrated / "certificate.nc", conditions=tmp_path / "c.nc", max_replicas=3, simulate_options=opts
+            calibrated / "certificate.nc", conditions=tmp_path / "c.nc", max_replicas=3, execution=opts
         )
         runs[name] = smc_dataset(c)
     a, b = runs["local"], runs["cluster"]

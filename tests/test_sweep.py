@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from lidarcal.analysis.sweep import analyse_sweep
+from lidarcal.campaign.settings import Execution
 from lidarcal.cli import main
 from lidarcal.conditions.grid import SWEEP_VARIABLES, sweep_conditions
 from lidarcal.errors import InputError, UnitError
@@ -15,6 +16,7 @@ from lidarcal.pipeline import sweep
 from lidarcal.schema import validate_dataset
 from lidarcal.units import Q_
 
+ONE_PROCESS = Execution(scheduler="synchronous")
 GRID = {
     "wind_speed": Q_([6.0, 10.0, 14.0], "m s-1"),
     "turbulence_intensity": [0.05, 0.15],
@@ -119,12 +121,12 @@ def test_real_sweep_beam_angle_offset_is_found():
     # turbulence sampling moves single 10-min values by ~1 % (seen: 5.1-6.6 % on this grid)
     model = LidarModel.ideal(beam_angle_offset=2.0)
     grid = {**GRID, "wind_speed": Q_([6.0, 12.0], "m s-1")}
-    ds, records = sweep(model, grid=grid, heights=(100.0,), base_seed=7, scheduler="synchronous")
+    ds, records = sweep(model, grid=grid, heights=(100.0,), base_seed=7, execution=ONE_PROCESS)
     expected = (np.sin(np.radians(30.0)) / np.sin(np.radians(28.0)) - 1) * 100
     np.testing.assert_allclose(float(ds.mean_deviation[0]), expected, atol=1.0)
     assert float(ds.max_abs_deviation[0]) >= abs(float(ds.mean_deviation[0]))
     assert records.sizes["time"] == 16 and validate_dataset(ds) == []
-    again, _ = sweep(model, grid=grid, heights=(100.0,), base_seed=7, scheduler="synchronous")
+    again, _ = sweep(model, grid=grid, heights=(100.0,), base_seed=7, execution=ONE_PROCESS)
     np.testing.assert_array_equal(ds.deviation.values, again.deviation.values)  # seeded: bit-identical
     assert json.loads(ds.attrs["lidarcal_seeds"])["base_seed"] == 7
 

@@ -20,6 +20,7 @@ from lidarcal.analysis.terms import (
 )
 from lidarcal.bench.ingest import ingest
 from lidarcal.campaign import simulate_campaign
+from lidarcal.campaign.settings import Execution
 from lidarcal.cf import height_coord, time_coord
 from lidarcal.cli import main
 from lidarcal.compliance import check_compliance
@@ -382,7 +383,8 @@ def _virtual_lidar_moves(n_periods, draws):
     # Eqs. 6-7 are about the Gaussian table's sigma and mu, which resampled residuals do not use
     model = LidarModel.from_artefacts(cube=cube, los_noise_model="gaussian")
     cond = _steady_conditions(n_periods)
-    run = lambda m: simulate_campaign(cond, m, scheduler="synchronous").lidar_wind_speed.values[:, 0]  # noqa: E731
+    one_process = Execution(scheduler="synchronous")
+    run = lambda m: simulate_campaign(cond, m, execution=one_process).lidar_wind_speed.values[:, 0]  # noqa: E731
     base = run(model)
     rms = lambda a: float(np.sqrt(np.nanmean((a - base) ** 2)))  # noqa: E731
     sigma = [rms(run(_perturbed(model, s, d_std=0.027))) for s in draws]

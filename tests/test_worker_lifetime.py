@@ -27,6 +27,7 @@ from threadpoolctl import threadpool_info, threadpool_limits
 
 from lidarcal.campaign import chunks as campaign_chunks
 from lidarcal.campaign import simulate_campaign
+from lidarcal.campaign.settings import Execution
 from lidarcal.conditions import synthetic_conditions
 from lidarcal.lidar import LidarModel
 
@@ -61,7 +62,8 @@ def test_engine_runs_with_one_blas_thread_whatever_the_caller_set(monkeypatch, s
     cond = synthetic_conditions(4, (40.0, 80.0), seed=2)
     with threadpool_limits(limits=2, user_api="blas"):  # a caller with a multi-threaded BLAS
         assert _blas_threads() == 2
-        simulate_campaign(cond, LidarModel.ideal(), scheduler=scheduler, workers=2, chunk=1, progress=False)
+        simulate_campaign(cond, LidarModel.ideal(),
+                          execution=Execution(scheduler=scheduler, workers=2, chunk=1, progress=False))
         assert _blas_threads() == 2  # the caller's setting is given back
     assert seen and set(seen) == {1}, seen
 

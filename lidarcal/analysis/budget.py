@@ -75,7 +75,8 @@ from lidarcal.analysis.certification import (
 from lidarcal.analysis.distribution import bin_values, delta_sds, grouped
 from lidarcal.analysis.model_form import model_form_term
 from lidarcal.analysis.montecarlo import COVERAGE_PROBABILITY, tolerance_exponent
-from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
+from lidarcal.analysis.rule import COVERAGE_INTERVALS, CertificationRule
+from lidarcal.analysis.terms import PAPER_INPUTS, table4_total
 from lidarcal.analysis.trials import TRIAL_VARIABLES
 from lidarcal.analysis.trials import binned as binned_trials
 from lidarcal.cf import with_bounds
@@ -87,7 +88,7 @@ from lidarcal.units import Q_, convert_values, to_magnitude
 
 __all__ = ["budget", "certified_bins", "numerical_state", "tolerance_exponent", "CONTRIBUTORS",
            "EMPIRICAL_CONTRIBUTORS", "COVERAGE_INTERVALS", "DEFAULT_CERTIFIED_RANGE", "DEFAULT_MIN_PERIODS",
-           "DEFAULT_SIGNIFICANT_DIGITS", "TRIAL_VARIABLES"]
+           "DEFAULT_SIGNIFICANT_DIGITS", "TRIAL_VARIABLES", "CertificationRule"]
 
 #: Contributors of each approach, in the order of the ``contributor`` dimension.
 CONTRIBUTORS = {
@@ -102,7 +103,6 @@ EMPIRICAL_CONTRIBUTORS = ("mean_difference", "std_difference")
 #: (Welch–Satterthwaite); the others are Type B, with infinitely many.
 PERIOD_CONTRIBUTORS = ("std_difference", "statistical")
 #: Kinds of coverage interval (JCGM 101 §7.7).
-COVERAGE_INTERVALS = ("symmetric", "shortest")
 #: The values of a bin JCGM 101 7.9 settles.
 SETTLED = tuple(SETTLED_VALUES)
 #: Replicas beyond which no bin's need is predicted (``replicas_needed``).
@@ -141,9 +141,8 @@ def _terms_total(
     positive = centres > 0
     if terms is None:
         out = np.full((len(heights), len(centres)), np.nan)
-        at = uncertainty_terms(Q_(centres[positive], "m s-1"), **{**PAPER_INPUTS, "height": Q_(heights, "m")},
-                               noise_terms=noise_terms)
-        out[:, positive] = at.total.transpose("height", "wind_speed").values
+        inputs = {**PAPER_INPUTS, "height": Q_(heights, "m")}
+        out[:, positive] = table4_total(Q_(centres[positive], "m s-1"), **inputs, noise_terms=noise_terms)
         how = "" if noise_terms == "printed" else f", noise_terms={noise_terms!r}"
         return out, f"lidarcal.analysis.terms.uncertainty_terms(**PAPER_INPUTS{how}) at each budget height"
     if noise_terms != "printed" and terms.attrs.get("noise_terms", "printed") != noise_terms:
@@ -197,18 +196,14 @@ def budget(
     terms: xr.Dataset | None = None,
     approach: str = "monte_carlo",
     bin_width: Any = "0.5 m s-1",
-    min_periods: int = DEFAULT_MIN_PERIODS,
-    certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE,
-    significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS,
+    rule: CertificationRule | Mapping[str, Any] | None = None,
     heights: Iterable[float] | None = None,
-    coverage_factor: float = 2.0,
     reference_uncertainty: Any = None,
     reference_relative_uncertainty: Any = 0.0,
     mounting: Any = 0.0,
     separation: Any = 0.0,
     flow_inhomogeneity: Any = 0.0,
     noise_terms: str = "printed",
-    coverage_interval: str = "symmetric",
     model_form: bool = True,
     source: str | None = None,
     call: str | None = None,
@@ -229,22 +224,16 @@ def budget(
     approach : {"monte_carlo", "iec"}
     bin_width : quantity or str
         Wind-speed bin width (default 0.5 m s-1).
-    min_periods : int
-        Fewest distinct 10-minute periods a certified bin holds (default 10; :func:`certified_bins`).
-    certified_range : (float, float)
-        Bin centres (m s-1, inclusive) a certified bin may have (default 4 to 16).
-    significant_digits : int
-        Significant digits of each bin's expanded uncertainty U that the Monte Carlo must settle
-        the bin's values to (``numerical_flag``; default 2).  A value settles only with at least
-        two replicas (``trial_*`` variables); a certified bin whose values have not settled is
-        flagged ``not_settled`` and not certified.
-    coverage_interval : {"symmetric", "shortest"}
-        The Monte Carlo coverage interval (JCGM 101 §7.7): probabilistically symmetric (default)
-        or the shortest.
+    rule : CertificationRule or mapping, optional
+        What is certified and how (:class:`~lidarcal.analysis.rule.CertificationRule`, or a
+        mapping of its fields; default its defaults): ``min_periods`` (10; :func:`certified_bins`),
+        ``certified_range`` (bin centres 4 to 16 m s-1), ``significant_digits`` of each bin's U
+        that the Monte Carlo must settle the bin's values to (``numerical_flag``; 2: a value
+        settles only with at least two replicas, ``trial_*`` variables, and a certified bin whose
+        values have not settled is flagged ``not_settled`` and not certified), ``coverage_factor``
+        (k = 2) and ``coverage_interval`` (JCGM 101 §7.7: ``"symmetric"`` or ``"shortest"``).
     heights : sequence of float, optional
         Heights (m) to include; a height not in the records is an error.
-    coverage_factor : float
-        k of the expanded uncertainty (default 2).
     reference_uncertainty : quantity or str
         IEC approach: absolute standard uncertainty of the calibrated anemometer, e.g. "0.1 m s-1".
     model_form : bool
@@ -265,37 +254,25 @@ def budget(
     source = source or source_name(records)
     if approach not in CONTRIBUTORS:
         raise InputError(f"approach must be one of {sorted(CONTRIBUTORS)}; got {approach!r}")
-    if int(min_periods) < 2:
-        raise InputError(f"min_periods must be >= 2 (a standard deviation needs two periods); "
-                         f"got {min_periods}")
-    certified_range = _certified_range(certified_range)
-    if int(significant_digits) < 1:
-        raise InputError(f"significant_digits must be >= 1; got {significant_digits}")
+    rule = CertificationRule.of(rule)
     width = float(to_magnitude(bin_width, "m s-1", name="bin_width"))
     if not width > 0:
         raise InputError(f"bin_width must be positive; got {bin_width!r}")
-    if coverage_interval not in COVERAGE_INTERVALS:
-        raise InputError(f"coverage_interval must be one of {list(COVERAGE_INTERVALS)}; "
-                         f"got {coverage_interval!r}")
-    k = float(coverage_factor)
+    k = rule.coverage_factor
     records = select_heights(records, heights, source=source)
     edges, binned = binned_trials(records, width, source)
     centres = 0.5 * (edges[:-1] + edges[1:])
     with np.errstate(invalid="ignore", divide="ignore"):
         binned["statistical"] = binned["std_difference"] / np.sqrt(binned["period_count"])
-    config: dict[str, Any] = {"approach": approach, "bin_width_m_s-1": width, "min_periods": int(min_periods),
-                              "certified_range_m_s-1": list(certified_range),
-                              "significant_digits": int(significant_digits),
-                              "coverage_factor": k, "binned_by": "reference_wind_speed",
+    config: dict[str, Any] = {"approach": approach, "bin_width_m_s-1": width,
+                              **rule.record(monte_carlo=approach == "monte_carlo"),
+                              "binned_by": "reference_wind_speed",
                               "relative_to": "mean reference wind speed in the bin"}
-    rule = {"min_periods": int(min_periods), "certified_range": certified_range,
-            "significant_digits": int(significant_digits), "coverage_interval": coverage_interval}
     mc = None
     if approach == "monte_carlo":
         vref, config["virtual_reference_terms"] = _terms_total(
             terms, centres, np.asarray(records["height"].values, dtype=float), noise_terms)
         parts = _monte_carlo_parts(binned, vref)
-        config["coverage_interval"] = coverage_interval
         config["coverage_probability"] = COVERAGE_PROBABILITY
         mf = model_form_term(records, edges, binned, vref, k, source=source) if model_form else None
         if mf is not None:
@@ -333,7 +310,7 @@ def _distribution_inputs(stats: Mapping[str, Any], parts: Mapping[str, np.ndarra
 
 
 def _monte_carlo_values(binned: Mapping[str, Any], parts: Mapping[str, np.ndarray], vref: np.ndarray,
-                        k: float, centres: np.ndarray, rule: Mapping[str, Any]) -> dict[str, Any]:
+                        k: float, centres: np.ndarray, rule: CertificationRule) -> dict[str, Any]:
     """Return the Monte Carlo distribution of every bin and the numerical state of the certified ones.
 
     Pooled values from all trials (in % of the bin mean reference speed); each replica's own
@@ -342,7 +319,7 @@ def _monte_carlo_values(binned: Mapping[str, Any], parts: Mapping[str, np.ndarra
     """
     shape = binned["n"].shape
     ncell = int(np.prod(shape))
-    shortest = rule["coverage_interval"] == "shortest"
+    shortest = rule.coverage_interval == "shortest"
     pooled_in = _distribution_inputs(binned, parts, k)
     tr = binned["trials"]
     samples = grouped(tr["diff"] * pooled_in["scale"].ravel()[tr["cell"]], tr["cell"], ncell)
@@ -353,8 +330,8 @@ def _monte_carlo_values(binned: Mapping[str, Any], parts: Mapping[str, np.ndarra
     strata = grouped(tr["period"], tr["cell"], ncell, fill=-1)
     sds = delta_sds(samples, strata, flat["sigma"], values, period_count, flat["combined"], k)
     # JCGM 101 7.9 on the bins that are certified but for their numerical state
-    cand = certified_bins(centres, binned["period_count"], certified_range=rule["certified_range"],
-                          min_periods=rule["min_periods"]).ravel() == 0
+    cand = certified_bins(centres, binned["period_count"], certified_range=rule.certified_range,
+                          min_periods=rule.min_periods).ravel() == 0
     idx = np.flatnonzero(cand)
     reps = binned["replicas"]
     per = {name: np.full((idx.size, len(reps)), np.nan) for name in SETTLED}
@@ -378,7 +355,7 @@ def _monte_carlo_values(binned: Mapping[str, Any], parts: Mapping[str, np.ndarra
                 per[name][:, j] = np.where(targeted, rv[name], np.nan)
     state = numerical_state({name: values[name][idx] for name in SETTLED}, per,
                             {name: sds[name][idx] for name in SETTLED},
-                            settle_target(flat["expanded"][idx], rule["significant_digits"]),
+                            settle_target(flat["expanded"][idx], rule.significant_digits),
                             np.ones(idx.size, dtype=bool), max_replicas=_NEED_CAP)
     settled = np.ones(ncell, dtype=bool)
     settled[idx] = state["settled"]
@@ -394,21 +371,6 @@ def _monte_carlo_values(binned: Mapping[str, Any], parts: Mapping[str, np.ndarra
         full[f"tolerance_{name}"] = t
     out["state"] = {n: v.reshape(shape) for n, v in full.items()}
     return out
-
-
-def _certified_range(value: Any) -> tuple[float, float]:
-    def speed(v: Any) -> float:  # bare numbers are m s-1 here (the range is documented in m s-1)
-        return float(v) if isinstance(v, int | float | np.number) else float(
-            to_magnitude(v, "m s-1", name="certified_range"))
-
-    try:
-        lo, hi = (speed(v) for v in value)
-    except (TypeError, ValueError):
-        raise InputError(f"certified_range must be two wind speeds (m s-1), low and high; "
-                         f"got {value!r}") from None
-    if not 0 <= lo <= hi:
-        raise InputError(f"certified_range must satisfy 0 <= low <= high; got {lo:g} to {hi:g} m s-1")
-    return lo, hi
 
 
 def _monte_carlo_parts(binned: Mapping[str, np.ndarray], vref: np.ndarray) -> dict[str, np.ndarray]:
@@ -443,7 +405,7 @@ def _iec_parts(binned: Mapping[str, np.ndarray], u_abs: float,
 
 
 def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, ...], edges: np.ndarray,
-              binned: Mapping[str, Any], contribution: np.ndarray, rule: Mapping[str, Any], k: float,
+              binned: Mapping[str, Any], contribution: np.ndarray, rule: CertificationRule, k: float,
               config: dict[str, Any], call: str | None, mc: Mapping[str, Any] | None,
               mf: Mapping[str, Any] | None = None) -> xr.Dataset:
     """Build the ``uncertainty_budget`` artefact with the attributes of its schema, stamped."""
@@ -453,7 +415,7 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, .
         pct = 100.0 / binned["mean_reference"]
     hw, hwc = ("height", "wind_speed"), ("height", "wind_speed", "contributor")
     flag = certified_bins(0.5 * (edges[:-1] + edges[1:]), binned["period_count"],
-                          certified_range=rule["certified_range"], min_periods=rule["min_periods"],
+                          certified_range=rule.certified_range, min_periods=rule.min_periods,
                           settled=None if mc is None else mc["settled"])
     values = {
         "uncertainty": (hw, combined), "relative_uncertainty": (hw, combined * pct),
@@ -491,21 +453,21 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, .
             values["numerical_tolerance" + (f"_{var}" if var else "")] = (hw, st[f"tolerance_{name}"])
         statement = values["certified_statement"][1]
         extra = {"monte_carlo_replicas": int(mc["replicas"]), "monte_carlo_trials": int(n.sum()),
-                 "monte_carlo_significant_digits": int(rule["significant_digits"]),
+                 "monte_carlo_significant_digits": int(rule.significant_digits),
                  "monte_carlo_settled": int((st["flag"] == 0).sum()),
                  "monte_carlo_not_settled": int((st["flag"] == 1).sum()),
                  "coverage_probability": COVERAGE_PROBABILITY,
-                 "coverage_interval": rule["coverage_interval"],
+                 "coverage_interval": rule.coverage_interval,
                  "certified_coverage_intervals": int((statement == 1).sum())}
     if mf is not None:  # the model-form contributor's companions (lidarcal.analysis.model_form)
         values["model_form_standard_error"] = (hw, mf["standard_error"])
         values["model_form_sample_count"] = (hw, mf["sample_count"].astype(np.int32))
         values["model_form_shift"] = (hw + ("model_form_alternative",), mf["shift"])
-    lo, hi = rule["certified_range"]
-    context = {"k": f"{k:g}", "coverage_factor": k, "min_periods": rule["min_periods"], "lo": lo, "hi": hi,
-               "digits": rule["significant_digits"], "coverage_probability": COVERAGE_PROBABILITY,
+    lo, hi = rule.certified_range
+    context = {"k": f"{k:g}", "coverage_factor": k, "min_periods": rule.min_periods, "lo": lo, "hi": hi,
+               "digits": rule.significant_digits, "coverage_probability": COVERAGE_PROBABILITY,
                "interval": {"symmetric": "probabilistically symmetric",
-                            "shortest": "shortest"}[rule["coverage_interval"]],
+                            "shortest": "shortest"}[rule.coverage_interval],
                "contributor_description": "; ".join(f"{c}: {_CONTRIBUTOR_NAMES[c]}" for c in names)}
     ds = xr.Dataset(
         {name: (dims, data) for name, (dims, data) in values.items()},
@@ -518,7 +480,7 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, .
     ds = with_output_attrs(ds, "uncertainty_budget", **context)
     ds["height"].attrs = dict(records["height"].attrs)
     ds = with_bounds(ds, "wind_speed", edges)
-    ds.attrs = {"approach": approach, "coverage_factor": k, "min_periods": rule["min_periods"],
+    ds.attrs = {"approach": approach, "coverage_factor": k, "min_periods": rule.min_periods,
                 "certified_range_m_s": np.array([lo, hi]),
                 "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")), **extra}
     serial = lidar_serial(records.attrs)  # old .sta records: lidar_serial_number

@@ -70,7 +70,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Mapping
-from typing import Any, Literal
+from typing import Any, Literal, NamedTuple
 
 import numpy as np
 import xarray as xr
@@ -88,6 +88,7 @@ __all__ = [
     "NOISE_TERMS",
     "table4_kernel",
     "uncertainty_terms",
+    "table4_total",
     "repeatability_inputs",
     "format_table",
 ]
@@ -191,6 +192,94 @@ INPUT_NAMES = ("mean_between_run_std_std", "mean_between_run_std_bias", "n_runs"
                "beam_angle_coefficient", "los_noise_std", "hybrid_weight")
 
 
+class _Table4(NamedTuple):
+    """Table 4 computed for checked inputs: the terms of each height, before any artefact."""
+
+    ws: np.ndarray
+    heights: Any
+    alphas: list[float]
+    inputs: dict[str, Any]
+    per_height: list[np.ndarray]
+    n_bias: Any
+    beam_angle_coefficient: float | None
+    paper_table4: bool
+
+
+def _table4(
+    wind_speed: Any,
+    *,
+    mean_between_run_std_std: Any,
+    mean_between_run_std_bias: Any,
+    n_runs: int,
+    n_los_samples: int,
+    bench_uncertainty: Any,
+    beam_angle_uncertainty: Any,
+    zero_distance_uncertainty: Any,
+    shear_exponent: float,
+    height: Any,
+    cone_angle: Any,
+    beam_angle_coefficient: float | None = None,
+    bias_repeatability_n: Literal["los_samples", "runs"] = "los_samples",
+    bench_coverage_factor: float | None = None,
+    noise_terms: Literal["printed", "derived"] = "printed",
+    paper_table4: bool = False,
+    los_noise_std: Any = None,
+    hybrid_weight: float | None = None,
+) -> _Table4:
+    """Check the inputs of :func:`uncertainty_terms` and evaluate Table 4 at each height."""
+    ws = _checked_wind_speeds(wind_speed)
+    heights, alphas = _checked_heights(height, shear_exponent)
+    paper_table4 = bool(paper_table4)
+    if bench_coverage_factor is None:
+        bench_coverage_factor = 1.0 if paper_table4 else 2.0
+    inputs = _checked_inputs(
+        mean_between_run_std_std=mean_between_run_std_std,
+        mean_between_run_std_bias=mean_between_run_std_bias,
+        n_runs=n_runs, n_los_samples=n_los_samples, bench_uncertainty=bench_uncertainty,
+        bench_coverage_factor=bench_coverage_factor, beam_angle_uncertainty=beam_angle_uncertainty,
+        zero_distance_uncertainty=zero_distance_uncertainty, cone_angle=cone_angle)
+    # Eq. 11: the range error of Zd moves an oblique beam's gate by dz cos(phi) in height
+    cos_phi = float(np.cos(np.deg2rad(inputs["cone_angle"])))
+    inputs["zero_distance_projection"] = 1.0 if paper_table4 else cos_phi
+    if bias_repeatability_n not in ("los_samples", "runs"):
+        raise InputError(f"argument 'bias_repeatability_n': expected 'los_samples' or 'runs'; "
+                         f"found {bias_repeatability_n!r}")
+    if beam_angle_coefficient is not None:
+        beam_angle_coefficient = _positive(beam_angle_coefficient, "beam_angle_coefficient", "")
+        inputs["beam_angle_coefficient"] = beam_angle_coefficient
+    derived = _derived_inputs(noise_terms, los_noise_std, hybrid_weight)
+    inputs.update(derived)
+    n_bias = inputs["n_los_samples"] if bias_repeatability_n == "los_samples" else inputs["n_runs"]
+    per_height = [table4_kernel(
+        ws, std_repeatability=inputs["mean_between_run_std_std"],
+        bias_repeatability=inputs["mean_between_run_std_bias"], n_bias=n_bias,
+        n_los_samples=inputs["n_los_samples"],
+        bench_uncertainty=inputs["bench_uncertainty"] / inputs["bench_coverage_factor"],
+        beam_angle_uncertainty=np.deg2rad(inputs["beam_angle_uncertainty"]),
+        zero_distance_uncertainty=inputs["zero_distance_uncertainty"],
+        shear_exponent=alpha, height=z, cone_angle=np.deg2rad(inputs["cone_angle"]),
+        beam_angle_coefficient=beam_angle_coefficient, noise_terms=noise_terms,
+        zero_distance_projection=inputs["zero_distance_projection"], **derived,
+    ) for z, alpha in zip(np.atleast_1d(heights), alphas, strict=True)]
+    inputs = {name: (alphas if name == "shear_exponent" else inputs[name]) for name in INPUT_NAMES
+              if name in inputs or name == "shear_exponent"}
+    return _Table4(ws, heights, alphas, inputs, per_height, n_bias, beam_angle_coefficient, paper_table4)
+
+
+def _total(terms: np.ndarray) -> np.ndarray:
+    """Quadrature sum of the contributors (the last axis but the wind speeds')."""
+    return np.sqrt(np.sum(terms**2, axis=1))
+
+
+def table4_total(wind_speed: Any, **inputs: Any) -> np.ndarray:
+    """Return Table 4's total (m s-1) on (height, wind speed), without building the artefact.
+
+    ``inputs`` as for :func:`uncertainty_terms` (``height`` 1-D); the values are its ``total``
+    variable's.  What :func:`lidarcal.analysis.budget.budget` needs when given no terms.
+    """
+    return np.stack([_total(terms) for terms in _table4(wind_speed, **inputs).per_height])
+
+
 def uncertainty_terms(
     wind_speed: Any,
     *,
@@ -281,42 +370,18 @@ def uncertainty_terms(
     >>> at.total.dims, round(float(at.uncertainty.sel(wind_speed=10, height=50)[-1]), 4)
     (('wind_speed', 'height'), 0.0159)
     """
-    ws = _checked_wind_speeds(wind_speed)
-    heights, alphas = _checked_heights(height, shear_exponent)
-    paper_table4 = bool(paper_table4)
-    if bench_coverage_factor is None:
-        bench_coverage_factor = 1.0 if paper_table4 else 2.0
-    inputs = _checked_inputs(
-        mean_between_run_std_std=mean_between_run_std_std,
-        mean_between_run_std_bias=mean_between_run_std_bias,
-        n_runs=n_runs, n_los_samples=n_los_samples, bench_uncertainty=bench_uncertainty,
-        bench_coverage_factor=bench_coverage_factor, beam_angle_uncertainty=beam_angle_uncertainty,
-        zero_distance_uncertainty=zero_distance_uncertainty, cone_angle=cone_angle)
-    # Eq. 11: the range error of Zd moves an oblique beam's gate by dz cos(phi) in height
-    cos_phi = float(np.cos(np.deg2rad(inputs["cone_angle"])))
-    inputs["zero_distance_projection"] = 1.0 if paper_table4 else cos_phi
-    if bias_repeatability_n not in ("los_samples", "runs"):
-        raise InputError(f"argument 'bias_repeatability_n': expected 'los_samples' or 'runs'; "
-                         f"found {bias_repeatability_n!r}")
-    if beam_angle_coefficient is not None:
-        beam_angle_coefficient = _positive(beam_angle_coefficient, "beam_angle_coefficient", "")
-        inputs["beam_angle_coefficient"] = beam_angle_coefficient
-    derived = _derived_inputs(noise_terms, los_noise_std, hybrid_weight)
-    inputs.update(derived)
-    n_bias = inputs["n_los_samples"] if bias_repeatability_n == "los_samples" else inputs["n_runs"]
-    per_height = [table4_kernel(
-        ws, std_repeatability=inputs["mean_between_run_std_std"],
-        bias_repeatability=inputs["mean_between_run_std_bias"], n_bias=n_bias,
-        n_los_samples=inputs["n_los_samples"],
-        bench_uncertainty=inputs["bench_uncertainty"] / inputs["bench_coverage_factor"],
-        beam_angle_uncertainty=np.deg2rad(inputs["beam_angle_uncertainty"]),
-        zero_distance_uncertainty=inputs["zero_distance_uncertainty"],
-        shear_exponent=alpha, height=z, cone_angle=np.deg2rad(inputs["cone_angle"]),
-        beam_angle_coefficient=beam_angle_coefficient, noise_terms=noise_terms,
-        zero_distance_projection=inputs["zero_distance_projection"], **derived,
-    ) for z, alpha in zip(np.atleast_1d(heights), alphas, strict=True)]
-    inputs = {name: (alphas if name == "shear_exponent" else inputs[name]) for name in INPUT_NAMES
-              if name in inputs or name == "shear_exponent"}
+    t = _table4(wind_speed, mean_between_run_std_std=mean_between_run_std_std,
+                mean_between_run_std_bias=mean_between_run_std_bias, n_runs=n_runs,
+                n_los_samples=n_los_samples, bench_uncertainty=bench_uncertainty,
+                beam_angle_uncertainty=beam_angle_uncertainty,
+                zero_distance_uncertainty=zero_distance_uncertainty,
+                shear_exponent=shear_exponent, height=height, cone_angle=cone_angle,
+                beam_angle_coefficient=beam_angle_coefficient, bias_repeatability_n=bias_repeatability_n,
+                bench_coverage_factor=bench_coverage_factor, noise_terms=noise_terms,
+                paper_table4=paper_table4, los_noise_std=los_noise_std, hybrid_weight=hybrid_weight)
+    ws, heights, alphas, inputs, per_height = t.ws, t.heights, t.alphas, t.inputs, t.per_height
+    n_bias = t.n_bias
+    beam_angle_coefficient, paper_table4 = t.beam_angle_coefficient, t.paper_table4
     ds = _to_dataset(ws, per_height, heights, inputs)
     stacked = np.ndim(heights) == 1
     config = {**{k: (v if stacked else v[0]) if k == "shear_exponent" else v for k, v in inputs.items()},
@@ -429,7 +494,7 @@ def _to_dataset(ws: np.ndarray, per_height: list[np.ndarray], heights: Any,
     values: dict[str, list[np.ndarray]] = {"uncertainty": [], "relative_uncertainty": [], "total": [],
                                            "total_relative": []}
     for terms in per_height:
-        total = np.sqrt(np.sum(terms**2, axis=1))
+        total = _total(terms)
         values["uncertainty"].append(terms)
         values["relative_uncertainty"].append(100.0 * terms / ws[:, None])
         values["total"].append(total)

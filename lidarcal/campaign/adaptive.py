@@ -34,24 +34,19 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import xarray as xr
 from scipy import stats
 
-from lidarcal.analysis.budget import (
-    DEFAULT_CERTIFIED_RANGE,
-    DEFAULT_MIN_PERIODS,
-    DEFAULT_SIGNIFICANT_DIGITS,
-    TRIAL_VARIABLES,
-    budget,
-)
+from lidarcal.analysis.budget import TRIAL_VARIABLES, budget
 from lidarcal.analysis.certification import digits_text
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.binning import bin_index
-from lidarcal.campaign.progress import Progress
 from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_replicas
+from lidarcal.campaign.settings import Execution
 from lidarcal.errors import InputError
 from lidarcal.schema import output_attrs
 
@@ -148,20 +143,12 @@ def adaptive_replicas(
     model,
     *,
     terms: xr.Dataset | None = None,
-    significant_digits: int = DEFAULT_SIGNIFICANT_DIGITS,
+    rule: CertificationRule | Mapping[str, Any] | None = None,
     max_replicas: int = DEFAULT_MAX_REPLICAS,
-    min_periods: int = DEFAULT_MIN_PERIODS,
-    certified_range: tuple[float, float] = DEFAULT_CERTIFIED_RANGE,
     bin_width: Any = "0.5 m s-1",
-    coverage_factor: float = 2.0,
-    coverage_interval: str = "symmetric",
     base_seed: int = DEFAULT_BASE_SEED,
-    chunk: int = 64,
-    scheduler: Any = None,
-    workers: int | None = None,
-    workdir: str | os.PathLike | None = None,
-    progress: Any = False,
     duration: float = 600.0,
+    execution: Execution | Mapping[str, Any] | None = None,
 ) -> tuple[xr.Dataset, xr.Dataset]:
     """Add Monte Carlo replicas to ``records`` until every certified value has settled.
 
@@ -170,11 +157,12 @@ def adaptive_replicas(
     records : xarray.Dataset
         Replica 0: the ``simulated_rtd`` records of ``conditions`` simulated with ``model`` and
         ``base_seed`` (at the records' heights).
-    conditions, model, base_seed, chunk, scheduler, workers, workdir, progress, duration
+    conditions, model, base_seed, duration, execution
         As for :func:`~lidarcal.campaign.simulate_campaign` (the same conditions, model, seed and
         duration as replica 0).
-    terms, min_periods, certified_range, bin_width, coverage_factor, significant_digits, coverage_interval
-        As for :func:`lidarcal.analysis.budget.budget`: what is certified and the values settled.
+    terms, rule, bin_width
+        As for :func:`lidarcal.analysis.budget.budget`: what is certified and the values settled
+        (:class:`~lidarcal.analysis.rule.CertificationRule`).
     max_replicas : int
         Most replicas, replica 0 included (1: none added).
 
@@ -189,11 +177,10 @@ def adaptive_replicas(
     if int(records.attrs.get("lidarcal_base_seed", base_seed)) != int(base_seed):
         raise InputError(f"records were simulated with base seed {records.attrs['lidarcal_base_seed']}; "
                          f"replicas asked with {base_seed}")
-    opts = dict(terms=terms, min_periods=min_periods, certified_range=certified_range, bin_width=bin_width,
-                coverage_factor=coverage_factor, significant_digits=significant_digits,
-                coverage_interval=coverage_interval)
+    rule = CertificationRule.of(rule)
+    opts = dict(terms=terms, rule=rule, bin_width=bin_width)
     heights = [float(z) for z in records["height"].values]
-    progress = Progress.of(progress)
+    run = Execution.of(execution)
     trials: list[dict[str, np.ndarray]] = []
     current = with_trials(records, trials)
     bud = budget(current, **opts)
@@ -205,13 +192,12 @@ def adaptive_replicas(
         first, last = min(cells), max(cells)
         log.info("Monte Carlo replicas %s: %d certified bin(s) not settled to %s; re-simulating %d "
                  "(period, height) cells", f"{first}-{last}" if last > first else first,
-                 int((bud["numerical_flag"] == 1).sum()), digits_text(significant_digits),
+                 int((bud["numerical_flag"] == 1).sum()), digits_text(rule.significant_digits),
                  int(sum(c.sum() for c in cells.values())))
         label = f"replicas {first}-{last}" if last > first else f"replica {first}"
         done = simulate_replicas(conditions, model, cells, list(cells), heights=heights, base_seed=base_seed,
-                                 chunk=chunk, scheduler=scheduler, workers=workers, workdir=workdir,
-                                 progress=progress.labelled(f"{label} (of at most {int(max_replicas)})"),
-                                 duration=duration)
+                                 duration=duration,
+                                 execution=run.labelled(f"{label} (of at most {int(max_replicas)})"))
         # keep only what the budget and the records need: memory grows by four numbers a trial
         trials += [{"replica": r, **{k: done[r][k] for k in _KEPT}} for r in sorted(done)]
         current = with_trials(records, trials)

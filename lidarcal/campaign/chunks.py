@@ -1,7 +1,11 @@
 """One chunk of a campaign: simulate consecutive periods, cache the result atomically.
 
-Everything here runs inside a Dask task (thread, process or ``dask.distributed`` worker), so
-the task payload is plain data (model as a dict, numpy arrays) and the function is pure: a
+A chunk is one :class:`ChunkTask`, built once by :mod:`lidarcal.campaign.run`: which periods,
+their inputs and seed keys, and its cache entry (``key``, named by :func:`chunk_key`, and the
+folder it is kept in).  :meth:`ChunkTask.cached` reads a finished chunk back; :func:`run_chunk`
+simulates one and keeps it.  :func:`run_chunk` runs inside a Dask task (thread, process or
+``dask.distributed`` worker), so the task is plain data (numpy arrays, the model as a dict,
+passed beside it because every chunk of a run shares it) and the function is pure: a
 period's result depends only on the model, its conditions and the seed entropy
 ``(base_seed, period_key)``, where :func:`period_keys` derives the key from the period's
 timestamp — never on the chunk it lands in, its position in the file, the worker or the order
@@ -14,6 +18,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,8 +30,8 @@ from lidarcal.errors import InputError
 from lidarcal.io import disk_full, part_path, publish, remove_stale_parts
 from lidarcal.lidar import LidarModel, simulate_period
 
-__all__ = ["OUTPUTS", "chunk_key", "chunk_path", "finished_chunks", "load_chunk", "period_keys", "run_chunk",
-           "seed_entropy"]
+__all__ = ["OUTPUTS", "ChunkTask", "chunk_key", "chunk_path", "finished_chunks", "load_chunk", "period_keys",
+           "run_chunk", "seed_entropy"]
 
 #: Per-height outputs of :func:`lidarcal.lidar.simulate_period` stored by the campaign.
 OUTPUTS = (
@@ -168,20 +173,59 @@ def _save_atomic(path: Path, key: str, result: dict[str, np.ndarray]) -> None:
             tmp.unlink()
 
 
-def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
-    """Simulate the periods of one chunk (runs on a worker).
+@dataclass(frozen=True)
+class ChunkTask:
+    """One chunk as a worker simulates it: consecutive (or selected) periods at the campaign's heights.
 
-    ``task`` holds ``model`` (the full dict, ``LidarModel.to_dict(residuals=True)``: a worker
-    needs every bench residual to resample bit for bit), ``heights`` (h,), the six ``INPUTS`` arrays (n, h),
-    ``valid`` (n, h) bool, ``period_index`` (n,) (position in the file: names the stored LOS
-    series), ``period_key`` (n,) (seed key, :func:`period_keys`), ``los`` (n,) bool,
-    ``base_seed``, ``duration``, and optionally ``workdir``/``key`` to cache the result atomically.
-    Returns ``{output: (n, h) array}`` plus ``los`` (``{period_index: {name: array}}``).
+    Plain data, so it pickles to any worker.  ``inputs`` are the six :data:`INPUTS` (n, h);
+    ``valid`` (n, h) the cells to simulate; ``period_index`` (n,) the periods' positions in the
+    conditions (they name the stored LOS series); ``period_key`` (n,) their seed keys
+    (:func:`period_keys`); ``los`` (n,) the periods whose LOS series are kept; ``replica`` the
+    Monte Carlo replica (0: the campaign's own streams).  ``key`` (:func:`chunk_key`), ``start``
+    and ``stop`` name the chunk's cache entry in ``workdir`` (none without one); ``name`` is its
+    Dask task.
     """
-    model = LidarModel.from_dict(task["model"])
-    replica = task.get("replica", 0)
-    heights = np.asarray(task["heights"], dtype=float)
-    valid = np.asarray(task["valid"], dtype=bool)
+
+    name: str
+    heights: np.ndarray
+    inputs: dict[str, np.ndarray]
+    valid: np.ndarray
+    period_index: np.ndarray
+    period_key: np.ndarray
+    los: np.ndarray
+    base_seed: int
+    duration: float
+    key: str
+    start: int
+    stop: int
+    replica: int = 0
+    workdir: str | None = None
+
+    @property
+    def periods(self) -> int:
+        """Periods the chunk simulates."""
+        return self.stop - self.start
+
+    def cached(self) -> dict[str, Any] | None:
+        """Return the chunk's result kept in ``workdir`` by an earlier run (LOS series included), or None."""
+        if self.workdir is None:
+            return None
+        found = load_chunk(chunk_path(self.workdir, self.start, self.stop, self.key), self.key, self.periods,
+                           len(self.heights))
+        return None if found is None else unflatten_los(found)
+
+
+def run_chunk(task: ChunkTask, model: dict[str, Any]) -> dict[str, Any]:
+    """Simulate the periods of one chunk (runs on a worker); keep the result if ``task.workdir``.
+
+    ``model`` is the full dict, ``LidarModel.to_dict(residuals=True)``: a worker needs every bench
+    residual to resample bit for bit.  Returns ``{output: (n, h) array}`` plus ``los``
+    (``{period_index: {name: array}}``).
+    """
+    lidar = LidarModel.from_dict(model)
+    replica = task.replica
+    heights = np.asarray(task.heights, dtype=float)
+    valid = np.asarray(task.valid, dtype=bool)
     n, nh = valid.shape
     out = {name: np.full((n, nh), np.nan) for name in OUTPUTS}
     los: dict[int, dict[str, np.ndarray]] = {}
@@ -192,15 +236,15 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
             cols = np.flatnonzero(valid[i])
             if cols.size == 0:
                 continue
-            pidx = int(task["period_index"][i])
-            want_los = bool(task["los"][i])
+            pidx = int(task.period_index[i])
+            want_los = bool(task.los[i])
             res = simulate_period(
                 # in replica r >= 1 of the mixture noise model each period draws p_bad(CNR) (docs/seeds.md)
-                model.for_trial(task["base_seed"], replica, task["period_key"][i]),
+                lidar.for_trial(task.base_seed, replica, task.period_key[i]),
                 heights=heights[cols],
-                **{name: np.asarray(task[name][i, cols], dtype=float) for name in INPUTS},
-                seed=seed_entropy(task["base_seed"], task["period_key"][i], replica),
-                duration=float(task["duration"]),
+                **{name: np.asarray(task.inputs[name][i, cols], dtype=float) for name in INPUTS},
+                seed=seed_entropy(task.base_seed, task.period_key[i], replica),
+                duration=float(task.duration),
                 return_los=want_los,
             )
             for name in OUTPUTS:
@@ -208,12 +252,12 @@ def run_chunk(task: dict[str, Any]) -> dict[str, Any]:
             if want_los:
                 los[pidx] = {"columns": cols,
                              **{k: np.asarray(v) for k, v in res.items() if k not in OUTPUTS}}
-    if task.get("workdir"):
+    if task.workdir:
         flat = dict(out)
         for pidx, extra in los.items():
             for k, v in extra.items():
                 flat[f"los__{pidx}__{k}"] = v
-        _save_atomic(chunk_path(task["workdir"], task["start"], task["stop"], task["key"]), task["key"], flat)
+        _save_atomic(chunk_path(task.workdir, task.start, task.stop, task.key), task.key, flat)
     return {**out, "los": los}
 
 

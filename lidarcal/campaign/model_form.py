@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -30,8 +31,8 @@ import xarray as xr
 
 from lidarcal.analysis.kernels import centred_edges
 from lidarcal.binning import bin_index
-from lidarcal.campaign.progress import Progress
 from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_replicas
+from lidarcal.campaign.settings import Execution
 from lidarcal.errors import InputError
 from lidarcal.lidar.model_form import ALTERNATIVES, alternative_models
 from lidarcal.schema import output_attrs
@@ -94,12 +95,8 @@ def model_form_runs(
     bin_width: Any = "0.5 m s-1",
     wind_speeds: tuple[float, float] | None = None,
     base_seed: int = DEFAULT_BASE_SEED,
-    chunk: int = 64,
-    scheduler: Any = None,
-    workers: int | None = None,
-    workdir: str | os.PathLike | None = None,
-    progress: Any = False,
     duration: float = 600.0,
+    execution: Execution | Mapping[str, Any] | None = None,
 ) -> xr.Dataset:
     """Simulate every alternative of ``model`` on the selected periods; return ``records`` with the runs.
 
@@ -108,8 +105,9 @@ def model_form_runs(
     records : xarray.Dataset
         Replica 0: the ``simulated_rtd`` records of ``conditions`` simulated with ``model`` and
         ``base_seed`` (the runs reuse its seeds: common random numbers).
-    conditions, model, base_seed, chunk, scheduler, workers, workdir, progress, duration
-        As for :func:`~lidarcal.campaign.simulate_campaign`.
+    conditions, model, base_seed, duration, execution
+        As for :func:`~lidarcal.campaign.simulate_campaign`; each alternative keeps its chunks in its
+        own ``model-form-<name>`` folder of ``execution.workdir``.
     per_bin, bin_width, wind_speeds
         At most ``per_bin`` periods per (height, reference wind-speed bin), only the bins with
         centres in ``wind_speeds`` when given (:func:`select_periods`).
@@ -130,13 +128,13 @@ def model_form_runs(
     heights = [float(z) for z in records["height"].values]
     log.info("model form: %d alternative(s) (%s) on %d (period, height) cells, at most %d per bin, with the "
              "nominal run's seeds", len(models), ", ".join(models), int(cells.sum()), int(per_bin))
+    run = Execution.of(execution)
     runs = {}
     for i, (name, alt) in enumerate(models.items(), 1):
-        where = None if workdir is None else os.path.join(os.fspath(workdir), f"model-form-{name}")
-        said = Progress.of(progress).labelled(f"model form {name} ({i} of {len(models)})")
+        where = None if run.workdir is None else os.path.join(os.fspath(run.workdir), f"model-form-{name}")
+        said = run.labelled(f"model form {name} ({i} of {len(models)})").replace(workdir=where)
         runs[name] = simulate_replicas(conditions, alt, cells, [0], heights=heights, base_seed=base_seed,
-                                       chunk=chunk, scheduler=scheduler, workers=workers, workdir=where,
-                                       progress=said, duration=duration)[0]
+                                       duration=duration, execution=said)[0]
     return with_model_form(records, models, runs, per_bin=int(per_bin))
 
 

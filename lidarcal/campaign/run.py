@@ -1,7 +1,7 @@
 """Dask-parallel, resumable Monte Carlo over a campaign of 10-minute periods.
 
 :func:`simulate_campaign` splits the periods of a ``conditions`` input into chunks of
-``chunk`` consecutive periods, runs one Dask task per chunk (deterministic task names
+``execution.chunk`` consecutive periods, runs one Dask task per chunk (deterministic task names
 ``lidarcal-chunk-<key>-<start>-<stop>``) and assembles the ``simulated_rtd`` artefact.
 
 * **Seeds** — a period uses the entropy ``(base_seed, period_key)``, the key being the whole
@@ -12,11 +12,14 @@
   ``xr.open_mfdataset``) equal the whole run bit for bit.  Every record carries its
   ``period_key`` and ``base_seed`` (time variables), so ensemble members with different base
   seeds stay distinguishable after concatenation.
+* **Execution** — where and how the chunks run is one :class:`~lidarcal.campaign.settings.Execution`
+  (``execution``: chunk size, scheduler, workers, chunk cache, progress, timeouts); none of it
+  changes a number.
 * **Schedulers** — ``None``/``"processes"`` (local process pool, the default), ``"threads"``,
   ``"synchronous"``, ``"local"`` (a ``distributed.LocalCluster`` of single-threaded worker
   processes), an address ``"tcp://host:port"`` of a running ``dask.distributed`` scheduler,
   or a ``distributed.Client``.  Worker processes get ``OPENBLAS/MKL/OMP_NUM_THREADS=1``.
-* **Resume** — with ``workdir`` every finished chunk is saved atomically as
+* **Resume** — with ``execution.workdir`` every finished chunk is saved atomically as
   ``chunk-<start>-<stop>-<key>.npz`` where the key hashes (conditions checksum, model, base
   seed, chunk bounds, period keys, heights, duration); a re-run loads finished chunks instead of
   recomputing them, so a killed run resumes and gives the identical result.  With
@@ -40,19 +43,10 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.campaign.chunks import (
-    INPUTS,
-    OUTPUTS,
-    chunk_key,
-    chunk_path,
-    load_chunk,
-    make_workdir,
-    period_keys,
-    unflatten_los,
-)
+from lidarcal.campaign.chunks import INPUTS, OUTPUTS, ChunkTask, chunk_key, make_workdir, period_keys
 from lidarcal.campaign.los import los_variables
-from lidarcal.campaign.progress import Progress
-from lidarcal.campaign.scheduler import WORKER_TIMEOUT, execute
+from lidarcal.campaign.scheduler import execute
+from lidarcal.campaign.settings import Execution
 from lidarcal.cf import height_coord, time_coord
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES
@@ -94,15 +88,9 @@ def simulate_campaign(
     *,
     heights: Sequence[float] | None = None,
     base_seed: int = DEFAULT_BASE_SEED,
-    chunk: int = 64,
-    scheduler: Any = None,
-    workers: int | None = None,
-    workdir: str | os.PathLike | None = None,
-    progress: Any = False,
     los_periods: Sequence[int] = (),
     duration: float = 600.0,
-    connect_timeout: float = 5.0,
-    worker_timeout: float = WORKER_TIMEOUT,
+    execution: Execution | Mapping[str, Any] | None = None,
     call: str | None = None,
     inputs: dict[str, str | os.PathLike] | None = None,
 ) -> xr.Dataset:
@@ -119,27 +107,16 @@ def simulate_campaign(
     base_seed : int
         A period at time ``t`` uses ``SeedSequence([base_seed, period_key, round(height * 1000)])``
         with ``period_key`` the whole seconds of ``t`` since 1970-01-01T00:00:00 (docs/seeds.md).
-    chunk : int
-        Periods per Dask task (does not change the result).
-    scheduler : None, str or distributed.Client
-        See the module docstring; ``None`` runs a local process pool.
-    workers : int, optional
-        Worker processes/threads for local schedulers (default: number of CPUs).
-    workdir : path, optional
-        Directory for the resumable chunk cache (created if missing).
-    progress : bool, str or Progress
-        How to report progress (:class:`~lidarcal.campaign.progress.Progress`): True a tqdm bar,
-        ``"lines"`` a line every 30 s (periods done, time left), False nothing.
     los_periods : sequence of int
         Period indices whose LOS time series are kept (``return_los=True``).
     duration : float
         Period length in s (600).
-    connect_timeout : float
-        Seconds to wait for a remote scheduler before raising :class:`~lidarcal.errors.InputError`.
-    worker_timeout : float
-        With ``dask.distributed``: seconds to wait while no worker is connected (none joined yet,
-        or every one was lost) before raising :class:`~lidarcal.errors.ComputeError`.  Workers
-        are checked for this lidarcal version before any task is submitted.
+    execution : Execution or mapping, optional
+        Where and how the chunks run (:class:`~lidarcal.campaign.settings.Execution`: ``chunk``,
+        ``scheduler``, ``workers``, ``workdir``, ``progress``, ``connect_timeout``,
+        ``worker_timeout``; a mapping of these fields, or None for the defaults: a local process
+        pool, 64 periods a chunk, no cache).  With ``dask.distributed`` workers are checked for
+        this lidarcal version before any task is submitted.  None of it changes the result.
     call : str, optional
         Command line recorded in the history (default: a description of this call).
     inputs : mapping of role to path, optional
@@ -153,19 +130,21 @@ def simulate_campaign(
         (0 where a period was skipped for missing input), ``period_key`` and ``base_seed`` (the
         seed entropy of each period).
     """
-    camp = _prepare(conditions, model, heights, chunk, los_periods)
-    chunk = int(chunk)
-    # the chunk key takes the attribute form (residuals by digest), the workers the full model
-    results, tasks, bounds = _schedule(camp, model.to_dict(), base_seed, chunk, duration, workdir,
-                                       transport=model.to_dict(residuals=True))
-    _say_reused(len(results), len(results) + len(tasks), workdir, Progress.of(progress).label)
-    for name, result in execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
-        results[bounds[name][0]] = result
-    out = {name: np.concatenate([results[s][name] for s in sorted(results)], axis=0) for name in OUTPUTS}
-    los_data = {p: v for s in sorted(results) for p, v in results[s]["los"].items()}
+    run = Execution.of(execution)
+    camp = _prepare(conditions, model, heights, los_periods)
+    if run.workdir is not None:
+        make_workdir(run.workdir)
+    where = None if run.workdir is None else os.fspath(run.workdir)
+    model_dict = model.to_dict()
+    tasks = [_task(camp, model_dict, base_seed, duration, np.arange(start, min(start + run.chunk, camp.n)),
+                   start, name="lidarcal-chunk-{key}-{start}-{stop}", los=camp.los, workdir=where)
+             for start in range(0, camp.n, run.chunk)]
+    results = _run(model, tasks, run)
+    out = {name: np.concatenate([res[name] for res in results], axis=0) for name in OUTPUTS}
+    los_data = {p: v for res in results for p, v in res["los"].items()}
     ds = _assemble(camp.cond, camp.hidx, out, camp.valid, los_data, camp.keys, base_seed)
-    return _describe(ds, camp, model, base_seed=base_seed, chunk=chunk, duration=duration,
-                     scheduler=scheduler, workers=workers, call=call, inputs=inputs)
+    return _describe(ds, camp, model, base_seed=base_seed, duration=duration, execution=run, call=call,
+                     inputs=inputs)
 
 
 def simulate_replicas(
@@ -176,21 +155,15 @@ def simulate_replicas(
     *,
     heights: Sequence[float] | None = None,
     base_seed: int = DEFAULT_BASE_SEED,
-    chunk: int = 64,
-    scheduler: Any = None,
-    workers: int | None = None,
-    workdir: str | os.PathLike | None = None,
-    progress: Any = False,
     duration: float = 600.0,
-    connect_timeout: float = 5.0,
-    worker_timeout: float = WORKER_TIMEOUT,
+    execution: Execution | Mapping[str, Any] | None = None,
 ) -> dict[int, dict[str, np.ndarray]]:
     """Monte Carlo replicas (>= 1) of the (period, height) ``cells`` of a campaign (JCGM 101 7.9).
 
     Replica ``r`` re-simulates the cells marked in ``cells`` ((time, height) bool over the
     simulated heights; or a mapping replica -> such a mask, each replica its own) with the seed
-    entropy ``(base_seed, r, period_key)`` (docs/seeds.md), as Dask tasks of ``chunk`` selected
-    periods, one set of tasks per replica, all submitted together.  Replica 0 re-uses the
+    entropy ``(base_seed, r, period_key)`` (docs/seeds.md), as Dask tasks of ``execution.chunk``
+    selected periods, one set of tasks per replica, all submitted together.  Replica 0 re-uses the
     campaign's own streams ``(base_seed, period_key)``: with another ``model`` that is a
     common-random-numbers run (:mod:`lidarcal.campaign.model_form`).  Like
     :func:`simulate_campaign` the result does not depend on the chunk size, the workers or the
@@ -206,7 +179,9 @@ def simulate_replicas(
     """
     with warnings.catch_warnings():  # replica 0 has reported the periods it skips
         warnings.simplefilter("ignore", SkippedPeriodsWarning)
-        camp = _prepare(conditions, model, heights, chunk, ())
+        camp = _prepare(conditions, model, heights, ())
+    run = Execution.of(execution)
+    chunk, workdir = run.chunk, run.workdir
     replicas = [int(r) for r in replicas]
     masks = {r: np.asarray(cells[r] if isinstance(cells, Mapping) else cells, dtype=bool) for r in replicas}
     for r, mask in masks.items():
@@ -216,13 +191,10 @@ def simulate_replicas(
     if any(r < 0 for r in replicas):
         raise InputError(f"replicas are numbered from 0 (replica 0: the campaign's own streams); "
                          f"got {replicas}")
-    chunk = int(chunk)
     todo = {r: camp.valid & masks[r] for r in replicas}
     sel = {r: np.flatnonzero(todo[r].any(axis=1)) for r in replicas}
-    model_dict, transport = model.to_dict(), model.to_dict(residuals=True)
-    results: dict[tuple[int, int], dict] = {}
-    tasks: list[tuple[str, dict]] = []
-    bounds: dict[str, tuple[int, int]] = {}
+    model_dict = model.to_dict()
+    tasks: list[ChunkTask] = []
     for r in replicas:
         where = None if workdir is None else os.path.join(os.fspath(workdir), f"replica-{r:04d}")
         if where is not None:
@@ -232,28 +204,14 @@ def simulate_replicas(
             # "rate_draw": a replica's p_bad(CNR) curves are drawn per period (were per replica)
             extra = {"replica": r, "periods": idx.tolist(), "cells": todo[r][idx].astype(int).tolist(),
                      "rate_draw": "trial"}
-            key = chunk_key(camp.checksum, model_dict, base_seed, a, a + idx.size, camp.z, duration, (),
-                            keys=camp.keys[idx], extra=extra)
-            if where is not None:
-                cached = load_chunk(chunk_path(where, a, a + idx.size, key), key, idx.size, camp.z.size)
-                if cached is not None:
-                    results[(r, a)] = cached
-                    continue
-            name = f"lidarcal-replica-{r}-{key[:16]}-{a}"
-            bounds[name] = (r, a)
-            tasks.append((name, {
-                "model": transport, "heights": camp.z, **{k: v[idx] for k, v in camp.arrays.items()},
-                "valid": todo[r][idx], "period_index": idx, "period_key": camp.keys[idx],
-                "los": np.zeros(idx.size, dtype=bool), "base_seed": int(base_seed), "replica": r,
-                "duration": float(duration), "workdir": where, "key": key, "start": a, "stop": a + idx.size,
-            }))
-    _say_reused(len(results), len(results) + len(tasks), workdir, Progress.of(progress).label)
-    for name, result in execute(tasks, scheduler, workers, progress, connect_timeout, worker_timeout):
-        results[bounds[name]] = result
+            tasks.append(_task(camp, model_dict, base_seed, duration, idx, a,
+                               name=f"lidarcal-replica-{r}-{{key}}-{a}", valid=todo[r][idx], replica=r,
+                               extra=extra, workdir=where))
+    results = iter(_run(model, tasks, run))  # in the order of the tasks: replica, then chunk
     out: dict[int, dict[str, np.ndarray]] = {}
     for r in replicas:
         rows, cols = np.nonzero(todo[r][sel[r]])
-        parts = [results[(r, a)] for a in range(0, sel[r].size, chunk)]
+        parts = [next(results) for _ in range(0, sel[r].size, chunk)]
         full = {name: (np.concatenate([p[name] for p in parts], axis=0) if parts
                        else np.empty((0, camp.z.size))) for name in OUTPUTS}
         out[r] = {"period": sel[r][rows], "height": camp.z[cols],
@@ -261,10 +219,45 @@ def simulate_replicas(
     return out
 
 
-def _say_reused(reused: int, total: int, workdir, label: str) -> None:
-    """Log how many of the chunks were found finished in ``workdir`` (a resumed run)."""
+def _task(camp: _Campaign, model_dict: dict, base_seed: int, duration: float, rows: np.ndarray, start: int, *,
+          name: str, valid: np.ndarray | None = None, los: Sequence[int] = (), replica: int = 0,
+          extra: dict | None = None, workdir: str | None = None) -> ChunkTask:
+    """Return the chunk simulating the periods ``rows`` of ``camp`` (the cells ``valid``; default: all valid).
+
+    ``start`` is the chunk's first position (its cache entry runs from ``start`` to ``start`` +
+    the periods), ``model_dict`` (the attribute form, residuals by digest) and ``extra`` enter its
+    key (:func:`~lidarcal.campaign.chunks.chunk_key`), ``name`` (with ``{key}``, ``{start}``,
+    ``{stop}``) names its Dask task.
+    """
+    stop = start + rows.size
+    key = chunk_key(camp.checksum, model_dict, base_seed, start, stop, camp.z, duration, tuple(los),
+                    keys=camp.keys[rows], extra=extra)
+    return ChunkTask(
+        name=name.format(key=key[:16], start=start, stop=stop), heights=camp.z,
+        inputs={k: v[rows] for k, v in camp.arrays.items()},
+        valid=camp.valid[rows] if valid is None else valid, period_index=rows, period_key=camp.keys[rows],
+        los=np.isin(rows, list(los)), base_seed=int(base_seed), duration=float(duration), key=key,
+        start=start, stop=stop, replica=int(replica), workdir=workdir,
+    )
+
+
+def _run(model, tasks: list[ChunkTask], run: Execution) -> list[dict[str, Any]]:
+    """Return the result of every chunk in ``tasks`` (in their order): from the cache, else simulated."""
+    results = [task.cached() for task in tasks]
+    todo = [task for task, result in zip(tasks, results, strict=True) if result is None]
+    _say_reused(len(tasks) - len(todo), len(tasks), run)
+    index = {task.name: i for i, task in enumerate(tasks)}
+    # the chunk key takes the attribute form (residuals by digest), the workers the full model
+    for name, result in execute(model.to_dict(residuals=True), todo, run):
+        results[index[name]] = result
+    return results
+
+
+def _say_reused(reused: int, total: int, run: Execution) -> None:
+    """Log how many of the chunks were found finished in the chunk cache (a resumed run)."""
     if reused:
-        log.info("%s: reusing %d of %d chunks finished earlier (kept in %s)", label, reused, total, workdir)
+        log.info("%s: reusing %d of %d chunks finished earlier (kept in %s)", run.progress.label, reused,
+                 total, run.workdir)
 
 
 @dataclass(frozen=True)
@@ -293,7 +286,7 @@ class _Campaign:
         return self.cond.attrs["lidarcal_conditions_checksum"]
 
 
-def _prepare(conditions, model, heights, chunk, los_periods) -> _Campaign:
+def _prepare(conditions, model, heights, los_periods) -> _Campaign:
     """Check the model and options against the conditions; load the inputs the chunks need."""
     if not isinstance(model, LidarModel):
         raise InputError(f"model must be a lidarcal.lidar.LidarModel; got {type(model).__name__}")
@@ -306,8 +299,6 @@ def _prepare(conditions, model, heights, chunk, los_periods) -> _Campaign:
         raise InputError(
             f"{source}: heights the lidar cannot measure with this RWF/geometry: " + "; ".join(problems)
         )
-    if int(chunk) < 1:
-        raise InputError(f"chunk must be >= 1 period; got {int(chunk)}")
     n = cond.sizes["time"]
     los = sorted({int(i) for i in los_periods})
     bad = [i for i in los if not 0 <= i < n]
@@ -331,52 +322,7 @@ def _prepare(conditions, model, heights, chunk, los_periods) -> _Campaign:
                      keys=keys)
 
 
-def _schedule(
-    camp: _Campaign, model_dict: dict, base_seed: int, chunk: int, duration: float, workdir,
-    transport: dict | None = None,
-) -> tuple[dict[int, dict], list[tuple[str, dict]], dict[str, tuple[int, int]]]:
-    """Split the periods into chunks; return (cached results by start, tasks to run, task bounds).
-
-    ``model_dict`` (the attribute form) keys the chunks; ``transport`` (the full form, default
-    ``model_dict``) is what the tasks carry to the workers.
-    """
-    if workdir is not None:
-        make_workdir(workdir)
-    z = camp.z
-    results: dict[int, dict] = {}
-    tasks: list[tuple[str, dict]] = []
-    bounds: dict[str, tuple[int, int]] = {}
-    for start in range(0, camp.n, chunk):
-        stop = min(start + chunk, camp.n)
-        key = chunk_key(camp.checksum, model_dict, base_seed, start, stop, z, duration, tuple(camp.los),
-                        keys=camp.keys[start:stop])
-        if workdir is not None:
-            cached = load_chunk(chunk_path(workdir, start, stop, key), key, stop - start, z.size)
-            if cached is not None:
-                results[start] = unflatten_los(cached)
-                continue
-        name = f"lidarcal-chunk-{key[:16]}-{start}-{stop}"
-        bounds[name] = (start, stop)
-        payload = {
-            "model": model_dict if transport is None else transport,
-            "heights": z,
-            **{k: v[start:stop] for k, v in camp.arrays.items()},
-            "valid": camp.valid[start:stop],
-            "period_index": np.arange(start, stop),
-            "period_key": camp.keys[start:stop],
-            "los": np.isin(np.arange(start, stop), camp.los),
-            "base_seed": int(base_seed),
-            "duration": float(duration),
-            "workdir": os.fspath(workdir) if workdir is not None else None,
-            "key": key,
-            "start": start,
-            "stop": stop,
-        }
-        tasks.append((name, payload))
-    return results, tasks, bounds
-
-
-def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, chunk, duration, scheduler, workers,
+def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, duration, execution: Execution,
               call, inputs) -> xr.Dataset:
     """Add the run's attributes and provenance: the ``simulated_rtd`` artefact."""
     z, valid = camp.z, camp.valid
@@ -388,10 +334,8 @@ def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, chunk, durat
     config = {
         "model": model.to_dict(),
         "heights": z.tolist(),
-        "chunk": chunk,
+        **execution.record(),
         "duration": duration,
-        "scheduler": scheduler if isinstance(scheduler, str | type(None)) else "distributed.Client",
-        "workers": workers,
         "los_periods": camp.los,
         "conditions_checksum": camp.checksum,
     }
@@ -405,7 +349,8 @@ def _describe(ds: xr.Dataset, camp: _Campaign, model, *, base_seed, chunk, durat
             f"({model.description}) in synthetic turbulence driven by the conditions time series, "
             f"compared with a virtual cup-like point reference."
         ),
-        call=call or f"lidarcal.campaign.simulate_campaign({source!r}, base_seed={base_seed}, chunk={chunk})",
+        call=call or (f"lidarcal.campaign.simulate_campaign({source!r}, base_seed={base_seed}, "
+                      f"chunk={execution.chunk})"),
         inputs={**({"conditions": path} if path else {}), **(inputs or {})},
         input_datasets={"conditions": camp.cond},
         config=config,

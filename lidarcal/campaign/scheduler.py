@@ -1,12 +1,13 @@
 """Where a campaign's chunks run: local pools, a ``distributed.LocalCluster`` or a running scheduler.
 
-:func:`execute` runs ``(name, payload)`` chunk tasks of :func:`lidarcal.campaign.chunks.run_chunk`
-on the scheduler :func:`lidarcal.campaign.run.simulate_campaign` was given and yields each
-finished chunk.  It holds what the execution needs and nothing about the campaign itself:
-starting a cluster (:func:`local_cluster`, with :data:`WORKER_CONFIG`), one BLAS thread in the
-workers, connecting to a scheduler, the version probe of its workers, the polling that turns a
-lost worker or scheduler into one :class:`~lidarcal.errors.ComputeError`, and sharing the model
-the tasks have in common.  The seeds, the chunking and the artefact are :mod:`lidarcal.campaign.run`.
+:func:`execute` runs :class:`~lidarcal.campaign.chunks.ChunkTask` chunks with
+:func:`lidarcal.campaign.chunks.run_chunk` where the run's
+:class:`~lidarcal.campaign.settings.Execution` says and yields each finished chunk. It holds what
+the execution needs and nothing about the campaign itself: starting a cluster
+(:func:`local_cluster`, with :data:`WORKER_CONFIG`), one BLAS thread in the workers, connecting to a
+scheduler, the version probe of its workers, the polling that turns a lost worker or scheduler into
+one :class:`~lidarcal.errors.ComputeError`, and sharing the model the tasks have in common. The
+seeds, the chunking and the artefact are :mod:`lidarcal.campaign.run`.
 """
 
 from __future__ import annotations
@@ -24,8 +25,9 @@ from collections.abc import Iterator
 from typing import Any
 
 from lidarcal import __version__
-from lidarcal.campaign.chunks import run_chunk
+from lidarcal.campaign.chunks import ChunkTask, run_chunk
 from lidarcal.campaign.progress import Progress, Tracker
+from lidarcal.campaign.settings import WORKER_TIMEOUT, Execution
 from lidarcal.campaign.workers import BLAS_ENV, PARENT_PID_ENV, init_pool_worker, quiet_orphaned_gathers
 from lidarcal.errors import ComputeError, InputError
 
@@ -107,9 +109,6 @@ def _connect(address: str, timeout: float):
         ) from None
 
 
-#: Seconds a distributed run waits while no worker is connected (none yet, or all lost) before
-#: it fails with :class:`~lidarcal.errors.ComputeError`.
-WORKER_TIMEOUT = 60.0
 _POLL = 0.25  # s between checks of the workers while waiting for results
 
 # Run on every worker before any task: defined from source, so cloudpickle ships it by value and
@@ -191,7 +190,7 @@ def _log_dashboard(client, progress: Progress) -> None:
             progress.once(f"dask dashboard: {client.dashboard_link}")
 
 
-def _run_distributed(client, tasks: list[tuple[str, dict]], tracker: Tracker,
+def _run_distributed(client, model: dict, tasks: list[ChunkTask], tracker: Tracker,
                      worker_timeout: float = WORKER_TIMEOUT) -> Iterator[tuple[str, dict]]:
     """Run ``tasks`` on a ``distributed.Client``; fail within ``worker_timeout`` s if no worker is left.
 
@@ -206,9 +205,9 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], tracker: Tracker,
     quiet_orphaned_gathers()  # no AllExit traceback after our own message when workers die
     _log_dashboard(client, tracker.progress)
     _check_workers(client, address, worker_timeout)
-    periods = {name: _periods(payload) for name, payload in tasks}
-    tasks = _share_model(client, tasks)
-    futures = {client.submit(run_chunk, payload, key=name, pure=False): name for name, payload in tasks}
+    periods = {task.name: task.periods for task in tasks}
+    shared = _share_model(client, model)
+    futures = {client.submit(run_chunk, task, shared, key=task.name, pure=False): task.name for task in tasks}
     finished = False
     # a lost scheduler is reported once, by the ComputeError below, not by the client's own
     # reconnect logging (an ERROR with a traceback)
@@ -268,7 +267,7 @@ def _run_distributed(client, tasks: list[tuple[str, dict]], tracker: Tracker,
         quiet.setLevel(level)
 
 
-def _share_model(client, tasks: list[tuple[str, dict]]) -> list[tuple[str, dict]]:
+def _share_model(client, model: dict):
     """Send the model the tasks share (bench residuals: megabytes) to the cluster once, not per task.
 
     Without this every submitted task carries its own serialised copy, so the client's memory
@@ -277,18 +276,13 @@ def _share_model(client, tasks: list[tuple[str, dict]]) -> list[tuple[str, dict]
     scheduler computes it again on the next worker that joins (scattered data would be lost,
     and with it every chunk that needs it).
     """
-    shared = tasks[0][1].get("model") if tasks else None
-    if shared is None or any(payload.get("model") is not shared for _, payload in tasks):
-        return tasks
     try:
         with warnings.catch_warnings():  # "large object in task graph": sent once, on purpose
             warnings.simplefilter("ignore", UserWarning)
-            remote = client.submit(_shared_model, shared, pure=False,
-                                   key=f"lidarcal-model-{uuid.uuid4().hex}")
+            return client.submit(_shared_model, model, pure=False, key=f"lidarcal-model-{uuid.uuid4().hex}")
     except Exception as exc:  # comm closed, timeout: the scheduler is unreachable
         address = str(getattr(getattr(client, "scheduler", None), "address", None) or "the scheduler")
         raise _scheduler_gone(address, exc) from None
-    return [(name, {**payload, "model": remote}) for name, payload in tasks]
 
 
 def _shared_model(model):
@@ -296,24 +290,20 @@ def _shared_model(model):
     return model
 
 
-def _periods(payload: dict) -> int:
-    """Periods a chunk task simulates."""
-    return int(payload["stop"]) - int(payload["start"])
-
-
 def _run_local(
-    tasks: list[tuple[str, dict]], scheduler: str, workers: int | None, tracker: Tracker
+    model: dict, tasks: list[ChunkTask], scheduler: str, workers: int | None, tracker: Tracker
 ) -> Iterator[tuple[str, dict]]:
     import dask
     from dask.callbacks import Callback
 
-    delayed = [dask.delayed(run_chunk, pure=False)(payload, dask_key_name=name) for name, payload in tasks]
+    delayed = [dask.delayed(run_chunk, pure=False)(task, model, dask_key_name=task.name)
+               for task in tasks]
     kw: dict[str, Any] = {"scheduler": scheduler}
     if scheduler in ("processes", "threads") and workers:
         kw["num_workers"] = int(workers)
     if scheduler == "processes":  # one chunk per dispatch (dask's default is 6): each is reported as it
         kw["chunksize"] = 1  # finishes, and a few long chunks are not queued behind one worker
-    periods = {name: _periods(payload) for name, payload in tasks}
+    periods = {task.name: task.periods for task in tasks}
 
     def finished(key, result, dsk, state, worker_id) -> None:
         if key in periods:
@@ -328,30 +318,30 @@ def _run_local(
             }))
             stack.enter_context(_workers_skip_main())
         results = dask.compute(*delayed, **kw)
-    yield from zip((name for name, _ in tasks), results, strict=True)
+    yield from zip((task.name for task in tasks), results, strict=True)
 
 
-def execute(tasks, scheduler, workers, progress, connect_timeout,
-            worker_timeout=WORKER_TIMEOUT) -> Iterator[tuple[str, dict]]:
-    """Run the ``(name, payload)`` chunk tasks on ``scheduler`` and yield ``(name, result)`` as each finishes.
+def execute(model: dict, tasks: list[ChunkTask], execution: Execution) -> Iterator[tuple[str, dict]]:
+    """Run the chunk ``tasks`` of ``model`` as ``execution`` says; yield each ``(task name, result)``.
 
-    ``scheduler`` is a dask scheduler name, ``"local"``, an address or a ``distributed.Client``
-    (see :mod:`lidarcal.campaign.run`); faults end with one :class:`~lidarcal.errors.ComputeError`.
-    ``progress`` (:meth:`Progress.of`) reports the periods of the finished chunks.
+    ``execution.scheduler`` is a dask scheduler name, ``"local"``, an address or a
+    ``distributed.Client`` (see :mod:`lidarcal.campaign.run`); faults end with one
+    :class:`~lidarcal.errors.ComputeError`.  ``execution.progress`` reports the periods of the
+    finished chunks.
     """
     if not tasks:
         return
-    progress = Progress.of(progress)
-    with progress.tracker(sum(_periods(payload) for _, payload in tasks), len(tasks)) as tracker:
-        yield from _execute(tasks, scheduler, workers, tracker, connect_timeout, worker_timeout)
+    with execution.progress.tracker(sum(task.periods for task in tasks), len(tasks)) as tracker:
+        yield from _execute(model, tasks, execution.scheduler, execution.workers, tracker,
+                            execution.connect_timeout, execution.worker_timeout)
 
 
-def _execute(tasks, scheduler, workers, tracker: Tracker, connect_timeout,
+def _execute(model, tasks, scheduler, workers, tracker: Tracker, connect_timeout,
              worker_timeout) -> Iterator[tuple[str, dict]]:
     if scheduler is None:
         scheduler = "processes"
     if hasattr(scheduler, "submit"):  # a distributed.Client
-        yield from _run_distributed(scheduler, tasks, tracker, worker_timeout)
+        yield from _run_distributed(scheduler, model, tasks, tracker, worker_timeout)
         return
     if not isinstance(scheduler, str):
         raise InputError(
@@ -360,7 +350,7 @@ def _execute(tasks, scheduler, workers, tracker: Tracker, connect_timeout,
     if "://" in scheduler:
         client = _connect(scheduler, connect_timeout)
         try:
-            yield from _run_distributed(client, tasks, tracker, worker_timeout)
+            yield from _run_distributed(client, model, tasks, tracker, worker_timeout)
         finally:
             _close_quietly(client, connect_timeout)
         return
@@ -372,11 +362,11 @@ def _execute(tasks, scheduler, workers, tracker: Tracker, connect_timeout,
             local_cluster(n, dashboard_address=None) as cluster,
             Client(cluster, set_as_default=False) as client,
         ):
-            yield from _run_distributed(client, tasks, tracker, worker_timeout)
+            yield from _run_distributed(client, model, tasks, tracker, worker_timeout)
         return
     if scheduler not in ("processes", "threads", "synchronous", "sync", "single-threaded"):
         raise InputError(
             f"unknown scheduler {scheduler!r}; use 'processes', 'threads', 'synchronous', 'local', "
             f"an address such as 'tcp://127.0.0.1:8786', or a distributed.Client"
         )
-    yield from _run_local(tasks, scheduler, workers, tracker)
+    yield from _run_local(model, tasks, scheduler, workers, tracker)

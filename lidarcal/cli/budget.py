@@ -21,6 +21,7 @@ from lidarcal.cli.options import (
     add_output_options,
     positive,
     positive_quantity,
+    rule_of,
 )
 from lidarcal.io import check_writable, open_artefact, write_artefact
 
@@ -93,12 +94,8 @@ def run(args: argparse.Namespace) -> int:
         terms=terms,
         approach=args.approach,
         bin_width=args.bin_width,
-        min_periods=args.min_periods,
-        certified_range=tuple(args.certified_range),
-        significant_digits=args.significant_digits,
-        coverage_interval=args.coverage_interval,
+        rule=rule_of(args),
         heights=args.height,
-        coverage_factor=args.coverage_factor,
         noise_terms=args.noise_terms,
         source=args.records,
         call=call,

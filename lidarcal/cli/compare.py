@@ -20,11 +20,10 @@ from lidarcal.cli.options import (
     add_parallel_options,
     add_progress_option,
     add_seed_option,
+    execution_of,
     nonnegative,
     positive_int,
     probability,
-    progress_of,
-    simulation_options,
 )
 from lidarcal.compare import (
     DEFAULT_ALPHA,
@@ -113,8 +112,6 @@ def run(args: argparse.Namespace) -> int:
         **{k: getattr(args, k) for k in ("cube", "rwf") if getattr(args, k)},
         **({"model": args.model} if args.model else {}),
     }
-    opts = simulation_options(args)
-    del opts["progress"]
     result = compare(
         args.field,
         cube=cube,
@@ -126,8 +123,7 @@ def run(args: argparse.Namespace) -> int:
         base_seed=args.seed,
         min_periods=args.min_periods,
         los_noise_model=args.los_noise,
-        progress=progress_of(args),
-        simulate_options={k: v for k, v in opts.items() if v is not None},
+        execution=execution_of(args),
         inputs=inputs,
     )
     ds = to_dataset(result, call=command_line(args), inputs=inputs)

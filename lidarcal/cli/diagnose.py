@@ -21,13 +21,12 @@ from lidarcal.cli.options import (
     add_parallel_options,
     add_progress_option,
     add_seed_option,
+    execution_of,
     nonnegative,
     nonnegative_int,
     number,
     positive_int,
     probability,
-    progress_of,
-    simulation_options,
 )
 from lidarcal.conditions import load_conditions
 from lidarcal.diagnose.core import diagnose
@@ -99,13 +98,6 @@ def _sim_args(p: argparse.ArgumentParser) -> None:
     add_progress_option(p)
 
 
-def _sim_options(args: argparse.Namespace) -> dict:
-    """Return the simulation options without the progress switch (passed on its own)."""
-    opts = simulation_options(args)
-    del opts["progress"]
-    return {k: v for k, v in opts.items() if v is not None}
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the diagnosis, write the artefact (and report), print the summary."""
     check_writable(args.output, overwrite=args.overwrite)
@@ -118,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         min_bin_count=args.min_bin_count, alpha=args.alpha, bic_threshold=args.bic_threshold,
         tolerance=args.tolerance, n_bootstrap=args.bootstrap, model_uncertainty=args.model_uncertainty,
         min_wind_speed=args.min_wind_speed,
-        simulate_options=_sim_options(args), progress=progress_of(args))
+        execution=execution_of(args))
     inputs = {"field": args.field, **({"cube": args.cube} if args.cube else {}),
               **({"rwf": args.rwf} if args.rwf else {})}
     call = command_line(args)
@@ -160,7 +152,7 @@ def _generate(args: argparse.Namespace) -> int:
     else:
         cond = hidden_effect_conditions(args.periods, args.heights, args.conditions_seed)
     ds = generate_field_campaign(cond, args.effect, _parse_params(args.param), base_seed=args.seed,
-                                 simulate_options={**_sim_options(args), "progress": progress_of(args)},
+                                 execution=execution_of(args),
                                  call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)
     print(f"wrote {args.output}: {ds.sizes['time']} periods x {ds.sizes['height']} heights, hidden effect "

@@ -50,7 +50,8 @@ __all__ = [
     "add_admin_options",
     "admin_from_args",
     "progress_of",
-    "simulation_options",
+    "execution_of",
+    "rule_of",
 ]
 
 #: Most significant digits ``--significant-digits`` accepts: what a float64 holds (numpy's
@@ -394,13 +395,37 @@ def add_overwrite_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--overwrite", action="store_true", help="replace existing outputs")
 
 
-def simulation_options(args: argparse.Namespace) -> dict[str, Any]:
-    """Keyword arguments of :func:`lidarcal.campaign.simulate_campaign` from the shared options."""
-    opts: dict[str, Any] = {"chunk": args.chunk, "scheduler": args.scheduler, "workers": args.workers,
-                            "progress": progress_of(args)}
-    if getattr(args, "workdir", None) is not None:
-        opts["workdir"] = args.workdir
-    return opts
+def execution_of(args: argparse.Namespace) -> Any:
+    """Return the :class:`~lidarcal.campaign.settings.Execution` the shared options ask for (once a command).
+
+    ``--chunk``, ``--scheduler``, ``--workers``, ``--workdir`` (where the command has it), the
+    progress options (:func:`progress_of`: one Progress for every set of tasks, so the dashboard
+    is said once) and ``--timeout`` / ``--worker-timeout`` (``simulate``).
+    """
+    from lidarcal.campaign.settings import CONNECT_TIMEOUT, WORKER_TIMEOUT, Execution  # deferred: light start
+
+    return Execution(chunk=args.chunk, scheduler=args.scheduler, workers=args.workers,
+                     workdir=getattr(args, "workdir", None), progress=progress_of(args),
+                     connect_timeout=getattr(args, "timeout", CONNECT_TIMEOUT),
+                     worker_timeout=getattr(args, "worker_timeout", WORKER_TIMEOUT))
+
+
+def rule_of(args: argparse.Namespace) -> Any:
+    """Return the :class:`~lidarcal.analysis.rule.CertificationRule` the certification options ask for.
+
+    ``--min-periods``, ``--certified-range``, ``--significant-digits``, ``--coverage-interval``
+    and (``budget``) ``--coverage-factor``; an option a command lacks keeps the rule's default.
+    """
+    from lidarcal.analysis.rule import CertificationRule  # deferred: light CLI start
+
+    given = {"min_periods": getattr(args, "min_periods", None),
+             "certified_range": getattr(args, "certified_range", None),
+             "significant_digits": getattr(args, "significant_digits", None),
+             "coverage_factor": getattr(args, "coverage_factor", None),
+             "coverage_interval": getattr(args, "coverage_interval", None)}
+    if given["certified_range"] is not None:
+        given["certified_range"] = tuple(given["certified_range"])
+    return CertificationRule(**{k: v for k, v in given.items() if v is not None})
 
 
 def add_certification_options(parser: argparse.ArgumentParser) -> None:

@@ -25,7 +25,7 @@ import os
 
 from lidarcal.analysis.certification import digits_text
 from lidarcal.campaign import simulate_campaign
-from lidarcal.campaign.scheduler import WORKER_TIMEOUT
+from lidarcal.campaign.settings import CONNECT_TIMEOUT, WORKER_TIMEOUT
 from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import (
     add_certification_options,
@@ -38,9 +38,10 @@ from lidarcal.cli.options import (
     add_progress_option,
     add_reference_turbulence_option,
     add_seed_option,
+    execution_of,
     nonnegative_int,
     positive,
-    simulation_options,
+    rule_of,
 )
 from lidarcal.conditions import load_conditions, sample_conditions_path
 from lidarcal.diagnose import corrected_model
@@ -86,9 +87,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--timeout",
         type=positive("--timeout"),
-        default=5.0,
+        default=CONNECT_TIMEOUT,
         metavar="S",
-        help="seconds to wait for a remote scheduler (default 5)",
+        help="seconds to wait for a remote scheduler (default %(default)g)",
     )
     p.add_argument(
         "--worker-timeout",
@@ -128,28 +129,23 @@ def run(args: argparse.Namespace) -> int:
     if args.reference_turbulence:
         model = model.replace(reference_turbulence=args.reference_turbulence)
     base_seed = args.seed
-    opts = simulation_options(args)  # one Progress for replica 0 and the replicas: the dashboard said once
-    first = opts["progress"].labelled("replica 0" if args.max_replicas > 1 else "simulation")
+    execution = execution_of(args)  # one Progress for replica 0 and the replicas: the dashboard said once
     ds = simulate_campaign(
         conditions,
         model,
         heights=args.heights,
         base_seed=base_seed,
-        **{**opts, "progress": first},
         los_periods=args.los_periods,
         duration=args.duration,
-        connect_timeout=args.timeout,
-        worker_timeout=args.worker_timeout,
+        execution=execution.labelled("replica 0" if args.max_replicas > 1 else "simulation"),
         inputs=inputs,
         call=command_line(args),
     )
     if args.max_replicas > 1:
         from lidarcal.campaign.adaptive import adaptive_replicas  # deferred: only with replicas
 
-        ds, bud = adaptive_replicas(
-            ds, conditions, model, significant_digits=args.significant_digits, max_replicas=args.max_replicas,
-            min_periods=args.min_periods, certified_range=tuple(args.certified_range), base_seed=base_seed,
-            coverage_interval=args.coverage_interval, duration=args.duration, **opts)
+        ds, bud = adaptive_replicas(ds, conditions, model, rule=rule_of(args), max_replicas=args.max_replicas,
+                                    base_seed=base_seed, duration=args.duration, execution=execution)
         print(f"Monte Carlo: {bud.attrs['monte_carlo_replicas']} replica(s), {ds.sizes.get('trial', 0)} "
               f"further trials; {int((bud.numerical_flag == 1).sum())} bin(s) not settled to "
               f"{digits_text(args.significant_digits)}")

@@ -24,9 +24,9 @@ from lidarcal.cli.options import (
     add_parallel_options,
     add_progress_option,
     add_seed_option,
+    execution_of,
     number,
     positive_int,
-    simulation_options,
 )
 from lidarcal.io import check_writable, write_artefact
 
@@ -101,7 +101,6 @@ def run(args: argparse.Namespace) -> int:
     if args.report:
         check_writable(args.report, overwrite=args.overwrite)
         check_writable(Path(args.report).with_suffix(".pdf"), overwrite=args.overwrite)
-    opts = {k: v for k, v in simulation_options(args).items() if v is not None}
     campaign = smc(
         args.certificate,
         args.files,
@@ -113,7 +112,7 @@ def run(args: argparse.Namespace) -> int:
         allow_gaps=args.allow_gaps,
         base_seed=args.seed,
         max_replicas=args.max_replicas,
-        simulate_options=opts,
+        execution=execution_of(args),
     )
     ds = smc_dataset(campaign, call=command_line(args))
     write_artefact(ds, args.output, overwrite=args.overwrite)

@@ -22,8 +22,8 @@ from lidarcal.cli.options import (
     add_progress_option,
     add_reference_turbulence_option,
     add_seed_option,
+    execution_of,
     positive_int,
-    simulation_options,
 )
 from lidarcal.conditions.grid import DEFAULT_GRID, SWEEP_VARIABLES
 from lidarcal.conditions.variables import CANONICAL_UNITS
@@ -105,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
         heights=args.heights,
         repeats=args.repeats,
         base_seed=args.seed,
-        **simulation_options(args),
+        execution=execution_of(args),
         call=call,
         inputs=inputs,
     )

@@ -12,8 +12,8 @@ nominal lidar (small and in one process; ``docs/compare.md`` has the worked exam
 >>> from lidarcal.diagnose import generate_field_campaign, hidden_effect_conditions
 >>> one_process = {"scheduler": "synchronous"}
 >>> field = generate_field_campaign(hidden_effect_conditions(150, (40.0, 120.0)), "zero_distance_offset",
-...                                 simulate_options=one_process)
->>> js = summary(to_dataset(compare(field, simulate_options=one_process)))
+...                                 execution=one_process)
+>>> js = summary(to_dataset(compare(field, execution=one_process)))
 >>> js["verdict"], sorted({c["variable"] for c in js["cells"] if not c["agree"]})
 ('disagree', ['wind_shear_exponent'])
 """

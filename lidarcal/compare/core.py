@@ -42,6 +42,7 @@ from lidarcal.analysis.sensitivity import (
     sensitivity,
 )
 from lidarcal.campaign import DEFAULT_BASE_SEED, simulate_campaign
+from lidarcal.campaign.settings import Execution
 from lidarcal.conditions import load_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.diagnose.dataset import corrected_model
@@ -198,8 +199,7 @@ def compare(
     budget_bin_width: Any = "0.5 m s-1",
     terms: xr.Dataset | None = None,
     los_noise_model: str | None = None,
-    simulate_options: Mapping[str, Any] | None = None,
-    progress: bool = False,
+    execution: Execution | Mapping[str, Any] | None = None,
     inputs: Mapping[str, str | os.PathLike] | None = None,
 ) -> Comparison:
     """Compare a field campaign with the virtual lidar simulated in its own conditions.
@@ -235,10 +235,9 @@ def compare(
         ``uncertainty_terms`` artefact for the Monte Carlo budget (default: the paper's inputs).
     los_noise_model : {None, "mixture", "residuals", "gaussian"}
         LOS error model of the bench-calibrated lidar (:meth:`lidarcal.lidar.LidarModel.from_attrs`).
-    simulate_options : mapping, optional
-        Extra keyword arguments of :func:`lidarcal.campaign.simulate_campaign`.
-    progress : bool
-        Progress bar during the simulation.
+    execution : Execution or mapping, optional
+        Where and how the simulation runs (:class:`~lidarcal.campaign.settings.Execution`:
+        ``chunk``, ``scheduler``, ``workers``, ``progress`` ...; a mapping of these fields).
     inputs : mapping of role to path, optional
         The files behind ``field``/``cube``/``rwf``/``diagnosis``: recorded with their checksums,
         and used to write the ``lidarcal diagnose`` command of ``next``.
@@ -260,9 +259,8 @@ def compare(
     cond = ds[list(CONDITION_NAMES)].copy()
     cond.attrs = {"lidarcal_source_file": os.path.basename(source)}
     log.info(f"simulating {ds.sizes['time']} periods x {ds.sizes['height']} heights with the {origin}")
-    sim = simulate_campaign(
-        cond, sim_model, base_seed=int(base_seed), progress=progress, **dict(simulate_options or {})
-    )
+    execution = Execution.of(execution)
+    sim = simulate_campaign(cond, sim_model, base_seed=int(base_seed), execution=execution)
     sim = sim.transpose("time", "height")
 
     # 2. the same periods on both sides
@@ -300,7 +298,7 @@ def compare(
         "reference_range_m_s-1": [lo, hi],
         "reference_uncertainty_m_s-1": u_ref,
         "budget_bin_width": str(budget_bin_width),
-        "simulate_options": {k: v for k, v in (simulate_options or {}).items() if k != "scheduler"},
+        "simulate_options": execution.record(where=False),
     }
     return Comparison(
         field=ds,

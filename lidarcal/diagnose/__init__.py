@@ -18,9 +18,9 @@ three candidates (small and in one process; ``docs/diagnose.md`` explains the an
 >>> from lidarcal.diagnose import diagnose, generate_field_campaign, hidden_effect_conditions, summary
 >>> one_process = {"scheduler": "synchronous"}
 >>> field = generate_field_campaign(hidden_effect_conditions(240, (40.0, 120.0)), "zero_distance_offset",
-...                                 simulate_options=one_process)
+...                                 execution=one_process)
 >>> result = diagnose(field, candidates=["zero_distance_offset", "reference_gain", "hybrid_weight"],
-...                   n_bootstrap=50, simulate_options=one_process)
+...                   n_bootstrap=50, execution=one_process)
 >>> js = summary(result)
 >>> js["effect"], 2.0 < js["parameters"]["offset"] < 6.0, js["gap_after"] < js["gap_before"]
 ('zero_distance_offset', True, True)

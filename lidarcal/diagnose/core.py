@@ -33,6 +33,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.campaign import DEFAULT_BASE_SEED
+from lidarcal.campaign.settings import Execution
 from lidarcal.conditions.variables import CANONICAL_UNITS, CONDITION_NAMES
 from lidarcal.diagnose import fit, stats
 from lidarcal.diagnose.candidates import fit_candidates
@@ -124,8 +125,7 @@ def diagnose(
     n_bootstrap: int = DEFAULT_BOOTSTRAP,
     model_uncertainty: float = DEFAULT_MODEL_UNCERTAINTY,
     min_wind_speed: float = 3.0,
-    simulate_options: Mapping[str, Any] | None = None,
-    progress: bool = False,
+    execution: Execution | Mapping[str, Any] | None = None,
 ) -> DiagnosisResult:
     """Diagnose the discrepancy between a field campaign and the nominal model.
 
@@ -163,12 +163,10 @@ def diagnose(
         θ − θ₀, added in quadrature to the bootstrap (``docs/diagnose.md``).
     min_wind_speed : float
         Periods with a reference below this (m s-1) are not used.
-    simulate_options : mapping, optional
-        Extra keyword arguments of :func:`lidarcal.campaign.simulate_campaign`
-        (``chunk``, ``scheduler``, ``workdir`` ...).
-    progress : bool
-        Show a progress bar (tqdm, stderr) during each simulation.  Each step is also
-        logged at INFO level on the ``lidarcal.diagnose`` logger.
+    execution : Execution or mapping, optional
+        Where and how every simulation runs (:class:`~lidarcal.campaign.settings.Execution`:
+        ``chunk``, ``scheduler``, ``workers``, ``workdir``, ``progress`` ...; a mapping of these
+        fields).  Each step is also logged at INFO level on the ``lidarcal.diagnose`` logger.
     """
     # 0. inputs: the campaign, the nominal model, the candidates
     ds, usable, source, model = check_field(field, cube=cube, rwf=rwf, model=model, n_bins=n_bins,
@@ -176,8 +174,8 @@ def diagnose(
     ids = [c for c in (candidates if candidates is not None else EFFECTS) if c != "none"]
     effects = [get_effect(c) for c in ids]
     # 1. simulate the campaign's own conditions with the nominal model
-    simulate = Simulator(_conditions_input(ds, source), base_seed,
-                          {"progress": progress, **(simulate_options or {})}, log.info)
+    execution = Execution.of(execution)
+    simulate = Simulator(_conditions_input(ds, source), base_seed, execution, log.info)
     problem = _residual(ds, usable, model, simulate)
     problem.n_boot, problem.seed = int(n_bootstrap), int(base_seed)
     problem.model_uncertainty = float(model_uncertainty)
@@ -217,7 +215,7 @@ def diagnose(
                 "model_uncertainty": float(model_uncertainty),
                 "bootstrap_blocks": problem.clusters_label, "min_wind_speed": float(min_wind_speed),
                 "candidates": ids, "simulations": simulate.runs,
-                "simulate_options": {k: v for k, v in (simulate_options or {}).items() if k != "scheduler"}}
+                "simulate_options": execution.record(where=False)}
     return DiagnosisResult(
         heights=ds.height.values, times=ds.time.values, conditions=problem.conditions, valid=problem.valid,
         d_measured=problem.d_measured, d_before=problem.d0, d_after=d_after, binned_before=binned0,

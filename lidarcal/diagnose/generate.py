@@ -25,6 +25,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.campaign import simulate_campaign
+from lidarcal.campaign.settings import Execution
 from lidarcal.conditions import synthetic_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES, FIELD_NAMES, variable_attrs
 from lidarcal.diagnose.effects import get_effect, realistic_strengths
@@ -89,7 +90,7 @@ def generate_field_campaign(
     *,
     model: Any = None,
     base_seed: int = GENERATOR_SEED,
-    simulate_options: Mapping[str, Any] | None = None,
+    execution: Execution | Mapping[str, Any] | None = None,
     call: str | None = None,
 ) -> xr.Dataset:
     """Simulate a ``field_campaign`` whose lidar (or reference) has ``effect`` at ``params``.
@@ -107,14 +108,14 @@ def generate_field_campaign(
         to the ``lidar_*`` attributes, the effect is not.
     base_seed : int
         Seed of the "measurement" simulation (default :data:`GENERATOR_SEED`).
-    simulate_options : mapping, optional
-        Extra keyword arguments of :func:`lidarcal.campaign.simulate_campaign`.
+    execution : Execution or mapping, optional
+        Where and how the simulation runs (:class:`~lidarcal.campaign.settings.Execution`).
     """
     eff = get_effect(effect)
     params = dict(REALISTIC_STRENGTHS[eff.id] if params is None else params)
     nominal = model if model is not None else LidarModel.ideal()
     truth = eff.apply(nominal, params)
-    sim = simulate_campaign(conditions, truth, base_seed=int(base_seed), **dict(simulate_options or {}))
+    sim = simulate_campaign(conditions, truth, base_seed=int(base_seed), execution=execution)
     out = sim[list(CONDITION_NAMES)].copy()
     simulated = (sim["simulated"].values == 1 if "simulated" in sim
                  else np.ones(out.wind_speed.shape, bool))

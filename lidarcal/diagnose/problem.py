@@ -17,6 +17,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.campaign import simulate_campaign
+from lidarcal.campaign.settings import Execution
 from lidarcal.diagnose import fit, stats
 from lidarcal.diagnose.effects import Effect, model_form_share
 
@@ -64,11 +65,11 @@ class CandidateFit:
 class Simulator:
     """Simulate the campaign's conditions with common random numbers; count and log the runs."""
 
-    def __init__(self, conditions: xr.Dataset, base_seed: int, options: Mapping[str, Any],
+    def __init__(self, conditions: xr.Dataset, base_seed: int, execution: Execution,
                  progress: Callable[[str], None]):
         self.conditions = conditions
         self.base_seed = int(base_seed)
-        self.options = dict(options)
+        self.execution = execution
         self.progress = progress
         self.runs = 0
 
@@ -77,7 +78,7 @@ class Simulator:
         n_t, n_h = self.conditions.sizes['time'], self.conditions.sizes['height']
         self.progress(f"simulating {n_t} periods x {n_h} "
                       f"heights: {label}")
-        sim = simulate_campaign(self.conditions, model, base_seed=self.base_seed, **self.options)
+        sim = simulate_campaign(self.conditions, model, base_seed=self.base_seed, execution=self.execution)
         self.runs += 1
         return {n: np.asarray(sim[n].transpose("time", "height").values, dtype=float) for n in RECORD_NAMES}
 

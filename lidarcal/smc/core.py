@@ -37,6 +37,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.campaign import DEFAULT_BASE_SEED
+from lidarcal.campaign.settings import Execution
 from lidarcal.conditions import load_conditions
 from lidarcal.conditions.formats import read_lidar_files
 from lidarcal.conditions.sta import measured_conditions
@@ -257,7 +258,7 @@ def smc(
     allow_gaps: bool = False,
     base_seed: int = DEFAULT_BASE_SEED,
     max_replicas: int | None = None,
-    simulate_options: Mapping[str, Any] | None = None,
+    execution: Execution | Mapping[str, Any] | None = None,
 ) -> Campaign:
     """Compute the campaign uncertainty (module docstring); :func:`.dataset.smc_dataset` writes it.
 
@@ -281,9 +282,10 @@ def smc(
         Base seed of the Monte Carlo route (docs/seeds.md).
     max_replicas : int, optional
         Most Monte Carlo replicas (default: the certificate's own ``monte_carlo_replicas``, at least 4).
-    simulate_options : mapping, optional
-        ``chunk``, ``scheduler``, ``workers``, ``workdir``, ``progress``.
+    execution : Execution or mapping, optional
+        Where and how the Monte Carlo route runs (:class:`~lidarcal.campaign.settings.Execution`).
     """
+    execution = Execution.of(execution)
     cert = read_certified(certificate, public_key=public_key)  # the seal first, before any number
     terms = load_user_terms(user_terms) if user_terms is not None else []
     ds, inputs, source = campaign_conditions(
@@ -327,7 +329,7 @@ def smc(
             significant_digits=int(cert.attrs.get("monte_carlo_significant_digits", 2)),
             max_replicas=replicas,
             base_seed=int(base_seed),
-            simulate_options=dict(simulate_options or {}),
+            execution=execution,
             carried=_carried(cert, height_index),
         )
         note = f"run: {mc.replicas} replica(s), base seed {int(base_seed)}"
@@ -337,11 +339,7 @@ def smc(
         "monte_carlo": bool(monte_carlo),
         "base_seed": int(base_seed),
         "max_replicas": replicas,
-        "simulate_options": {
-            k: v
-            for k, v in dict(simulate_options or {}).items()
-            if k in ("chunk", "workers") and v is not None
-        },
+        "simulate_options": execution.record(where=False),
         "user_terms": [t.describe() for t in terms],
     }
     return Campaign(

@@ -39,6 +39,7 @@ Everything depends on the inputs and seeds only: bit-identical for any scheduler
 from __future__ import annotations
 
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -48,10 +49,12 @@ import xarray as xr
 from lidarcal.analysis.budget import budget
 from lidarcal.analysis.certification import settle_target
 from lidarcal.analysis.montecarlo import replica_half_width, tolerance_exponent
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.binning import binned_statistics
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.adaptive import BATCH_SCHEDULE, with_trials
 from lidarcal.campaign.run import simulate_replicas
+from lidarcal.campaign.settings import Execution
 from lidarcal.smc.kernels import SEQUENCES, bin_index, expected_deviation, group_of, within_bin_fit
 
 __all__ = ["MonteCarloRoute", "monte_carlo_route", "with_carried", "REGRESSORS"]
@@ -242,7 +245,7 @@ def monte_carlo_route(
     significant_digits: int = 2,
     max_replicas: int = 30,
     base_seed: int,
-    simulate_options: dict[str, Any] | None = None,
+    execution: Execution | Mapping[str, Any] | None = None,
     carried: xr.Dataset | None = None,
 ) -> MonteCarloRoute:
     """Simulate the campaign with the calibrated lidar; per bin its budget, per period its expected deviation.
@@ -266,31 +269,24 @@ def monte_carlo_route(
         Most replicas, replica 0 included.
     base_seed : int
         Base seed (docs/seeds.md).
-    simulate_options : mapping
-        ``chunk``, ``scheduler``, ``workers``, ``workdir``, ``progress`` of
-        :func:`lidarcal.campaign.simulate_campaign`.
+    execution : Execution or mapping, optional
+        Where and how the simulations run (:class:`~lidarcal.campaign.settings.Execution`).
     carried : xarray.Dataset, optional
         The certificate's relative contributions (%) of the contributors the trials cannot give,
         on (height, wind_speed, contributor) at the simulated heights (:func:`with_carried`).
     """
-    opts = dict(simulate_options or {})
-    workdir = opts.pop("workdir", None)
+    execution = Execution.of(execution)
     records = simulate_campaign(
         conditions,
         model,
         base_seed=int(base_seed),
-        workdir=workdir,
+        execution=execution,
         call="lidarcal smc (Monte Carlo route)",
-        **opts,
     )
     records = records.transpose("time", "height", ...)
-    rule = dict(
-        terms=terms,
-        min_periods=2,
-        certified_range=tuple(certified_range),
-        significant_digits=int(significant_digits),
-        coverage_factor=float(coverage_factor),
-    )
+    rule = dict(terms=terms, rule=CertificationRule(min_periods=2, certified_range=tuple(certified_range),
+                                                    significant_digits=int(significant_digits),
+                                                    coverage_factor=float(coverage_factor)))
     trials: list[dict[str, np.ndarray]] = []
     current = records
     bud = with_carried(budget(current, **rule), carried)
@@ -316,8 +312,7 @@ def monte_carlo_route(
             batch,
             heights=records["height"].values.tolist(),
             base_seed=int(base_seed),
-            workdir=workdir,
-            **opts,
+            execution=execution,
         )
         trials += [{"replica": r, **done[r]} for r in batch]
         replicas = batch[-1] + 1
