@@ -1,0 +1,136 @@
+"""The Monte Carlo route's stratified subsample (``lidarcal.smc.subsample``) and the tolerance it states.
+
+- The selection is a function of the base seed and the campaign only: the same twice, the same
+  with the file's periods in another order, another seed another subsample; every bin is
+  covered (at most n periods, every period of a bin that has fewer); each turbulence-intensity
+  tercile of a bin gets its proportional share.
+- On a small campaign, the subsample's trials are the full campaign's at the same cells (bit
+  for bit: the seed is the period's), and its per-bin mean deviation and spread agree with the
+  full campaign's within 4 of the standard errors the artefact states.
+"""
+
+import netCDF4
+import numpy as np
+import pytest
+from smc_factories import HEIGHTS, conditions_file, small_certificate
+
+from lidarcal.errors import InputError
+from lidarcal.smc import smc, smc_dataset
+from lidarcal.smc.subsample import select
+
+
+def conditions(n, nh=2, seed=1):
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 25]))
+    speed = rng.gamma(4.0, 2.0, (n, nh))
+    x = rng.uniform(size=(n, nh, 3))
+    direction = rng.uniform(0, 360, (n, nh))
+    return speed, x, direction
+
+
+EDGES = np.arange(-0.25, 60.0, 0.5)  # every speed of the gamma(4, 2) draws inside
+
+
+def test_selection_is_deterministic_covers_every_bin_and_is_stratified():
+    speed, x, direction = conditions(3000)
+    keys = 1_700_000_000 + 600 * np.arange(3000)
+    heights = np.array([80.0, 120.0])
+    a = select(speed, x, direction, keys, heights, EDGES, 20, 7)
+    assert (a == select(speed, x, direction, keys, heights, EDGES, 20, 7)).all()
+    # the file's periods in another order: the same periods chosen (keyed by period_key, not position)
+    perm = np.random.default_rng(3).permutation(3000)
+    b = select(speed[perm], x[perm], direction[perm], keys[perm], heights, EDGES, 20, 7)
+    assert (b == a[perm]).all()
+    # another base seed: another subsample (of 2 x ~50 bins of which most have more than 20 periods)
+    assert (select(speed, x, direction, keys, heights, EDGES, 20, 8) != a).sum() > 100
+    for j in range(2):
+        bins = np.searchsorted(EDGES, speed[:, j], side="right") - 1
+        population = np.bincount(bins, minlength=EDGES.size - 1)
+        chosen = np.bincount(bins[a[:, j]], minlength=EDGES.size - 1)
+        np.testing.assert_array_equal(chosen, np.minimum(population, 20))  # every bin, at most 20
+        assert (population > 20).sum() >= 10
+        for k in np.flatnonzero(population > 20):
+            mine = bins == k
+            ti = x[mine, j, 0]
+            tercile = np.argsort(np.argsort(ti)) * 3 // ti.size
+            got = np.bincount(tercile[a[mine, j]], minlength=3)
+            # systematic sampling along the TI-major order: each tercile's share within one period
+            want = 20 * np.bincount(tercile, minlength=3) / ti.size
+            assert (np.abs(got - want) < 1.0 + 1e-9).all(), (k, got, want)
+    with pytest.raises(InputError, match="at least 2"):
+        smc("no-such.nc", monte_carlo=False, periods_per_bin=1)
+
+
+@pytest.fixture(scope="module")
+def cert(tmp_path_factory):
+    return small_certificate(tmp_path_factory.mktemp("smc-sub-cert"))
+
+
+def test_subsample_agrees_with_the_full_campaign_within_its_stated_tolerance(tmp_path, cert):
+    # one height, 240 periods in three full bins (80 each, 7.5-9 m/s) and one bin of 6 periods
+    rng = np.random.default_rng(np.random.SeedSequence([25, 2]))
+    n = 246
+    speed = np.concatenate([rng.uniform(7.26, 8.74, 240), rng.uniform(9.76, 10.24, 6)])
+    values = {
+        "wind_speed": speed[:, None],
+        "wind_from_direction": rng.uniform(0, 360, (n, 1)),
+        "turbulence_intensity": rng.uniform(0.05, 0.22, (n, 1)),
+        "wind_shear_exponent": rng.uniform(0.0, 0.35, (n, 1)),
+        "cnr": rng.uniform(-20, -8, (n, 1)),
+        "cnr_gradient": rng.uniform(-0.04, 0.04, (n, 1)),
+    }
+    cond = conditions_file(tmp_path / "c.nc", values, HEIGHTS[1:])
+    opts = {"scheduler": "synchronous"}
+    full = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=None, simulate_options=opts)
+    sub = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=20, simulate_options=opts)
+    path = tmp_path / "sub.nc"
+    smc_dataset(sub).to_netcdf(path)
+    # the subsample: 20 of each full bin's ~80 periods and the 6 of the small one
+    simulated = sub.monte_carlo.trials[:, 0] > 0
+    assert 60 + 6 - 3 <= simulated.sum() <= 60 + 6 + 3  # +-1 per bin: reference speeds cross edges
+    assert full.monte_carlo.trials[:, 0].min() == 1
+    # bit for bit the full campaign's trials at the same cells
+    rec_f, rec_s = full.monte_carlo.records, sub.monte_carlo.records
+    keys_f = rec_f.period_key.values
+    at = np.searchsorted(keys_f, rec_s.period_key.values)
+    for name in ("lidar_wind_speed", "reference_wind_speed"):
+        s = rec_s[name].transpose("time", "height").values[:, 0]
+        f = rec_f[name].transpose("time", "height").values[at, 0]
+        ok = np.isfinite(s)
+        assert ok.sum() == simulated.sum()
+        np.testing.assert_array_equal(s[ok], f[ok])
+    # the stated tolerance, read back from the file (netCDF4, no lidarcal)
+    with netCDF4.Dataset(path) as nc:
+        se_mean = np.asarray(nc["bin_simulated_mean_difference_standard_error"][:, 0].filled(np.nan))
+        se_sd = np.asarray(nc["bin_simulated_std_difference_standard_error"][:, 0].filled(np.nan))
+        md_s = np.asarray(nc["bin_simulated_mean_difference"][:, 0].filled(np.nan))
+        sd_s = np.asarray(nc["bin_simulated_std_difference"][:, 0].filled(np.nan))
+        centres = np.asarray(nc["wind_speed_bin"][:])
+        flag = np.asarray(nc["monte_carlo_simulated"][:, 0])
+        assert nc["monte_carlo_simulated"].flag_meanings == "not_simulated simulated"
+        assert nc["bin_simulated_mean_difference_standard_error"].units == "m s-1"
+    np.testing.assert_array_equal(flag == 1, simulated)
+    # the full campaign's per-bin statistics by hand from its trials (numpy, binned by reference speed)
+    ref = rec_f.reference_wind_speed.values[:, 0]
+    dev = rec_f.lidar_wind_speed.values[:, 0] - ref
+    compared = 0
+    for k, c in enumerate(centres):
+        mine = np.isfinite(dev) & (ref >= c - 0.25) & (ref < c + 0.25)
+        if not np.isfinite(se_mean[k]):  # fewer than 2 simulated periods: no spread, no stated error
+            continue
+        md_f, sd_f = dev[mine].mean(), dev[mine].std(ddof=1)
+        if se_mean[k] == 0:  # every period of the bin simulated: the same numbers
+            assert md_s[k] == pytest.approx(md_f, abs=1e-12) and sd_s[k] == pytest.approx(sd_f, abs=1e-12)
+            continue
+        # 4 standard errors: a two-sided 6e-5 chance per comparison if the stated SE is right
+        # (8 comparisons: under 1e-3 family-wise)
+        assert abs(md_s[k] - md_f) <= 4 * se_mean[k], (c, md_s[k], md_f, se_mean[k])
+        assert abs(sd_s[k] - sd_f) <= 4 * se_sd[k], (c, sd_s[k], sd_f, se_sd[k])
+        # and the stated SE is of the size the spread says: s / sqrt(m) * sqrt(1 - m / N), m about 20
+        assert 0.5 * sd_f * np.sqrt(1 / 20 - 1 / 80) < se_mean[k] < 2 * sd_f * np.sqrt(1 / 20 - 1 / 80)
+        compared += 1
+    assert compared >= 3
+    # every period of the campaign has an expected deviation and its standard error, simulated or not
+    ds = smc_dataset(sub)
+    e = ds.monte_carlo_expected_deviation.isel(height=0).values
+    se = ds.monte_carlo_expected_deviation_standard_error.isel(height=0).values
+    assert np.isfinite(e).all() and np.isfinite(se).all() and (se > 0).all()
