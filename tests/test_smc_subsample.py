@@ -65,11 +65,11 @@ def cert(tmp_path_factory):
     return small_certificate(tmp_path_factory.mktemp("smc-sub-cert"))
 
 
-def test_subsample_agrees_with_the_full_campaign_within_its_stated_tolerance(tmp_path, cert):
-    # one height, 240 periods in three full bins (80 each, 7.5-9 m/s) and one bin of 6 periods
-    rng = np.random.default_rng(np.random.SeedSequence([25, 2]))
-    n = 246
-    speed = np.concatenate([rng.uniform(7.26, 8.74, 240), rng.uniform(9.76, 10.24, 6)])
+def campaign(tmp_path, per_bin, seed=25):
+    """One height (120 m): ``3 * per_bin`` periods uniform over 7.25-8.75 m/s (three bins), six at 10 m/s."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 2]))
+    n = 3 * per_bin + 6
+    speed = np.concatenate([rng.uniform(7.26, 8.74, 3 * per_bin), rng.uniform(9.76, 10.24, 6)])
     values = {
         "wind_speed": speed[:, None],
         "wind_from_direction": rng.uniform(0, 360, (n, 1)),
@@ -78,59 +78,89 @@ def test_subsample_agrees_with_the_full_campaign_within_its_stated_tolerance(tmp
         "cnr": rng.uniform(-20, -8, (n, 1)),
         "cnr_gradient": rng.uniform(-0.04, 0.04, (n, 1)),
     }
-    cond = conditions_file(tmp_path / "c.nc", values, HEIGHTS[1:])
+    return conditions_file(tmp_path / "c.nc", values, HEIGHTS[1:]), speed
+
+
+def test_the_subsample_is_the_full_campaigns_cells_and_is_marked(tmp_path, cert):
+    cond, speed = campaign(tmp_path, 16)
     opts = {"scheduler": "synchronous"}
     full = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=None, simulate_options=opts)
-    sub = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=20, simulate_options=opts)
-    path = tmp_path / "sub.nc"
-    smc_dataset(sub).to_netcdf(path)
-    # the subsample: 20 of each full bin's ~80 periods and the 6 of the small one
+    sub = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=6, simulate_options=opts)
+    # 6 of each full bin's periods (by their own speed) and the 6 of the small one
     simulated = sub.monte_carlo.trials[:, 0] > 0
-    assert 60 + 6 - 3 <= simulated.sum() <= 60 + 6 + 3  # +-1 per bin: reference speeds cross edges
+    population = np.bincount(np.floor((speed - 7.25) / 0.5).astype(int))
+    assert population[:3].min() > 6 and simulated.sum() == 3 * 6 + 6
     assert full.monte_carlo.trials[:, 0].min() == 1
-    # bit for bit the full campaign's trials at the same cells
+    # bit for bit the full campaign's trials at the same cells (the seed is the period's)
     rec_f, rec_s = full.monte_carlo.records, sub.monte_carlo.records
-    keys_f = rec_f.period_key.values
-    at = np.searchsorted(keys_f, rec_s.period_key.values)
+    at = np.searchsorted(rec_f.period_key.values, rec_s.period_key.values)
     for name in ("lidar_wind_speed", "reference_wind_speed"):
         s = rec_s[name].transpose("time", "height").values[:, 0]
         f = rec_f[name].transpose("time", "height").values[at, 0]
         ok = np.isfinite(s)
         assert ok.sum() == simulated.sum()
         np.testing.assert_array_equal(s[ok], f[ok])
+    path = tmp_path / "sub.nc"
+    smc_dataset(sub).to_netcdf(path)
+    with netCDF4.Dataset(path) as nc:
+        flag = np.asarray(nc["monte_carlo_simulated"][:, 0])
+        assert nc["monte_carlo_simulated"].flag_meanings == "not_simulated simulated"
+        assert nc["bin_simulated_mean_difference_standard_error"].units == "m s-1"
+        assert nc["monte_carlo_expected_deviation_standard_error"].units == "m s-1"
+        assert nc.getncattr("monte_carlo_periods_per_bin") == "6"
+        e = np.asarray(nc["monte_carlo_expected_deviation"][:, 0].filled(np.nan))
+        se = np.asarray(nc["monte_carlo_expected_deviation_standard_error"][:, 0].filled(np.nan))
+    np.testing.assert_array_equal(flag == 1, simulated)
+    # every period has an expected deviation and its standard error, simulated or not
+    assert np.isfinite(e).all() and np.isfinite(se).all() and (se > 0).all()
+
+
+@pytest.mark.slow
+def test_subsample_agrees_with_the_full_campaign_within_its_stated_tolerance(tmp_path, cert):
+    # about 150 periods in each of three bins, 50 simulated: the delta method's regime (m >= 10)
+    cond, _ = campaign(tmp_path, 150)
+    opts = {"scheduler": "synchronous"}
+    full = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=None, simulate_options=opts)
+    sub = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=50, simulate_options=opts)
+    path = tmp_path / "sub.nc"
+    smc_dataset(sub).to_netcdf(path)
     # the stated tolerance, read back from the file (netCDF4, no lidarcal)
     with netCDF4.Dataset(path) as nc:
         se_mean = np.asarray(nc["bin_simulated_mean_difference_standard_error"][:, 0].filled(np.nan))
         se_sd = np.asarray(nc["bin_simulated_std_difference_standard_error"][:, 0].filled(np.nan))
         md_s = np.asarray(nc["bin_simulated_mean_difference"][:, 0].filled(np.nan))
         sd_s = np.asarray(nc["bin_simulated_std_difference"][:, 0].filled(np.nan))
+        m = np.asarray(nc["bin_simulated_period_count"][:, 0])
         centres = np.asarray(nc["wind_speed_bin"][:])
-        flag = np.asarray(nc["monte_carlo_simulated"][:, 0])
-        assert nc["monte_carlo_simulated"].flag_meanings == "not_simulated simulated"
-        assert nc["bin_simulated_mean_difference_standard_error"].units == "m s-1"
-    np.testing.assert_array_equal(flag == 1, simulated)
     # the full campaign's per-bin statistics by hand from its trials (numpy, binned by reference speed)
+    rec_f = full.monte_carlo.records
     ref = rec_f.reference_wind_speed.values[:, 0]
     dev = rec_f.lidar_wind_speed.values[:, 0] - ref
-    compared = 0
+    compared = spreads = 0
     for k, c in enumerate(centres):
         mine = np.isfinite(dev) & (ref >= c - 0.25) & (ref < c + 0.25)
-        if not np.isfinite(se_mean[k]):  # fewer than 2 simulated periods: no spread, no stated error
+        if not np.isfinite(se_mean[k]):  # a subsampled bin of under 10 simulated periods states none
             continue
         md_f, sd_f = dev[mine].mean(), dev[mine].std(ddof=1)
         if se_mean[k] == 0:  # every period of the bin simulated: the same numbers
             assert md_s[k] == pytest.approx(md_f, abs=1e-12) and sd_s[k] == pytest.approx(sd_f, abs=1e-12)
             continue
-        # 4 standard errors: a two-sided 6e-5 chance per comparison if the stated SE is right
-        # (8 comparisons: under 1e-3 family-wise)
+        # 4 standard errors: a two-sided 6e-5 chance per comparison were the statistics normal (on four
+        # other seeds' campaigns of this design, 101-104, the 24 z-scores spanned -3.1 ... +1.2)
         assert abs(md_s[k] - md_f) <= 4 * se_mean[k], (c, md_s[k], md_f, se_mean[k])
-        assert abs(sd_s[k] - sd_f) <= 4 * se_sd[k], (c, sd_s[k], sd_f, se_sd[k])
-        # and the stated SE is of the size the spread says: s / sqrt(m) * sqrt(1 - m / N), m about 20
-        assert 0.5 * sd_f * np.sqrt(1 / 20 - 1 / 80) < se_mean[k] < 2 * sd_f * np.sqrt(1 / 20 - 1 / 80)
+        # the spread's SE is the delta method's normal approximation for s^2, whose relative standard
+        # error is sqrt((kurtosis - 1) / m): it holds where that is under 1/2.  A bin whose spread one
+        # or two rare bad estimates set (kurtosis over 1 + m/4) is outside it: a subsample that misses
+        # them reads low by more than its SE can say (docs/smc.md states this limit; here the 7.5 m/s
+        # bin, one period of 110 at +0.44 m/s, kurtosis 23)
+        c_f = dev[mine] - md_f
+        kurtosis = np.mean(c_f**4) / np.mean(c_f**2) ** 2
+        if kurtosis < 1 + m[k] / 4:
+            assert abs(sd_s[k] - sd_f) <= 4 * se_sd[k], (c, sd_s[k], sd_f, se_sd[k])
+            spreads += 1
+        # and the stated SE is of the size the spread says: s / sqrt(m) * sqrt(1 - m / N), N about 150
+        # (reference speeds cross the bins' edges: a factor 2 either way)
+        nominal = sd_f * np.sqrt(1 / m[k] - 1 / 150)
+        assert 0.5 * nominal < se_mean[k] < 2 * nominal
         compared += 1
-    assert compared >= 3
-    # every period of the campaign has an expected deviation and its standard error, simulated or not
-    ds = smc_dataset(sub)
-    e = ds.monte_carlo_expected_deviation.isel(height=0).values
-    se = ds.monte_carlo_expected_deviation_standard_error.isel(height=0).values
-    assert np.isfinite(e).all() and np.isfinite(se).all() and (se > 0).all()
+    assert compared >= 3 and spreads >= 2

@@ -49,7 +49,8 @@ MEASURAND = (
     "uncertainties are root mean squares of these single-period values, not the uncertainty of a bin's mean: "
     "the calibration contributor's Table 4 terms, mean difference and model form are fully correlated across "
     "periods, bins and heights, so whoever averages periods must not divide them by the square root of the "
-    "number of periods."
+    "number of periods. bin_mean_uncertainty is the uncertainty of the bin's mean speed: the correlated "
+    "parts averaged linearly, only the independent single-period spreads divided down."
 )
 _DESCRIPTION = {
     "calibration": "the certificate's certified standard uncertainty at the period's height and speed bin",
@@ -514,9 +515,12 @@ def binned_table(obj: xr.Dataset | str | os.PathLike):
     """IEC-style table of an ``smc`` artefact: one row per height and wind-speed bin (``lidarcal table``).
 
     Columns: height, bin centre, periods and covered periods, mean wind speed, the certificate's
-    flag meaning, the combined standard uncertainty (quoted route) in m/s and %, both routes'
-    combinations, each contributor (m/s), the certificate's and the campaign's simulated relative
-    expanded uncertainty with their numerical tolerances.  Rows with no campaign period are left out.
+    flag meaning, the combined standard uncertainty (quoted route) in m/s and % (of a single
+    period, the root mean square over the bin), both routes' combinations, the standard
+    uncertainty of the bin's mean speed in m/s and %, each contributor (m/s), the certificate's
+    and the campaign's simulated relative expanded uncertainty with their numerical tolerances,
+    and the Monte Carlo route's periods simulated in the bin with its mean deviation and spread
+    and their standard errors from the subsample.  Rows with no campaign period are left out.
     """
     import pandas as pd
 
@@ -539,6 +543,8 @@ def binned_table(obj: xr.Dataset | str | os.PathLike):
                 "relative_uncertainty_pct": float(b["relative_uncertainty"].values[i, j]),
                 "uncertainty_iec_route_m_s": float(b["uncertainty_iec_route"].values[i, j]),
                 "uncertainty_monte_carlo_route_m_s": float(b["uncertainty_monte_carlo_route"].values[i, j]),
+                "mean_uncertainty_m_s": float(b["mean_uncertainty"].values[i, j]),
+                "mean_relative_uncertainty_pct": float(b["mean_relative_uncertainty"].values[i, j]),
             }
             for k, c in enumerate(b["contributor"].values):
                 row[f"{c}_m_s"] = float(b["contribution"].values[i, j, k])
@@ -549,6 +555,10 @@ def binned_table(obj: xr.Dataset | str | os.PathLike):
                 "simulated_numerical_tolerance",
             ):
                 row[f"{name}_pct"] = float(b[name].values[i, j])
+            row["simulated_periods"] = int(b["simulated_period_count"].values[i, j])
+            for name in ("simulated_mean_difference", "simulated_mean_difference_standard_error",
+                         "simulated_std_difference", "simulated_std_difference_standard_error"):
+                row[f"{name}_m_s"] = float(b[name].values[i, j])
             rows.append(row)
     table = pd.DataFrame(rows)
     table.attrs.update(

@@ -31,23 +31,30 @@ of the bin's ``N`` campaign periods adds, with the finite-population correction
 
 * mean: SE(d̄) = s / √m · √(1 − m/N);
 * spread (delta method on s²): SE(s) = √((m₄ − s⁴) / m) / (2 s) · √(1 − m/N), m₄ the fourth
-  central moment of the periods' deviations.
+  central moment of the periods' deviations — or, where larger, with m₄ = κ s⁴ and κ the height's
+  pooled standardised fourth moment (the deviations are skewed by rare bad estimates, and a
+  bin's few periods can miss them all).
 
 Simple random sampling's variance; the stratified systematic sample's is at most that up to
-terms of order 1/m (proportional allocation), so the stated errors are, if anything, wide.
+terms of order 1/m (proportional allocation).  Both are normal approximations: a subsampled bin
+with fewer than :data:`MIN_PERIODS` simulated periods (one the reference speeds spill into from a
+subsampled neighbour) states none (NaN).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["DEFAULT_PERIODS_PER_BIN", "SPAWN_KEY", "select", "select_bin", "standard_errors"]
+__all__ = ["DEFAULT_PERIODS_PER_BIN", "MIN_PERIODS", "SPAWN_KEY", "select", "select_bin", "standard_errors"]
 
 #: Periods simulated per (height, wind-speed bin) by default: a year of 12 heights in <= 15 min on 2
 #: cores with the default replicas (docs/performance.md), a mean deviation to s / 10.
 DEFAULT_PERIODS_PER_BIN = 100
 #: Spawn key of the selection's streams (no period or height stream has one).
 SPAWN_KEY = 0x5AB5
+#: Fewest simulated periods of a subsampled bin whose standard errors are stated (the delta method's
+#: normal approximation needs them; a bin whose every period is simulated has none to state).
+MIN_PERIODS = 10
 #: Quantile classes of turbulence intensity, shear exponent and CNR inside a bin.
 CLASSES = 3
 
@@ -149,12 +156,12 @@ def standard_errors(
     its period and its bin (-1: none); ``population`` (bin,) the campaign's periods in each bin
     (N; at least m is used).  NaN where fewer than 2 periods (module docstring).
 
-    >>> d = np.array([1.0, 2.0, 3.0, 4.0]); p = np.arange(4); b = np.zeros(4, int)
-    >>> m, se_mean, se_sd = standard_errors(d, p, b, 1, np.array([4]))
+    >>> d = np.arange(1.0, 13.0); p = np.arange(12); b = np.zeros(12, int)
+    >>> m, se_mean, se_sd = standard_errors(d, p, b, 1, np.array([12]))  # every period: no error
     >>> int(m[0]), float(se_mean[0]), float(se_sd[0])
-    (4, 0.0, 0.0)
-    >>> round(float(standard_errors(d, p, b, 1, np.array([10**9]))[1][0]), 6)  # s / sqrt(m)
-    0.645497
+    (12, 0.0, 0.0)
+    >>> round(float(standard_errors(d, p, b, 1, np.array([48]))[1][0]), 6)  # s / sqrt(12) * sqrt(1 - 12/48)
+    0.901388
     """
     d, p, b = (np.asarray(a) for a in (deviation, period, bins))
     ok = (b >= 0) & np.isfinite(d)
@@ -174,6 +181,13 @@ def standard_errors(
         se_mean = np.sqrt(var / m) * fpc
         sd = np.sqrt(var)
         se_sd = np.sqrt(np.maximum(m4 - var**2, 0.0) / m) / (2.0 * sd) * fpc
-    few = m < 2
+        # the height's pooled standardised fourth moment, where larger: a bin's few periods can miss the
+        # rare large deviations (bad estimates) that set its own
+        z4 = (c / sd[pb]) ** 4
+        pooled = np.nanmean(z4[m[pb] >= MIN_PERIODS]) if (m >= MIN_PERIODS).any() else np.nan
+        se_pooled = sd * np.sqrt(np.maximum(pooled - 1.0, 0.0) / (4.0 * m)) * fpc
+        se_sd = np.fmax(se_sd, se_pooled)
+    few = (m < MIN_PERIODS) & (fpc > 0)  # a subsampled bin of few periods: no error is stated
+    se_mean = np.where(fpc == 0, 0.0, se_mean)
     se_sd = np.where(fpc == 0, 0.0, se_sd)
-    return m, np.where(few, np.nan, se_mean), np.where(few, np.nan, se_sd)
+    return m, np.where(few | (m < 2), np.nan, se_mean), np.where(few | (m < 2), np.nan, se_sd)
