@@ -209,7 +209,6 @@ def child(script_args: list[str]) -> dict:
 def main() -> None:
     """Run the benchmark and print its figures."""
     import logging
-    import statistics
     import warnings
 
     p = argparse.ArgumentParser(description=__doc__)
@@ -229,8 +228,13 @@ def main() -> None:
     p.add_argument("--repeat", type=int, default=3, help="baseline runs (medians; default 3)")
     p.add_argument("--mc-periods-per-bin", default=None,
                    help="periods per height and bin of the subsampled route (default: the package's)")
-    p.add_argument("--no-year-monte-carlo", dest="year", action="store_false",
-                   help="skip the subsampled Monte Carlo route on the quarter and the whole campaign")
+    p.add_argument("--parts", default="iec,baseline,memory,year",
+                   help="what to run, comma-separated (default all): iec (the 50-2 route), baseline, memory "
+                        "(quarter and whole campaign at --memory-periods-per-bin), year (the whole campaign "
+                        "at --mc-periods-per-bin)")
+    p.add_argument("--memory-periods-per-bin", default="10",
+                   help="periods per bin of the quarter / whole-campaign memory pair (default 10: memory "
+                        "depends on it, not on the campaign's length)")
     p.add_argument("--certificate", help="use this certificate (the campaign takes its heights)")
     p.add_argument("--scheduler", default="processes")
     p.add_argument("--workers", type=int, default=2)
@@ -264,51 +268,68 @@ def main() -> None:
             f"load: {os.getloadavg()[0]:.1f} (1 min), {os.cpu_count()} CPUs; scheduler {args.scheduler} x "
             f"{args.workers}; heights {heights}"
         )
+        parts = set(args.parts.split(","))
         year = campaign(d, args.periods, heights, "year")
-        t, c, traced, cpu = run(cert, year, d / "smc-year-iec.nc", monte_carlo=False, opts=opts)
         cells = args.periods * len(heights)
-        print(
-            f"50-2 route, {args.periods} periods x {len(heights)} heights: {t:7.1f} s wall, {cpu:7.1f} s CPU "
-            f"(target: seconds); traced peak {traced:.0f} MB, process peak RSS {peak_rss_mb():.0f} MB; "
-            f"{int((c.coverage == 0).sum())} of {cells} period-heights covered"
-        )
-        n = args.mc_periods
-        week = campaign(d, n, heights, f"mc{n}")
-        whole = ["--case", str(week), "--certificate", str(cert), "--mc-periods-per-bin", "all", *common]
-        base = [child(whole) for _ in range(max(1, args.repeat))]
-        med = {k: statistics.median(r[k] for r in base)
-               for k in ("wall", "cpu", "cells", "rss", "worker_rss")}
-        loads = ", ".join(f"{r['load']:.1f}" for r in base)
-        per_cell = med["cpu"] / med["cells"]
-        rate = med["cells"] / (n * len(heights))  # cells per period-height, replicas included
-        projected = per_cell * cells  # replica 0 of every period-height alone: a lower bound
-        print(
-            f"baseline, Monte Carlo route simulating every period of {n} periods x {len(heights)} heights, "
-            f"median of {len(base)}: {med['wall']:7.1f} s wall, {med['cpu']:7.1f} s CPU, "
-            f"{med['cells']:.0f} cells ({rate:.2f} per period-height), {1000 * per_cell:.2f} ms CPU per "
-            f"cell; peak RSS {med['rss']:.0f} MB (worker {med['worker_rss']:.0f} MB); loads {loads}"
-        )
-        print(
-            f"baseline projected to {args.periods} periods simulated in full, replica 0 alone (a lower "
-            f"bound): {projected / 60:6.1f} min CPU, {projected / args.workers / 60:6.1f} min on "
-            f"{args.workers} idle cores; at the baseline's {rate:.2f} cells per period-height "
-            f"{rate * projected / 60:6.1f} min CPU"
-        )
-        if not args.year:
-            return
-        for label, m in (("quarter", max(2, args.periods // 4)), ("whole campaign", args.periods)):
+        per_cell = float("nan")
+        if "iec" in parts:
+            t, c, traced, cpu = run(cert, year, d / "smc-year-iec.nc", monte_carlo=False, opts=opts)
+            print(
+                f"50-2 route, {args.periods} periods x {len(heights)} heights: {t:7.1f} s wall, {cpu:7.1f} s "
+                f"CPU (target: seconds); traced peak {traced:.0f} MB, process peak RSS "
+                f"{peak_rss_mb():.0f} MB; "
+                f"{int((c.coverage == 0).sum())} of {cells} period-heights covered", flush=True
+            )
+        if "baseline" in parts:
+            per_cell = baseline(args, d, cert, heights, common, cells)
+        runs = []
+        if "memory" in parts:
+            runs += [("quarter", max(2, args.periods // 4), args.memory_periods_per_bin),
+                     ("whole campaign", args.periods, args.memory_periods_per_bin)]
+        if "year" in parts:
+            runs.append(("whole campaign", args.periods, ppb))
+        for label, m, k in runs:
             path = year if m == args.periods else campaign(d, m, heights, f"q{m}")
-            r = child(["--case", str(path), "--certificate", str(cert), "--mc-periods-per-bin", ppb,
-                       *common])
+            r = child(["--case", str(path), "--certificate", str(cert), "--mc-periods-per-bin", k, *common])
             full = per_cell * m * len(heights)  # the baseline's CPU for replica 0 of this campaign
             print(
-                f"Monte Carlo route, {label}: {m} periods x {len(heights)} heights, at most {ppb} periods "
+                f"Monte Carlo route, {label}: {m} periods x {len(heights)} heights, at most {k} periods "
                 f"per height and bin: {r['wall'] / 60:6.2f} min wall, {r['cpu'] / 60:6.2f} min CPU "
                 f"({r['cpu'] / args.workers / 60:.2f} min on {args.workers} idle cores), {r['replicas']} "
                 f"replica(s), {r['simulated']} of {r['period_heights']} period-heights simulated, "
-                f"{r['cells']} cells; peak RSS {r['rss']:.0f} MB main, {r['worker_rss']:.0f} MB largest "
-                f"worker; load {r['load']:.1f}; CPU / baseline's replica-0 projection {r['cpu'] / full:.3f}"
+                f"{r['cells']} cells ({1000 * r['cpu'] / r['cells']:.2f} ms CPU per cell, all included); "
+                f"peak RSS {r['rss']:.0f} MB main, {r['worker_rss']:.0f} MB largest worker; load "
+                f"{r['load']:.1f}; CPU / baseline's replica-0 projection {r['cpu'] / full:.3f}", flush=True
             )
+
+
+def baseline(args, d: Path, cert: Path, heights, common: list[str], cells: int) -> float:
+    """The full-simulation baseline (every period) ``--repeat`` times; print medians, return CPU per cell."""
+    import statistics
+
+    n = args.mc_periods
+    week = campaign(d, n, heights, f"mc{n}")
+    whole = ["--case", str(week), "--certificate", str(cert), "--mc-periods-per-bin", "all", *common]
+    base = [child(whole) for _ in range(max(1, args.repeat))]
+    med = {k: statistics.median(r[k] for r in base)
+           for k in ("wall", "cpu", "cells", "rss", "worker_rss")}
+    loads = ", ".join(f"{r['load']:.1f}" for r in base)
+    per_cell = med["cpu"] / med["cells"]
+    rate = med["cells"] / (n * len(heights))  # cells per period-height, replicas included
+    projected = per_cell * cells  # replica 0 of every period-height alone: a lower bound
+    print(
+        f"baseline, Monte Carlo route simulating every period of {n} periods x {len(heights)} heights, "
+        f"median of {len(base)}: {med['wall']:7.1f} s wall, {med['cpu']:7.1f} s CPU, "
+        f"{med['cells']:.0f} cells ({rate:.2f} per period-height), {1000 * per_cell:.2f} ms CPU per "
+        f"cell; peak RSS {med['rss']:.0f} MB (worker {med['worker_rss']:.0f} MB); loads {loads}"
+    )
+    print(
+        f"baseline projected to {args.periods} periods simulated in full, replica 0 alone (a lower "
+        f"bound): {projected / 60:6.1f} min CPU, {projected / args.workers / 60:6.1f} min on "
+        f"{args.workers} idle cores; at the baseline's {rate:.2f} cells per period-height "
+        f"{rate * projected / 60:6.1f} min CPU"
+    )
+    return per_cell
 
 
 if __name__ == "__main__":
