@@ -170,11 +170,13 @@ def test_the_option_takes_a_count_or_all(capsys):
     from lidarcal.cli import build_parser
     from lidarcal.smc.subsample import DEFAULT_PERIODS_PER_BIN
 
-    parse = build_parser().parse_args
-    assert parse(["smc", "c.nc", "x.sta", "-o", "s.nc"]).mc_periods_per_bin == DEFAULT_PERIODS_PER_BIN == 100
-    assert parse(["smc", "c.nc", "x.sta", "-o", "s.nc", "--mc-periods-per-bin", "all"]).mc_periods_per_bin is None
-    assert parse(["smc", "c.nc", "x.sta", "-o", "s.nc", "--mc-periods-per-bin", "40"]).mc_periods_per_bin == 40
+    def parse(*extra):
+        return build_parser().parse_args(["smc", "c.nc", "x.sta", "-o", "s.nc", *extra]).mc_periods_per_bin
+
+    assert parse() == DEFAULT_PERIODS_PER_BIN == 100
+    assert parse("--mc-periods-per-bin", "all") is None
+    assert parse("--mc-periods-per-bin", "40") == 40
     for bad in ("1", "many"):
         with pytest.raises(SystemExit) as e:
-            parse(["smc", "c.nc", "x.sta", "-o", "s.nc", "--mc-periods-per-bin", bad])
+            parse("--mc-periods-per-bin", bad)
         assert e.value.code == 2 and "integer >= 2 or 'all'" in capsys.readouterr().err
