@@ -147,7 +147,17 @@ def campaign(d: Path, n: int, heights, name: str) -> Path:
 
 
 def peak_rss_mb() -> float:
-    """Peak resident memory of this process so far (MB)."""
+    """Peak resident memory of this process so far (MB).
+
+    ``VmHWM`` of /proc/self/status where there is one: getrusage's ``ru_maxrss`` survives fork and
+    exec, so in a child it is never below its parent's peak at the fork.
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return float(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
@@ -182,9 +192,13 @@ def case(args) -> None:
 
     warnings.simplefilter("ignore")
     opts = {"scheduler": args.scheduler, "workers": args.workers, "chunk": 64}
-    ppb = None if args.mc_periods_per_bin == "all" else int(args.mc_periods_per_bin)
+    ppb = None if args.mc_periods_per_bin in ("all", "none") else int(args.mc_periods_per_bin)
+    mc_on = args.mc_periods_per_bin != "none"  # none: the 50-2 route alone
     t, c, traced, cpu = run(Path(args.certificate), Path(args.case), Path(args.case).with_suffix(".smc.nc"),
-                            monte_carlo=True, opts=opts, periods_per_bin=ppb)
+                            monte_carlo=mc_on, opts=opts, periods_per_bin=ppb)
+    if not mc_on:
+        print(json.dumps({"wall": t, "cpu": cpu, "rss": peak_rss_mb(), "load": os.getloadavg()[0]}))
+        return
     mc = c.monte_carlo
     kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
     print(json.dumps({
@@ -284,6 +298,12 @@ def main() -> None:
             per_cell = baseline(args, d, cert, heights, common, cells)
         runs = []
         if "memory" in parts:
+            for label, m in (("quarter", max(2, args.periods // 4)), ("whole campaign", args.periods)):
+                path = year if m == args.periods else campaign(d, m, heights, f"q{m}")
+                r = child(["--case", str(path), "--certificate", str(cert), "--mc-periods-per-bin", "none",
+                           *common])
+                print(f"50-2 route alone, {label}: {m} periods x {len(heights)} heights: {r['wall']:.1f} s "
+                      f"wall, {r['cpu']:.1f} s CPU; peak RSS {r['rss']:.0f} MB (fresh process)", flush=True)
             runs += [("quarter", max(2, args.periods // 4), args.memory_periods_per_bin),
                      ("whole campaign", args.periods, args.memory_periods_per_bin)]
         if "year" in parts:
@@ -298,7 +318,8 @@ def main() -> None:
                 f"({r['cpu'] / args.workers / 60:.2f} min on {args.workers} idle cores), {r['replicas']} "
                 f"replica(s), {r['simulated']} of {r['period_heights']} period-heights simulated, "
                 f"{r['cells']} cells ({1000 * r['cpu'] / r['cells']:.2f} ms CPU per cell, all included); "
-                f"peak RSS {r['rss']:.0f} MB main, {r['worker_rss']:.0f} MB largest worker; load "
+                f"peak RSS {r['rss']:.0f} MB main (VmHWM), largest worker {r['worker_rss']:.0f} MB "
+                f"(ru_maxrss: not below the main process's at its start); load "
                 f"{r['load']:.1f}; CPU / baseline's replica-0 projection {r['cpu'] / full:.3f}", flush=True
             )
 
