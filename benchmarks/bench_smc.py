@@ -215,8 +215,8 @@ def child(script_args: list[str]) -> dict:
     import subprocess
     import sys
 
-    out = subprocess.run([sys.executable, __file__, *script_args], check=True, capture_output=True,
-                         text=True)
+    out = subprocess.run([sys.executable, __file__, *script_args], check=True, stdout=subprocess.PIPE,
+                         text=True)  # the child's log and any traceback go to this process's stderr
     return json.loads(out.stdout.strip().splitlines()[-1])
 
 
