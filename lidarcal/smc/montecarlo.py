@@ -237,6 +237,40 @@ def _cells(records: xr.Dataset, bud: xr.Dataset, flag: np.ndarray) -> np.ndarray
     return out
 
 
+#: The budget's wind-speed bin width (m s-1; lidarcal.analysis.budget's default).
+_BIN_WIDTH = 0.5
+
+
+def _terms_span(terms: xr.Dataset | None) -> tuple[float, float]:
+    """Speeds (m s-1) a trial's reference may have for its bin to lie inside the terms' wind speeds."""
+    if terms is None or "wind_speed" not in terms.coords:
+        return -np.inf, np.inf
+    ws = np.asarray(terms["wind_speed"].values, dtype=float)
+    return float(ws.min()) + _BIN_WIDTH, float(ws.max()) - _BIN_WIDTH
+
+
+def _within(records: xr.Dataset, span: tuple[float, float]) -> xr.Dataset:
+    """Return ``records`` with every cell whose reference speed is outside ``span`` set missing."""
+    ref = records["reference_wind_speed"]
+    out = (ref < span[0]) | (ref > span[1])
+    if not bool(out.any()):
+        return records
+    records = records.copy()
+    for name in ("lidar_wind_speed", "reference_wind_speed"):
+        records[name] = records[name].where(~out)
+    return records
+
+
+def _trial_within(trial: dict[str, np.ndarray], span: tuple[float, float]) -> dict[str, np.ndarray]:
+    """Return a replica's trials with those whose reference speed is outside ``span`` set missing."""
+    ref = np.asarray(trial["reference_wind_speed"], dtype=float)
+    out = (ref < span[0]) | (ref > span[1])
+    if not out.any():
+        return trial
+    names = ("lidar_wind_speed", "reference_wind_speed")
+    return {**trial, **{k: np.where(out, np.nan, trial[k]) for k in names}}
+
+
 def _subsample_records(
     conditions: xr.Dataset, model, chosen: np.ndarray, *, base_seed: int, workdir, opts: dict
 ) -> tuple[xr.Dataset, xr.Dataset]:
@@ -325,6 +359,11 @@ def monte_carlo_route(
         int(base_seed),
     )
     inside = np.isfinite(speed) & (speed >= lookup_edges[0]) & (speed < lookup_edges[-1])
+    # the budget never extrapolates the certificate's Table 4 terms: a period beyond their speeds
+    # (less one bin for the reference's own drift) cannot be budgeted, so it is not simulated
+    span = _terms_span(terms)
+    chosen &= (speed >= span[0]) & (speed <= span[1])
+    inside &= (speed >= span[0]) & (speed <= span[1])
     if (chosen == inside).all():  # every period: the campaign as a whole
         sim_cond = conditions
         records = simulate_campaign(
@@ -345,6 +384,7 @@ def monte_carlo_route(
         sim_cond, records = _subsample_records(cond, model, chosen, base_seed=base_seed, workdir=workdir,
                                                opts=opts)
         rows = np.flatnonzero(chosen.any(axis=1))
+    records = _within(records, span)
     rule = dict(
         terms=terms,
         min_periods=2,
@@ -380,7 +420,7 @@ def monte_carlo_route(
             workdir=workdir,
             **opts,
         )
-        trials += [{"replica": r, **done[r]} for r in batch]
+        trials += [{"replica": r, **_trial_within(done[r], span)} for r in batch]
         replicas = batch[-1] + 1
         current = with_trials(records, trials)
         bud = with_carried(budget(current, **rule), carried)
