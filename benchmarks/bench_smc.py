@@ -6,18 +6,24 @@ cores, memory flat in the campaign's length.
 Usage::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_smc.py [--periods 52560] [--heights 12]
-        [--mc-periods 1008 4032] [--full-monte-carlo] [--workers 2] [--scheduler processes]
-        [--certificate CERT.nc]
+        [--mc-periods 1008] [--repeat 3] [--mc-periods-per-bin N|all] [--no-year-monte-carlo]
+        [--workers 2] [--scheduler processes] [--certificate CERT.nc]
 
 The certificate is a small one certifying the campaign's heights (budget and sensitivities of
 seeded hand-made records, the simulated bench cube and the sample pulse's RWF: the route's cost
 does not depend on its numbers), unless ``--certificate`` gives one (then the campaign takes its
 heights).  The campaign is synthetic stochastic conditions (:func:`lidarcal.conditions.synthetic_conditions`).
 
-Printed: the 50-2 route over the whole campaign (time and peak memory of this process); the
-Monte Carlo route on each of ``--mc-periods`` (time, cells simulated with the replicas, time per
-cell and height, peak memory of this process) and the one-year time projected from the longest
-(cells per period and time per cell measured); with ``--full-monte-carlo`` the whole year too.
+Printed (each Monte Carlo run in a fresh process, so that its peak RSS is its own):
+
+1. the 50-2 route over the whole campaign (wall, CPU, peak memory);
+2. the baseline: the Monte Carlo route simulating **every** period (``--mc-periods-per-bin all``)
+   of a ``--mc-periods`` campaign, ``--repeat`` times: median wall, CPU and CPU per simulated
+   cell, and the whole campaign projected from it (its cells per period-height and CPU per cell);
+3. the Monte Carlo route with the stratified subsample (``--mc-periods-per-bin``, default the
+   package's) on a quarter and on the whole campaign: wall, CPU, cells simulated, peak RSS of the
+   main process and of the largest worker, and the ratio of the whole campaign's CPU to the
+   projected full simulation's (same run, same machine).
 """
 
 import argparse
@@ -141,7 +147,17 @@ def campaign(d: Path, n: int, heights, name: str) -> Path:
 
 
 def peak_rss_mb() -> float:
-    """Peak resident memory of this process so far (MB)."""
+    """Peak resident memory of this process so far (MB).
+
+    ``VmHWM`` of /proc/self/status where there is one: getrusage's ``ru_maxrss`` survives fork and
+    exec, so in a child it is never below its parent's peak at the fork.
+    """
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return float(line.split()[1]) / 1024.0
+    except OSError:
+        pass
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
@@ -152,7 +168,7 @@ def cpu_seconds() -> float:
 
 
 def run(
-    cert: Path, cond: Path, out: Path, *, monte_carlo: bool, opts: dict
+    cert: Path, cond: Path, out: Path, *, monte_carlo: bool, opts: dict, periods_per_bin=None
 ) -> tuple[float, object, float, float]:
     """Time ``smc`` + the artefact + its file; return (seconds, campaign, traced peak MB, CPU seconds)."""
     from lidarcal.io import write_artefact
@@ -160,12 +176,48 @@ def run(
 
     tracemalloc.start()
     t0, c0 = time.perf_counter(), cpu_seconds()
-    c = smc(cert, conditions=cond, monte_carlo=monte_carlo, execution=opts)
+    c = smc(cert, conditions=cond, monte_carlo=monte_carlo, execution=opts,
+            periods_per_bin=periods_per_bin)
     write_artefact(smc_dataset(c), out, overwrite=True)
     elapsed, cpu = time.perf_counter() - t0, cpu_seconds() - c0
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     return elapsed, c, peak / 2**20, cpu
+
+
+def case(args) -> None:
+    """One Monte Carlo run in this (fresh) process; print its figures as one JSON line."""
+    import json
+    import warnings
+
+    warnings.simplefilter("ignore")
+    opts = {"scheduler": args.scheduler, "workers": args.workers, "chunk": 64}
+    ppb = None if args.mc_periods_per_bin in ("all", "none") else int(args.mc_periods_per_bin)
+    mc_on = args.mc_periods_per_bin != "none"  # none: the 50-2 route alone
+    t, c, traced, cpu = run(Path(args.certificate), Path(args.case), Path(args.case).with_suffix(".smc.nc"),
+                            monte_carlo=mc_on, opts=opts, periods_per_bin=ppb)
+    if not mc_on:
+        print(json.dumps({"wall": t, "cpu": cpu, "rss": peak_rss_mb(), "load": os.getloadavg()[0]}))
+        return
+    mc = c.monte_carlo
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
+    print(json.dumps({
+        "wall": t, "cpu": cpu, "cells": int(mc.trials.sum()), "simulated": int((mc.trials > 0).sum()),
+        "period_heights": int(c.conditions["wind_speed"].count()), "replicas": mc.replicas,
+        "rss": peak_rss_mb(), "worker_rss": kids, "traced": traced,
+        "load": os.getloadavg()[0],
+    }))
+
+
+def child(script_args: list[str]) -> dict:
+    """Run :func:`case` in a fresh Python process; return its figures."""
+    import json
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, __file__, *script_args], check=True, stdout=subprocess.PIPE,
+                         text=True)  # the child's log and any traceback go to this process's stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
 
 
 def main() -> None:
@@ -184,20 +236,34 @@ def main() -> None:
     p.add_argument(
         "--mc-periods",
         type=int,
-        nargs="+",
-        default=[1008, 4032],
-        help="campaign lengths the Monte Carlo route is timed on (default: one and four weeks)",
+        default=1008,
+        help="length of the baseline campaign simulated in full (default: one week)",
     )
-    p.add_argument(
-        "--full-monte-carlo", action="store_true", help="also run the Monte Carlo route on the whole year"
-    )
+    p.add_argument("--repeat", type=int, default=3, help="baseline runs (medians; default 3)")
+    p.add_argument("--mc-periods-per-bin", default=None,
+                   help="periods per height and bin of the subsampled route (default: the package's)")
+    p.add_argument("--parts", default="iec,baseline,memory,year",
+                   help="what to run, comma-separated (default all): iec (the 50-2 route), baseline, memory "
+                        "(quarter and whole campaign at --memory-periods-per-bin), year (the whole campaign "
+                        "at --mc-periods-per-bin)")
+    p.add_argument("--memory-periods-per-bin", default="10",
+                   help="periods per bin of the quarter / whole-campaign memory pair (default 10: memory "
+                        "depends on it, not on the campaign's length)")
     p.add_argument("--certificate", help="use this certificate (the campaign takes its heights)")
     p.add_argument("--scheduler", default="processes")
     p.add_argument("--workers", type=int, default=2)
+    p.add_argument("--case", help=argparse.SUPPRESS)  # internal: one run in a fresh process
     args = p.parse_args()
+    if args.case:
+        case(args)
+        return
+    from lidarcal.smc.subsample import DEFAULT_PERIODS_PER_BIN
+
+    ppb = str(args.mc_periods_per_bin or DEFAULT_PERIODS_PER_BIN)
     warnings.simplefilter("ignore")
     logging.getLogger("pint").setLevel(logging.ERROR)
     opts = {"scheduler": args.scheduler, "workers": args.workers, "chunk": 64}
+    common = ["--scheduler", args.scheduler, "--workers", str(args.workers)]
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         if args.certificate:
@@ -216,49 +282,75 @@ def main() -> None:
             f"load: {os.getloadavg()[0]:.1f} (1 min), {os.cpu_count()} CPUs; scheduler {args.scheduler} x "
             f"{args.workers}; heights {heights}"
         )
+        parts = set(args.parts.split(","))
         year = campaign(d, args.periods, heights, "year")
-        t, c, traced, cpu = run(cert, year, d / "smc-year-iec.nc", monte_carlo=False, opts=opts)
         cells = args.periods * len(heights)
-        print(
-            f"50-2 route, {args.periods} periods x {len(heights)} heights: {t:7.1f} s wall, {cpu:7.1f} s CPU "
-            f"(target: seconds); traced peak {traced:.0f} MB, process peak RSS {peak_rss_mb():.0f} MB; "
-            f"{int((c.coverage == 0).sum())} of {cells} period-heights covered"
-        )
-        last = None
-        for n in sorted(args.mc_periods):
-            cond = campaign(d, n, heights, f"mc{n}")
-            t, c, traced, cpu = run(cert, cond, d / f"smc-mc{n}.nc", monte_carlo=True, opts=opts)
-            simulated = int(c.monte_carlo.trials.sum())
-            last = (n, t, cpu, simulated)
+        per_cell = float("nan")
+        if "iec" in parts:
+            t, c, traced, cpu = run(cert, year, d / "smc-year-iec.nc", monte_carlo=False, opts=opts)
             print(
-                f"Monte Carlo route, {n} periods x {len(heights)} heights: {t:7.1f} s wall, "
-                f"{cpu:7.1f} s CPU, {c.monte_carlo.replicas} replica(s), {simulated} cells simulated "
-                f"({simulated / (n * len(heights)):.2f} per period-height), "
-                f"{1000 * cpu / simulated:.2f} ms CPU per cell; traced peak {traced:.0f} MB, "
-                f"process peak RSS {peak_rss_mb():.0f} MB"
+                f"50-2 route, {args.periods} periods x {len(heights)} heights: {t:7.1f} s wall, {cpu:7.1f} s "
+                f"CPU (target: seconds); traced peak {traced:.0f} MB, process peak RSS "
+                f"{peak_rss_mb():.0f} MB; "
+                f"{int((c.coverage == 0).sum())} of {cells} period-heights covered", flush=True
             )
-        if last is not None:
-            n, t, cpu, simulated = last
-            # the year's cells: replica 0 of every period-height, plus replicas at the longest run's
-            # rate (an upper bound: a longer campaign fills its bins better and needs fewer)
-            year_cells = cells * simulated / (n * len(heights))
-            by_cpu = cpu / simulated * year_cells / args.workers
-            by_wall = t / simulated * year_cells
+        if "baseline" in parts:
+            per_cell = baseline(args, d, cert, heights, common, cells)
+        runs = []
+        if "memory" in parts:
+            for label, m in (("quarter", max(2, args.periods // 4)), ("whole campaign", args.periods)):
+                path = year if m == args.periods else campaign(d, m, heights, f"q{m}")
+                r = child(["--case", str(path), "--certificate", str(cert), "--mc-periods-per-bin", "none",
+                           *common])
+                print(f"50-2 route alone, {label}: {m} periods x {len(heights)} heights: {r['wall']:.1f} s "
+                      f"wall, {r['cpu']:.1f} s CPU; peak RSS {r['rss']:.0f} MB (fresh process)", flush=True)
+            runs += [("quarter", max(2, args.periods // 4), args.memory_periods_per_bin),
+                     ("whole campaign", args.periods, args.memory_periods_per_bin)]
+        if "year" in parts:
+            runs.append(("whole campaign", args.periods, ppb))
+        for label, m, k in runs:
+            path = year if m == args.periods else campaign(d, m, heights, f"q{m}")
+            r = child(["--case", str(path), "--certificate", str(cert), "--mc-periods-per-bin", k, *common])
+            full = per_cell * m * len(heights)  # the baseline's CPU for replica 0 of this campaign
             print(
-                f"Monte Carlo route, {args.periods} periods projected from the {n}-period run: "
-                f"{by_cpu / 60:6.1f} min on {args.workers} idle cores (CPU time / {args.workers}), "
-                f"{by_wall / 60:6.1f} min at this run's wall rate (load {os.getloadavg()[0]:.1f}); "
-                "target <= 15 min on 2 cores"
+                f"Monte Carlo route, {label}: {m} periods x {len(heights)} heights, at most {k} periods "
+                f"per height and bin: {r['wall'] / 60:6.2f} min wall, {r['cpu'] / 60:6.2f} min CPU "
+                f"({r['cpu'] / args.workers / 60:.2f} min on {args.workers} idle cores), {r['replicas']} "
+                f"replica(s), {r['simulated']} of {r['period_heights']} period-heights simulated, "
+                f"{r['cells']} cells ({1000 * r['cpu'] / r['cells']:.2f} ms CPU per cell, all included); "
+                f"peak RSS {r['rss']:.0f} MB main (VmHWM), largest worker {r['worker_rss']:.0f} MB "
+                f"(ru_maxrss: not below the main process's at its start); load "
+                f"{r['load']:.1f}; CPU / baseline's replica-0 projection {r['cpu'] / full:.3f}", flush=True
             )
-        if args.full_monte_carlo:
-            t, c, traced, cpu = run(cert, year, d / "smc-year-mc.nc", monte_carlo=True, opts=opts)
-            print(
-                f"Monte Carlo route, {args.periods} periods x {len(heights)} heights: "
-                f"{t / 60:6.1f} min wall, "
-                f"{cpu / 60:6.1f} min CPU, {c.monte_carlo.replicas} replica(s), "
-                f"{int(c.monte_carlo.trials.sum())} cells; traced peak {traced:.0f} MB, process peak RSS "
-                f"{peak_rss_mb():.0f} MB"
-            )
+
+
+def baseline(args, d: Path, cert: Path, heights, common: list[str], cells: int) -> float:
+    """The full-simulation baseline (every period) ``--repeat`` times; print medians, return CPU per cell."""
+    import statistics
+
+    n = args.mc_periods
+    week = campaign(d, n, heights, f"mc{n}")
+    whole = ["--case", str(week), "--certificate", str(cert), "--mc-periods-per-bin", "all", *common]
+    base = [child(whole) for _ in range(max(1, args.repeat))]
+    med = {k: statistics.median(r[k] for r in base)
+           for k in ("wall", "cpu", "cells", "rss", "worker_rss")}
+    loads = ", ".join(f"{r['load']:.1f}" for r in base)
+    per_cell = med["cpu"] / med["cells"]
+    rate = med["cells"] / (n * len(heights))  # cells per period-height, replicas included
+    projected = per_cell * cells  # replica 0 of every period-height alone: a lower bound
+    print(
+        f"baseline, Monte Carlo route simulating every period of {n} periods x {len(heights)} heights, "
+        f"median of {len(base)}: {med['wall']:7.1f} s wall, {med['cpu']:7.1f} s CPU, "
+        f"{med['cells']:.0f} cells ({rate:.2f} per period-height), {1000 * per_cell:.2f} ms CPU per "
+        f"cell; peak RSS {med['rss']:.0f} MB (worker {med['worker_rss']:.0f} MB); loads {loads}"
+    )
+    print(
+        f"baseline projected to {args.periods} periods simulated in full, replica 0 alone (a lower "
+        f"bound): {projected / 60:6.1f} min CPU, {projected / args.workers / 60:6.1f} min on "
+        f"{args.workers} idle cores; at the baseline's {rate:.2f} cells per period-height "
+        f"{rate * projected / 60:6.1f} min CPU"
+    )
+    return per_cell
 
 
 if __name__ == "__main__":

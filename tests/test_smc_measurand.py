@@ -142,3 +142,69 @@ def test_the_monte_carlo_route_carries_the_model_form(tmp_path, cert_mf):
     assert ok.any()
     # every certificate bin states 0.8 % of its mean reference speed: the nearest is 0.8 % as well
     np.testing.assert_allclose(rel[ok], MODEL_FORM_PCT, rtol=1e-12)
+
+
+def test_uncertainty_of_a_bins_mean_by_hand(tmp_path, cert_mf):
+    """The bin mean's uncertainty: correlated parts averaged linearly, the single-period spread divided down.
+
+    Expected side by hand from the certificate's stored budget (netCDF4) and the campaign's speeds:
+    per covered period the calibration contributor split into its std_difference part
+    (independent between periods) and the rest (Table 4 terms, mean difference, statistical, model
+    form: fully correlated); the user term (0.5 % rectangular: 0.5 / sqrt(3) % of the speed) and
+    the 50-2 route's per-period value (checked by hand in test_smc) fully correlated.
+    """
+    (tmp_path / "terms.yaml").write_text(
+        "terms:\n  - {name: flow, value: 0.5, unit: '%', distribution: rectangular, source: CFD (test)}\n"
+    )
+    v = campaign_values(120, HEIGHTS, seed=4)
+    cond = conditions_file(tmp_path / "c.nc", v, HEIGHTS)
+    out = tmp_path / "smc.nc"
+    code = main(["smc", str(cert_mf), "--conditions", str(cond), "--no-monte-carlo", "--no-progress",
+                 "--user-terms", str(tmp_path / "terms.yaml"), "-o", str(out)])
+    assert code == 0
+    order = ("budget_wind_speed", "budget_height", "budget_contributor")
+    contrib = stored(cert_mf, "budget_contribution", order)
+    mref = stored(cert_mf, "budget_mean_reference_wind_speed", order[:2])
+    centres = stored(cert_mf, "budget_wind_speed", order[:1])
+    with netCDF4.Dataset(cert_mf) as nc:
+        names = list(nc.variables["budget_contributor"][:])
+    rel = 100 * contrib / mref[..., None]  # % per contributor
+    rel_all = np.sqrt((rel**2).sum(axis=-1))
+    rel_sd = rel[..., names.index("std_difference")]
+    speed = stored(out, "wind_speed", ("time", "height"))
+    covered = stored(out, "coverage_flag", ("time", "height")) == 0
+    iec = stored(out, "contribution", ("contributor", "time", "height"))[1]  # environmental_iec
+    bounds = stored(out, "wind_speed_bin_bounds", ("wind_speed_bin", "nv"))
+    got = stored(out, "bin_mean_uncertainty", ("wind_speed_bin", "height"))
+    got_rel = stored(out, "bin_mean_relative_uncertainty", ("wind_speed_bin", "height"))
+    got_cal = stored(out, "bin_mean_contribution", ("wind_speed_bin", "contributor", "height"))[:, 0]
+    single = stored(out, "bin_uncertainty", ("wind_speed_bin", "height"))
+    checked = 0
+    for i, (lo, hi) in enumerate(bounds):
+        for j in range(len(HEIGHTS)):
+            mine = covered[:, j] & (speed[:, j] >= lo) & (speed[:, j] < hi)
+            n = int(mine.sum())
+            if n == 0:
+                assert np.isnan(got[i, j])
+                continue
+            u = speed[mine, j]
+            b = int(np.argmin(np.abs(centres - 0.5 * (lo + hi))))
+            sys_part = np.sqrt(rel_all[b, j] ** 2 - rel_sd[b, j] ** 2) / 100 * u  # fully correlated
+            rand_part = rel_sd[b, j] / 100 * u  # independent between periods
+            cal = np.sqrt(sys_part.mean() ** 2 + (rand_part**2).sum() / n**2)
+            user = (0.5 / np.sqrt(3) / 100 * u).mean()
+            env = iec[mine, j].mean()
+            want = np.sqrt(cal**2 + env**2 + user**2)
+            np.testing.assert_allclose(got_cal[i, j], cal, rtol=1e-10)
+            np.testing.assert_allclose(got[i, j], want, rtol=1e-10)
+            np.testing.assert_allclose(got_rel[i, j], 100 * want / u.mean(), rtol=1e-10)
+            if n > 1:  # the spread averages down, nothing else does: below the single period's RMS
+                assert got[i, j] < single[i, j]
+                assert got[i, j] > np.sqrt(sys_part.mean() ** 2 + env**2 + user**2) * (1 - 1e-12)
+            checked += 1
+    assert checked >= 20
+    # the table prints it beside the single-period value
+    table = lidarcal.smc.binned_table(out)
+    row = table.iloc[0]
+    assert {"mean_uncertainty_m_s", "mean_relative_uncertainty_pct"} <= set(table.columns)
+    assert row["mean_uncertainty_m_s"] <= row["uncertainty_m_s"]

@@ -31,8 +31,22 @@ from lidarcal.cli.options import (
 from lidarcal.io import check_writable, write_artefact
 
 
+def _periods_per_bin(text: str) -> int | None:
+    """``--mc-periods-per-bin``: an integer >= 2, or ``all`` (None: every period)."""
+    if text.strip().lower() == "all":
+        return None
+    try:
+        n = int(text)
+    except ValueError:
+        n = 0
+    if n < 2:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 2 or 'all'; found {text!r}")
+    return n
+
+
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``smc`` subcommand."""
+    from lidarcal.smc.subsample import DEFAULT_PERIODS_PER_BIN  # deferred: only when smc is run
     p = sub.add_parser(
         "smc",
         help=COMMANDS["smc"].help,
@@ -87,6 +101,14 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="most Monte Carlo replicas of the periods of unsettled bins, replica 0 included "
         "(default: the certificate's own, at least 4)",
     )
+    p.add_argument(
+        "--mc-periods-per-bin",
+        type=_periods_per_bin,
+        default=DEFAULT_PERIODS_PER_BIN,
+        metavar="N|all",
+        help="most periods the Monte Carlo route simulates per height and wind-speed bin, a stratified "
+        f"subsample whose tolerance smc.nc states (default {DEFAULT_PERIODS_PER_BIN}); 'all': every period",
+    )
     add_seed_option(p, help="base seed of the Monte Carlo route")
     add_parallel_options(p)
     add_progress_option(p)
@@ -112,6 +134,7 @@ def run(args: argparse.Namespace) -> int:
         allow_gaps=args.allow_gaps,
         base_seed=args.seed,
         max_replicas=args.max_replicas,
+        periods_per_bin=args.mc_periods_per_bin,
         execution=execution_of(args),
     )
     ds = smc_dataset(campaign, call=command_line(args))

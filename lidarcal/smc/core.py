@@ -48,6 +48,7 @@ from lidarcal.provenance import lidar_serial
 from lidarcal.smc.certified import Certified, read_certified
 from lidarcal.smc.montecarlo import MonteCarloRoute, monte_carlo_route
 from lidarcal.smc.routes import IecRoute, calibration_part, iec_route, table_edges
+from lidarcal.smc.subsample import DEFAULT_PERIODS_PER_BIN
 from lidarcal.smc.user_terms import UserTerm, load_user_terms
 
 __all__ = ["smc", "Campaign", "campaign_conditions", "HEIGHT_TOLERANCE"]
@@ -258,6 +259,7 @@ def smc(
     allow_gaps: bool = False,
     base_seed: int = DEFAULT_BASE_SEED,
     max_replicas: int | None = None,
+    periods_per_bin: int | None = DEFAULT_PERIODS_PER_BIN,
     execution: Execution | Mapping[str, Any] | None = None,
 ) -> Campaign:
     """Compute the campaign uncertainty (module docstring); :func:`.dataset.smc_dataset` writes it.
@@ -282,10 +284,17 @@ def smc(
         Base seed of the Monte Carlo route (docs/seeds.md).
     max_replicas : int, optional
         Most Monte Carlo replicas (default: the certificate's own ``monte_carlo_replicas``, at least 4).
+    periods_per_bin : int or None
+        Most periods the Monte Carlo route simulates per height and wind-speed bin, a stratified
+        subsample whose tolerance the artefact states (:mod:`lidarcal.smc.subsample`); None: every
+        period of the campaign.
     execution : Execution or mapping, optional
         Where and how the Monte Carlo route runs (:class:`~lidarcal.campaign.settings.Execution`).
     """
     execution = Execution.of(execution)
+    if periods_per_bin is not None and int(periods_per_bin) < 2:
+        raise InputError(f"periods_per_bin: expected at least 2 periods per bin (a spread needs two), "
+                         f"or None for every period; found {periods_per_bin!r}")
     cert = read_certified(certificate, public_key=public_key)  # the seal first, before any number
     terms = load_user_terms(user_terms) if user_terms is not None else []
     ds, inputs, source = campaign_conditions(
@@ -329,16 +338,23 @@ def smc(
             significant_digits=int(cert.attrs.get("monte_carlo_significant_digits", 2)),
             max_replicas=replicas,
             base_seed=int(base_seed),
+            periods_per_bin=None if periods_per_bin is None else int(periods_per_bin),
             execution=execution,
             carried=_carried(cert, height_index),
         )
-        note = f"run: {mc.replicas} replica(s), base seed {int(base_seed)}"
+        sampled = int((mc.trials > 0).sum())
+        total = int(np.isfinite(speed[:, height_index >= 0]).sum())
+        note = (f"run: {mc.replicas} replica(s), base seed {int(base_seed)}, "
+                + ("every period" if periods_per_bin is None else
+                   f"at most {int(periods_per_bin)} periods per height and wind-speed bin")
+                + f" ({sampled} of {total} period-heights simulated)")
     settings = {
         "min_availability": float(min_availability),
         "allow_gaps": bool(allow_gaps),
         "monte_carlo": bool(monte_carlo),
         "base_seed": int(base_seed),
         "max_replicas": replicas,
+        "monte_carlo_periods_per_bin": "all" if periods_per_bin is None else int(periods_per_bin),
         "simulate_options": execution.record(where=False),
         "user_terms": [t.describe() for t in terms],
     }

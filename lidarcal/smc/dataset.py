@@ -26,7 +26,7 @@ from lidarcal.provenance import stamp
 from lidarcal.schema import output_attrs
 from lidarcal.smc.certified import flag_meanings
 from lidarcal.smc.core import Campaign
-from lidarcal.smc.kernels import quadrature
+from lidarcal.smc.kernels import binned_mean_uncertainty, quadrature
 from lidarcal.smc.montecarlo import REGRESSORS
 from lidarcal.smc.routes import (
     COVERAGE,
@@ -49,7 +49,8 @@ MEASURAND = (
     "uncertainties are root mean squares of these single-period values, not the uncertainty of a bin's mean: "
     "the calibration contributor's Table 4 terms, mean difference and model form are fully correlated across "
     "periods, bins and heights, so whoever averages periods must not divide them by the square root of the "
-    "number of periods."
+    "number of periods. bin_mean_uncertainty is the uncertainty of the bin's mean speed: the correlated "
+    "parts averaged linearly, only the independent single-period spreads divided down."
 )
 _DESCRIPTION = {
     "calibration": "the certificate's certified standard uncertainty at the period's height and speed bin",
@@ -92,14 +93,19 @@ def _by_centre(
     return out
 
 
-def _per_period(c: Campaign) -> tuple[dict, np.ndarray, list[str]]:
-    """Per-period variables, contributions (contributor, time, height) and the contributor names."""
+def _per_period(c: Campaign) -> tuple[dict, np.ndarray, list[str], dict]:
+    """Per-period variables, contributions (contributor, time, height), contributor names, their split.
+
+    The split: per contributor, its (correlated, independent) parts on (time, height), m s-1.
+    """
     speed = c.conditions["wind_speed"].transpose("time", "height").values
     nt, nh = speed.shape
     names = [*CONTRIBUTORS, *(t.name for t in c.user_terms)]
     mc_env = np.full((nt, nh), np.nan)
     mc_dev = np.full((nt, nh), np.nan)
     mc_expected = np.full((nt, nh), np.nan)
+    mc_expected_se = np.full((nt, nh), np.nan)
+    mc_excess = np.full((nt, nh), np.nan)
     trials = np.zeros((nt, nh), dtype=np.int32)
     cols = np.flatnonzero(c.height_index >= 0)
     if c.monte_carlo is not None:
@@ -120,6 +126,7 @@ def _per_period(c: Campaign) -> tuple[dict, np.ndarray, list[str]]:
             s_cal = np.where(ok, cert_sd[i, np.maximum(b, 0)], np.nan)
             excess = np.sqrt(np.maximum(s_sim**2 - s_cal**2, 0.0))
             mc_dev[:, j], mc_expected[:, j] = shift, mc.expected[:, k]
+            mc_expected_se[:, j], mc_excess[:, j] = mc.expected_se[:, k], excess
             mc_env[:, j] = quadrature(shift, excess)
             trials[:, j] = mc.trials[:, k]
     user = [t.at(speed) for t in c.user_terms]
@@ -140,10 +147,76 @@ def _per_period(c: Campaign) -> tuple[dict, np.ndarray, list[str]]:
         "environmental_deviation_iec": c.iec.deviation,
         "environmental_deviation_monte_carlo": mc_dev,
         "monte_carlo_expected_deviation": mc_expected,
+        "monte_carlo_expected_deviation_standard_error": mc_expected_se,
         "monte_carlo_trials": trials,
+        "monte_carlo_simulated": (trials > 0).astype(np.int8),
         "coverage_flag": coverage,
     }
-    return values, contribution, names
+    # each contributor's part fully correlated across periods and its part independent between them
+    # (the uncertainty of a bin's mean, docs/smc.md): calibration = its certified terms (correlated)
+    # and the calibration's single-period spread std_difference (independent); the Monte Carlo
+    # route = its expected shift (correlated) and its excess spread (independent); the 50-2 route
+    # and the user terms wholly correlated
+    cal_random = _calibration_random(c, speed)
+    zero = np.zeros((nt, nh))
+    split = {
+        "calibration": (np.sqrt(np.maximum(c.calibration**2 - cal_random**2, 0.0)), cal_random),
+        "environmental_iec": (c.iec.contribution, zero),
+        "environmental_monte_carlo": (np.abs(mc_dev), mc_excess),
+        **{t.name: (u, zero) for t, u in zip(c.user_terms, user, strict=True)},
+    }
+    return values, contribution, names, split
+
+
+def _calibration_random(c: Campaign, speed: np.ndarray) -> np.ndarray:
+    """(time, height) the calibration contributor's independent part: the certified bin's std_difference.
+
+    Its relative contribution (%) times the period's speed; 0 where the certificate's budget has no
+    such contributor (then the whole contributor counts as correlated), NaN where not certified.
+    """
+    bud = c.cert.budget.transpose("height", "wind_speed", "contributor", ...)
+    out = np.where(np.isfinite(c.calibration), 0.0, np.nan)
+    if "std_difference" not in [str(n) for n in bud["contributor"].values]:
+        return out
+    rel = bud["relative_contribution"].sel(contributor="std_difference").values  # (height, bin), %
+    edges = budget_edges(bud)
+    for j, i in enumerate(c.height_index):
+        if i >= 0:
+            b = bin_index(speed[:, j], edges)
+            part = np.where(b >= 0, rel[i, np.maximum(b, 0)] * speed[:, j] / 100.0, np.nan)
+            out[:, j] = np.where(np.isfinite(c.calibration[:, j]), part, np.nan)
+    return out
+
+
+def _bin_mean(c: Campaign, per: dict, split: dict, names: list[str], edges: np.ndarray) -> dict:
+    """Return the (bin, [contributor,] height) uncertainty of each bin's mean speed over its covered periods.
+
+    Per contributor :func:`lidarcal.smc.kernels.binned_mean_uncertainty` of its split (correlated
+    parts add linearly, independent ones in quadrature; over the covered periods where it has a
+    value); combined in quadrature over the contributors of the quoted route (docs/smc.md).
+    """
+    speed = c.conditions["wind_speed"].transpose("time", "height").values
+    nb, nh = len(edges) - 1, speed.shape[1]
+    covered = per["coverage_flag"] == 0
+    route = "environmental_iec" if c.monte_carlo is None else "environmental_monte_carlo"
+    quoted = [k for k, n in enumerate(names) if not n.startswith("environmental_") or n == route]
+    out = {"bin_mean_contribution": np.full((nb, len(names), nh), np.nan),
+           "bin_mean_uncertainty": np.full((nb, nh), np.nan),
+           "bin_mean_relative_uncertainty": np.full((nb, nh), np.nan)}
+    for j in range(nh):
+        b = np.where(covered[:, j], bin_index(speed[:, j], edges), -1)
+        for k, n in enumerate(names):
+            corr, rand = split[n]
+            u, _ = binned_mean_uncertainty(corr[None, :, j], rand[None, :, j], b, nb)
+            out["bin_mean_contribution"][:, k, j] = u[0]
+        n_cov = np.bincount(b[b >= 0], minlength=nb)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_speed = np.bincount(b[b >= 0], weights=speed[b >= 0, j], minlength=nb) / n_cov
+        u = np.sqrt(np.sum(out["bin_mean_contribution"][:, quoted, j] ** 2, axis=1))
+        out["bin_mean_uncertainty"][:, j] = np.where(n_cov > 0, u, np.nan)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            out["bin_mean_relative_uncertainty"][:, j] = np.where(n_cov > 0, 100.0 * u / mean_speed, np.nan)
+    return out
 
 
 def _binned_values(c: Campaign, per: dict, contribution: np.ndarray, edges: np.ndarray) -> dict:
@@ -211,13 +284,25 @@ def _binned_values(c: Campaign, per: dict, contribution: np.ndarray, edges: np.n
         )
     out["bin_simulated_sample_count"] = np.nan_to_num(out["bin_simulated_sample_count"]).astype(np.int32)
     tol, flag = np.full((nb, nh), np.nan), np.full((nb, nh), 2, dtype=np.int8)
+    extra = {
+        "bin_simulated_mean_difference_standard_error": "mean_difference_se",
+        "bin_simulated_std_difference_standard_error": "std_difference_se",
+        "bin_simulated_period_count": "periods_simulated",
+    }
+    for name in extra:
+        out[name] = np.full((nb, nh), np.nan)
     if mc is not None:
+        hw = ("height", "wind_speed")
         sim = mc.budget.assign(
-            tolerance=(("height", "wind_speed"), mc.tolerance),
-            settled=(("height", "wind_speed"), mc.settled.astype(float)),
+            tolerance=(hw, mc.tolerance),
+            settled=(hw, mc.settled.astype(float)),
+            **{src: (hw, np.asarray(getattr(mc, src), dtype=float)) for src in extra.values()},
         )
         tol = _by_centre(sim, "tolerance", centres, hi, sim_rows)
         flag = np.nan_to_num(_by_centre(sim, "settled", centres, hi, sim_rows), nan=2).astype(np.int8)
+        for name, src in extra.items():
+            out[name] = _by_centre(sim, src, centres, hi, sim_rows)
+    out["bin_simulated_period_count"] = np.nan_to_num(out["bin_simulated_period_count"]).astype(np.int32)
     out["bin_simulated_numerical_tolerance"], out["bin_simulated_numerical_flag"] = tol, flag
     return out
 
@@ -225,7 +310,7 @@ def _binned_values(c: Campaign, per: dict, contribution: np.ndarray, edges: np.n
 def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
     """Assemble the stamped ``smc`` artefact of a :class:`~lidarcal.smc.core.Campaign`."""
     cert, cond = c.cert, c.conditions.transpose("time", "height", ...)
-    per, contribution, names = _per_period(c)
+    per, contribution, names, split = _per_period(c)
     route = "monte_carlo" if c.monte_carlo is not None else "iec"
     speed = cond["wind_speed"].values
     edges = table_edges(cert.budget, speed)
@@ -305,8 +390,10 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
                 slope,
                 output_attrs("smc", f"monte_carlo_slope_{v}", **ctx),
             )
-    bdims = {"bin_contribution": ("wind_speed_bin", "contributor", "height")}
-    for name, values in _binned_values(c, per, contribution, edges).items():
+    bdims = {n: ("wind_speed_bin", "contributor", "height")
+             for n in ("bin_contribution", "bin_mean_contribution")}
+    binned_values = {**_binned_values(c, per, contribution, edges), **_bin_mean(c, per, split, names, edges)}
+    for name, values in binned_values.items():
         ds[name] = (
             bdims.get(name, ("wind_speed_bin", "height")),
             values,
@@ -358,6 +445,8 @@ def _stamped(ds: xr.Dataset, c: Campaign, route: str, call: str | None) -> xr.Da
         ),
         "lidar_site": str(cond.attrs.get("lidar_site", "not given")),
         "lidarcal_smc_settings": json.dumps(c.settings, sort_keys=True),
+        "monte_carlo_periods_per_bin": str(c.settings.get("monte_carlo_periods_per_bin", "all"))
+        if c.monte_carlo is not None else "not run",
         "measurand": MEASURAND,
         "certificate_measurand": str(cert.attrs.get("measurand", "not stated (a certificate older than the "
                                                                   "measurand statement)")),
@@ -426,9 +515,12 @@ def binned_table(obj: xr.Dataset | str | os.PathLike):
     """IEC-style table of an ``smc`` artefact: one row per height and wind-speed bin (``lidarcal table``).
 
     Columns: height, bin centre, periods and covered periods, mean wind speed, the certificate's
-    flag meaning, the combined standard uncertainty (quoted route) in m/s and %, both routes'
-    combinations, each contributor (m/s), the certificate's and the campaign's simulated relative
-    expanded uncertainty with their numerical tolerances.  Rows with no campaign period are left out.
+    flag meaning, the combined standard uncertainty (quoted route) in m/s and % (of a single
+    period, the root mean square over the bin), both routes' combinations, the standard
+    uncertainty of the bin's mean speed in m/s and %, each contributor (m/s), the certificate's
+    and the campaign's simulated relative expanded uncertainty with their numerical tolerances,
+    and the Monte Carlo route's periods simulated in the bin with its mean deviation and spread
+    and their standard errors from the subsample.  Rows with no campaign period are left out.
     """
     import pandas as pd
 
@@ -451,6 +543,8 @@ def binned_table(obj: xr.Dataset | str | os.PathLike):
                 "relative_uncertainty_pct": float(b["relative_uncertainty"].values[i, j]),
                 "uncertainty_iec_route_m_s": float(b["uncertainty_iec_route"].values[i, j]),
                 "uncertainty_monte_carlo_route_m_s": float(b["uncertainty_monte_carlo_route"].values[i, j]),
+                "mean_uncertainty_m_s": float(b["mean_uncertainty"].values[i, j]),
+                "mean_relative_uncertainty_pct": float(b["mean_relative_uncertainty"].values[i, j]),
             }
             for k, c in enumerate(b["contributor"].values):
                 row[f"{c}_m_s"] = float(b["contribution"].values[i, j, k])
@@ -461,6 +555,10 @@ def binned_table(obj: xr.Dataset | str | os.PathLike):
                 "simulated_numerical_tolerance",
             ):
                 row[f"{name}_pct"] = float(b[name].values[i, j])
+            row["simulated_periods"] = int(b["simulated_period_count"].values[i, j])
+            for name in ("simulated_mean_difference", "simulated_mean_difference_standard_error",
+                         "simulated_std_difference", "simulated_std_difference_standard_error"):
+                row[f"{name}_m_s"] = float(b[name].values[i, j])
             rows.append(row)
     table = pd.DataFrame(rows)
     table.attrs.update(

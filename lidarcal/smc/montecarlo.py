@@ -53,9 +53,20 @@ from lidarcal.analysis.rule import CertificationRule
 from lidarcal.binning import binned_statistics
 from lidarcal.campaign import simulate_campaign
 from lidarcal.campaign.adaptive import BATCH_SCHEDULE, with_trials
+from lidarcal.campaign.chunks import period_keys
 from lidarcal.campaign.run import simulate_replicas
 from lidarcal.campaign.settings import Execution
-from lidarcal.smc.kernels import SEQUENCES, bin_index, expected_deviation, group_of, within_bin_fit
+from lidarcal.cf import height_coord, time_coord
+from lidarcal.schema import output_attrs
+from lidarcal.smc import subsample
+from lidarcal.smc.kernels import (
+    SEQUENCES,
+    bin_index,
+    expected_deviation,
+    expected_deviation_se,
+    group_of,
+    within_bin_fit,
+)
 
 __all__ = ["MonteCarloRoute", "monte_carlo_route", "with_carried", "REGRESSORS"]
 
@@ -79,6 +90,12 @@ class MonteCarloRoute:
     slopes: np.ndarray  #: (height, regressor) within-bin slopes of the deviation (m s-1 per unit)
     trials: np.ndarray  #: (time, height) trials simulated of each period (0: not simulated)
     replicas: int  #: replicas run, replica 0 included
+    expected_se: np.ndarray  #: (time, height) standard error of ``expected`` (m s-1)
+    periods_per_bin: int | None  #: most periods simulated per (height, bin); None: every period
+    periods_simulated: np.ndarray  #: (height, budget bin) distinct periods among the bin's trials
+    population: np.ndarray  #: (height, budget bin) the campaign's periods in the bin (their own speed)
+    mean_difference_se: np.ndarray  #: (height, budget bin) SE of the mean deviation from subsampling, m s-1
+    std_difference_se: np.ndarray  #: (height, budget bin) SE of the spread from subsampling, m s-1
 
 
 def with_carried(bud: xr.Dataset, carried: xr.Dataset | None) -> xr.Dataset:
@@ -233,6 +250,65 @@ def _cells(records: xr.Dataset, bud: xr.Dataset, flag: np.ndarray) -> np.ndarray
     return out
 
 
+#: The budget's wind-speed bin width (m s-1; lidarcal.analysis.budget's default).
+_BIN_WIDTH = 0.5
+
+
+def _terms_span(terms: xr.Dataset | None) -> tuple[float, float]:
+    """Speeds (m s-1) a trial's reference may have for its bin to lie inside the terms' wind speeds."""
+    if terms is None or "wind_speed" not in terms.coords:
+        return -np.inf, np.inf
+    ws = np.asarray(terms["wind_speed"].values, dtype=float)
+    return float(ws.min()) + _BIN_WIDTH, float(ws.max()) - _BIN_WIDTH
+
+
+def _within(records: xr.Dataset, span: tuple[float, float]) -> xr.Dataset:
+    """Return ``records`` with every cell whose reference speed is outside ``span`` set missing."""
+    ref = records["reference_wind_speed"]
+    out = (ref < span[0]) | (ref > span[1])
+    if not bool(out.any()):
+        return records
+    records = records.copy()
+    for name in ("lidar_wind_speed", "reference_wind_speed"):
+        records[name] = records[name].where(~out)
+    return records
+
+
+def _trial_within(trial: dict[str, np.ndarray], span: tuple[float, float]) -> dict[str, np.ndarray]:
+    """Return a replica's trials with those whose reference speed is outside ``span`` set missing."""
+    ref = np.asarray(trial["reference_wind_speed"], dtype=float)
+    out = (ref < span[0]) | (ref > span[1])
+    if not out.any():
+        return trial
+    names = ("lidar_wind_speed", "reference_wind_speed")
+    return {**trial, **{k: np.where(out, np.nan, trial[k]) for k in names}}
+
+
+def _subsample_records(
+    conditions: xr.Dataset, model, chosen: np.ndarray, *, base_seed: int, execution: Execution
+) -> tuple[xr.Dataset, xr.Dataset]:
+    """Simulate the ``chosen`` (time, height) cells only; return (their periods' conditions, records).
+
+    The records hold replica 0 of the periods with any chosen cell, NaN at the cells not chosen:
+    the same numbers a full campaign gives at those cells (the seed is the period's, docs/seeds.md).
+    """
+    rows = np.flatnonzero(chosen.any(axis=1))
+    sub = conditions.isel(time=rows)
+    heights = np.asarray(sub["height"].values, dtype=float)
+    done = simulate_replicas(sub, model, chosen[rows], [0], heights=heights.tolist(),
+                             base_seed=int(base_seed), execution=execution)[0]
+    col = np.abs(np.asarray(done["height"], dtype=float)[:, None] - heights[None, :]).argmin(axis=1)
+    dims = ("time", "height")
+    rec = xr.Dataset(coords={"time": time_coord(sub["time"].values), "height": height_coord(heights)})
+    for name in ("lidar_wind_speed", "reference_wind_speed"):
+        grid = np.full((rows.size, heights.size), np.nan)
+        grid[done["period"], col] = done[name]
+        rec[name] = (dims, grid, output_attrs("simulated_rtd", name))
+    rec["period_key"] = ("time", period_keys(sub["time"].values), output_attrs("simulated_rtd", "period_key"))
+    rec.attrs["lidarcal_base_seed"] = int(base_seed)
+    return sub, rec
+
+
 def monte_carlo_route(
     conditions: xr.Dataset,
     model,
@@ -245,6 +321,7 @@ def monte_carlo_route(
     significant_digits: int = 2,
     max_replicas: int = 30,
     base_seed: int,
+    periods_per_bin: int | None = subsample.DEFAULT_PERIODS_PER_BIN,
     execution: Execution | Mapping[str, Any] | None = None,
     carried: xr.Dataset | None = None,
 ) -> MonteCarloRoute:
@@ -269,6 +346,9 @@ def monte_carlo_route(
         Most replicas, replica 0 included.
     base_seed : int
         Base seed (docs/seeds.md).
+    periods_per_bin : int or None
+        Most periods simulated per height and ``lookup_edges`` bin, a stratified subsample
+        (:mod:`lidarcal.smc.subsample`); None: every period.
     execution : Execution or mapping, optional
         Where and how the simulations run (:class:`~lidarcal.campaign.settings.Execution`).
     carried : xarray.Dataset, optional
@@ -276,14 +356,44 @@ def monte_carlo_route(
         on (height, wind_speed, contributor) at the simulated heights (:func:`with_carried`).
     """
     execution = Execution.of(execution)
-    records = simulate_campaign(
-        conditions,
-        model,
-        base_seed=int(base_seed),
-        execution=execution,
-        call="lidarcal smc (Monte Carlo route)",
+    heights = np.asarray(conditions["height"].values, dtype=float)
+    cond = conditions.transpose("time", "height", ...)
+    speed = cond["wind_speed"].values
+    chosen = subsample.select(
+        speed,
+        np.stack([cond[n].values for n in ("turbulence_intensity", "wind_shear_exponent", "cnr")], axis=-1),
+        cond["wind_from_direction"].values,
+        period_keys(cond["time"].values),
+        heights,
+        np.asarray(lookup_edges, dtype=float),
+        None if periods_per_bin is None else int(periods_per_bin),
+        int(base_seed),
     )
-    records = records.transpose("time", "height", ...)
+    inside = np.isfinite(speed) & (speed >= lookup_edges[0]) & (speed < lookup_edges[-1])
+    # the budget never extrapolates the certificate's Table 4 terms: a period beyond their speeds
+    # (less one bin for the reference's own drift) cannot be budgeted, so it is not simulated
+    span = _terms_span(terms)
+    chosen &= (speed >= span[0]) & (speed <= span[1])
+    inside &= (speed >= span[0]) & (speed <= span[1])
+    if (chosen == inside).all():  # every period: the campaign as a whole
+        sim_cond = conditions
+        records = simulate_campaign(
+            conditions,
+            model,
+            base_seed=int(base_seed),
+            execution=execution,
+            call="lidarcal smc (Monte Carlo route)",
+        ).transpose("time", "height", ...)
+        rows = np.arange(conditions.sizes["time"])
+    else:
+        log.info(
+            "Monte Carlo route: simulating %d of %d (period, height) cells, at most %d periods per height "
+            "and wind-speed bin (stratified subsample, lidarcal.smc.subsample)",
+            int(chosen.sum()), int(inside.sum()), int(periods_per_bin),
+        )
+        sim_cond, records = _subsample_records(cond, model, chosen, base_seed=base_seed, execution=execution)
+        rows = np.flatnonzero(chosen.any(axis=1))
+    records = _within(records, span)
     rule = dict(terms=terms, rule=CertificationRule(min_periods=2, certified_range=tuple(certified_range),
                                                     significant_digits=int(significant_digits),
                                                     coverage_factor=float(coverage_factor)))
@@ -306,7 +416,7 @@ def monte_carlo_route(
             int(cells.sum()),
         )
         done = simulate_replicas(
-            conditions,
+            sim_cond,
             model,
             cells,
             batch,
@@ -314,13 +424,27 @@ def monte_carlo_route(
             base_seed=int(base_seed),
             execution=execution,
         )
-        trials += [{"replica": r, **done[r]} for r in batch]
+        trials += [{"replica": r, **_trial_within(done[r], span)} for r in batch]
         replicas = batch[-1] + 1
         current = with_trials(records, trials)
         bud = with_carried(budget(current, **rule), carried)
         targets = _targets(bud, covered)
         tol, flag = _assess(current, bud, targets, int(significant_digits), float(coverage_factor))
-    expected, slopes, count = _expected(current, conditions, lookup_edges)
+    expected, slopes, count, expected_se = _expected(current, sim_cond, cond, lookup_edges)
+    full_count = np.zeros(speed.shape, dtype=np.int64)
+    full_count[rows] = count
+    # each simulated cell stands for N / n campaign periods of its own-speed bin (N periods, n simulated)
+    lookup_edges = np.asarray(lookup_edges, dtype=float)
+    lookup = np.stack([bin_index(speed[:, i], lookup_edges) for i in range(speed.shape[1])], axis=1)
+    weight = np.zeros(speed.shape)
+    for i in range(speed.shape[1]):
+        nb = len(lookup_edges) - 1
+        mine = lookup[:, i] >= 0
+        pop = np.bincount(lookup[mine, i], minlength=nb)
+        got = np.bincount(lookup[mine & chosen[:, i], i], minlength=nb)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            weight[mine, i] = (pop / np.maximum(got, 1))[lookup[mine, i]]
+    m, se_mean, se_sd, population = _subsample_errors(current, bud, weight[rows])
     return MonteCarloRoute(
         records=current,
         budget=bud,
@@ -328,36 +452,83 @@ def monte_carlo_route(
         settled=flag,
         expected=expected,
         slopes=slopes,
-        trials=count,
+        trials=full_count,
         replicas=replicas,
+        expected_se=expected_se,
+        periods_per_bin=None if periods_per_bin is None else int(periods_per_bin),
+        periods_simulated=m,
+        population=population,
+        mean_difference_se=se_mean,
+        std_difference_se=se_sd,
     )
 
 
-def _expected(
-    records: xr.Dataset, conditions: xr.Dataset, edges: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Return the expected deviation (time, height, m s-1), slopes (height, regressor), trials (time, height).
+def _subsample_errors(
+    records: xr.Dataset, bud: xr.Dataset, weight: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(periods simulated, SE of the mean deviation, SE of the spread, campaign periods) per budget bin.
 
-    Trials are grouped by their reference speed's bin, periods looked up by their own speed's bin.
+    :func:`lidarcal.smc.subsample.standard_errors` over each bin's trials (binned by the reference
+    speed, as the budget bins them).  The bin's campaign periods N are estimated from its simulated
+    ones: each weighs ``weight`` (records' (time, height): N / n of its own-speed bin), so N is
+    exact where every period was simulated.
     """
     heights = np.asarray(records["height"].values, dtype=float)
     tr = _trials(records, heights)
+    bounds = bud["wind_speed_bounds"].values
+    edges = np.append(bounds[:, 0], bounds[-1, 1])
+    nh, nb = heights.size, len(edges) - 1
+    out = [np.zeros((nh, nb), dtype=np.int64), np.full((nh, nb), np.nan), np.full((nh, nb), np.nan),
+           np.zeros((nh, nb), dtype=np.int64)]
+    for i in range(nh):
+        mine = tr["height"] == i
+        first = mine & (tr["replica"] == 0)  # one weight per period
+        bf = bin_index(tr["reference"][first], edges)
+        pop = np.rint(np.bincount(bf[bf >= 0], weights=weight[tr["period"][first][bf >= 0], i], minlength=nb))
+        m, se_mean, se_sd = subsample.standard_errors(
+            tr["lidar"][mine] - tr["reference"][mine],
+            tr["period"][mine],
+            bin_index(tr["reference"][mine], edges),
+            nb,
+            pop,
+        )
+        for k, v in enumerate((m, se_mean, se_sd, pop)):
+            out[k][i] = v
+    return tuple(out)
+
+
+def _expected(
+    records: xr.Dataset, fit_conditions: xr.Dataset, conditions: xr.Dataset, edges: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Return the expected deviation (time, height, m s-1), slopes (height, regressor), trials, its SE.
+
+    The fit is on the trials (their conditions from ``fit_conditions``, the records' periods),
+    grouped by their reference speed's bin; every period of ``conditions`` (simulated or not) is
+    looked up by its own speed's bin.  Trials are counted on the records' periods.
+    """
+    heights = np.asarray(records["height"].values, dtype=float)
+    tr = _trials(records, heights)
+    fit = fit_conditions.sel(height=records["height"].values).transpose("time", "height", ...)
+    x_fit = np.stack([fit[n].values for n in REGRESSORS], axis=-1)  # (record time, height, regressor)
     cond = conditions.sel(height=records["height"].values).transpose("time", "height", ...)
     x_all = np.stack([cond[n].values for n in REGRESSORS], axis=-1)  # (time, height, regressor)
     speed = cond["wind_speed"].values
     nt, nh = speed.shape
     nb = len(edges) - 1
     expected = np.full((nt, nh), np.nan)
+    se = np.full((nt, nh), np.nan)
     slopes = np.full((nh, len(REGRESSORS)), np.nan)
-    count = np.zeros((nt, nh), dtype=np.int64)
+    count = np.zeros((records.sizes["time"], nh), dtype=np.int64)
     np.add.at(count, (tr["period"], tr["height"]), 1)
     for i in range(nh):
         mine = tr["height"] == i
         d = tr["lidar"][mine] - tr["reference"][mine]
         b = bin_index(tr["reference"][mine], edges)
-        n, mean_d, mean_x, beta = within_bin_fit(d, x_all[tr["period"][mine], i], b, nb)
+        xt = x_fit[tr["period"][mine], i]
+        n, mean_d, mean_x, beta = within_bin_fit(d, xt, b, nb)
         slopes[i] = beta
-        expected[:, i] = expected_deviation(
-            x_all[:, i], bin_index(speed[:, i], edges), mean_d, mean_x, beta, n >= 2
-        )
-    return expected, slopes, count
+        at = bin_index(speed[:, i], edges)
+        expected[:, i] = expected_deviation(x_all[:, i], at, mean_d, mean_x, beta, n >= 2)
+        se_i = expected_deviation_se(d, xt, b, x_all[:, i], at)
+        se[:, i] = np.where(np.isfinite(expected[:, i]), se_i, np.nan)
+    return expected, slopes, count, se

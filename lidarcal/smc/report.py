@@ -115,7 +115,8 @@ def _coverage_rows(ds: xr.Dataset) -> tuple[list[str], list[list[str]]]:
     return header, rows
 
 
-def _uncertainty_figure(fig, ds: xr.Dataset, b: xr.Dataset) -> None:
+def _per_height(fig, ds: xr.Dataset, b: xr.Dataset, draw, ylabel: str, title: str) -> None:
+    """One panel per covered height of the binned ``b``, ``draw(ax, one, names)`` filling each; a legend."""
     heights = _covered_heights(ds)
     n = max(len(heights), 1)
     cols = 2 if n > 1 else 1
@@ -126,34 +127,44 @@ def _uncertainty_figure(fig, ds: xr.Dataset, b: xr.Dataset) -> None:
         gridspec_kw=dict(top=0.92, bottom=0.06, left=0.1, right=0.97, hspace=0.5, wspace=0.3),
     )
     names = [str(c) for c in b["contributor"].values]
-    user = {c: _USER_COLOURS[k % len(_USER_COLOURS)] for k, c in enumerate(names) if c not in _COLOURS}
     for ax, z in zip(axes.ravel(), heights, strict=False):
-        one = b.sel(height=z)
-        u = one["mean_wind_speed"].values
-        ok = np.isfinite(one["uncertainty"].values)
-        scale = np.where(ok, 100.0 / u, np.nan)
-        ax.plot(u[ok], one["relative_uncertainty"].values[ok], "k-o", ms=3, label="combined (quoted)")
-        for route, style in (("iec_route", ":"), ("monte_carlo_route", "--")):
-            v = one[f"uncertainty_{route}"].values * scale
-            if np.isfinite(v).any():
-                ax.plot(u[ok], v[ok], "k" + style, lw=1, label=f"combined, {route.replace('_', ' ')}")
-        for k, c in enumerate(names):
-            v = one["contribution"].values[:, k] * scale
-            if np.isfinite(v[ok]).any():
-                ax.plot(u[ok], v[ok], "-", lw=1, color=_COLOURS.get(c, user.get(c)), label=c)
+        draw(ax, b.sel(height=z), names)
         ax.set_title(f"{z:g} m", fontsize=FONT + 1)
         ax.set_xlabel("wind speed (m s-1)")
-        ax.set_ylabel("standard uncertainty (%)")
+        ax.set_ylabel(ylabel)
         ax.grid(alpha=0.3)
     for ax in axes.ravel()[len(heights) :]:
         ax.set_visible(False)
     if heights:
         axes.ravel()[0].legend(fontsize=FONT - 1.5, loc="upper right")
-    fig.suptitle(
-        "Standard uncertainty against wind speed per height (root mean square over each bin's covered "
-        "periods)",
-        fontsize=FONT + 2,
-    )
+    fig.suptitle(title, fontsize=FONT + 2)
+
+
+def _uncertainty_panel(ax, one: xr.Dataset, names: list[str]) -> None:
+    """Draw the combined uncertainty, both routes' combinations, each contributor and the bin mean's (%)."""
+    user = {c: _USER_COLOURS[k % len(_USER_COLOURS)] for k, c in enumerate(names) if c not in _COLOURS}
+    u = one["mean_wind_speed"].values
+    ok = np.isfinite(one["uncertainty"].values)
+    scale = np.where(ok, 100.0 / u, np.nan)
+    ax.plot(u[ok], one["relative_uncertainty"].values[ok], "k-o", ms=3, label="combined (quoted)")
+    for route, style in (("iec_route", ":"), ("monte_carlo_route", "--")):
+        v = one[f"uncertainty_{route}"].values * scale
+        if np.isfinite(v).any():
+            ax.plot(u[ok], v[ok], "k" + style, lw=1, label=f"combined, {route.replace('_', ' ')}")
+    for k, c in enumerate(names):
+        v = one["contribution"].values[:, k] * scale
+        if np.isfinite(v[ok]).any():
+            ax.plot(u[ok], v[ok], "-", lw=1, color=_COLOURS.get(c, user.get(c)), label=c)
+    if "mean_relative_uncertainty" in one:
+        v = one["mean_relative_uncertainty"].values
+        if np.isfinite(v[ok]).any():
+            ax.plot(u[ok], v[ok], "-s", ms=2, lw=1, color="0.5", label="the bin's mean speed")
+
+
+def _uncertainty_figure(fig, ds: xr.Dataset, b: xr.Dataset) -> None:
+    _per_height(fig, ds, b, _uncertainty_panel, "standard uncertainty (%)",
+                "Standard uncertainty against wind speed per height (root mean square over each bin's "
+                "covered periods; grey: of the bin's mean speed)")
 
 
 def _conditions_figure(fig, ds: xr.Dataset) -> None:
@@ -233,37 +244,22 @@ def _conditions_figure(fig, ds: xr.Dataset) -> None:
     )
 
 
+def _routes_panel(ax, one: xr.Dataset, names: list[str]) -> None:
+    """Draw the two environmental routes' contributions (% of the bin's mean speed)."""
+    u = one["mean_wind_speed"].values
+    for c, label in (
+        ("environmental_iec", "IEC 61400-50-2 route"),
+        ("environmental_monte_carlo", "Monte Carlo route"),
+    ):
+        v = one["contribution"].values[:, names.index(c)] * 100.0 / u
+        ok = np.isfinite(v)
+        if ok.any():
+            ax.plot(u[ok], v[ok], "-o", ms=3, color=_COLOURS[c], label=label)
+
+
 def _routes_figure(fig, ds: xr.Dataset, b: xr.Dataset) -> None:
-    heights = _covered_heights(ds)
-    n = max(len(heights), 1)
-    cols = 2 if n > 1 else 1
-    axes = fig.subplots(
-        (n + cols - 1) // cols,
-        cols,
-        squeeze=False,
-        gridspec_kw=dict(top=0.92, bottom=0.06, left=0.1, right=0.97, hspace=0.5, wspace=0.3),
-    )
-    names = [str(c) for c in b["contributor"].values]
-    for ax, z in zip(axes.ravel(), heights, strict=False):
-        one = b.sel(height=z)
-        u = one["mean_wind_speed"].values
-        for c, label in (
-            ("environmental_iec", "IEC 61400-50-2 route"),
-            ("environmental_monte_carlo", "Monte Carlo route"),
-        ):
-            v = one["contribution"].values[:, names.index(c)] * 100.0 / u
-            ok = np.isfinite(v)
-            if ok.any():
-                ax.plot(u[ok], v[ok], "-o", ms=3, color=_COLOURS[c], label=label)
-        ax.set_title(f"{z:g} m", fontsize=FONT + 1)
-        ax.set_xlabel("wind speed (m s-1)")
-        ax.set_ylabel("environmental term (%)")
-        ax.grid(alpha=0.3)
-    for ax in axes.ravel()[len(heights) :]:
-        ax.set_visible(False)
-    if heights:
-        axes.ravel()[0].legend(fontsize=FONT - 1.5)
-    fig.suptitle("The two environmental routes side by side (root mean square per bin)", fontsize=FONT + 2)
+    _per_height(fig, ds, b, _routes_panel, "environmental term (%)",
+                "The two environmental routes side by side (root mean square per bin)")
 
 
 #: Figure name -> title.
