@@ -84,8 +84,8 @@ def campaign(tmp_path, per_bin, seed=25):
 def test_the_subsample_is_the_full_campaigns_cells_and_is_marked(tmp_path, cert):
     cond, speed = campaign(tmp_path, 16)
     opts = {"scheduler": "synchronous"}
-    full = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=None, simulate_options=opts)
-    sub = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=6, simulate_options=opts)
+    full = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=None, execution=opts)
+    sub = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=6, execution=opts)
     # 6 of each full bin's periods (by their own speed) and the 6 of the small one
     simulated = sub.monte_carlo.trials[:, 0] > 0
     population = np.bincount(np.floor((speed - 7.25) / 0.5).astype(int))
@@ -120,8 +120,8 @@ def test_subsample_agrees_with_the_full_campaign_within_its_stated_tolerance(tmp
     # about 150 periods in each of three bins, 50 simulated: the delta method's regime (m >= 10)
     cond, _ = campaign(tmp_path, 150)
     opts = {"scheduler": "synchronous"}
-    full = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=None, simulate_options=opts)
-    sub = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=50, simulate_options=opts)
+    full = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=None, execution=opts)
+    sub = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=50, execution=opts)
     path = tmp_path / "sub.nc"
     smc_dataset(sub).to_netcdf(path)
     # the stated tolerance, read back from the file (netCDF4, no lidarcal)
