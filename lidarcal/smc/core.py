@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.analysis.rule import CertificationRule
 from lidarcal.campaign import DEFAULT_BASE_SEED
 from lidarcal.campaign.settings import Execution
 from lidarcal.conditions import load_conditions
@@ -331,11 +332,13 @@ def smc(
             terms=cert.terms,
             covered=cov,
             lookup_edges=table_edges(cert.budget, speed),
-            coverage_factor=float(cert.budget.attrs.get("coverage_factor", 2.0)),
-            certified_range=tuple(
-                np.asarray(cert.budget.attrs.get("certified_range_m_s", (4.0, 16.0)), float)
+            rule=CertificationRule(
+                certified_range=tuple(
+                    np.asarray(cert.budget.attrs.get("certified_range_m_s", (4.0, 16.0)), float)
+                ),
+                significant_digits=int(cert.attrs.get("monte_carlo_significant_digits", 2)),
+                coverage_factor=float(cert.budget.attrs.get("coverage_factor", 2.0)),
             ),
-            significant_digits=int(cert.attrs.get("monte_carlo_significant_digits", 2)),
             max_replicas=replicas,
             base_seed=int(base_seed),
             periods_per_bin=None if periods_per_bin is None else int(periods_per_bin),

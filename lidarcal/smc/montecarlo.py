@@ -316,9 +316,7 @@ def monte_carlo_route(
     terms: xr.Dataset,
     covered,
     lookup_edges: np.ndarray,
-    coverage_factor: float = 2.0,
-    certified_range: tuple[float, float] = (4.0, 16.0),
-    significant_digits: int = 2,
+    rule: CertificationRule | Mapping[str, Any] | None = None,
     max_replicas: int = 30,
     base_seed: int,
     periods_per_bin: int | None = subsample.DEFAULT_PERIODS_PER_BIN,
@@ -340,8 +338,12 @@ def monte_carlo_route(
         ``covered(height_index, bin_centres) -> bool array``: centres the certificate certifies.
     lookup_edges : array
         Wind-speed bin edges (m s-1) the periods are looked up in (their own speed).
-    coverage_factor, certified_range, significant_digits
-        The certificate's (the budget's) settings.
+    rule : CertificationRule or mapping, optional
+        The certificate's certification rule (:class:`~lidarcal.analysis.rule.CertificationRule`):
+        its certified range, coverage factor and interval, and the significant digits the bins
+        settle to.  Its ``min_periods`` is not used: the campaign's budget states every bin of two
+        periods or more (the certificate says which it certifies, ``covered``).  None: the rule's
+        defaults.
     max_replicas : int
         Most replicas, replica 0 included.
     base_seed : int
@@ -356,6 +358,8 @@ def monte_carlo_route(
         on (height, wind_speed, contributor) at the simulated heights (:func:`with_carried`).
     """
     execution = Execution.of(execution)
+    rule = CertificationRule.of(rule).replace(min_periods=2)
+    digits, k = rule.significant_digits, rule.coverage_factor
     heights = np.asarray(conditions["height"].values, dtype=float)
     cond = conditions.transpose("time", "height", ...)
     speed = cond["wind_speed"].values
@@ -394,14 +398,11 @@ def monte_carlo_route(
         sim_cond, records = _subsample_records(cond, model, chosen, base_seed=base_seed, execution=execution)
         rows = np.flatnonzero(chosen.any(axis=1))
     records = _within(records, span)
-    rule = dict(terms=terms, rule=CertificationRule(min_periods=2, certified_range=tuple(certified_range),
-                                                    significant_digits=int(significant_digits),
-                                                    coverage_factor=float(coverage_factor)))
     trials: list[dict[str, np.ndarray]] = []
     current = records
-    bud = with_carried(budget(current, **rule), carried)
+    bud = with_carried(budget(current, terms=terms, rule=rule), carried)
     targets = _targets(bud, covered)
-    tol, flag = _assess(current, bud, targets, int(significant_digits), float(coverage_factor))
+    tol, flag = _assess(current, bud, targets, digits, k)
     replicas = 1
     for batch in _batches(int(max_replicas)):
         cells = _cells(records, bud, flag)
@@ -412,7 +413,7 @@ def monte_carlo_route(
             "height) cells",
             f"{batch[0]}-{batch[-1]}" if len(batch) > 1 else batch[0],
             int((flag == 1).sum()),
-            int(significant_digits),
+            digits,
             int(cells.sum()),
         )
         done = simulate_replicas(
@@ -427,9 +428,9 @@ def monte_carlo_route(
         trials += [{"replica": r, **_trial_within(done[r], span)} for r in batch]
         replicas = batch[-1] + 1
         current = with_trials(records, trials)
-        bud = with_carried(budget(current, **rule), carried)
+        bud = with_carried(budget(current, terms=terms, rule=rule), carried)
         targets = _targets(bud, covered)
-        tol, flag = _assess(current, bud, targets, int(significant_digits), float(coverage_factor))
+        tol, flag = _assess(current, bud, targets, digits, k)
     expected, slopes, count, expected_se = _expected(current, sim_cond, cond, lookup_edges)
     full_count = np.zeros(speed.shape, dtype=np.int64)
     full_count[rows] = count
