@@ -308,9 +308,11 @@ def main() -> None:
                      ("whole campaign", args.periods, args.memory_periods_per_bin)]
         if "year" in parts:
             runs.append(("whole campaign", args.periods, ppb))
+        rss: dict[tuple[str, str], dict] = {}
         for label, m, k in runs:
             path = year if m == args.periods else campaign(d, m, heights, f"q{m}")
             r = child(["--case", str(path), "--certificate", str(cert), "--mc-periods-per-bin", k, *common])
+            rss[label, k] = r
             full = per_cell * m * len(heights)  # the baseline's CPU for replica 0 of this campaign
             print(
                 f"Monte Carlo route, {label}: {m} periods x {len(heights)} heights, at most {k} periods "
@@ -322,6 +324,13 @@ def main() -> None:
                 f"(ru_maxrss: not below the main process's at its start); load "
                 f"{r['load']:.1f}; CPU / baseline's replica-0 projection {r['cpu'] / full:.3f}", flush=True
             )
+        k = args.memory_periods_per_bin
+        if ("quarter", k) in rss and ("whole campaign", k) in rss:  # memory flat in the campaign's length
+            q, w = rss["quarter", k], rss["whole campaign", k]
+            print(f"memory, whole campaign / quarter at {k} periods per bin: peak RSS main {w['rss']:.0f} / "
+                  f"{q['rss']:.0f} MB = {w['rss'] / q['rss']:.2f}, largest worker {w['worker_rss']:.0f} / "
+                  f"{q['worker_rss']:.0f} MB = {w['worker_rss'] / q['worker_rss']:.2f} (campaign 4x longer)",
+                  flush=True)
 
 
 def baseline(args, d: Path, cert: Path, heights, common: list[str], cells: int) -> float:
