@@ -6,7 +6,8 @@
   tercile of a bin gets its proportional share.
 - On a small campaign, the subsample's trials are the full campaign's at the same cells (bit
   for bit: the seed is the period's), and its per-bin mean deviation and spread agree with the
-  full campaign's within 4 of the standard errors the artefact states.
+  full campaign's within 4 of the standard errors the artefact states, on campaigns of seeds
+  disjoint from those the spread's comparison gate was chosen on.
 """
 
 import netCDF4
@@ -115,10 +116,20 @@ def test_the_subsample_is_the_full_campaigns_cells_and_is_marked(tmp_path, cert)
     assert np.isfinite(e).all() and np.isfinite(se).all() and (se > 0).all()
 
 
+#: Seeds of the campaigns the spread's kurtosis gate (below) was chosen on: seed 25, where the
+#: ungated comparison failed (the 7.5 m/s bin: one period of 110 at +0.44 m/s, kurtosis 23), and
+#: 101-104, checked after choosing it.  The test asserts on ``ASSERT_SEEDS`` only, a disjoint set
+#: that played no part in choosing it (fit on one set, assert on another).
+FIT_SEEDS = (25, 101, 102, 103, 104)
+ASSERT_SEEDS = (301, 302, 303)
+
+
 @pytest.mark.slow
-def test_subsample_agrees_with_the_full_campaign_within_its_stated_tolerance(tmp_path, cert):
+@pytest.mark.parametrize("seed", ASSERT_SEEDS)
+def test_subsample_agrees_with_the_full_campaign_within_its_stated_tolerance(tmp_path, cert, seed):
+    assert seed not in FIT_SEEDS
     # about 150 periods in each of three bins, 50 simulated: the delta method's regime (m >= 10)
-    cond, _ = campaign(tmp_path, 150)
+    cond, _ = campaign(tmp_path, 150, seed=seed)
     opts = {"scheduler": "synchronous"}
     full = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=None, execution=opts)
     sub = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=50, execution=opts)
@@ -145,25 +156,27 @@ def test_subsample_agrees_with_the_full_campaign_within_its_stated_tolerance(tmp
         if se_mean[k] == 0:  # every period of the bin simulated: the same numbers
             assert md_s[k] == pytest.approx(md_f, abs=1e-12) and sd_s[k] == pytest.approx(sd_f, abs=1e-12)
             continue
-        # 4 standard errors: a two-sided 6e-5 chance per comparison were the statistics normal (on four
-        # other seeds' campaigns of this design, 101-104, the 24 z-scores spanned -3.1 ... +1.2)
-        assert abs(md_s[k] - md_f) <= 4 * se_mean[k], (c, md_s[k], md_f, se_mean[k])
+        # 4 standard errors: a two-sided 6e-5 chance per comparison were the statistics normal (on the
+        # fit seeds' campaigns, 101-104, the 24 z-scores spanned -3.1 ... +1.2)
+        assert abs(md_s[k] - md_f) <= 4 * se_mean[k], (seed, c, md_s[k], md_f, se_mean[k])
         # the spread's SE is the delta method's normal approximation for s^2, whose relative standard
-        # error is sqrt((kurtosis - 1) / m): it holds where that is under 1/2.  A bin whose spread one
-        # or two rare bad estimates set (kurtosis over 1 + m/4) is outside it: a subsample that misses
-        # them reads low by more than its SE can say (docs/smc.md states this limit; here the 7.5 m/s
-        # bin, one period of 110 at +0.44 m/s, kurtosis 23)
+        # error is sqrt((kurtosis - 1) / m): it is compared where that is under 1/2 (kurtosis, of the
+        # full campaign's bin, under 1 + m/4).  A bin whose spread one or two rare bad estimates set is
+        # outside it: a subsample that misses them reads low by more than its SE can say (docs/smc.md
+        # states this limit).  The gate was chosen on FIT_SEEDS; these seeds are not among them.
         c_f = dev[mine] - md_f
         kurtosis = np.mean(c_f**4) / np.mean(c_f**2) ** 2
         if kurtosis < 1 + m[k] / 4:
-            assert abs(sd_s[k] - sd_f) <= 4 * se_sd[k], (c, sd_s[k], sd_f, se_sd[k])
+            assert abs(sd_s[k] - sd_f) <= 4 * se_sd[k], (seed, c, sd_s[k], sd_f, se_sd[k], kurtosis)
             spreads += 1
         # and the stated SE is of the size the spread says: s / sqrt(m) * sqrt(1 - m / N), N about 150
         # (reference speeds cross the bins' edges: a factor 2 either way)
         nominal = sd_f * np.sqrt(1 / m[k] - 1 / 150)
         assert 0.5 * nominal < se_mean[k] < 2 * nominal
         compared += 1
-    assert compared >= 3 and spreads >= 2
+    # the three subsampled bins compared, and the gate leaves most spreads in (it is for rare bins an
+    # outlier dominates, not the rule): at least 2 of 3, fixed before these seeds were run
+    assert compared >= 3 and spreads >= 2, (seed, compared, spreads)
 
 
 def test_the_option_takes_a_count_or_all(capsys):
