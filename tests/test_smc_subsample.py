@@ -193,3 +193,32 @@ def test_the_option_takes_a_count_or_all(capsys):
         with pytest.raises(SystemExit) as e:
             parse("--mc-periods-per-bin", bad)
         assert e.value.code == 2 and "integer >= 2 or 'all'" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_the_subsampled_route_on_a_cluster_or_a_pool_is_the_synchronous_run_bit_for_bit(tmp_path, cert):
+    # issue 25 section 3: the same run on a Dask cluster (--scheduler ADDRESS) bit-identical to the local
+    # one; here the route a long campaign takes (a stratified subsample) with further replicas, on a
+    # LocalCluster of two worker processes on loopback given by its address, and on the local pool
+    from distributed import Client
+
+    from lidarcal.campaign.scheduler import local_cluster
+
+    cond, _ = campaign(tmp_path, 16)
+    runs = {}
+    with local_cluster(2, dashboard_address=None, host="127.0.0.1") as lc, Client(lc, set_as_default=False):
+        for name, opts in (
+            ("synchronous", {"scheduler": "synchronous"}),
+            ("processes", {"scheduler": "processes", "workers": 2, "chunk": 4}),
+            ("cluster", {"scheduler": lc.scheduler_address, "chunk": 3}),
+        ):
+            c = smc(cert, conditions=cond, max_replicas=4, periods_per_bin=6, execution=opts)
+            runs[name] = smc_dataset(c)
+    a = runs["synchronous"]
+    assert int(a.monte_carlo_simulated.sum()) == 3 * 6 + 6  # the subsample, not every period
+    assert int((a.monte_carlo_trials > 1).sum()) > 0  # further replicas ran
+    for name in ("processes", "cluster"):
+        b = runs[name]
+        assert sorted(a.data_vars) == sorted(b.data_vars)
+        for v in a.data_vars:
+            np.testing.assert_array_equal(a[v].values, b[v].values, err_msg=f"{name}: {v}")
