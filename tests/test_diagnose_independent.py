@@ -178,7 +178,8 @@ def test_effect_free_campaigns_of_different_size_are_none(n_periods):
 
 # -- issue 26's campaigns (slow) --------------------------------------------------------------------
 # Long campaigns of the kind issue 26 reported, on this simulator with seed 26 (no constant of the
-# diagnosis was set from it; the hybrid weight's model-form share comes from seeds 101-103).  The
+# diagnosis was set from it; the hybrid weight's fitted model-form share comes from seeds 101-103,
+# the share it uses from the engine's alternatives).  The
 # issue's second effect was Eq. 2 CNR weighting of scale 1 changing (L - R)/R by 0.2 %; on this
 # simulator's CNR profiles scale 1 changes it by under the tolerance (CATALOGUE above), so scale 3
 # makes it a decisive, material second effect here.

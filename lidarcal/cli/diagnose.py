@@ -68,7 +68,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--model-uncertainty", type=nonnegative("--model-uncertainty"),
                    default=DEFAULT_MODEL_UNCERTAINTY,
                    help="model-form standard uncertainty of a fitted parameter, as a share of its fitted "
-                        "change (added to the bootstrap)")
+                        "change (added to the bootstrap; an effect whose derived or fitted share is larger "
+                        "uses that, docs/diagnose.md)")
     p.add_argument("--min-wind-speed", type=nonnegative("--min-wind-speed"), default=3.0,
                    help="minimum reference speed, m s-1")
     _sim_args(p)

@@ -175,8 +175,9 @@ def bootstrap(problem: Problem, cands: Sequence[CandidateFit], r: np.ndarray | N
     The block bootstrap (days as blocks) gives the statistical part; a model-form part,
     ``problem.model_uncertainty`` × |θ̂ − θ₀| (the catalogue's responses are models of the physics:
     on an independent simulator the fitted parameters of strong effects move by 5–15 % of their
-    size; an effect may declare a larger share, ``Effect.model_form``), is added in quadrature to
-    the standard error and to each side of the interval.
+    size; an effect's share derived from the engine's alternatives or fitted on independent
+    campaigns replaces it when larger: :func:`~lidarcal.diagnose.effects.model_form_share`), is
+    added in quadrature to the standard error and to each side of the interval.
     """
     Js, _ = columns(cands)
     full, samples = fit.bootstrap_fit(problem.r if r is None else r, Js, problem.weights, problem.clusters,

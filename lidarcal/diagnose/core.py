@@ -160,7 +160,9 @@ def diagnose(
         Block-bootstrap resamples (days) for the uncertainties and 95 % intervals.
     model_uncertainty : float
         Model-form standard uncertainty of a fitted parameter as a share of its fitted change
-        θ − θ₀, added in quadrature to the bootstrap (``docs/diagnose.md``).
+        θ − θ₀, added in quadrature to the bootstrap; an effect whose share derived from the
+        engine's alternatives or fitted on independent campaigns is larger uses that
+        (:func:`~lidarcal.diagnose.effects.model_form_share`, ``docs/diagnose.md``).
     min_wind_speed : float
         Periods with a reference below this (m s-1) are not used.
     execution : Execution or mapping, optional
