@@ -19,29 +19,14 @@ from lidarcal.io import write_artefact
 from lidarcal.provenance import contact, merge_history, stamp
 from lidarcal.schema import declared_spec, load_schema
 
-CONTACT = ["--creator", "A. Steward", "--creator-email", "steward@example.org", "--institution", "Test Lab",
-           "--publisher", "Test Archive", "--publisher-email", "archive@example.org",
-           "--publisher-url", "https://archive.example.org", "--creator-url", "https://lab.example.org"]
-# what only the user knows: the site (decimal degrees) and further ACDD attributes
-SITE = ["--site-latitude", "55.6869", "--site-longitude", "12.0976"]
-USER = [f"--attribute={a}" for a in (
-    "contributor_name=B. Analyst", "contributor_role=processor", "program=Test programme",
-    "metadata_link=https://archive.example.org/lidar", "acknowledgment=Funded by a test grant",
-    "keywords_vocabulary=free text", "platform_vocabulary=free text", "instrument_vocabulary=free text",
-    "geospatial_bounds_vertical_crs=height above ground level")]
 #: the findings the stock checker may still report, each documented in lidarcal.compliance
 DOCUMENTED = {"dB", "standard_name", "time coverage", "vertical coverage"}
 
 
 @pytest.fixture(scope="module")
-def run_dir(tmp_path_factory):
-    out = tmp_path_factory.mktemp("meta") / "run"
-    code = main(["calibrate", "--periods", "48", "--min-periods", "3", "--heights", "60", "120",
-                 "--workers", "1", "--max-replicas", "4",
-                 "--no-progress",
-                 "-o", str(out), *CONTACT, *SITE, *USER])
-    assert code == 0
-    return out
+def run_dir(short_calibration):
+    """A real 48-period calibration given the contact, site and user options (tests/conftest.py)."""
+    return short_calibration[0]
 
 
 def _walk(records):

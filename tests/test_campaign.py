@@ -247,6 +247,9 @@ def test_cli_simulate_refuses_overwrite_before_work(cond, tmp_path):
     assert not (tmp_path / "x.nc").exists()
 
 
+@pytest.mark.slow  # ~20 s; SIGKILL + resume stays in the default suite through
+# test_pipeline.py::test_killed_calibration_resumes_with_the_same_result (the same chunk cache) and
+# test_first_run.py::test_ctrl_c_says_what_it_kept_and_the_resumed_run_what_it_reused (simulate --workdir)
 def test_killed_cli_run_resumes_bit_identical(tmp_path, model):
     cond = synthetic_conditions(96, (40, 80), seed=7)
     cpath = tmp_path / "c.nc"

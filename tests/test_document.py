@@ -98,12 +98,18 @@ def check_document(pdf: Path, poppler: tuple[str, str], tmp_path: Path) -> list[
 
 
 @pytest.fixture(scope="module")
-def long_certificate(tmp_path_factory):
-    """A certificate of 8 heights whose bins are all certified from 4.5 to 15.5 m/s (23 rows)."""
+def long_records():
+    """8 heights x 3,000 periods with 6 replicas, and their budget (built once: about 5 s)."""
     records = settled_records(n=3000, heights=HEIGHTS, seed=3)
+    return records, settled_budget(records)
+
+
+@pytest.fixture(scope="module")
+def long_certificate(long_records):
+    """A certificate of 8 heights whose bins are all certified from 4.5 to 15.5 m/s (23 rows)."""
+    records, b = long_records
     sens = [sensitivity(records, "wind_shear_exponent")]
-    cert = make_certificate(budget=settled_budget(records), sensitivities=sens, config={}, call="test",
-                            demonstration=True)
+    cert = make_certificate(budget=b, sensitivities=sens, config={}, call="test", demonstration=True)
     # a long reason (and, in other branches, more lines of results): page 1 cannot hold the table
     cert.attrs["calibration_status_reason"] = " ".join(["the inputs are lidarcal's sample data"] * 12)
     return cert
@@ -168,10 +174,14 @@ def test_the_certified_range_says_where_the_values_stop(tmp_path, poppler):
     """Winds of 4.5-11 m/s only: the table stops at 11 m/s and says why, not 'promising' 4-16 m/s."""
     records = settled_records(n=1200, heights=(80.0, 120.0), seed=5)
     ref = records.reference_wind_speed
-    calm = records.where(ref <= 11.2)  # no period above 11.2 m/s: bins above 11 m/s empty
-    calm["period_key"] = records["period_key"]  # a per-period key: not broadcast over heights by where
-    # nor replicas
-    calm = calm.isel(trial=np.flatnonzero(records.trial_reference_wind_speed.values <= 11.2))
+    # no period above 11.2 m/s: bins above 11 m/s empty.  Only the (time, height) records are
+    # masked; the per-period key and the replicas (dimension ``trial``) are selected, not masked:
+    # ``records.where`` would broadcast every trial over (time, height), 2,400 NaN-padded copies
+    # of each (17 million trials, minutes of budget), which no calibration writes.
+    calm = records.isel(trial=np.flatnonzero(records.trial_reference_wind_speed.values <= 11.2))
+    for name, var in records.data_vars.items():
+        if set(var.dims) == {"time", "height"}:
+            calm[name] = var.where(ref <= 11.2)
     cert = make_certificate(budget=settled_budget(calm), sensitivities=[], config={}, call="test",
                             demonstration=True)
     pdf = tmp_path / "doc.pdf"
@@ -223,13 +233,13 @@ def test_budget_plot_bars_are_the_numerical_tolerance():
     assert "numerical tolerance" in top.get_title()
 
 
-def test_contributor_bars_are_wide_and_the_legend_is_always_there():
+def test_contributor_bars_are_wide_and_the_legend_is_always_there(long_records):
     from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure
 
     from lidarcal.document.figures import draw_contributors
 
-    b = settled_budget(settled_records(n=3000, heights=HEIGHTS, seed=3))
+    b = long_records[1].copy()  # the shared budget, not changed for the other tests
     # a short run: the lowest height has no certified bin at all, yet the legend names everything
     b["bin_flag"] = b["bin_flag"].where(b.height != 40.0, 1)
     fig = Figure(figsize=(8.27, 11.69))

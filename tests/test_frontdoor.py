@@ -142,13 +142,17 @@ def test_readme_python_chain_runs_as_a_script_without_a_main_guard(tmp_path):
     """The README's "In Python" block pasted into a script, run with ``python script.py``.
 
     No ``if __name__ == "__main__":`` guard: the worker processes (two here) must not run the
-    script again.  One day is cut to 24 periods to keep it quick.
+    script again.  One day is cut to 24 periods, at most 2 Monte Carlo replicas (the second
+    round of simulations goes to the workers again) and no model-form runs, to keep it quick:
+    the script, its workers and its printed result are what is checked here, the model-form and
+    replica stages on a real run in tests/test_pipeline.py.
     """
     section = README.read_text().split("## In Python", 1)[1]
     block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
     assert "periods=144" in block and "__main__" not in block
     script = tmp_path / "chain.py"
-    script.write_text(block.replace("periods=144", "periods=24, workers=2"))
+    short = "periods=24, workers=2, max_replicas=2, model_form_periods=0"
+    script.write_text(block.replace("periods=144", short))
     done = subprocess.run([sys.executable, str(script)], cwd=tmp_path, capture_output=True, text=True,
                           timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]

@@ -1,7 +1,6 @@
 """The main job end to end: ``lidarcal calibrate`` on the embedded sample data."""
 
 import json
-import logging
 import os
 from pathlib import Path
 
@@ -9,6 +8,7 @@ import netCDF4
 import numpy as np
 import pytest
 import xarray as xr
+from conftest import SHORT_RUN
 
 from lidarcal.cli import main
 from lidarcal.errors import OutputExistsError
@@ -18,33 +18,13 @@ from lidarcal.schema import validate_dataset
 from lidarcal.seal import verify_certificate
 
 
-class _Lines(logging.Handler):
-    """Collect the messages of the ``lidarcal.pipeline`` logger (caplog is function-scoped)."""
-
-    def __init__(self):
-        super().__init__(level=logging.INFO)
-        self.lines = []
-
-    def emit(self, record):
-        self.lines.append(record.getMessage())
-
-
 @pytest.fixture(scope="module")
-def small_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("cal")
-    handler = _Lines()
-    logger = logging.getLogger("lidarcal.pipeline")
-    logger.addHandler(handler)
-    level = logger.level
-    logger.setLevel(logging.INFO)
-    try:
-        cfg = CalibrationConfig(periods=48, heights=(60.0, 120.0), workers=1, chunk=16, min_periods=3,
-                                max_replicas=3)
-        result = calibrate(out, cfg)
-    finally:
-        logger.removeHandler(handler)
-        logger.setLevel(level)
-    return out, result, handler.lines
+def small_run(short_calibration):
+    """``lidarcal calibrate`` of 48 periods at 60 and 120 m, 3 replicas at most (tests/conftest.py).
+
+    ``(output directory, the CalibrationResult lidarcal.calibrate returned, the pipeline's log lines)``.
+    """
+    return short_calibration
 
 
 def test_calibrate_writes_every_artefact_valid_and_sealed(small_run):
@@ -110,8 +90,10 @@ def test_calibrate_refuses_existing_outputs_before_any_work(small_run):
 
 def test_cli_calibrate_runs_from_any_directory(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)  # the sample data is found from the package, not the cwd
+    # no model-form runs (two thirds of a run this short; small_run has them): the sample data,
+    # the default output directory and where the stage lines go are what is checked here
     code = main(["calibrate", "--periods", "48", "--min-periods", "3", "--heights", "80", "100",
-                 "--workers", "1", "--max-replicas", "1",
+                 "--workers", "1", "--max-replicas", "1", "--model-form-periods", "0",
                  "--no-progress"])
     assert code == 0
     assert (tmp_path / "lidarcal-output" / "certificate.nc").exists()
@@ -255,9 +237,7 @@ def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
 
     ref_dir, _, _ = small_run
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "lidarcal", "calibrate", "-o", str(out), "--periods", "48",
-           "--min-periods", "3", "--heights", "60", "120", "--workers", "1", "--chunk", "16", "--no-progress",
-           "--max-replicas", "3"]
+    cmd = [sys.executable, "-m", "lidarcal", "calibrate", "-o", str(out), *SHORT_RUN]  # small_run's options
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     chunks = out / ".simulation-chunks"
     deadline = time.monotonic() + 120
@@ -280,9 +260,7 @@ def test_killed_calibration_resumes_with_the_same_result(small_run, tmp_path):
         c.kill()
     assert not survivors, [c.pid for c in survivors]
     assert not (out / "certificate.nc").exists()  # killed before the end
-    assert main(["calibrate", "-o", str(out), "--periods", "48", "--min-periods", "3", "--heights", "60",
-                 "120", "--workers", "1", "--chunk", "16", "--no-progress", "--overwrite", "--max-replicas",
-                 "3"]) == 0
+    assert main(["calibrate", "-o", str(out), *SHORT_RUN, "--overwrite"]) == 0
     assert not chunks.exists()  # scratch removed once the simulation is written
     resumed = xr.open_dataset(out / "simulated.nc")
     reference = xr.open_dataset(ref_dir / "simulated.nc")
