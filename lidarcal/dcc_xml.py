@@ -21,6 +21,7 @@ from lidarcal.admin import (
     status_line,
 )
 from lidarcal.certificate import (
+    HEADLINE_LABEL,
     MEASURAND,
 )
 
@@ -210,7 +211,7 @@ def _statements(admin: etree._Element, attrs: Mapping[str, Any], digest: str, fi
         _text(place, "declaration", f"Place of the bench run: {attrs['calibration_location']}")
     if attrs.get("expanded_uncertainty_headline"):
         head = _sub(statements, _d("statement"), refType="lidarcal_headline")
-        _text(head, "declaration", f"Expanded uncertainty: {attrs['expanded_uncertainty_headline']}")
+        _text(head, "declaration", f"{HEADLINE_LABEL}: {attrs['expanded_uncertainty_headline']}")
     measurand = _sub(statements, _d("statement"), refType="lidarcal_measurand")  # docs/certificate.md
     _text(measurand, "declaration", str(attrs.get("measurand") or MEASURAND))
 

@@ -510,7 +510,7 @@ def test_cube_colour_scale_from_the_cnr_bins_drawn(inputs):
 
 def test_report_page_order_result_first_hashes_last(report):
     text = re.sub(r"<script.*?</script>", "", report.read_text(), flags=re.S)
-    status, headline = text.index("Calibration status"), text.index("Relative expanded uncertainty (k = 2)")
+    status, headline = text.index("Calibration status"), text.index("Expanded uncertainty: ")
     first_plot, hashes = text.index("<section id="), text.index("sha256")
     assert status < headline < first_plot < hashes
 

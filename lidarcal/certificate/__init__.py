@@ -14,7 +14,9 @@ record of every value and attribute, optionally signed with Ed25519; checked by
 - :mod:`lidarcal.certificate.layout` — the flat layout both ways: :func:`extract_component`,
   :func:`components`, :func:`provenance_chain`, :func:`open_certificate` (a DataTree).
 - :mod:`lidarcal.certificate.results` — what it certifies: :func:`headline_range`,
-  :func:`headline_sentence`, :func:`result_table` (``lidarcal table``).
+  :func:`headline_sentence` (the one headline builder; :func:`headline_text` as documents show
+  it), :func:`not_settled_sentence` and :func:`not_settled_items` (the one wording of what did
+  not settle), :func:`result_table` (``lidarcal table``).
 - :mod:`lidarcal.certificate.measurand` — what U is (:data:`MEASURAND`) and the model-form term
   in words (:func:`model_form_summary`).
 """
@@ -31,10 +33,14 @@ from lidarcal.certificate.layout import (
 )
 from lidarcal.certificate.measurand import MEASURAND, model_form_summary, model_form_values
 from lidarcal.certificate.results import (
+    HEADLINE_LABEL,
     certified_rule,
     headline_range,
     headline_sentence,
+    headline_text,
     not_settled,
+    not_settled_items,
+    not_settled_sentence,
     result_table,
 )
 
@@ -50,8 +56,12 @@ __all__ = [
     "result_table",
     "headline_range",
     "headline_sentence",
+    "headline_text",
+    "HEADLINE_LABEL",
     "certified_rule",
     "not_settled",
+    "not_settled_sentence",
+    "not_settled_items",
     "MEASURAND",
     "model_form_summary",
     "model_form_values",

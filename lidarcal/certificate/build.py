@@ -36,7 +36,7 @@ from lidarcal.certificate.layout import (
     scalar_coords,
 )
 from lidarcal.certificate.measurand import MEASURAND, model_form_summary
-from lidarcal.certificate.results import headline_sentence, not_settled_rows
+from lidarcal.certificate.results import headline_sentence, not_settled_items
 from lidarcal.errors import InputError
 from lidarcal.provenance import jsonable, read_json_attr, stamp
 
@@ -244,11 +244,7 @@ def _summary_attributes(budget: xr.Dataset, *, serial: str | None, cube: xr.Data
         if key in budget.attrs:
             attrs[key] = int(budget.attrs[key])
     if "numerical_flag" in budget:  # listed apart with the largest tolerance of their values
-        missed = not_settled_rows(budget)
-        attrs["monte_carlo_not_settled"] = "; ".join(
-            f"{r['height_m']:g} m {r['wind_speed_m_s']:g} m/s (U {r['expanded_uncertainty_pct']:.2f} %, "
-            f"tolerance {max(v for c, v in r.items() if c.startswith('tolerance_')):.2g} %)"
-            for r in missed) or "none"
+        attrs["monte_carlo_not_settled"] = "; ".join(not_settled_items(budget)) or "none"
     if "certified_statement" in budget:
         attrs["certified_statement_rule"] = (
             "per certified bin: the error of one 10-minute mean lies within +-U (k = "

@@ -22,6 +22,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.certificate import MEASURAND, model_form_summary
+from lidarcal.certificate.results import headline_text
 from lidarcal.document.facts import (
     NOT_STATED,
     certificate_facts,
@@ -31,7 +32,6 @@ from lidarcal.document.facts import (
     extent_text,
     fmt,
     grid_cell,
-    headline_text,
     model_form_grid,
     not_settled_text,
 )
