@@ -25,9 +25,9 @@ import xarray as xr
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
 from lidarcal.analysis.certification import digits_text
 from lidarcal.certificate.layout import components, extract_component
+from lidarcal.certificate.seal import require_valid_seal
 from lidarcal.errors import InputError
 from lidarcal.io import source_name
-from lidarcal.seal import require_valid_seal
 
 __all__ = [
     "certified_mask",
@@ -345,9 +345,9 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
 
     ``cert`` is a certificate Dataset (or a budget), or the tree :func:`lidarcal.open_certificate`
     returns.  A certificate read from a file has its seal checked first
-    (:func:`lidarcal.seal.require_valid_seal`, on the file the Dataset or tree was read from):
+    (:func:`lidarcal.certificate.seal.require_valid_seal`, on the file the Dataset or tree was read from):
     an altered one raises :class:`~lidarcal.errors.SealError` unless ``allow_invalid`` (the
-    caller then shows :func:`lidarcal.seal.invalid_seal_banner` with the table).
+    caller then shows :func:`lidarcal.certificate.seal.invalid_seal_banner` with the table).
 
     Returns
     -------

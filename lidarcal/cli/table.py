@@ -31,12 +31,12 @@ import html
 import sys
 from pathlib import Path
 
-from lidarcal.admin import status_line
 from lidarcal.certificate import result_table
+from lidarcal.certificate.admin import status_line
+from lidarcal.certificate.seal import invalid_seal_banner, require_valid_seal
 from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import add_overwrite_option
 from lidarcal.io import atomic_path, check_writable, open_artefact
-from lidarcal.seal import invalid_seal_banner, require_valid_seal
 
 FORMATS = ("csv", "md", "html")
 _SUFFIXES = {".csv": "csv", ".md": "md", ".markdown": "md", ".html": "html", ".htm": "html"}

@@ -1,14 +1,14 @@
 """What the certificate's documents state: page 1's facts, the headline, the certified grid, number formats.
 
-The PDF (:mod:`lidarcal.document.pages`) and the HTML report (:mod:`lidarcal.report`) print the
-same words and numbers, taken from here: :func:`certificate_facts` turns the certificate's global
-attributes into page 1's sections (an attribute it does not carry is shown as
-:data:`NOT_STATED`), :func:`signature_status` says what its seal attributes state (the headline is
-:func:`lidarcal.certificate.results.headline_text`, the same in every document), :func:`certified_grid` the
-certified statement per wind-speed bin and height (±U, or the Monte Carlo coverage interval
-where the two differ materially), :func:`not_settled_text` the values left out because they did
-not settle, listed apart with their tolerances, :func:`model_form_grid` the simulation's
-model-form contributor on the same grid, and :func:`fmt`,
+The PDF (:mod:`lidarcal.certificate.document.pages`) and the HTML report
+(:mod:`lidarcal.certificate.report`) print the same words and numbers, taken from here:
+:func:`certificate_facts` turns the certificate's global attributes into page 1's sections (an
+attribute it does not carry is shown as :data:`NOT_STATED`), :func:`signature_status` says what its
+seal attributes state (the headline is :func:`lidarcal.certificate.results.headline_text`, the same
+in every document), :func:`certified_grid` the certified statement per wind-speed bin and height
+(±U, or the Monte Carlo coverage interval where the two differ materially), :func:`not_settled_text`
+the values left out because they did not settle, listed apart with their tolerances,
+:func:`model_form_grid` the simulation's model-form contributor on the same grid, and :func:`fmt`,
 :func:`units_suffix` and :data:`VARIABLE_NAMES` the one way numbers, units and variables are
 written.
 """
@@ -28,7 +28,7 @@ from lidarcal.certificate.results import (
     not_settled,
     not_settled_items,
 )
-from lidarcal.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
+from lidarcal.certificate.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
 
 __all__ = [
     "NOT_STATED",

@@ -1,4 +1,4 @@
-"""The DCC's XML vocabulary and its administrative data (lidarcal.dcc builds the results).
+"""The DCC's XML vocabulary and its administrative data (lidarcal.certificate.dcc.export builds the results).
 
 Namespaces and schema versions, the small element builders every part of the document uses,
 and ``administrativeData``: software, core data, the calibrated item, laboratory, persons,
@@ -16,14 +16,12 @@ from typing import Any
 from lxml import etree
 
 from lidarcal import __version__
-from lidarcal.admin import (
+from lidarcal.certificate.admin import (
     STATUS_ATTR,
     status_line,
 )
-from lidarcal.certificate import (
-    HEADLINE_LABEL,
-    MEASURAND,
-)
+from lidarcal.certificate.measurand import MEASURAND
+from lidarcal.certificate.results import HEADLINE_LABEL
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
