@@ -7,7 +7,7 @@ Usage::
 ``RUN`` is the output directory of a default ``lidarcal calibrate -o RUN``.  Each repeat runs
 in a fresh Python process (so the plotting libraries' imports count, as they do in a
 ``calibrate`` run), builds the certificate from RUN's artefacts as ``calibrate`` does, and
-times ``lidarcal.report.write_report`` on it (as ``calibrate`` calls it: before the
+times ``lidarcal.certificate.report.write_report`` on it (as ``calibrate`` calls it: before the
 certificate is sealed) with ``time.process_time`` (CPU of this process, all threads); then
 the PDF alone again.  Prints every repeat and the medians.  The target is at most 5 s of CPU.
 """
@@ -37,10 +37,10 @@ cert = make_certificate(budget=open_artefact(run / "budget.nc", "uncertainty_bud
                         records=open_artefact(run / "simulated.nc"), config={}, call="bench_report",
                         demonstration=True)
 t0 = time.process_time()
-import lidarcal.report as report
+import lidarcal.certificate.report as report
 written = report.write_report(out / "report.html", certificate=cert, png=png)
 t1 = time.process_time()
-from lidarcal.document import write_document
+from lidarcal.certificate.document import write_document
 t2 = time.process_time()
 write_document(out / "again.pdf", cert)
 t3 = time.process_time()

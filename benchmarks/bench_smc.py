@@ -51,13 +51,13 @@ def certificate(d: Path, heights) -> Path:
     from lidarcal.analysis.terms import PAPER_INPUTS, uncertainty_terms
     from lidarcal.bench import build_cube, simulate_run
     from lidarcal.certificate import make_certificate
+    from lidarcal.certificate.seal import write_certificate
     from lidarcal.cf import height_coord, time_coord
     from lidarcal.data import sample_file
     from lidarcal.io import open_artefact, write_artefact
     from lidarcal.lidar import LidarModel
     from lidarcal.provenance import stamp
     from lidarcal.rwf import range_weighting_function
-    from lidarcal.seal import write_certificate
     from lidarcal.units import Q_
 
     rng = np.random.default_rng(np.random.SeedSequence([2025, 1]))

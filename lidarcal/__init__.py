@@ -30,7 +30,7 @@ _EXPORTS = {
     "sensitivity": ("lidarcal.analysis.sensitivity", "sensitivity"),
     "budget": ("lidarcal.analysis.budget", "budget"),
     "make_certificate": ("lidarcal.certificate", "make_certificate"),
-    "verify": ("lidarcal.seal", "verify_certificate"),
+    "verify": ("lidarcal.certificate.seal", "verify_certificate"),
     "open_certificate": ("lidarcal.certificate", "open_certificate"),
     "result_table": ("lidarcal.certificate", "result_table"),
     "diagnose_campaign": ("lidarcal.diagnose", "diagnose"),

@@ -7,13 +7,13 @@ from lidarcal.campaign import simulate_campaign as simulate_campaign
 from lidarcal.certificate import make_certificate as make_certificate
 from lidarcal.certificate import open_certificate as open_certificate
 from lidarcal.certificate import result_table as result_table
+from lidarcal.certificate.seal import verify_certificate as verify
 from lidarcal.diagnose import diagnose as diagnose_campaign
 from lidarcal.io import open_artefact as open_artefact
 from lidarcal.lidar import LidarModel as LidarModel
 from lidarcal.pipeline import CalibrationConfig as CalibrationConfig
 from lidarcal.pipeline import CalibrationResult as CalibrationResult
 from lidarcal.pipeline import calibrate as calibrate
-from lidarcal.seal import verify_certificate as verify
 
 __version__: str
 

@@ -1,7 +1,7 @@
 """Offline HTML pages: plain bokeh figures on one self-contained page, written atomically.
 
 The one HTML plotting API of lidarcal: every interactive page (the calibration report
-:mod:`lidarcal.report`, the diagnosis :mod:`lidarcal.diagnose.report` and the comparison
+:mod:`lidarcal.certificate.report`, the diagnosis :mod:`lidarcal.diagnose.report` and the comparison
 :mod:`lidarcal.compare.report`) draws plain bokeh models with :func:`plot`,
 :func:`legend_outside` and :func:`grid`, and writes them with :func:`offline_html`.  Plain
 bokeh, not holoviews/hvplot: importing and rendering through holoviews costs about a second of

@@ -37,7 +37,6 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.admin import demonstration_reasons, issuer_problem
 from lidarcal.analysis.budget import (
     DEFAULT_CERTIFIED_RANGE,
     DEFAULT_MIN_PERIODS,
@@ -56,18 +55,19 @@ from lidarcal.campaign.model_form import DEFAULT_PER_BIN, model_form_runs
 from lidarcal.campaign.progress import Progress
 from lidarcal.campaign.settings import Execution
 from lidarcal.certificate import make_certificate
+from lidarcal.certificate.admin import demonstration_reasons, issuer_problem
+from lidarcal.certificate.document import seal_statement
+from lidarcal.certificate.report import write_report
+from lidarcal.certificate.seal import write_certificate
+from lidarcal.certificate.signing import fingerprint, load_private_key
 from lidarcal.conditions import SkippedPeriodsWarning, load_conditions, synthetic_conditions
 from lidarcal.conditions.grid import sweep_conditions
 from lidarcal.data import sample_file
-from lidarcal.document import seal_statement
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel
 from lidarcal.provenance import contact_attributes, sha256, stamp
-from lidarcal.report import write_report
 from lidarcal.rwf import range_weighting_function
-from lidarcal.seal import write_certificate
-from lidarcal.signing import fingerprint, load_private_key
 from lidarcal.units import Q_
 
 __all__ = ["CalibrationConfig", "CalibrationResult", "calibrate", "sweep", "OUTPUT_NAMES", "DEFAULT_HEIGHTS"]
@@ -437,7 +437,7 @@ def calibrate(
         Ed25519 private key (``lidarcal keygen``) signing the certificate's seal; read before
         any work.  Not part of the configuration: it changes who vouches, not the numbers.
     admin : mapping, optional
-        Administrative data of the certificate (:func:`lidarcal.admin.load_admin`).
+        Administrative data of the certificate (:func:`lidarcal.certificate.admin.load_admin`).
     demonstration : bool
         Force the demonstration status.  Without it a run on anything but the sample data or a
         simulated bench run issues the certificate, which needs an issuer (laboratory and

@@ -12,11 +12,13 @@ A variable is declared once.  A schema that carries variables declared in anothe
 
     include:
       - from: conditions          # schema kind whose own variables are copied
-        into: coordinates         # or variables (the default)
+        into: coordinates         # or variables (the default); coordinates copies the source's
+                                  # coordinates (or, by name, its variables)
         only: [wind_speed, cnr]   # a subset (default: all its required ones, in their order)
         name: "{name}_bin_lower"  # name template (default "{name}")
         keep: [units, range]      # spec keys copied (default: all)
         set: {dims: ["{name}"]}   # keys set on every copy; "{name}" is replaced in strings
+        prefix: budget_           # prefix the copied names and their dims (a bundled component)
 
 A spec holds checks (``dims``, ``units``, ``convertible``, ``allow_nan``, ``range``,
 ``required``, ``attributes``) and the output metadata lidarcal writes on the variable: every
@@ -38,7 +40,9 @@ checked attribute is not checked.
 
 Keeping ``standard_name`` in an include turns it into a required ``standard_name`` attribute;
 other metadata is not copied by an include.  A spec the including schema writes itself under the
-same name is merged over the copy (its keys win).
+same name is merged over the copy (its keys win).  ``prefix`` renames a copy and its dimensions
+the way a bundle renames a component (the certificate carries the uncertainty budget's variables
+as ``budget_<name>`` on ``budget_<dim>``), so the bundle declares them by including them.
 
 A schema whose variables follow a catalogue that lives in code (one ``fit_*`` set per parameter
 of every diagnose effect) declares them once, as templates expanded over the catalogue's rows::
@@ -97,7 +101,7 @@ def list_kinds() -> list[str]:
 
 
 #: Keys an ``include`` entry may have.
-_INCLUDE_KEYS = {"from", "into", "only", "name", "keep", "set"}
+_INCLUDE_KEYS = {"from", "into", "only", "name", "keep", "set", "prefix"}
 #: Top-level keys of a schema file.
 _TOP_KEYS = frozenset({"kind", "description", "provenance", "dims", "stackable_dims",
                        "units_on_every_variable", "include", "expand", "coordinates", "variables",
@@ -292,6 +296,9 @@ def _included(entry: dict[str, Any], where: str) -> tuple[str, dict[str, dict[st
         raise SchemaError(f"schema {where}: include 'into' is {into!r}; "
                           "expected 'variables' or 'coordinates'")
     source = declared_variables(entry["from"])
+    if into == "coordinates":  # the source's own coordinates first, then its variables
+        coordinates = _read_schema(entry["from"]).get("coordinates") or {}
+        source = {**source, **{name: dict(spec or {}) for name, spec in coordinates.items()}}
     only = entry.get("only", [n for n, spec in source.items() if spec.get("required", True)])
     missing = [n for n in only if n not in source]
     if missing:
@@ -304,8 +311,11 @@ def _included(entry: dict[str, Any], where: str) -> tuple[str, dict[str, dict[st
         spec = {k: v for k, v in spec.items() if k in _CHECK_KEYS}
         if std is not None:
             spec["attributes"] = {**spec.get("attributes", {}), "standard_name": std}
+        prefix = entry.get("prefix", "")
+        if prefix and "dims" in spec:
+            spec["dims"] = [prefix + dim for dim in spec["dims"]]
         spec.update(_substitute(entry.get("set") or {}, name))
-        out[entry.get("name", "{name}").replace("{name}", name)] = spec
+        out[prefix + entry.get("name", "{name}").replace("{name}", name)] = spec
     return into, out
 
 

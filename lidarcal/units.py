@@ -3,7 +3,7 @@
 The registry is cf-xarray's, so UDUNITS/CF strings such as ``m s-1`` parse.  Pint treats
 ``dB`` as a logarithmic (offset) unit, so CNR quantities are checked by their unit string
 and then handled as plain floats.  :func:`si_unit` writes a UDUNITS string in the D-SI form
-of a Digital Calibration Certificate (:mod:`lidarcal.dcc`).
+of a Digital Calibration Certificate (:mod:`lidarcal.certificate.dcc.export`).
 
 The registry is built the first time lidarcal needs it (``ureg`` or ``Q_`` is used, a unit is
 parsed or converted, or :func:`register_units` is called), not when this module is imported:

@@ -19,12 +19,12 @@ from lidarcal.certificate import (
     provenance_chain,
     result_table,
 )
+from lidarcal.certificate.seal import integrity_record, seal_root, verify_certificate, write_certificate
 from lidarcal.cli import main
 from lidarcal.errors import InputError, OutputExistsError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.provenance import jsonable, sha256, stamp
 from lidarcal.schema import validate_dataset
-from lidarcal.seal import integrity_record, seal_root, verify_certificate, write_certificate
 
 SERIAL = "WLS7-TEST"
 

@@ -8,12 +8,12 @@ import pytest
 import yaml
 from analysis_factories import make_records
 
-from lidarcal.admin import ADMIN_FILE_KEYS, demonstration_reasons, load_admin
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.bench import build_cube, simulate_run
 from lidarcal.bench.formats import read_control_log, write_control_log, write_rtd
 from lidarcal.bench.simulator import SIMULATED_ORIGIN
 from lidarcal.certificate import make_certificate
+from lidarcal.certificate.admin import ADMIN_FILE_KEYS, demonstration_reasons, load_admin
 from lidarcal.cli import main
 from lidarcal.conditions import synthetic_conditions
 from lidarcal.data import sample_file

@@ -23,8 +23,8 @@ from lidarcal.analysis import budget, sensitivity
 from lidarcal.analysis.rule import CertificationRule
 from lidarcal.bench import build_cube, simulate_run
 from lidarcal.certificate import make_certificate
+from lidarcal.certificate.dcc.export import dcc_tree, validate_dcc
 from lidarcal.cli import main
-from lidarcal.dcc import dcc_tree, validate_dcc
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.provenance import stamp

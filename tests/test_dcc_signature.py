@@ -25,9 +25,9 @@ from lxml import etree
 
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.certificate import make_certificate
+from lidarcal.certificate.seal import write_certificate
 from lidarcal.cli import main
 from lidarcal.io import open_artefact, write_artefact
-from lidarcal.seal import write_certificate
 
 NS = {"dcc": "https://ptb.de/dcc", "si": "https://ptb.de/si", "ds": "http://www.w3.org/2000/09/xmldsig#"}
 
@@ -211,7 +211,7 @@ def test_a_forger_resigning_with_a_chain_of_their_own_is_caught_by_the_trusted_r
     unc.text = " ".join(repr(float(v) / 2) for v in unc.text.split())
     forged = tmp_path / "forged-unsigned.xml"
     tree.write(str(forged))
-    from lidarcal.dccsign import load_signer, sign_dcc
+    from lidarcal.certificate.dcc.sign import load_signer, sign_dcc
 
     attacker = lab["attacker"]
     out = tmp_path / "forged.xml"

@@ -21,11 +21,11 @@ from analysis_factories import make_records
 
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.certificate import make_certificate
+from lidarcal.certificate.dcc.export import dcc_tree, write_dcc
+from lidarcal.certificate.seal import INTEGRITY_ATTR, write_certificate
 from lidarcal.cli import main
-from lidarcal.dcc import dcc_tree, write_dcc
 from lidarcal.errors import InputError, SealError
 from lidarcal.io import open_artefact, write_artefact
-from lidarcal.seal import INTEGRITY_ATTR, write_certificate
 
 HALVED = ("budget_uncertainty", "budget_expanded_uncertainty", "budget_relative_expanded_uncertainty")
 
@@ -174,7 +174,7 @@ def test_deeply_nested_admin_is_refused(inputs, tmp_path, capsys):
     code, _, err = _run(capsys, "dcc", inputs["cert"], "-o", tmp_path / "x.xml", "--admin", legal)
     assert code == 0, err
     # nested data given from Python (not a file) is bounded the same way
-    from lidarcal.admin import parse_admin
+    from lidarcal.certificate.admin import parse_admin
 
     nested: list = []
     for _ in range(10_000):

@@ -24,8 +24,8 @@ from analysis_factories import make_records
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.analysis.rule import CertificationRule
 from lidarcal.certificate import make_certificate
-from lidarcal.document import seal_statement, write_document
-from lidarcal.document.pages import BOTTOM, FOOTER_RULE
+from lidarcal.certificate.document import seal_statement, write_document
+from lidarcal.certificate.document.pages import BOTTOM, FOOTER_RULE
 
 HEIGHTS = (40.0, 60.0, 80.0, 100.0, 120.0, 140.0, 160.0, 200.0)
 
@@ -197,8 +197,8 @@ def test_the_certified_range_says_where_the_values_stop(tmp_path, poppler):
 
 
 def test_the_seal_line_names_the_certificate_file():
-    from lidarcal.document.facts import signature_status
-    from lidarcal.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
+    from lidarcal.certificate.document.facts import signature_status
+    from lidarcal.certificate.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
 
     # a certificate read from a file (open_artefact records which), sealed, or signed too
     read = {INTEGRITY_ATTR: "x", "lidarcal_source_file": "lab-2026-07.nc"}
@@ -217,7 +217,7 @@ def test_budget_plot_bars_are_the_numerical_tolerance():
     from matplotlib.container import ErrorbarContainer
     from matplotlib.figure import Figure
 
-    from lidarcal.document.figures import draw_budget
+    from lidarcal.certificate.document.figures import draw_budget
 
     b = settled_budget(settled_records(n=1200, heights=(80.0, 120.0), seed=5))
     b["numerical_tolerance"] = b["relative_expanded_uncertainty"] * 0 + 0.05
@@ -237,7 +237,7 @@ def test_contributor_bars_are_wide_and_the_legend_is_always_there(long_records):
     from matplotlib.collections import LineCollection
     from matplotlib.figure import Figure
 
-    from lidarcal.document.figures import draw_contributors
+    from lidarcal.certificate.document.figures import draw_contributors
 
     b = long_records[1].copy()  # the shared budget, not changed for the other tests
     # a short run: the lowest height has no certified bin at all, yet the legend names everything

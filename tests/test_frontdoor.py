@@ -18,9 +18,9 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 
 
 def test_every_exported_name_resolves_to_its_entry_point():
+    from lidarcal.certificate.seal import verify_certificate
     from lidarcal.diagnose import diagnose
     from lidarcal.pipeline import calibrate
-    from lidarcal.seal import verify_certificate
 
     assert len(lidarcal.__all__) >= 11
     for name in lidarcal.__all__:
@@ -67,8 +67,9 @@ def test_diagnose_campaign_runs_the_diagnosis(tmp_path):
 
 #: What a command that runs no simulation and draws nothing never needs: seconds of CPU to import.
 ENGINE = ("cf_xarray", "scipy.stats", "scipy.interpolate", "matplotlib", "bokeh", "distributed", "pyconturb",
-          "pint_xarray", "lidarcal.pipeline", "lidarcal.campaign", "lidarcal.analysis", "lidarcal.report",
-          "lidarcal.document", "lidarcal.diagnose", "lidarcal.lidar")
+          "pint_xarray", "lidarcal.pipeline", "lidarcal.campaign", "lidarcal.analysis",
+          "lidarcal.certificate.report", "lidarcal.certificate.document", "lidarcal.diagnose",
+          "lidarcal.lidar")
 #: ... and what ``lidarcal --help`` needs none of either.
 LIBRARIES = ("numpy", "xarray", "pandas", "pint", "dask", "netCDF4", "yaml")
 

@@ -29,9 +29,11 @@ import lidarcal
 PACKAGE = Path(lidarcal.__file__).parent
 CONTRIBUTING = PACKAGE.parent / "CONTRIBUTING.md"
 
-#: Shared infrastructure: importable from anywhere, imports no stage.
+#: Shared infrastructure: importable from anywhere, imports no stage.  ``htmlpage`` is the HTML
+#: plotting API of every report (the calibration's, diagnose's, compare's, smc's), not the
+#: certificate's alone.
 INFRASTRUCTURE = ("", "errors", "units", "schema", "cf", "binning", "provenance", "io", "compliance", "data",
-                  "htmlpage", "signing", "admin")
+                  "htmlpage")
 
 #: Stages in dependency order: each may import only infrastructure and the stages before it.
 #: ``analysis`` reads records but never runs a campaign, so it comes before ``campaign``
@@ -45,13 +47,7 @@ STAGES = (
     "conditions",
     "analysis",
     "campaign",
-    "seal",
     "certificate",
-    "dcc_xml",
-    "dcc",
-    "dccsign",
-    "document",
-    "report",
     "diagnose",
     "compare",
     "smc",
@@ -59,6 +55,15 @@ STAGES = (
     "cli",
 )
 _ALIASES = {"__main__": "cli"}
+
+#: A stage that is one folder of several parts (the certificate wing: the certificate, its seal and
+#: administrative data, the DCC, the PDF and the HTML report), its parts in dependency order: a part
+#: may import only the parts before it, and none imports the wing's face (its ``__init__.py``, which
+#: names the public functions and imports them on first use): the face would hide a back-arrow.
+WINGS = {
+    "certificate": ("admin", "signing", "seal", "layout", "inputs", "results", "measurand", "build", "dcc",
+                    "document", "report"),
+}
 
 
 def module_name(path: Path, root: Path) -> str:
@@ -109,7 +114,27 @@ def import_graph(root: Path) -> dict[str, list[tuple[str, int, str]]]:
     }
 
 
-def layering_violations(root: Path, infrastructure=INFRASTRUCTURE, stages=STAGES) -> list[str]:
+def part_of(module: str) -> str:
+    """``lidarcal.certificate.dcc.export`` -> ``dcc``; a wing's face (``lidarcal.certificate``) -> ``""``."""
+    parts = module.split(".")
+    return parts[2] if len(parts) > 2 else ""
+
+
+def wing_violation(mod: str, target: str, parts: tuple[str, ...]) -> str | None:
+    """Why ``mod`` may not import ``target``, both in one wing whose parts are ``parts`` (None: it may)."""
+    src, dst = part_of(mod), part_of(target)
+    if not src or src == dst:
+        return None  # the face imports its parts; a part its own modules
+    if not dst:
+        return "a part imports the wing's face, which imports every part"
+    if src not in parts or dst not in parts:
+        return f"{(src if src not in parts else dst)!r} is not a listed part of the wing"
+    if parts.index(dst) > parts.index(src):
+        return f"part {src!r} imports the later part {dst!r}, which may depend on it"
+    return None
+
+
+def layering_violations(root: Path, infrastructure=INFRASTRUCTURE, stages=STAGES, wings=WINGS) -> list[str]:
     """Every import that runs against the layering, as ``file:line: a -> b (why)``."""
     order = {s: i for i, s in enumerate(stages)}
     problems = []
@@ -118,7 +143,10 @@ def layering_violations(root: Path, infrastructure=INFRASTRUCTURE, stages=STAGES
         for file, line, target in edges:
             dst = stage_of(target)
             where = f"{file}:{line}: {mod} imports {target}"
-            if src not in order and src not in infrastructure:
+            if src == dst and src in wings:
+                if why := wing_violation(mod, target, wings[src]):
+                    problems.append(f"{where} ({why})")
+            elif src not in order and src not in infrastructure:
                 problems.append(f"{where} ({src!r} is neither infrastructure nor a listed stage)")
             elif dst not in order and dst not in infrastructure:
                 problems.append(f"{where} ({dst!r} is neither infrastructure nor a listed stage)")
@@ -302,6 +330,29 @@ def test_checker_finds_a_cycle_hidden_in_a_function(tmp_path):
 def test_each_stage_exists(stage):
     # a stage listed here but renamed or removed would make the order check vacuous for it
     assert (PACKAGE / stage).is_dir() or (PACKAGE / f"{stage}.py").is_file()
+
+
+def test_each_wing_part_exists_and_every_module_is_a_part():
+    for wing, parts in WINGS.items():
+        here = PACKAGE / wing
+        assert all((here / p).is_dir() or (here / f"{p}.py").is_file() for p in parts), parts
+        found = {part_of(m) for m in import_graph(PACKAGE) if stage_of(m) == wing} - {""}
+        assert found == set(parts), f"add these to WINGS[{wing!r}]: {sorted(found - set(parts))}"
+
+
+def test_checker_finds_a_backwards_edge_inside_a_wing_and_an_import_of_its_face(tmp_path):
+    root = _package(tmp_path, {
+        "wing/__init__.py": "from pkg.wing.late import x\n",
+        "wing/early.py": "def f():\n    from pkg.wing.late import x  # deferred: no\n",
+        "wing/late/__init__.py": "from pkg.wing.early import f\n",
+        "wing/other.py": "import pkg.wing\n",
+    })
+    found = layering_violations(root, infrastructure=("",), stages=("wing",),
+                                wings={"wing": ("early", "other", "late")})
+    assert [p.split(" (")[0] for p in found] == [
+        "pkg/wing/early.py:2: pkg.wing.early imports pkg.wing.late",
+        "pkg/wing/other.py:1: pkg.wing.other imports pkg.wing",
+    ]
 
 
 def test_checker_finds_unexplained_local_imports(tmp_path):

@@ -23,9 +23,9 @@ from lidarcal.campaign.model_form import model_form_runs, select_periods, with_m
 from lidarcal.campaign.run import simulate_replicas
 from lidarcal.campaign.settings import Execution
 from lidarcal.certificate import MEASURAND, make_certificate, result_table
+from lidarcal.certificate.dcc.export import dcc_tree
+from lidarcal.certificate.document import write_document
 from lidarcal.conditions import synthetic_conditions
-from lidarcal.dcc import dcc_tree
-from lidarcal.document import write_document
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, write_artefact
 from lidarcal.lidar import LidarModel, simulate_period

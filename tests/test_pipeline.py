@@ -10,12 +10,12 @@ import pytest
 import xarray as xr
 from conftest import SHORT_RUN
 
+from lidarcal.certificate.seal import verify_certificate
 from lidarcal.cli import main
 from lidarcal.errors import OutputExistsError
 from lidarcal.io import open_artefact
 from lidarcal.pipeline import OUTPUT_NAMES, CalibrationConfig, calibrate
 from lidarcal.schema import validate_dataset
-from lidarcal.seal import verify_certificate
 
 
 @pytest.fixture(scope="module")

@@ -11,13 +11,13 @@ from analysis_factories import make_records
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.analysis.rule import CertificationRule
 from lidarcal.bench import build_cube, simulate_run
+from lidarcal.certificate.document.facts import fmt
+from lidarcal.certificate.document.figure_data import confidence_band
+from lidarcal.certificate.report import report_figures, write_report
 from lidarcal.cli import main
-from lidarcal.document.facts import fmt
-from lidarcal.document.figure_data import confidence_band
 from lidarcal.errors import OutputExistsError
 from lidarcal.io import write_artefact
 from lidarcal.provenance import stamp
-from lidarcal.report import report_figures, write_report
 from lidarcal.rwf import range_weighting_function
 
 FIGURES = [  # page order: budget first
@@ -174,10 +174,10 @@ def test_confidence_band_matches_numpy_polyfit_covariance(inputs):
 
 def test_pdf_and_html_draw_one_preparation_of_a_sensitivity(inputs):
     """The PDF panel and the HTML plot of a sensitivity draw the same bin means and regression line,
-    prepared once (lidarcal.document.figure_data), and that line is intercept + slope * x."""
+    prepared once (lidarcal.certificate.document.figure_data), and that line is intercept + slope * x."""
     from matplotlib.figure import Figure as MplFigure
 
-    from lidarcal.document.figures import draw_sensitivity
+    from lidarcal.certificate.document.figures import draw_sensitivity
 
     ds = inputs["sensitivities"][0]
     fig = MplFigure()
@@ -441,7 +441,7 @@ def test_certificate_document_pages(report, poppler):
 def test_certificate_document_states_status_admin_data_and_tolerance(inputs, report, tmp_path, poppler):
     import xarray as xr
 
-    from lidarcal.document import parts_of, write_document
+    from lidarcal.certificate.document import parts_of, write_document
 
     cert = xr.open_dataset(report.with_name("cert.nc")).load()
     cert.attrs.update(calibration_status="demonstration", certificate_id="LAB-2026-0042",
@@ -467,7 +467,7 @@ def test_certificate_document_states_status_admin_data_and_tolerance(inputs, rep
 def test_budget_figure_is_scaled_to_the_certified_range(inputs):
     from matplotlib.figure import Figure
 
-    from lidarcal.document.figures import draw_budget
+    from lidarcal.certificate.document.figures import draw_budget
 
     b = budget(inputs["records"], rule=CertificationRule(min_periods=20, significant_digits=1))
     fig = Figure()
@@ -490,7 +490,7 @@ def test_budget_figure_is_scaled_to_the_certified_range(inputs):
 
 
 def test_cube_colour_scale_from_the_cnr_bins_drawn(inputs):
-    from lidarcal.document.figure_data import cube_colour_limits, drawn_cnr_range
+    from lidarcal.certificate.document.figure_data import cube_colour_limits, drawn_cnr_range
 
     cube = inputs["cube"]
     axis = np.sort(cube.cnr.values)
@@ -510,7 +510,7 @@ def test_cube_colour_scale_from_the_cnr_bins_drawn(inputs):
 
 def test_report_page_order_result_first_hashes_last(report):
     text = re.sub(r"<script.*?</script>", "", report.read_text(), flags=re.S)
-    status, headline = text.index("Calibration status"), text.index("Relative expanded uncertainty (k = 2)")
+    status, headline = text.index("Calibration status"), text.index("Expanded uncertainty: ")
     first_plot, hashes = text.index("<section id="), text.index("sha256")
     assert status < headline < first_plot < hashes
 
@@ -570,7 +570,7 @@ def test_report_figures_one_legend_right_and_no_unused_glyphs(inputs):
 def test_gc_paused_restores_the_collector():
     import gc
 
-    from lidarcal.document.pages import gc_paused
+    from lidarcal.certificate.document.pages import gc_paused
 
     assert gc.isenabled()
     with gc_paused():

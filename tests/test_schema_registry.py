@@ -167,6 +167,32 @@ def test_include_errors_name_the_schema_and_what_is_wrong():
     assert declared_variables("conditions")["cnr"]["long_name"] == "carrier-to-noise ratio"
 
 
+def test_prefix_renames_an_included_spec_and_its_dims():
+    into, specs = _included({"from": "uncertainty_budget", "only": ["contribution"], "prefix": "budget_",
+                             "keep": ["dims", "units"]}, "x.yaml")
+    assert (into, specs) == ("variables", {"budget_contribution": {
+        "dims": ["budget_wind_speed", "budget_contributor", "budget_height"], "units": "m s-1"}})
+    into, specs = _included({"from": "uncertainty_budget", "into": "coordinates", "only": ["height"],
+                             "prefix": "budget_"}, "x.yaml")
+    assert specs["budget_height"]["dims"] == ["budget_height"] and specs["budget_height"]["units"] == "m"
+
+
+def test_certificate_declares_no_budget_variable_by_hand():
+    """The certificate bundles the budget as budget_<name> on budget_<dim>: it includes those specs."""
+    own = set(_read_schema("certificate").get("coordinates") or {}) | set(declared_variables("certificate"))
+    assert not [name for name in own if name.startswith("budget_")]
+    certificate, budget = load_schema("certificate"), load_schema("uncertainty_budget")
+    # written out here (not read from the YAML): the budget variables the certificate checks
+    carried = ["uncertainty", "relative_uncertainty", "expanded_uncertainty", "contribution", "sample_count",
+               "bin_flag", "period_count", "numerical_tolerance", "numerical_flag", "certified_statement",
+               "model_form_standard_error", "model_form_sample_count", "model_form_shift"]
+    for name in carried:
+        spec, source = certificate["variables"][f"budget_{name}"], budget["variables"][name]
+        assert spec["dims"] == [f"budget_{d}" for d in source["dims"]], name
+        assert (spec.get("units"), spec.get("range")) == (source.get("units"), source.get("range")), name
+    assert certificate["coordinates"]["budget_height"]["units"] == "m"
+
+
 def _literals(value) -> list[tuple[str, int]]:
     """(file, line) of every numeric literal equal to ``value`` in the package's code (not docstrings)."""
     hits = []

@@ -24,12 +24,12 @@ import lidarcal
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.analysis.terms import PAPER_INPUTS, TABLE4_WIND_SPEEDS, uncertainty_terms
 from lidarcal.certificate import make_certificate, result_table
+from lidarcal.certificate.document import write_document
+from lidarcal.certificate.report import write_report
+from lidarcal.certificate.seal import INTEGRITY_ATTR, require_valid_seal, write_certificate
 from lidarcal.cli import main
-from lidarcal.document import write_document
 from lidarcal.errors import InputError, SealError
 from lidarcal.io import open_artefact, write_artefact
-from lidarcal.report import write_report
-from lidarcal.seal import INTEGRITY_ATTR, require_valid_seal, write_certificate
 
 HALVED = ("budget_uncertainty", "budget_expanded_uncertainty", "budget_relative_expanded_uncertainty")
 
@@ -164,7 +164,7 @@ def test_signing_key_readable_by_others_is_refused(sealed, tmp_path, capsys):
     assert f"{key}: private key is readable or writable by others (mode 0644)" in err and "chmod 600" in err
     os.chmod(key, 0o640)  # group-readable: refused as well
     with pytest.raises(InputError, match="mode 0640"):
-        from lidarcal.signing import load_private_key
+        from lidarcal.certificate.signing import load_private_key
         load_private_key(key)
     os.chmod(key, 0o600)
     code, _, err = _run(capsys, "certificate", "--budget", sealed["budget"], "--sensitivity", sealed["sens"],
@@ -327,7 +327,7 @@ def test_every_command_that_shows_a_certificate_checks_its_seal(tampered, tmp_pa
     leaves = dict(_leaf_commands(build_parser()))
     unclassified = sorted(set(leaves) - set(SHOWS_A_CERTIFICATE) - set(NO_CERTIFICATE_SHOWN))
     assert unclassified == [], (f"new command(s) {unclassified}: does it show a certificate's numbers? "
-                                "Call lidarcal.seal.require_valid_seal first and add it to "
+                                "Call lidarcal.certificate.seal.require_valid_seal first and add it to "
                                 "SHOWS_A_CERTIFICATE, or say why not in NO_CERTIFICATE_SHOWN")
     assert sorted(set(SHOWS_A_CERTIFICATE) | set(NO_CERTIFICATE_SHOWN)) == sorted(leaves)  # none gone
     # an input named like a certificate (not the -o of the command that writes one) is read
@@ -350,7 +350,7 @@ def test_every_command_that_shows_a_certificate_checks_its_seal(tampered, tmp_pa
 
 def _readers():
     """Public functions that show a certificate's numbers: how to call each on a certificate file."""
-    from lidarcal.dcc import dcc_tree, write_dcc
+    from lidarcal.certificate.dcc.export import dcc_tree, write_dcc
     from lidarcal.smc import smc
 
     return {
@@ -358,12 +358,14 @@ def _readers():
         "lidarcal.result_table": lambda p, tmp: lidarcal.result_table(xr.open_dataset(p)),
         "lidarcal.certificate.open_certificate": lambda p, tmp: lidarcal.certificate.open_certificate(p),
         "lidarcal.certificate.result_table": lambda p, tmp: result_table(open_artefact(p)),
-        "lidarcal.dcc.write_dcc": lambda p, tmp: write_dcc(p, tmp / "x.xml"),
-        "lidarcal.dcc.dcc_tree": lambda p, tmp: dcc_tree(open_artefact(p), certificate_sha256="0" * 64),
-        "lidarcal.report.write_report": lambda p, tmp: write_report(tmp / "r.html",
-                                                                   certificate=open_artefact(p)),
+        "lidarcal.certificate.dcc.write_dcc": lambda p, tmp: write_dcc(p, tmp / "x.xml"),
+        "lidarcal.certificate.dcc.dcc_tree": lambda p, tmp: dcc_tree(open_artefact(p),
+                                                                     certificate_sha256="0" * 64),
+        "lidarcal.certificate.report.write_report": lambda p, tmp: write_report(
+            tmp / "r.html", certificate=open_artefact(p)),
         "lidarcal.smc.smc": lambda p, tmp: smc(p, [_SAMPLE_STA], monte_carlo=False),
-        "lidarcal.document.write_document": lambda p, tmp: write_document(tmp / "r.pdf", open_artefact(p)),
+        "lidarcal.certificate.document.write_document": lambda p, tmp: write_document(tmp / "r.pdf",
+                                                                                      open_artefact(p)),
     }
 
 
@@ -389,23 +391,30 @@ NOT_READERS = {
     "lidarcal.certificate.headline_sentence": "a budget's helper, called by the readers after their check",
     "lidarcal.certificate.certified_rule": "the rule in words",
     "lidarcal.certificate.not_settled": "a budget's helper, called by the readers after their check",
+    "lidarcal.certificate.headline_text": "a budget's helper, called by the readers after their check",
+    "lidarcal.certificate.not_settled_sentence": "a budget's helper, called by the readers after their check",
+    "lidarcal.certificate.not_settled_items": "a budget's helper, called by the readers after their check",
+    "lidarcal.certificate.HEADLINE_LABEL": "a constant (the label before the headline)",
     "lidarcal.certificate.model_form_values": "a budget's helper, called by the readers after their check",
     "lidarcal.certificate.model_form_summary": "a budget's helper, called by the readers after their check",
     "lidarcal.certificate.MEASURAND": "a constant (the measurand in words)",
-    "lidarcal.dcc.validate_dcc": "checks an XML against the XSD",
-    "lidarcal.dcc.dcc_attributes": "the attributes dcc_tree states, after dcc_tree's check",
-    "lidarcal.dcc.DCC_NS": "a constant", "lidarcal.dcc.SI_NS": "a constant",
-    "lidarcal.dcc.DCC_SCHEMA_VERSION": "a constant", "lidarcal.dcc.SI_SCHEMA_URL": "a constant",
-    "lidarcal.dcc.COVERAGE_PROBABILITY": "a constant",
-    "lidarcal.report.report_figures": "figures of components the caller passes",
-    "lidarcal.report.Figure": "a class",
+    "lidarcal.certificate.dcc.validate_dcc": "checks an XML against the XSD",
+    "lidarcal.certificate.dcc.dcc_attributes": "the attributes dcc_tree states, after dcc_tree's check",
+    "lidarcal.certificate.dcc.DCC_NS": "a constant", "lidarcal.certificate.dcc.SI_NS": "a constant",
+    "lidarcal.certificate.dcc.DCC_SCHEMA_VERSION": "a constant",
+    "lidarcal.certificate.dcc.SI_SCHEMA_URL": "a constant",
+    "lidarcal.certificate.dcc.COVERAGE_PROBABILITY": "a constant",
+    "lidarcal.certificate.report.report_figures": "figures of components the caller passes",
+    "lidarcal.certificate.report.Figure": "a class",
     "lidarcal.smc.smc_dataset": "the artefact of what smc computed (after smc's check)",
     "lidarcal.smc.binned": "an smc artefact's per-bin view, no certificate read",
     "lidarcal.smc.binned_table": "an smc artefact's table, no certificate read",
-    "lidarcal.document.parts_of": "the components of a certificate the caller opened through a reader",
-    "lidarcal.document.seal_statement": "a sentence about a seal, no numbers",
-    "lidarcal.document.fmt": "formats a number", "lidarcal.document.units_suffix": "formats a unit",
-    "lidarcal.document.VARIABLE_NAMES": "a constant",
+    "lidarcal.certificate.document.parts_of": "the components of a certificate the caller opened through a "
+                                              "reader",
+    "lidarcal.certificate.document.seal_statement": "a sentence about a seal, no numbers",
+    "lidarcal.certificate.document.fmt": "formats a number",
+    "lidarcal.certificate.document.units_suffix": "formats a unit",
+    "lidarcal.certificate.document.VARIABLE_NAMES": "a constant",
 }
 
 
@@ -413,8 +422,8 @@ def test_every_public_reader_checks_the_seal(tampered, tmp_path):
     import importlib
 
     public = {f"lidarcal.{n}" for n in lidarcal.__all__ if n != "__version__"}
-    for module in ("lidarcal.certificate", "lidarcal.dcc", "lidarcal.report", "lidarcal.document",
-                   "lidarcal.smc"):
+    for module in ("lidarcal.certificate", "lidarcal.certificate.dcc", "lidarcal.certificate.report",
+                   "lidarcal.certificate.document", "lidarcal.smc"):
         public |= {f"{module}.{n}" for n in importlib.import_module(module).__all__}
     readers = _readers()
     unclassified = sorted(public - set(readers) - set(NOT_READERS))

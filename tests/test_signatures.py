@@ -2,7 +2,7 @@
 
 The forger here can do everything the issue describes: rewrite the file, halve every
 uncertainty and recompute the unkeyed seal with the documented canonical form
-(:func:`lidarcal.seal.integrity_record`), strip the signature, or sign with a key of
+(:func:`lidarcal.certificate.seal.integrity_record`), strip the signature, or sign with a key of
 their own.  Only a check against the genuine public key must catch every one of them.
 """
 
@@ -20,10 +20,10 @@ from analysis_factories import make_records
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
 
 from lidarcal.analysis import budget, sensitivity
+from lidarcal.certificate.seal import INTEGRITY_ATTR, integrity_record
+from lidarcal.certificate.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign
 from lidarcal.cli import main
 from lidarcal.io import open_artefact, write_artefact
-from lidarcal.seal import INTEGRITY_ATTR, integrity_record
-from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign
 
 HALVED = ("budget_uncertainty", "budget_expanded_uncertainty", "budget_relative_uncertainty")
 

@@ -17,10 +17,10 @@ from smc_factories import HEIGHTS, SERIAL, campaign_values, conditions_file, sma
 from test_sta import ends, make_values, write_newer, write_older
 
 import lidarcal
+from lidarcal.certificate.signing import generate_keypair
 from lidarcal.cli import main
 from lidarcal.data import sample_file
 from lidarcal.errors import InputError
-from lidarcal.signing import generate_keypair
 from lidarcal.smc import binned, binned_table, smc
 from lidarcal.smc.kernels import group_of, within_bin_fit
 

@@ -21,10 +21,10 @@ from analysis_factories import make_records
 import lidarcal.pipeline
 from lidarcal.analysis import budget, sensitivity
 from lidarcal.certificate import make_certificate
+from lidarcal.certificate.seal import write_certificate
 from lidarcal.io import open_artefact, part_path, remove_stale_parts, write_artefact
 from lidarcal.pipeline import CalibrationConfig, calibrate
 from lidarcal.provenance import sha256
-from lidarcal.seal import write_certificate
 
 KILLS = 4
 

@@ -44,8 +44,9 @@ __all__ = ["BenchRun", "simulate_run", "sweep_schedule", "simulate_rtd", "RF_DRI
            "SIMULATED_ORIGIN"]
 
 #: What a simulated run's control log says as its ``data_origin`` metadata (ingest copies it into
-#: the cube's ``data_origin`` attribute): the mark by which :func:`lidarcal.admin.demonstration_reasons`
-#: (which looks for the word "simulated") makes every certificate built on the run a demonstration.
+#: the cube's ``data_origin`` attribute): the mark by which
+#: :func:`lidarcal.certificate.admin.demonstration_reasons` (which looks for the word "simulated")
+#: makes every certificate built on the run a demonstration.
 SIMULATED_ORIGIN = "simulated by lidarcal bench simulate, not a measurement"
 
 #: Relative uncertainty of the RF-driver calibration, percent (paper §2.1).
@@ -244,7 +245,7 @@ def simulate_run(
         "rf_driver_relative_uncertainty_percent": RF_DRIVER_RELATIVE_UNCERTAINTY_PERCENT,
         "accumulation_time_s": acc,
         "sweep_order": "los, cnr, velocity (velocity fastest)",
-        # a certificate built from this run is a demonstration (lidarcal.admin)
+        # a certificate built from this run is a demonstration (lidarcal.certificate.admin)
         "data_origin": SIMULATED_ORIGIN,
     }
     control = ControlLog(starts, ends, li, vi, ci, meta, "<simulated control log>")

@@ -5,8 +5,8 @@ flattens every component into one Dataset and records each input's global attrib
 ``provenance_<role>`` variable (:mod:`lidarcal.certificate.layout`), adds the headline, the Monte
 Carlo's settings, a summary of the records and the provenance chain's seeds, stamps the result
 as a ``certificate`` artefact and adds the calibration status and the administrative data
-(:mod:`lidarcal.admin`).  The Dataset is not yet sealed: :func:`lidarcal.seal.write_certificate`
-writes and seals it.
+(:mod:`lidarcal.certificate.admin`).  The Dataset is not yet sealed:
+:func:`lidarcal.certificate.seal.write_certificate` writes and seals it.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.admin import (
+from lidarcal.certificate.admin import (
     DEMONSTRATION,
     STATUS_ATTR,
     STATUS_REASON_ATTR,
@@ -36,7 +36,7 @@ from lidarcal.certificate.layout import (
     scalar_coords,
 )
 from lidarcal.certificate.measurand import MEASURAND, model_form_summary
-from lidarcal.certificate.results import headline_sentence, not_settled_rows
+from lidarcal.certificate.results import headline_sentence, not_settled_items
 from lidarcal.errors import InputError
 from lidarcal.provenance import jsonable, read_json_attr, stamp
 
@@ -117,7 +117,7 @@ def make_certificate(
     config : mapping, optional
         The full configuration of the calibration run, recorded as JSON.
     admin : mapping, optional
-        Administrative data (:func:`lidarcal.admin.load_admin`: item, laboratory, responsible
+        Administrative data (:func:`lidarcal.certificate.admin.load_admin`: item, laboratory, responsible
         persons, customer, place, dates, certificate id ...), stored as global attributes
         (docs/certificate.md); what the data state (lidar serial, bench id, run, operator,
         the RF driver's calibration reference, dates) is filled in.
@@ -244,11 +244,7 @@ def _summary_attributes(budget: xr.Dataset, *, serial: str | None, cube: xr.Data
         if key in budget.attrs:
             attrs[key] = int(budget.attrs[key])
     if "numerical_flag" in budget:  # listed apart with the largest tolerance of their values
-        missed = not_settled_rows(budget)
-        attrs["monte_carlo_not_settled"] = "; ".join(
-            f"{r['height_m']:g} m {r['wind_speed_m_s']:g} m/s (U {r['expanded_uncertainty_pct']:.2f} %, "
-            f"tolerance {max(v for c, v in r.items() if c.startswith('tolerance_')):.2g} %)"
-            for r in missed) or "none"
+        attrs["monte_carlo_not_settled"] = "; ".join(not_settled_items(budget)) or "none"
     if "certified_statement" in budget:
         attrs["certified_statement_rule"] = (
             "per certified bin: the error of one 10-minute mean lies within +-U (k = "
@@ -272,7 +268,7 @@ def _summary_attributes(budget: xr.Dataset, *, serial: str | None, cube: xr.Data
 def _with_admin(cert: xr.Dataset, admin: Mapping[str, str] | None, demonstration: bool, *,
                 cube: xr.Dataset | None, records: xr.Dataset | None,
                 config: Mapping[str, Any] | None) -> xr.Dataset:
-    """Add ``calibration_status`` and the administrative attributes (lidarcal.admin)."""
+    """Add ``calibration_status`` and the administrative attributes (lidarcal.certificate.admin)."""
     cube_attrs = cube.attrs if cube is not None else {}
     derived = {
         "item_serial_number": cert.attrs.get("lidar_serial"),

@@ -22,11 +22,11 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from lidarcal.certificate.seal import invalid_seal_banner, require_valid_seal
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, read_image
 from lidarcal.provenance import jsonable, read_json_attr
 from lidarcal.schema import output_attrs
-from lidarcal.seal import invalid_seal_banner, require_valid_seal
 from lidarcal.units import register_units
 
 __all__ = [
@@ -196,8 +196,8 @@ def open_certificate(path: str | os.PathLike, *, chunks: dict | None = None,
     cf-xarray's unit registry with pint, so ``tree["budget"].dataset.pint.quantify()``
     understands the stored units.
 
-    The seal is checked first (:func:`lidarcal.seal.require_valid_seal`); with ``allow_invalid`` an altered
-    certificate is opened anyway, its problems listed in the root attribute
+    The seal is checked first (:func:`lidarcal.certificate.seal.require_valid_seal`); with
+    ``allow_invalid`` an altered certificate is opened anyway, its problems listed in the root attribute
     ``lidarcal_seal_problems``.
 
     Raises

@@ -7,8 +7,10 @@ that flag, for every reader here and in the documents and the DCC.  A certificat
 the flag had the meaning ``not_settled`` marked such values only in ``numerical_flag``; they are
 read as not settled, and not certified, all the same.  :func:`headline_range` and
 :func:`headline_sentence` give the range of the k = 2 relative expanded uncertainty quoted on the
-certificate (settled certified values only), :func:`not_settled` and :func:`not_settled_rows`
-the values the Monte Carlo did not settle (listed apart, with their tolerances), and
+certificate (settled certified values only; the one builder of the headline, which every document
+shows after :data:`HEADLINE_LABEL`: :func:`headline_text`), :func:`not_settled` and
+:func:`not_settled_rows` the values the Monte Carlo did not settle (listed apart, with their
+tolerances; :func:`not_settled_sentence` and :func:`not_settled_items` the one wording of them), and
 :func:`result_table` (``lidarcal table``) one row per height and wind-speed bin, with why a bin
 is not certified, what it certifies (±U or the Monte Carlo coverage interval), its main
 contributors and the significant sensitivities.  Each takes a certificate or an
@@ -23,9 +25,9 @@ import xarray as xr
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
 from lidarcal.analysis.certification import digits_text
 from lidarcal.certificate.layout import components, extract_component
+from lidarcal.certificate.seal import require_valid_seal
 from lidarcal.errors import InputError
 from lidarcal.io import source_name
-from lidarcal.seal import require_valid_seal
 
 __all__ = [
     "certified_mask",
@@ -34,6 +36,10 @@ __all__ = [
     "not_settled_rows",
     "headline_range",
     "headline_sentence",
+    "headline_text",
+    "HEADLINE_LABEL",
+    "not_settled_sentence",
+    "not_settled_items",
     "coverage_interval_bins",
     "result_table",
 ]
@@ -162,8 +168,53 @@ def headline_range(obj: xr.Dataset, *, wind_speeds: tuple[float, float] | None =
     return float(rel.min()), float(rel.max())
 
 
+#: The label every document puts before :func:`headline_sentence` (the DCC, the PDF, the HTML report
+#: and ``lidarcal table``; :func:`headline_text`).
+HEADLINE_LABEL = "Expanded uncertainty"
+
+
+def _settle_limits(budget: xr.Dataset) -> str:
+    """How far the Monte Carlo went: ``to 1 significant digit within 8 Monte Carlo replicas``."""
+    return (f"to {digits_text(budget.attrs.get('monte_carlo_significant_digits'))} within "
+            f"{budget.attrs.get('monte_carlo_replicas')} Monte Carlo replicas")
+
+
+def not_settled_sentence(obj: xr.Dataset) -> str:
+    """Return how many bins did not settle and so are not certified, as one clause ("" if none).
+
+    The one wording of it (JCGM 101 7.9: the Monte Carlo stopped at ``--max-replicas`` before
+    these values settled), in the headline of every document and in the budget's summary.
+    """
+    budget = _budget_of(obj)
+    missed = not_settled(budget)
+    if not missed:
+        return ""
+    return (f"{len(missed)} bin(s) did not settle {_settle_limits(budget)} "
+            "and are not certified (listed apart)")
+
+
+def not_settled_items(obj: xr.Dataset) -> list[str]:
+    """Return each bin left out because it did not settle, as text: its U and largest tolerance.
+
+    ``40 m 5.5 m/s (U 1.23 %, tolerance 0.05 %)``: the one wording of a row of
+    :func:`not_settled_rows`, in the certificate (``monte_carlo_not_settled``), the documents and
+    ``lidarcal table``.  The tolerance is the largest finite one of the bin's values.
+    """
+    out = []
+    for r in not_settled_rows(obj):
+        tol = [v for c, v in r.items() if c.startswith("tolerance_") and np.isfinite(v)]
+        out.append(f"{r['height_m']:g} m {r['wind_speed_m_s']:g} m/s (U {r['expanded_uncertainty_pct']:.2f} %"
+                   + (f", tolerance {max(tol):.2g} %)" if tol else ")"))
+    return out
+
+
 def headline_sentence(obj: xr.Dataset) -> str | None:
-    """Return the certificate's headline: the certified range, what is certified, what did not settle."""
+    """Return the certificate's headline: the certified range, what is certified, what did not settle.
+
+    The one builder of the headline (sealed into the certificate as ``expanded_uncertainty_headline``;
+    every document shows it after :data:`HEADLINE_LABEL`, :func:`headline_text`); None when no bin
+    is certified.
+    """
     budget = _budget_of(obj)
     rng = headline_range(budget)
     if rng is None:
@@ -177,14 +228,24 @@ def headline_sentence(obj: xr.Dataset) -> str | None:
         text += (f"; in {len(intervals)} of them the Monte Carlo 95 % coverage interval of the error is "
                  "certified instead of +-U (they differ materially; ends "
                  f"{min(lows):+.2f} % to {max(highs):+.2f} %)")
-    missed = not_settled(budget)
-    if missed:
-        digits, replicas = (int(budget.attrs[a]) for a in ("monte_carlo_significant_digits",
-                                                           "monte_carlo_replicas"))
-        text += (f"; {len(missed)} bin(s) did not settle to {digits_text(digits)} "
-                 f"within {replicas} Monte Carlo replicas "
-                 "and are not certified (listed apart)")
+    if missed := not_settled_sentence(budget):
+        text += f"; {missed}"
     return text
+
+
+def headline_text(obj: xr.Dataset) -> str:
+    """Return the headline as every document shows it: :data:`HEADLINE_LABEL`, then the sentence.
+
+    With no certified bin: the label, ``nothing is certified``, the rule and what did not settle.
+    """
+    budget = _budget_of(obj)
+    sentence = headline_sentence(budget)
+    if sentence is None:
+        sentence = (f"nothing is certified (k = {float(budget.attrs.get('coverage_factor', 2)):g}; "
+                    f"certified bins: {certified_rule(budget)}; lidarcal table lists every bin)")
+        if missed := not_settled_sentence(budget):
+            sentence += f"; {missed}"
+    return f"{HEADLINE_LABEL}: {sentence}"
 
 
 def coverage_interval_bins(obj: xr.Dataset) -> dict[tuple[float, float], tuple[float, float]]:
@@ -238,13 +299,11 @@ def _significant_sensitivities(cert: xr.Dataset | xr.DataTree) -> dict[float, st
 def _reason(flag: str, periods: int, budget: xr.Dataset) -> str:
     """Why a bin is not certified, in words ("" when it is)."""
     lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
-    digits = budget.attrs.get("monte_carlo_significant_digits")
     return {"certified": "",
             "too_few_periods": f"{periods} periods (fewer than {int(budget.attrs.get('min_periods', 0))})",
             "empty": "no period",
             "outside_certified_range": f"centre outside {lo:g} to {hi:g} m/s",
-            "not_settled": (f"not settled to {digits_text(digits)} within "
-                            f"{budget.attrs.get('monte_carlo_replicas')} Monte Carlo replicas"),
+            "not_settled": f"not settled {_settle_limits(budget)}",
             }.get(flag, flag)
 
 
@@ -281,13 +340,14 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
     contributor, k = 1, in %; NaN without it), ``main_contributors`` (the largest ``contributors``
     standard-uncertainty contributions, in %) and ``significant_sensitivities`` (per height, Eqs.
     12-13).  Numbers are the certificate's own values, not rounded.  The table's attributes
-    carry the headline range, the rule and ``not_settled_rows`` (:func:`not_settled_rows`).
+    carry the headline range, the rule, ``headline`` (:func:`headline_text`), ``not_settled_rows``
+    (:func:`not_settled_rows`) and ``not_settled_items`` (:func:`not_settled_items`).
 
     ``cert`` is a certificate Dataset (or a budget), or the tree :func:`lidarcal.open_certificate`
     returns.  A certificate read from a file has its seal checked first
-    (:func:`lidarcal.seal.require_valid_seal`, on the file the Dataset or tree was read from):
+    (:func:`lidarcal.certificate.seal.require_valid_seal`, on the file the Dataset or tree was read from):
     an altered one raises :class:`~lidarcal.errors.SealError` unless ``allow_invalid`` (the
-    caller then shows :func:`lidarcal.seal.invalid_seal_banner` with the table).
+    caller then shows :func:`lidarcal.certificate.seal.invalid_seal_banner` with the table).
 
     Returns
     -------
@@ -358,6 +418,8 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
     table.attrs["headline_range_pct"] = headline_range(budget)
     table.attrs["not_settled"] = not_settled(budget)
     table.attrs["not_settled_rows"] = not_settled_rows(budget)
+    table.attrs["not_settled_items"] = not_settled_items(budget)
+    table.attrs["headline"] = headline_text(budget)
     table.attrs["coverage_interval_bins"] = len(coverage_interval_bins(budget))
     table.attrs["significant_digits"] = budget.attrs.get("monte_carlo_significant_digits")
     return table

@@ -29,8 +29,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lidarcal.admin import status_line
 from lidarcal.campaign.model_form import DEFAULT_PER_BIN
+from lidarcal.certificate.admin import status_line
 from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import (
     add_admin_options,

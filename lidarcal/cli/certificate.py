@@ -15,16 +15,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lidarcal.admin import status_line
 from lidarcal.certificate import make_certificate
+from lidarcal.certificate.admin import status_line
+from lidarcal.certificate.document import seal_statement
+from lidarcal.certificate.report import write_report
+from lidarcal.certificate.seal import write_certificate
+from lidarcal.certificate.signing import fingerprint, load_private_key
 from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import add_admin_options, add_output_options, admin_from_args
-from lidarcal.document import seal_statement
 from lidarcal.errors import DiskFullError, LidarcalError
 from lidarcal.io import check_writable, open_artefact
-from lidarcal.report import write_report
-from lidarcal.seal import write_certificate
-from lidarcal.signing import fingerprint, load_private_key
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -25,10 +25,10 @@ import os
 import sys
 from pathlib import Path
 
-from lidarcal.admin import load_admin, status_line
+from lidarcal.certificate.admin import load_admin, status_line
+from lidarcal.certificate.dcc.export import DCC_SCHEMA_VERSION, dcc_attributes, write_dcc
 from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import add_overwrite_option
-from lidarcal.dcc import DCC_SCHEMA_VERSION, dcc_attributes, write_dcc
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
 from lidarcal.provenance import sha256
@@ -75,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
     admin = load_admin(args.admin) if args.admin else None
     signer = None
     if args.sign_x509:
-        from lidarcal.dccsign import load_signer  # deferred: signxml only when signing
+        from lidarcal.certificate.dcc.sign import load_signer  # deferred: signxml only when signing
 
         signer = load_signer(args.sign_x509, args.chain)  # a bad key or chain fails before any work
     path = write_dcc(args.certificate, args.output, admin=admin, overwrite=args.overwrite, xsd=args.xsd,
@@ -94,8 +94,8 @@ def run(args: argparse.Namespace) -> int:
 
 def _verify(args: argparse.Namespace) -> int:
     """``--verify``: 0 when the signature, the chain (and the netCDF named) hold, 1 when not."""
-    from lidarcal.dccsign import same_results, verify_dcc  # deferred: signxml only when verifying
-    from lidarcal.seal import verify_certificate
+    from lidarcal.certificate.dcc.sign import same_results, verify_dcc  # deferred: signxml when verifying
+    from lidarcal.certificate.seal import verify_certificate  # deferred: with it
 
     if args.output or args.sign_x509 or args.chain or args.admin:
         raise InputError("--verify checks a DCC: it takes no -o, --sign-x509, --chain or --admin")

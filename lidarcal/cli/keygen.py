@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import argparse
 
+from lidarcal.certificate.signing import generate_keypair
 from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import add_output_options
-from lidarcal.signing import generate_keypair
 
 
 def register(sub: argparse._SubParsersAction) -> None:

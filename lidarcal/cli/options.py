@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from lidarcal.admin import load_admin, merge_admin
+from lidarcal.certificate.admin import load_admin, merge_admin
 from lidarcal.provenance import ACDD_SPELLINGS, USER_ATTRIBUTES
 
 __all__ = [
@@ -343,7 +343,7 @@ def add_contact_options(parser: argparse.ArgumentParser) -> None:
                         "acknowledgment is accepted and written acknowledgement)")
 
 
-#: option -> administrative attribute (lidarcal.admin; docs/certificate.md)
+#: option -> administrative attribute (lidarcal.certificate.admin; docs/certificate.md)
 ADMIN_OPTIONS = {
     "--certificate-id": "certificate_id",
     "--item-manufacturer": "item_manufacturer",

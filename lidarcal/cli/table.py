@@ -31,13 +31,12 @@ import html
 import sys
 from pathlib import Path
 
-from lidarcal.admin import status_line
-from lidarcal.analysis.certification import digits_text
 from lidarcal.certificate import result_table
+from lidarcal.certificate.admin import status_line
+from lidarcal.certificate.seal import invalid_seal_banner, require_valid_seal
 from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import add_overwrite_option
 from lidarcal.io import atomic_path, check_writable, open_artefact
-from lidarcal.seal import invalid_seal_banner, require_valid_seal
 
 FORMATS = ("csv", "md", "html")
 _SUFFIXES = {".csv": "csv", ".md": "md", ".markdown": "md", ".html": "html", ".htm": "html"}
@@ -58,34 +57,6 @@ def register(sub: argparse._SubParsersAction) -> None:
                    "under a warning banner (by default such a certificate is refused)")
     add_overwrite_option(p)
     p.set_defaults(handler=run)
-
-
-def _headline(table) -> str:
-    rng = table.attrs["headline_range_pct"]
-    k = table.attrs["coverage_factor"]
-    where = f"certified bins ({table.attrs['certified_rule']})"
-    if rng is None:
-        return f"Expanded uncertainty (k = {k:g}): no {where}"
-    text = f"Expanded uncertainty (k = {k:g}), {where}: {rng[0]:.2f} % to {rng[1]:.2f} %"
-    if table.attrs.get("coverage_interval_bins"):
-        text += (f"; in {table.attrs['coverage_interval_bins']} bin(s) the Monte Carlo 95 % coverage "
-                 "interval is certified instead (certified statement: coverage_interval)")
-    missed = table.attrs.get("not_settled") or []
-    if missed:
-        text += (f"; {len(missed)} bin(s) not settled to {digits_text(table.attrs['significant_digits'])} "
-                 "by the Monte Carlo: not certified (listed apart)")
-    return text
-
-
-def _not_settled_lines(table) -> list[str]:
-    """Return the bins left out because their values did not settle, a line each, with tolerances."""
-    out = []
-    for r in table.attrs.get("not_settled_rows") or []:
-        tol = [v for c, v in r.items() if c.startswith("tolerance_") and v == v]
-        out.append(f"{r['height_m']:g} m, {r['wind_speed_m_s']:g} m/s: "
-                   f"U {r['expanded_uncertainty_pct']:.2f} %"
-                   + (f", numerical tolerance up to {max(tol):.2g} %" if tol else ""))
-    return out
 
 
 def _rounded(table):
@@ -129,10 +100,10 @@ def _markdown(table) -> str:
     body = _rounded(table)
     lines = [f"# Result table: {table.attrs.get('title', 'calibration certificate')}", "",
              *([f"**{table.attrs['status']}**", ""] if table.attrs.get("status") else []),
-             _headline(table), "",
+             table.attrs["headline"], "",
              "| " + " | ".join(body.columns) + " |", "|" + "---|" * len(body.columns)]
     lines += ["| " + " | ".join(_cell(v) for v in row) + " |" for row in body.itertuples(index=False)]
-    if missed := _not_settled_lines(table):
+    if missed := table.attrs["not_settled_items"]:
         lines += ["", "## Not certified: Monte Carlo values not settled (JCGM 101 7.9)", ""]
         lines += [f"- {line}" for line in missed]
     lines += ["", "## Significant sensitivities (Eqs. 12-13)", ""]
@@ -146,12 +117,12 @@ def _html(table) -> str:
     grid = _rounded(table).to_html(index=False, na_rep="", border=0)
     status = table.attrs.get("status")
     status = f"<p><strong>{html.escape(status)}</strong></p>\n" if status else ""
-    missed = "".join(f"<li>{html.escape(line)}</li>" for line in _not_settled_lines(table))
+    missed = "".join(f"<li>{html.escape(line)}</li>" for line in table.attrs["not_settled_items"])
     if missed:
         grid += ("\n<h2>Not certified: Monte Carlo values not settled (JCGM 101 7.9)</h2>\n"
                  f"<ul>{missed}</ul>")
     return (f"<!DOCTYPE html>\n<html><head><meta charset=\"utf-8\"><title>{title}</title></head><body>\n"
-            f"<h1>{title}</h1>\n{status}<p>{html.escape(_headline(table))}</p>\n{grid}\n"
+            f"<h1>{title}</h1>\n{status}<p>{html.escape(table.attrs['headline'])}</p>\n{grid}\n"
             f"<h2>Significant sensitivities (Eqs. 12-13)</h2>\n<ul>{sens}</ul>\n</body></html>\n")
 
 
@@ -226,5 +197,5 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.output}: {table.attrs['status']}")
     with atomic_path(args.output, overwrite=args.overwrite) as tmp:
         Path(tmp).write_text(text, encoding="utf-8")
-    print(f"{args.output}: {len(table)} bins; {_headline(table)}")
+    print(f"{args.output}: {len(table)} bins; {table.attrs['headline']}")
     return 0

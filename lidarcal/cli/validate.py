@@ -18,12 +18,12 @@ import argparse
 import importlib
 import sys
 
+from lidarcal.certificate.seal import INTEGRITY_ATTR, verify_certificate
 from lidarcal.cli import COMMANDS
 from lidarcal.compliance import check_compliance, missing_attributes, missing_lines, summary_lines
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
 from lidarcal.schema import catalogue_owners, validate_dataset
-from lidarcal.seal import INTEGRITY_ATTR, verify_certificate
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -25,11 +25,11 @@ import sys
 
 import netCDF4
 
-from lidarcal.admin import status_line
+from lidarcal.certificate.admin import status_line
+from lidarcal.certificate.seal import verify_certificate
+from lidarcal.certificate.signing import load_public_key
 from lidarcal.cli import COMMANDS
 from lidarcal.errors import LidarcalError
-from lidarcal.seal import verify_certificate
-from lidarcal.signing import load_public_key
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -1,7 +1,7 @@
 """What a certificate says that a campaign uncertainty needs, read once and checked before any work.
 
 :func:`read_certified` checks the certificate's seal first (and its signature against
-``public_key`` when given: :func:`lidarcal.seal.require_valid_seal`), then reads its components:
+``public_key`` when given: :func:`lidarcal.certificate.seal.require_valid_seal`), then reads its components:
 the budget (which bins are certified, read from ``bin_flag``'s ``flag_meanings``, never from
 numbers, so that meanings added later, such as ``not_settled``, stay uncertified), the
 sensitivities (slopes, their significance and the calibration's distribution of each variable
@@ -22,12 +22,12 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.admin import DEMONSTRATION, STATUS_ATTR, STATUS_REASON_ATTR
+from lidarcal.certificate.admin import DEMONSTRATION, STATUS_ATTR, STATUS_REASON_ATTR
 from lidarcal.certificate.layout import components, extract_component, records_summary
+from lidarcal.certificate.seal import require_valid_seal
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, read_image
 from lidarcal.lidar import LidarModel
-from lidarcal.seal import require_valid_seal
 
 __all__ = ["Certified", "read_certified", "flag_meanings"]
 

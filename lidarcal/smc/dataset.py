@@ -15,9 +15,9 @@ import os
 import numpy as np
 import xarray as xr
 
-from lidarcal.admin import DEMONSTRATION
 from lidarcal.analysis.sensitivity import per_unit
 from lidarcal.binning import bin_index
+from lidarcal.certificate.admin import DEMONSTRATION
 from lidarcal.cf import with_bounds
 from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.errors import InputError

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.document.figures import A4, FONT, STYLE
+from lidarcal.certificate.document.figures import A4, FONT, STYLE
 from lidarcal.htmlpage import html_table, write_text
 from lidarcal.io import atomic_path, check_writable
 from lidarcal.smc.dataset import binned

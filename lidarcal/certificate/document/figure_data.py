@@ -2,8 +2,8 @@
 
 Each function takes the certificate's components (budget, sensitivity, cube, RWF) and returns
 a small frozen record of plain numpy arrays and words: what is drawn, never how.  The PDF and
-PNG drawings (:mod:`lidarcal.document.figures`, matplotlib) and the HTML report's interactive
-figures (:mod:`lidarcal.report.plots`, bokeh) both draw from them, so a figure's numbers are
+PNG drawings (:mod:`lidarcal.certificate.document.figures`, matplotlib) and the HTML report's interactive
+figures (:mod:`lidarcal.certificate.report.plots`, bokeh) both draw from them, so a figure's numbers are
 prepared once:
 
 - :func:`budget_data` — U (k = 2) per (wind speed, height) bin and which bins are certified,
@@ -30,7 +30,13 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
-from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, certified_rows, fmt, units_suffix
+from lidarcal.certificate.document.facts import (
+    VARIABLE_NAMES,
+    certified_grid,
+    certified_rows,
+    fmt,
+    units_suffix,
+)
 
 __all__ = [
     "BudgetData",
@@ -71,7 +77,7 @@ class BudgetData:
     """The budget's U (k = 2) per (wind speed, height) bin (``value``, %, all bins) and the bins' state.
 
     Masks (wind speed x height): ``kept`` the bins with enough periods (``bin_flag`` 0),
-    ``certified`` the certificate's bins (:func:`~lidarcal.document.facts.certified_grid`),
+    ``certified`` the certificate's bins (:func:`~lidarcal.certificate.document.facts.certified_grid`),
     ``thin`` bins with too few periods and a value, ``not_settled`` those whose Monte Carlo
     values did not settle, ``apart`` every finite value that is not certified.  ``tolerance``:
     the numerical tolerance (same units) or None.  ``range_limits``: the certified wind-speed

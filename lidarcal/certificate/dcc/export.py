@@ -38,21 +38,14 @@ import numpy as np
 import xarray as xr
 from lxml import etree
 
-from lidarcal.admin import (
+from lidarcal.certificate.admin import (
     ADMIN_FILE_KEYS,
     STATUS_ATTR,
     STATUS_REASON_ATTR,
     certificate_attributes,
     status_line,
 )
-from lidarcal.certificate import (
-    components,
-    extract_component,
-    model_form_summary,
-    model_form_values,
-)
-from lidarcal.certificate.results import certified_mask, not_settled_rows
-from lidarcal.dcc_xml import (
+from lidarcal.certificate.dcc.xml import (
     _XSI,
     COVERAGE_PROBABILITY,
     DCC_NS,
@@ -67,10 +60,13 @@ from lidarcal.dcc_xml import (
     _sub,
     _text,
 )
+from lidarcal.certificate.layout import components, extract_component
+from lidarcal.certificate.measurand import model_form_summary, model_form_values
+from lidarcal.certificate.results import certified_mask, not_settled_rows
+from lidarcal.certificate.seal import require_valid_seal, seal_problems
 from lidarcal.errors import InputError, SealError, ValidationError
 from lidarcal.io import atomic_path, check_writable, open_artefact, read_image
 from lidarcal.provenance import check_text
-from lidarcal.seal import require_valid_seal, seal_problems
 from lidarcal.units import si_unit
 
 __all__ = ["DCC_NS", "SI_NS", "DCC_SCHEMA_VERSION", "SI_SCHEMA_URL", "dcc_tree",
@@ -288,7 +284,7 @@ def dcc_attributes(cert: xr.Dataset, *, admin: Mapping[str, str] | None = None,
     """Return the certificate's global attributes with ``admin`` added, as the DCC states them.
 
     A certificate written before ``calibration_status`` existed is judged now by the same rule
-    (:func:`lidarcal.admin.certificate_attributes`); one that could not be issued (no issuer)
+    (:func:`lidarcal.certificate.admin.certificate_attributes`); one that could not be issued (no issuer)
     says "not stated".  An issued DCC needs ``laboratory_country_code``; a demonstration without
     one states ``ZZ`` (ISO 3166 user-assigned: unknown).
 
@@ -341,7 +337,7 @@ def dcc_tree(cert: xr.Dataset, *, certificate_sha256: str, certificate_file: str
     certificate_file : str
         The netCDF file's name, as the XML refers to it.
     admin : mapping, optional
-        Administrative data (:func:`lidarcal.admin.load_admin`) the certificate does not state
+        Administrative data (:func:`lidarcal.certificate.admin.load_admin`) the certificate does not state
         itself; a value that contradicts the certificate's own is refused.
 
     Raises
@@ -376,10 +372,10 @@ def write_dcc(certificate: str | os.PathLike, output: str | os.PathLike, *,
               xsd: str | os.PathLike | None = None, signer: Any = None) -> Path:
     """Write the DCC XML of the netCDF certificate file ``certificate`` to ``output`` (atomically).
 
-    The certificate's seal is checked first (:func:`lidarcal.seal.require_valid_seal`; an altered
+    The certificate's seal is checked first (:func:`lidarcal.certificate.seal.require_valid_seal`; an altered
     or unsealed one raises :class:`~lidarcal.errors.SealError`).  With ``xsd`` (PTB's ``dcc.xsd``,
     ``SI_Format.xsd`` beside it) the document is validated first and nothing is written when it
-    is invalid.  With ``signer`` (:func:`lidarcal.dccsign.load_signer`) it is signed with the
+    is invalid.  With ``signer`` (:func:`lidarcal.certificate.dcc.sign.load_signer`) it is signed with the
     laboratory's X.509 key and chain (enveloped XAdES-BES).
 
     Raises

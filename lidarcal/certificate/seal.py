@@ -23,6 +23,14 @@ import xarray as xr
 from cryptography.hazmat.primitives.asymmetric.ed25519 import Ed25519PrivateKey, Ed25519PublicKey
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat
 
+from lidarcal.certificate.signing import (
+    ALGORITHM,
+    fingerprint,
+    load_private_key,
+    load_public_key,
+    sign,
+    verify_signature,
+)
 from lidarcal.errors import InputError, SealError
 from lidarcal.io import (
     atomic_path,
@@ -34,7 +42,6 @@ from lidarcal.io import (
     write_into,
 )
 from lidarcal.schema import validate_dataset
-from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign, verify_signature
 
 INTEGRITY_ATTR = "lidarcal_integrity"
 #: Signature attributes: the signature itself is not covered by the seal (it signs the seal);
@@ -180,7 +187,7 @@ def write_certificate(cert: xr.Dataset, path: str | os.PathLike, *, overwrite: b
                       signing_key: str | os.PathLike | Ed25519PrivateKey | None = None) -> Path:
     """Validate, write atomically and seal a certificate; never replaces a file silently.
 
-    With ``signing_key`` (an Ed25519 private key or the path of one, see :mod:`lidarcal.signing`)
+    With ``signing_key`` (an Ed25519 private key or the path of one, see :mod:`lidarcal.certificate.signing`)
     the seal is also signed: the key's fingerprint and public key are written first (so the
     seal covers them), then the seal, then the signature of the seal's text.
     """

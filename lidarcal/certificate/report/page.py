@@ -3,8 +3,8 @@
 The page embeds BokehJS inline (:mod:`lidarcal.htmlpage`), so it opens without network access.
 It opens with the calibration status, the headline sentence and the certified result (per
 height and wind-speed bin, U for k = 2), then the certificate's administrative data, the
-figures (:mod:`lidarcal.report.plots`), and last the inputs with their SHA-256.  Beside the
-page, :func:`write_report` writes the certificate document (:mod:`lidarcal.document`,
+figures (:mod:`lidarcal.certificate.report.plots`), and last the inputs with their SHA-256.  Beside the
+page, :func:`write_report` writes the certificate document (:mod:`lidarcal.certificate.document`,
 ``<stem>.pdf``) and, on request, a PNG of each of its figures.
 """
 
@@ -21,8 +21,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import MEASURAND, model_form_summary
-from lidarcal.document.facts import (
+from lidarcal.certificate.document.facts import (
     NOT_STATED,
     certificate_facts,
     certificate_id,
@@ -31,17 +30,18 @@ from lidarcal.document.facts import (
     extent_text,
     fmt,
     grid_cell,
-    headline_text,
     model_form_grid,
     not_settled_text,
 )
-from lidarcal.document.figure_data import drawn_cnr_range
-from lidarcal.document.figures import A4, STYLE, draw, figure_names, parts_of
-from lidarcal.document.pages import gc_paused, write_document
+from lidarcal.certificate.document.figure_data import drawn_cnr_range
+from lidarcal.certificate.document.figures import A4, STYLE, draw, figure_names, parts_of
+from lidarcal.certificate.document.pages import gc_paused, write_document
+from lidarcal.certificate.measurand import MEASURAND, model_form_summary
+from lidarcal.certificate.report.plots import report_figures
+from lidarcal.certificate.results import headline_text
+from lidarcal.certificate.seal import invalid_seal_banner, require_valid_seal
 from lidarcal.htmlpage import html_table, offline_html, write_text
 from lidarcal.io import atomic_path, check_writable
-from lidarcal.report.plots import report_figures
-from lidarcal.seal import invalid_seal_banner, require_valid_seal
 
 __all__ = ["write_report"]
 
@@ -163,14 +163,14 @@ def write_report(
     With ``certificate`` the components are taken from it; explicit arguments override them.
     The page opens with the status, the headline and the certified result; the inputs'
     SHA-256 come last.  With ``certificate`` and ``pdf`` the certificate document
-    (:func:`lidarcal.document.write_document`) is written to ``<stem>.pdf``; ``seal``
-    (:func:`lidarcal.document.seal_statement`) states the seal of a certificate written after
+    (:func:`lidarcal.certificate.document.write_document`) is written to ``<stem>.pdf``; ``seal``
+    (:func:`lidarcal.certificate.document.seal_statement`) states the seal of a certificate written after
     its report.  With ``png`` every figure of the document is also written as
     ``<stem>_<figure>.png`` (150 dpi).  The files are published whole or not at all: when one
     cannot be written (a full disk), those this call had published are removed again.
 
     A certificate read from a file has its seal checked first
-    (:func:`lidarcal.seal.require_valid_seal`): an altered one is refused
+    (:func:`lidarcal.certificate.seal.require_valid_seal`): an altered one is refused
     (:class:`~lidarcal.errors.SealError`), or with ``allow_invalid`` reported under a
     warning banner (on the page and on every page of the document).
 

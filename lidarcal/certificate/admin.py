@@ -11,7 +11,7 @@ laboratory (``--institution`` or ``laboratory.name``) and a responsible person
 The administrative data (docs/certificate.md) are read from one YAML file
 (:func:`load_admin`) and/or given as options; they are stored as plain string global
 attributes (named by :data:`ADMIN_FILE_KEYS`), sealed with the rest of the certificate, and are what
-the report and the Digital Calibration Certificate (:mod:`lidarcal.dcc`) show.
+the report and the Digital Calibration Certificate (:mod:`lidarcal.certificate.dcc.export`) show.
 """
 
 from __future__ import annotations

@@ -13,7 +13,7 @@ to the root the document carries (which shows it is intact, not who signed it). 
 accepts a plain enveloped XML-DSig signature (one reference), as PTB's ``dcclib`` writes.
 
 The signature covers the XML; the XML names the netCDF certificate by SHA-256, and the netCDF
-keeps its own Ed25519 seal (:mod:`lidarcal.seal`).  The XML-DSig and XAdES work is
+keeps its own Ed25519 seal (:mod:`lidarcal.certificate.seal`).  The XML-DSig and XAdES work is
 ``signxml``'s; lidarcal chooses the form and reports the outcome.
 """
 
@@ -30,11 +30,11 @@ from cryptography.hazmat.primitives.asymmetric import ec, rsa
 from cryptography.hazmat.primitives.serialization import Encoding, PublicFormat, load_pem_private_key
 from lxml import etree
 
-from lidarcal.dcc import dcc_tree
+from lidarcal.certificate.dcc.export import dcc_tree
+from lidarcal.certificate.signing import check_private_key_file
 from lidarcal.errors import InputError
 from lidarcal.io import check_input_file, open_artefact
 from lidarcal.provenance import sha256
-from lidarcal.signing import check_private_key_file
 
 __all__ = ["DS_NS", "XADES_NS", "PASSPHRASE_ENV", "Signer", "DccSignatureReport", "load_signer", "sign_dcc",
            "verify_dcc", "same_results"]
@@ -65,7 +65,7 @@ class Signer:
         return self.chain[0].subject.rfc4514_string()
 
     def sign(self, root: etree._Element) -> etree._Element:
-        """Return ``root`` signed (:func:`sign_dcc`): what :func:`lidarcal.dcc.write_dcc` calls."""
+        """Return ``root`` signed (:func:`sign_dcc`): what ``write_dcc`` calls."""
         return sign_dcc(root, self)
 
 

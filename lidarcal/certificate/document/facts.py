@@ -1,14 +1,14 @@
 """What the certificate's documents state: page 1's facts, the headline, the certified grid, number formats.
 
-The PDF (:mod:`lidarcal.document.pages`) and the HTML report (:mod:`lidarcal.report`) print the
-same words and numbers, taken from here: :func:`certificate_facts` turns the certificate's global
-attributes into page 1's sections (an attribute it does not carry is shown as
-:data:`NOT_STATED`), :func:`signature_status` says what its seal attributes state,
-:func:`headline_text` is the certified range in one sentence, :func:`certified_grid` the
-certified statement per wind-speed bin and height (±U, or the Monte Carlo coverage interval
-where the two differ materially), :func:`not_settled_text` the values left out because they did
-not settle, listed apart with their tolerances, :func:`model_form_grid` the simulation's
-model-form contributor on the same grid, and :func:`fmt`,
+The PDF (:mod:`lidarcal.certificate.document.pages`) and the HTML report
+(:mod:`lidarcal.certificate.report`) print the same words and numbers, taken from here:
+:func:`certificate_facts` turns the certificate's global attributes into page 1's sections (an
+attribute it does not carry is shown as :data:`NOT_STATED`), :func:`signature_status` says what its
+seal attributes state (the headline is :func:`lidarcal.certificate.results.headline_text`, the same
+in every document), :func:`certified_grid` the certified statement per wind-speed bin and height
+(±U, or the Monte Carlo coverage interval where the two differ materially), :func:`not_settled_text`
+the values left out because they did not settle, listed apart with their tolerances,
+:func:`model_form_grid` the simulation's model-form contributor on the same grid, and :func:`fmt`,
 :func:`units_suffix` and :data:`VARIABLE_NAMES` the one way numbers, units and variables are
 written.
 """
@@ -22,17 +22,13 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
-from lidarcal.analysis.certification import digits_text
 from lidarcal.certificate.measurand import model_form_values
 from lidarcal.certificate.results import (
     certified_mask,
-    certified_rule,
-    coverage_interval_bins,
-    headline_range,
     not_settled,
-    not_settled_rows,
+    not_settled_items,
 )
-from lidarcal.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
+from lidarcal.certificate.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
 
 __all__ = [
     "NOT_STATED",
@@ -44,7 +40,6 @@ __all__ = [
     "signature_status",
     "certificate_facts",
     "certificate_id",
-    "headline_text",
     "certified_grid",
     "certified_rows",
     "extent_text",
@@ -204,50 +199,12 @@ def certificate_id(attrs: Mapping[str, Any]) -> str:
     return stated(attrs, "certificate_id", "id")
 
 
-def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_CERTIFIED_RANGE) -> str:
-    """Return the headline: the range of the certified relative expanded uncertainty (k = 2).
-
-    Settled certified values only; it says in how many bins the Monte Carlo coverage interval is
-    certified instead of ±U and how many values did not settle (listed apart).
-    """
-    k = float(budget.attrs.get("coverage_factor", 2.0))
-    lo, hi = wind_speeds
-    where = f"bins flagged ok with centres {lo:g} to {hi:g} m/s"
-    if "certified" in str(budget["bin_flag"].attrs.get("flag_meanings", "")).split():
-        where, wind_speeds = f"certified bins ({certified_rule(budget)})", None  # the budget's own rule
-    rng = headline_range(budget, wind_speeds=wind_speeds)
-    if rng is None:
-        text = f"Relative expanded uncertainty (k = {k:g}): no {where}, nothing is certified."
-    else:
-        text = (
-            f"Relative expanded uncertainty (k = {k:g}) of the lidar's horizontal wind speed, {where}: "
-            f"{rng[0]:.2f} % to {rng[1]:.2f} %."
-        )
-    intervals = coverage_interval_bins(budget)
-    if intervals:
-        text += (f" In {len(intervals)} bin(s) the Monte Carlo 95 % coverage interval of the error is "
-                 "certified instead (it differs materially from ±U: shown as low…high).")
-    missed = not_settled(budget)
-    if missed:  # JCGM 101 7.9: the Monte Carlo stopped at --max-replicas before these settled
-        text += (f" {len(missed)} value(s) did not settle to "
-                 f"{digits_text(budget.attrs['monte_carlo_significant_digits'])} within "
-                 f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas and are not certified "
-                 "(listed apart, with their tolerances).")
-    return text
-
-
 def not_settled_text(budget: xr.Dataset) -> str:
     """Return the values left out because they did not settle, with their tolerances ("" if none)."""
-    rows = not_settled_rows(budget)
-    if not rows:
+    items = not_settled_items(budget)
+    if not items:
         return ""
     k = float(budget.attrs.get("coverage_factor", 2.0))
-    items = []
-    for r in rows:
-        tol = [r[c] for c in r if c.startswith("tolerance_") and np.isfinite(r[c])]
-        item = (f"{fmt(r['height_m'])} m, {fmt(r['wind_speed_m_s'])} m/s: "
-                f"U {r['expanded_uncertainty_pct']:.2f} %")
-        items.append(item + (f" (± {max(tol):.2g} % numerically)" if tol else ""))
     return (f"Not certified, not settled (U for k = {k:g}, with the largest numerical tolerance of the bin's "
             "values): " + "; ".join(items) + ".")
 

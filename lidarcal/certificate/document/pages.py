@@ -5,9 +5,9 @@ certificate id, issuer, customer, calibrated item, dates and place, method, trac
 the bench, signature status and the certified result under the headline sentence: per height
 and wind-speed bin the relative expanded uncertainty for k = 2 with its numerical tolerance
 where the budget has one, then the expanded uncertainty in m/s).  The following pages hold the
-figures (:mod:`lidarcal.document.figures`), every bin of the budget, and the inputs with their
+figures (:mod:`lidarcal.certificate.document.figures`), every bin of the budget, and the inputs with their
 SHA-256.  Every page carries the certificate id, the status and "page x of y" in its footer.
-What the pages say comes from :mod:`lidarcal.document.facts`; this module lays it out.
+What the pages say comes from :mod:`lidarcal.certificate.document.facts`; this module lays it out.
 
 Nothing is drawn below :data:`BOTTOM`, above the footer rule: a table or a list that does not
 fit goes on to a continuation page, whatever its length (more heights, more bins, more lines
@@ -33,8 +33,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.certificate import MEASURAND, model_form_summary
-from lidarcal.document.facts import (
+from lidarcal.certificate.document.facts import (
     NOT_STATED,
     certificate_facts,
     certificate_id,
@@ -43,14 +42,15 @@ from lidarcal.document.facts import (
     extent_text,
     fmt,
     grid_cell,
-    headline_text,
     model_form_grid,
     not_settled_text,
     stated,
 )
-from lidarcal.document.figures import A4, FONT, STYLE, draw, figure_names, parts_of
+from lidarcal.certificate.document.figures import A4, FONT, STYLE, draw, figure_names, parts_of
+from lidarcal.certificate.measurand import MEASURAND, model_form_summary
+from lidarcal.certificate.results import headline_text
+from lidarcal.certificate.seal import VerificationReport, invalid_seal_banner, require_valid_seal
 from lidarcal.io import atomic_path, check_writable
-from lidarcal.seal import VerificationReport, invalid_seal_banner, require_valid_seal
 
 __all__ = ["write_document", "gc_paused", "BOTTOM", "FOOTER_RULE"]
 
@@ -399,7 +399,7 @@ def _windows_1252(fig) -> bool:
     """Return whether every text on ``fig`` can be written in the standard PDF fonts' encoding.
 
     The texts are the figure's, its legends', and each axes' titles, labels and texts; tick
-    labels are numbers, written in ASCII (:data:`~lidarcal.document.figures.STYLE`).  (Asking
+    labels are numbers, written in ASCII (:data:`~lidarcal.certificate.document.figures.STYLE`).  (Asking
     matplotlib for every Text artist would create each axis's ticks once more.)
     """
     texts = [t.get_text() for t in fig.texts]
@@ -433,7 +433,7 @@ def write_document(
     (:func:`seal_statement`) states the seal of a certificate written after its document.
 
     A certificate read from a file has its seal checked first
-    (:func:`lidarcal.seal.require_valid_seal`; a certificate being built, never sealed and read
+    (:func:`lidarcal.certificate.seal.require_valid_seal`; a certificate being built, never sealed and read
     from no file, has none): an altered one is refused with nothing written, or with
     ``allow_invalid`` written with the warning that its numbers are not certified in red on
     page 1 and in every page's footer.  ``check``: the caller's own result of that check (the

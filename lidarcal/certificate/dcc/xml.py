@@ -1,4 +1,4 @@
-"""The DCC's XML vocabulary and its administrative data (lidarcal.dcc builds the results).
+"""The DCC's XML vocabulary and its administrative data (lidarcal.certificate.dcc.export builds the results).
 
 Namespaces and schema versions, the small element builders every part of the document uses,
 and ``administrativeData``: software, core data, the calibrated item, laboratory, persons,
@@ -16,13 +16,12 @@ from typing import Any
 from lxml import etree
 
 from lidarcal import __version__
-from lidarcal.admin import (
+from lidarcal.certificate.admin import (
     STATUS_ATTR,
     status_line,
 )
-from lidarcal.certificate import (
-    MEASURAND,
-)
+from lidarcal.certificate.measurand import MEASURAND
+from lidarcal.certificate.results import HEADLINE_LABEL
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
@@ -210,7 +209,7 @@ def _statements(admin: etree._Element, attrs: Mapping[str, Any], digest: str, fi
         _text(place, "declaration", f"Place of the bench run: {attrs['calibration_location']}")
     if attrs.get("expanded_uncertainty_headline"):
         head = _sub(statements, _d("statement"), refType="lidarcal_headline")
-        _text(head, "declaration", f"Expanded uncertainty: {attrs['expanded_uncertainty_headline']}")
+        _text(head, "declaration", f"{HEADLINE_LABEL}: {attrs['expanded_uncertainty_headline']}")
     measurand = _sub(statements, _d("statement"), refType="lidarcal_measurand")  # docs/certificate.md
     _text(measurand, "declaration", str(attrs.get("measurand") or MEASURAND))
 

@@ -1,12 +1,12 @@
 """The figures of the certificate's documents, drawn with matplotlib on a given Figure.
 
 One small function per figure (:data:`DRAWERS`, :func:`draw`), each drawing the data its
-:mod:`lidarcal.document.figure_data` function prepares (the HTML report's bokeh figures draw
+:mod:`lidarcal.certificate.document.figure_data` function prepares (the HTML report's bokeh figures draw
 the same records): the budget's expanded uncertainty on the certified range (bins outside it
 drawn apart, in their own panel, never setting the axes), its contributors, each sensitivity
 with its regression and 95 % confidence band, their significance (Eq. 12), the bench cube's
 heatmaps (colour scale from the CNR bins the simulation drew from) and the RWF with its zero
-distance.  The PDF's pages (:mod:`lidarcal.document.pages`) and the HTML report's static PNGs
+distance.  The PDF's pages (:mod:`lidarcal.certificate.document.pages`) and the HTML report's static PNGs
 are the same drawings, in the same style (:data:`STYLE`).
 """
 
@@ -20,9 +20,8 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
-from lidarcal.certificate import components, extract_component
-from lidarcal.document.facts import fmt
-from lidarcal.document.figure_data import (
+from lidarcal.certificate.document.facts import fmt
+from lidarcal.certificate.document.figure_data import (
     CubeData,
     budget_data,
     contributors_data,
@@ -32,6 +31,7 @@ from lidarcal.document.figure_data import (
     sensitivity_data,
     significance_data,
 )
+from lidarcal.certificate.layout import components, extract_component
 
 __all__ = [
     "A4",
@@ -91,7 +91,7 @@ def _axes(
 
 #: The documents' matplotlib style: sizes and grid from rcParams (``ax.tick_params`` after
 #: the fact re-styles every tick, which was a good part of the PDF's cost), TrueType fonts
-#: (type 42) where a page needs them (:mod:`lidarcal.document.pages`), so that the PDF's text
+#: (type 42) where a page needs them (:mod:`lidarcal.certificate.document.pages`), so that the PDF's text
 #: can be searched and extracted, and ASCII minus signs in tick labels (the standard PDF fonts'
 #: encoding has no U+2212).
 STYLE = {

@@ -19,8 +19,8 @@ As available (:func:`report_figures`, in page order):
 
 A menu shows one height's renderers of a single plot (or copies its columns into the drawn
 ones), which keeps the page cheap to write.  Each figure draws the record its
-:mod:`lidarcal.document.figure_data` function prepares, the one the PDF draws too; numbers and
-words are those of the PDF (:mod:`lidarcal.document.facts`).
+:mod:`lidarcal.certificate.document.figure_data` function prepares, the one the PDF draws too; numbers and
+words are those of the PDF (:mod:`lidarcal.certificate.document.facts`).
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from lidarcal.document.facts import fmt
-from lidarcal.document.figure_data import (
+from lidarcal.certificate.document.facts import fmt
+from lidarcal.certificate.document.figure_data import (
     budget_data,
     contributors_data,
     cube_data,
