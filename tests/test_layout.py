@@ -31,7 +31,7 @@ CONTRIBUTING = PACKAGE.parent / "CONTRIBUTING.md"
 
 #: Shared infrastructure: importable from anywhere, imports no stage.
 INFRASTRUCTURE = ("", "errors", "units", "schema", "cf", "binning", "provenance", "io", "compliance", "data",
-                  "htmlpage", "signing", "admin")
+                  "htmlpage", "signing", "admin", "readback")
 
 #: Stages in dependency order: each may import only infrastructure and the stages before it.
 #: ``analysis`` reads records but never runs a campaign, so it comes before ``campaign``
