@@ -70,6 +70,7 @@ from lidarcal.dcc_xml import (
 from lidarcal.errors import InputError, SealError, ValidationError
 from lidarcal.io import atomic_path, check_writable, open_artefact, read_image
 from lidarcal.provenance import check_text
+from lidarcal.readback import read_attr
 from lidarcal.seal import require_valid_seal, seal_problems
 from lidarcal.units import si_unit
 
@@ -132,7 +133,7 @@ _MONTE_CARLO_LISTS = (
 def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, Any], digest: str,
                     file_name: str) -> None:
     budget = extract_component(cert, "budget").load()
-    k = float(budget.attrs.get("coverage_factor", 2.0))
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
     flags = _flags(budget)
     result_el = _sub(root, _d("measurementResult"), refType="lidarcal_windSpeedUncertainty")
     _text(result_el, "name", "Expanded uncertainty of the lidar's 10-minute mean horizontal wind speed")
@@ -255,7 +256,8 @@ def _sensitivity_results(root: etree._Element, cert: xr.Dataset) -> None:
         if not comp["name"].startswith("sensitivity_"):
             continue
         sens = extract_component(cert, comp["name"]).load()
-        var = sens.attrs.get("environmental_variable", comp["name"][len("sensitivity_"):])
+        var = read_attr(sens, "environmental_variable", kind="sensitivity",
+                        default=comp["name"][len("sensitivity_"):])
         sig = np.atleast_1d(sens["significant"].values).astype(bool) & np.isfinite(np.atleast_1d(
             sens["slope"].values))
         if not sig.any():

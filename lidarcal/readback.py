@@ -50,7 +50,7 @@ class UndeclaredAttribute(KeyError):
 
 @functools.cache
 def _raw(kind: str) -> dict[str, Any]:
-    """The YAML of ``kind`` (or of a ``shared/<name>`` fragment), its keys checked; nothing expanded.
+    """Return the YAML of ``kind`` (or of a ``shared/<name>`` fragment), keys checked, nothing expanded.
 
     A fragment has only ``kind``, ``description`` and ``read_back``.  Catalogue expansions are not
     needed here, so the read-back declarations load without the stage that registers them.
@@ -117,7 +117,8 @@ def _spec(name: str, kind: str | None, found_kind: Any) -> tuple[str, dict[str, 
     specs = {json.dumps({k: v for k, v in declared_read_back(k)[name].items() if k != "description"},
                         sort_keys=True) for k in kinds}
     if len(specs) > 1:
-        raise UndeclaredAttribute(f"the read-back attribute {name!r} is declared differently by {list(kinds)}; "
+        raise UndeclaredAttribute(f"the read-back attribute {name!r} is declared differently by "
+                                  f"{list(kinds)}; "
                                   f"pass kind=")
     return kinds[0], declared_read_back(kinds[0])[name]
 
@@ -207,7 +208,7 @@ def read_attr(obj: xr.Dataset | Mapping[str, Any], name: str, *, kind: str | Non
 
 
 def _where(obj: Any, attrs: Mapping[str, Any]) -> str:
-    """The file a dataset, or a dataset's attributes, came from (:func:`source_name`)."""
+    """Return the file a dataset, or a dataset's attributes, came from (:func:`source_name`)."""
     return source_name(obj if isinstance(obj, xr.Dataset) else xr.Dataset(attrs=dict(attrs)))
 
 

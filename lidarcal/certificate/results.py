@@ -20,11 +20,11 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
 from lidarcal.analysis.certification import digits_text
 from lidarcal.certificate.layout import components, extract_component
 from lidarcal.errors import InputError
 from lidarcal.io import source_name
+from lidarcal.readback import read_attr
 from lidarcal.seal import require_valid_seal
 
 __all__ = [
@@ -99,7 +99,7 @@ def certified_rule(obj: xr.Dataset) -> str:
     With a Monte Carlo numerical state, ``, settled to N significant digits`` follows.
     """
     budget = _budget_of(obj)
-    lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
+    lo, hi = read_attr(budget, "certified_range_m_s", kind="uncertainty_budget")
     text = f"centres {lo:g} to {hi:g} m/s, >= {int(budget.attrs.get('min_periods', 0))} periods"
     if "numerical_flag" in budget and "monte_carlo_significant_digits" in budget.attrs:
         text += f", settled to {digits_text(budget.attrs['monte_carlo_significant_digits'])}"
@@ -221,7 +221,8 @@ def _significant_sensitivities(cert: xr.Dataset | xr.DataTree) -> dict[float, st
     """Per height, the sensitivities significant by Eq. 12 or 13, as readable text."""
     out: dict[float, list[str]] = {}
     for name, sens in _sensitivities(cert).items():
-        var = sens.attrs.get("environmental_variable", name[len("sensitivity_"):])
+        var = read_attr(sens, "environmental_variable", kind="sensitivity",
+                        default=name[len("sensitivity_"):])
         for z in np.atleast_1d(sens["height"].values):
             one = sens.sel(height=z)
             if not int(one["significant"]):
@@ -237,8 +238,8 @@ def _significant_sensitivities(cert: xr.Dataset | xr.DataTree) -> dict[float, st
 
 def _reason(flag: str, periods: int, budget: xr.Dataset) -> str:
     """Why a bin is not certified, in words ("" when it is)."""
-    lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
-    digits = budget.attrs.get("monte_carlo_significant_digits")
+    lo, hi = read_attr(budget, "certified_range_m_s", kind="uncertainty_budget")
+    digits = read_attr(budget, "monte_carlo_significant_digits", kind="uncertainty_budget")
     return {"certified": "",
             "too_few_periods": f"{periods} periods (fewer than {int(budget.attrs.get('min_periods', 0))})",
             "empty": "no period",
@@ -300,7 +301,7 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
         require_valid_seal(cert.to_dataset() if isinstance(cert, xr.DataTree) else cert)
 
     budget = _budget_of(cert).load()
-    k = float(budget.attrs.get("coverage_factor", 2.0))
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
     flags = _flag_names(budget["bin_flag"])
     statements = _flag_names(budget["certified_statement"]) if "certified_statement" in budget else {}
     # rows run over (height, wind speed): index by those names, whatever the stored order
@@ -359,6 +360,7 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
     table.attrs["not_settled"] = not_settled(budget)
     table.attrs["not_settled_rows"] = not_settled_rows(budget)
     table.attrs["coverage_interval_bins"] = len(coverage_interval_bins(budget))
-    table.attrs["significant_digits"] = budget.attrs.get("monte_carlo_significant_digits")
+    table.attrs["significant_digits"] = read_attr(budget, "monte_carlo_significant_digits",
+                                                  kind="uncertainty_budget")
     return table
 

@@ -24,6 +24,7 @@ from lidarcal.cli.options import (
     rule_of,
 )
 from lidarcal.io import check_writable, open_artefact, write_artefact
+from lidarcal.readback import read_attr
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         f"{args.output}: {args.approach} budget, {ds.sizes['height']} height(s) x "
         f"{ds.sizes['wind_speed']} wind speed bins"
     )
-    lo, hi = ds.attrs["certified_range_m_s"]
+    lo, hi = read_attr(ds, "certified_range_m_s", kind="uncertainty_budget")
     for h in ds.height.values:
         sub = ds.sel(height=h)
         rel = sub.relative_uncertainty.values

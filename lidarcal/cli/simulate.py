@@ -47,6 +47,7 @@ from lidarcal.conditions import load_conditions, sample_conditions_path
 from lidarcal.diagnose import corrected_model
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel
+from lidarcal.readback import read_attr
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -149,10 +150,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"Monte Carlo: {bud.attrs['monte_carlo_replicas']} replica(s), {ds.sizes.get('trial', 0)} "
               f"further trials; {int((bud.numerical_flag == 1).sum())} bin(s) not settled to "
               f"{digits_text(args.significant_digits)}")
-    if not args.model and args.cube and cube.attrs.get("lidar_serial"):  # records of the cube's lidar
-        ds.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
+    if not args.model and args.cube and (serial := read_attr(cube, "lidar_serial", kind="bench_cube")):
+        ds.attrs["lidar_serial"] = serial  # records of the cube's lidar
     write_artefact(ds, args.output, overwrite=args.overwrite)
-    skipped = int(ds.attrs["lidarcal_skipped_count"])
+    skipped = read_attr(ds, "lidarcal_skipped_count", kind="simulated_rtd")
     print(
         f"wrote {os.fspath(args.output)}: {ds.sizes['time']} periods x {ds.sizes['height']} heights, "
         f"{skipped} (period, height) skipped for missing input, base seed {base_seed}"

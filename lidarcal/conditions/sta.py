@@ -25,6 +25,7 @@ from lidarcal.conditions.stafile import ROLES, StaFile
 from lidarcal.conditions.synthetic import conditions_dataset
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 
 __all__ = ["STA_COMMENTS", "measured_conditions", "sta_attributes", "sta_conditions"]
@@ -97,7 +98,7 @@ def _time_bounds(ds: xr.Dataset, end: np.ndarray) -> xr.Dataset:
     ds["time"].attrs["bounds"] = "time_bounds"
     # one explicit encoding for time and its bounds (CF: bounds share the coordinate's units)
     ds["time"].encoding.update(units="minutes since 1970-01-01 00:00:00", calendar="proleptic_gregorian")
-    tz = str(ds.attrs.get("lidar_timezone", "")).replace(" ", "").upper()
+    tz = read_attr(ds, "lidar_timezone", kind="conditions").replace(" ", "").upper()
     if tz not in ("UTC", "UTC+0", "UTC+00", "UTC+00:00", "UTC-0", "GMT"):
         ds["time"].attrs["long_name"] = "start of 10-minute period (lidar clock time, see comment)"
     ds["time"].attrs["comment"] = (

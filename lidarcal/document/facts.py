@@ -32,6 +32,7 @@ from lidarcal.certificate.results import (
     not_settled,
     not_settled_rows,
 )
+from lidarcal.readback import read_attr
 from lidarcal.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
 
 __all__ = [
@@ -117,7 +118,7 @@ def signature_status(attrs: Mapping[str, Any], seal: str | None = None) -> str:
     ``seal`` (:func:`seal_statement`) stands for a certificate not yet written, whose seal
     and signature are added when it is.  A certificate read from a file is named by it.
     """
-    name = attrs.get("lidarcal_source_file")
+    name = read_attr(attrs, "lidarcal_source_file")
     if SIGNATURE_ATTR in attrs:
         return seal_statement(str(attrs.get(SIGNATURE_KEY_ATTR, NOT_STATED)), name)
     if INTEGRITY_ATTR in attrs:
@@ -140,8 +141,8 @@ def certificate_facts(
             [
                 ("Calibration status", stated(attrs, "calibration_status")),
                 *(
-                    [("Why", str(attrs["calibration_status_reason"]))]
-                    if attrs.get("calibration_status_reason")
+                    [("Why", reason)]
+                    if (reason := read_attr(attrs, "calibration_status_reason", kind="certificate"))
                     else []
                 ),
                 ("Certificate id", certificate_id(attrs)),
@@ -210,7 +211,7 @@ def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT
     Settled certified values only; it says in how many bins the Monte Carlo coverage interval is
     certified instead of ±U and how many values did not settle (listed apart).
     """
-    k = float(budget.attrs.get("coverage_factor", 2.0))
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
     lo, hi = wind_speeds
     where = f"bins flagged ok with centres {lo:g} to {hi:g} m/s"
     if "certified" in str(budget["bin_flag"].attrs.get("flag_meanings", "")).split():
@@ -241,7 +242,7 @@ def not_settled_text(budget: xr.Dataset) -> str:
     rows = not_settled_rows(budget)
     if not rows:
         return ""
-    k = float(budget.attrs.get("coverage_factor", 2.0))
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
     items = []
     for r in rows:
         tol = [r[c] for c in r if c.startswith("tolerance_") and np.isfinite(r[c])]
@@ -285,7 +286,7 @@ def extent_text(budget: xr.Dataset, g: Mapping[str, Any] | None = None) -> str |
     shown = certified_rows(g)
     if not shown.size:
         return None
-    lo, hi = (float(v) for v in np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE)))
+    lo, hi = read_attr(budget, "certified_range_m_s", kind="uncertainty_budget")
     ws = g["wind_speed"]
     step = float(np.median(np.diff(ws))) if ws.size > 1 else 0.0
     first, last = float(ws[shown[0]]), float(ws[shown[-1]])

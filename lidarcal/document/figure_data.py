@@ -31,6 +31,7 @@ import xarray as xr
 
 from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
 from lidarcal.document.facts import VARIABLE_NAMES, certified_grid, certified_rows, fmt, units_suffix
+from lidarcal.readback import read_attr
 
 __all__ = [
     "BudgetData",
@@ -62,7 +63,7 @@ def _step(ws: np.ndarray) -> float:
 
 
 def _variable_name(ds: xr.Dataset) -> tuple[str, str]:
-    var = str(ds.attrs.get("environmental_variable", "variable"))
+    var = read_attr(ds, "environmental_variable", kind="sensitivity", default="variable")
     return var, VARIABLE_NAMES.get(var, var.replace("_", " "))
 
 
@@ -112,8 +113,8 @@ def budget_data(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_C
     finite = np.isfinite(val)
     step = _step(ws)
     return BudgetData(
-        k=float(budget.attrs.get("coverage_factor", 2.0)),
-        approach=str(budget.attrs.get("approach", "")),
+        k=read_attr(budget, "coverage_factor", kind="uncertainty_budget"),
+        approach=read_attr(budget, "approach", kind="uncertainty_budget", default=""),
         wind_speed=ws,
         height=g["height"],
         step=step,

@@ -88,7 +88,8 @@ class LidarModel:
     hybrid_convention: str = "scalar"  #: which Eq. 5 average p multiplies: "scalar" or "vector"
     rwf_offsets: tuple[float, ...] = tuple(gauss_hermite_rwf(DEFAULT_RWF_FWHM, DEFAULT_RWF_NODES)[0].tolist())
     rwf_weights: tuple[float, ...] = tuple(gauss_hermite_rwf(DEFAULT_RWF_FWHM, DEFAULT_RWF_NODES)[1].tolist())
-    los_noise_std: float = LIDAR_DEFAULTS["lidar_los_noise_std"]  #: ideal Gaussian LOS noise (m s-1), used when no table
+    #: ideal Gaussian LOS noise (m s-1), used when no table
+    los_noise_std: float = LIDAR_DEFAULTS["lidar_los_noise_std"]
     noise_table: NoiseTable | None = None  #: bench cube (overrides ``los_noise_std``)
     availability: float = 1.0  #: probability that a LOS sample is kept
     cnr_threshold: float | None = None  #: CNR filter (dB): periods below it are unavailable

@@ -27,6 +27,7 @@ from lidarcal.certificate.layout import components, extract_component, records_s
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, read_image
 from lidarcal.lidar import LidarModel
+from lidarcal.readback import read_attr
 from lidarcal.seal import require_valid_seal
 
 __all__ = ["Certified", "read_certified", "flag_meanings"]
@@ -57,7 +58,8 @@ class Certified:
     @property
     def serial(self) -> str | None:
         """The calibrated item's serial number (``item_serial_number``, else ``lidar_serial``)."""
-        return self.attrs.get("item_serial_number") or self.attrs.get("lidar_serial")
+        return (read_attr(self.attrs, "item_serial_number", kind="certificate")
+                or read_attr(self.attrs, "lidar_serial", kind="certificate"))
 
     @property
     def status(self) -> str:
@@ -171,7 +173,8 @@ def read_certified(path: str | os.PathLike, *, public_key: str | os.PathLike | N
     sens = {}
     for name in sorted(n for n in names if n.startswith("sensitivity_")):
         ds = extract_component(cert, name).load()
-        sens[str(ds.attrs.get("environmental_variable", name[len("sensitivity_") :]))] = ds
+        var = read_attr(ds, "environmental_variable", kind="sensitivity", default=name[len("sensitivity_") :])
+        sens[var] = ds
     parts = {
         role: extract_component(cert, role).load() if role in names else None
         for role in ("terms", "cube", "rwf")

@@ -45,6 +45,7 @@ from lidarcal.conditions.stafile import CONE_ANGLE_TOLERANCE
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import lidar_serial
+from lidarcal.readback import read_attr
 from lidarcal.smc.certified import Certified, read_certified
 from lidarcal.smc.montecarlo import MonteCarloRoute, monte_carlo_route
 from lidarcal.smc.routes import IecRoute, calibration_part, iec_route, table_edges
@@ -312,7 +313,8 @@ def smc(
     iec = iec_route(cert, ds, height_index)
     mc, note = None, "not run (monte_carlo=False, --no-monte-carlo)"
     replicas = (
-        max(4, int(cert.attrs.get("monte_carlo_replicas", 4))) if max_replicas is None else int(max_replicas)
+        max(4, read_attr(cert.attrs, "monte_carlo_replicas", kind="certificate")) if max_replicas is None
+        else int(max_replicas)
     )
     lacking = [cert.missing[k] for k in ("lidar_model", "terms") if k in cert.missing]
     if monte_carlo and lacking:  # an older certificate: say what it lacks, quote the 50-2 route
@@ -331,11 +333,9 @@ def smc(
             terms=cert.terms,
             covered=cov,
             lookup_edges=table_edges(cert.budget, speed),
-            coverage_factor=float(cert.budget.attrs.get("coverage_factor", 2.0)),
-            certified_range=tuple(
-                np.asarray(cert.budget.attrs.get("certified_range_m_s", (4.0, 16.0)), float)
-            ),
-            significant_digits=int(cert.attrs.get("monte_carlo_significant_digits", 2)),
+            coverage_factor=read_attr(cert.budget, "coverage_factor", kind="uncertainty_budget"),
+            certified_range=read_attr(cert.budget, "certified_range_m_s", kind="uncertainty_budget"),
+            significant_digits=read_attr(cert.attrs, "monte_carlo_significant_digits", kind="certificate"),
             max_replicas=replicas,
             base_seed=int(base_seed),
             periods_per_bin=None if periods_per_bin is None else int(periods_per_bin),
