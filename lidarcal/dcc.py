@@ -299,7 +299,7 @@ def dcc_attributes(cert: xr.Dataset, *, admin: Mapping[str, str] | None = None,
     InputError
         Not a certificate, ``admin`` contradicting it, or an issued one without a country.
     """
-    if cert.attrs.get("lidarcal_artefact") != "certificate":
+    if read_attr(cert, "lidarcal_artefact") != "certificate":
         raise InputError(f"{certificate_file}: not a lidarcal certificate (lidarcal_artefact "
                          f"{cert.attrs.get('lidarcal_artefact')!r})")
     attrs = dict(cert.attrs)

@@ -8,7 +8,6 @@ customer, statements and the method text.
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import re
 from collections.abc import Iterable, Mapping
 from typing import Any
@@ -23,6 +22,7 @@ from lidarcal.admin import (
 from lidarcal.certificate import (
     MEASURAND,
 )
+from lidarcal.readback import read_attr
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
@@ -190,7 +190,8 @@ def _item(admin: etree._Element, attrs: Mapping[str, Any]) -> None:
     ids = _sub(item, _d("identifications"))
     ident = _sub(ids, _d("identification"), refType="basic_serialNumber")
     _sub(ident, _d("issuer"), "manufacturer")
-    _sub(ident, _d("value"), attrs.get("item_serial_number") or attrs.get("lidar_serial") or _NOT_STATED)
+    _sub(ident, _d("value"), (read_attr(attrs, "item_serial_number", kind="certificate")
+                                   or read_attr(attrs, "lidar_serial", kind="certificate") or _NOT_STATED))
     _text(ident, "name", "Serial number")
 
 
@@ -260,8 +261,10 @@ def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:
 
 def _records_text(attrs: Mapping[str, Any]) -> str:
     try:
-        records = json.loads(attrs["lidarcal_records_summary"])
-    except (KeyError, TypeError, ValueError):
+        records = read_attr(attrs, "lidarcal_records_summary", kind="certificate")  # InputError: a ValueError
+    except ValueError:
+        records = None
+    if not isinstance(records, dict):
         return "Simulated periods: not stated in the certificate."
     heights = ", ".join(f"{float(z):g}" for z in records.get("heights_m", []))
     return (f"{records.get('periods', _NOT_STATED)} simulated 10-minute periods"

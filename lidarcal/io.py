@@ -27,7 +27,7 @@ import xarray as xr
 
 from lidarcal.errors import DiskFullError, InputError, OutputExistsError, ValidationError
 from lidarcal.provenance import sha256, text_problems
-from lidarcal.readback import source_name  # the one answer to "which file was this?"
+from lidarcal.readback import read_attr, source_name  # source_name: the one answer to "which file was this?"
 from lidarcal.schema import validate_dataset
 
 __all__ = [
@@ -420,7 +420,7 @@ def open_artefact(
         raise InputError(f"{path}: not a readable netCDF file (truncated or corrupt?): {exc}") from None
     if not ds.variables:
         raise InputError(f"{path}: netCDF file contains no variables (truncated or not a dataset)")
-    found = ds.attrs.get("lidarcal_artefact")
+    found = read_attr(ds, "lidarcal_artefact")
     if kind is not None and found is not None and found != kind:
         raise InputError(f"{path}: is a {found!r} artefact; expected a {kind!r} artefact")
     ds = ds.set_coords([n for n in _bounds_names(ds) if n not in ds.coords])  # see _cf_ready

@@ -305,7 +305,7 @@ def _rwf(run: _Run) -> xr.Dataset:
 def _conditions_artefact(run: _Run) -> xr.Dataset:
     """Stage 3: the conditions the Monte Carlo runs on (not yet written)."""
     cond, cond_inputs = _conditions(run.cfg)
-    if cond.attrs.get("lidarcal_artefact") != "conditions":
+    if read_attr(cond, "lidarcal_artefact") != "conditions":
         # a user's file that is not a lidarcal conditions artefact (a field campaign, a plain
         # input): stamped as this run's file, with the file in its provenance chain
         cond = stamp(cond, "conditions", title="Conditions simulated by lidarcal calibrate",

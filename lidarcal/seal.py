@@ -33,6 +33,7 @@ from lidarcal.io import (
     read_image,
     write_into,
 )
+from lidarcal.readback import read_attr
 from lidarcal.schema import validate_dataset
 from lidarcal.signing import ALGORITHM, fingerprint, load_private_key, load_public_key, sign, verify_signature
 
@@ -189,7 +190,7 @@ def write_certificate(cert: xr.Dataset, path: str | os.PathLike, *, overwrite: b
     if signing_key is not None and not isinstance(signing_key, Ed25519PrivateKey):
         signing_key = load_private_key(signing_key)
 
-    if cert.attrs.get("lidarcal_artefact") != "certificate":
+    if read_attr(cert, "lidarcal_artefact") != "certificate":
         raise InputError(
             f"{path}: dataset is a {cert.attrs.get('lidarcal_artefact')!r} artefact, not a certificate"
         )

@@ -58,7 +58,7 @@ def _provenance(role: str, ds: xr.Dataset) -> dict[str, Any]:
 
 def _records_summary(records: xr.Dataset) -> dict[str, Any]:
     out: dict[str, Any] = {
-        "kind": records.attrs.get("lidarcal_artefact"),
+        "kind": read_attr(records, "lidarcal_artefact"),
         "periods": int(records.sizes.get("time", 0)),
     }
     if "height" in records.coords:

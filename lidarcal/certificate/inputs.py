@@ -126,7 +126,7 @@ def _check_chains(inputs: Mapping[str, xr.Dataset]) -> None:
 def check_kind(role: str, ds: xr.Dataset, kinds: Iterable[str]) -> None:
     """Refuse an input stamped as another kind of artefact than ``kinds``."""
     kinds = tuple(kinds)
-    found = ds.attrs.get("lidarcal_artefact")
+    found = read_attr(ds, "lidarcal_artefact")
     if found is not None and found not in kinds:
         raise InputError(
             f"{input_label(role, ds)}: is a {found!r} artefact; expected {' or '.join(map(repr, kinds))}"

@@ -45,10 +45,10 @@ def _budget_of(obj: xr.Dataset | xr.DataTree) -> xr.Dataset:
             raise InputError(f"{source_name(obj.to_dataset())}: certificate tree has no 'budget' group; it "
                              f"has {sorted(obj.children)}")
         return obj["budget"].to_dataset()
-    if obj.attrs.get("lidarcal_artefact") == "certificate" or "lidarcal_components" in obj.attrs:
+    if read_attr(obj, "lidarcal_artefact") == "certificate" or "lidarcal_components" in obj.attrs:
         return extract_component(obj, "budget")
     if "relative_expanded_uncertainty" not in obj:
-        kind = obj.attrs.get("lidarcal_artefact")
+        kind = read_attr(obj, "lidarcal_artefact")
         what = f"a {kind!r} artefact" if kind else "a file with no lidarcal_artefact attribute"
         raise InputError(f"{source_name(obj)}: expected a certificate or an uncertainty_budget; found {what} "
                          f"and no variable 'relative_expanded_uncertainty' (variables "
@@ -101,8 +101,9 @@ def certified_rule(obj: xr.Dataset) -> str:
     budget = _budget_of(obj)
     lo, hi = read_attr(budget, "certified_range_m_s", kind="uncertainty_budget")
     text = f"centres {lo:g} to {hi:g} m/s, >= {int(budget.attrs.get('min_periods', 0))} periods"
-    if "numerical_flag" in budget and "monte_carlo_significant_digits" in budget.attrs:
-        text += f", settled to {digits_text(budget.attrs['monte_carlo_significant_digits'])}"
+    digits = read_attr(budget, "monte_carlo_significant_digits", kind="uncertainty_budget")
+    if "numerical_flag" in budget and digits is not None:
+        text += f", settled to {digits_text(digits)}"
     return text
 
 

@@ -162,7 +162,7 @@ def read_certified(path: str | os.PathLike, *, public_key: str | os.PathLike | N
     image = read_image(path, "certificate file")
     report = require_valid_seal(path, public_key=public_key, image=image)
     cert = open_artefact(path, "certificate", image=image)
-    if cert.attrs.get("lidarcal_artefact") != "certificate":
+    if read_attr(cert, "lidarcal_artefact") != "certificate":
         raise InputError(
             f"{path}: not a lidarcal certificate (global attribute 'lidarcal_artefact' is "
             f"{cert.attrs.get('lidarcal_artefact')!r})"

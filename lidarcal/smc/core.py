@@ -125,14 +125,15 @@ def _from_conditions(cert: Certified, path: str | os.PathLike) -> tuple[xr.Datas
     raw = open_artefact(path)
     name = source_name(path)
     _serial_check(cert, lidar_serial(raw.attrs), f"{name}: global attribute 'lidar_serial'")
-    if "lidar_cone_angle" not in raw.attrs:
+    cone = read_attr(raw, "lidar_cone_angle", kind="conditions", default=None, source=name)
+    if cone is None:
         raise InputError(
             f"{name}: global attribute 'lidar_cone_angle' is missing; expected the campaign lidar's "
             f"cone angle ({cert.cone_angle:g} degree, the certificate's) to check the configuration"
         )
-    _cone_check(cert, float(raw.attrs["lidar_cone_angle"]), f"{name}: global attribute 'lidar_cone_angle'")
-    if "lidar_hybrid_weight" in raw.attrs and cert.hybrid_weight is not None:
-        p = float(raw.attrs["lidar_hybrid_weight"])
+    _cone_check(cert, cone, f"{name}: global attribute 'lidar_cone_angle'")
+    p = read_attr(raw, "lidar_hybrid_weight", kind="conditions", default=None, source=name)
+    if p is not None and cert.hybrid_weight is not None:
         if abs(p - cert.hybrid_weight) > 1e-6:
             raise InputError(
                 f"{name}: global attribute 'lidar_hybrid_weight': expected {cert.hybrid_weight:.6g} "

@@ -497,7 +497,7 @@ def binned(obj: xr.Dataset | str | os.PathLike) -> xr.Dataset:
     ``obj`` is the artefact or its file.
     """
     ds = open_artefact(obj, "smc") if isinstance(obj, str | os.PathLike) else obj
-    if ds.attrs.get("lidarcal_artefact") != "smc":
+    if read_attr(ds, "lidarcal_artefact") != "smc":
         raise InputError(
             f"{source_name(ds)}: expected an 'smc' artefact; found {ds.attrs.get('lidarcal_artefact')!r}"
         )
