@@ -301,7 +301,7 @@ def dcc_attributes(cert: xr.Dataset, *, admin: Mapping[str, str] | None = None,
     """
     if read_attr(cert, "lidarcal_artefact") != "certificate":
         raise InputError(f"{certificate_file}: not a lidarcal certificate (lidarcal_artefact "
-                         f"{cert.attrs.get('lidarcal_artefact')!r})")
+                         f"{read_attr(cert, 'lidarcal_artefact')!r})")
     attrs = dict(cert.attrs)
     for key, value in attrs.items():  # a certificate sealed before control characters were refused
         if isinstance(value, str):

@@ -235,15 +235,17 @@ def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:
 
     equipment = _sub(_sub(parent, _d("measuringEquipments")), _d("measuringEquipment"),
                      refType="lidarcal_fiberOpticBench")
-    _text(equipment, "name", f"Fiber-optic lidar calibration bench {attrs.get('bench_id') or ''}".strip())
+    bench = read_attr(attrs, "bench_id", kind="certificate")
+    _text(equipment, "name", f"Fiber-optic lidar calibration bench {bench or ''}".strip())
     lines = [f"bench run {attrs.get('bench_run_id') or _NOT_STATED}",
              f"operator {attrs.get('bench_operator') or _NOT_STATED}",
              f"from {attrs.get('bench_run_start') or attrs.get('bench_time_coverage_start') or _NOT_STATED} "
              f"to {attrs.get('bench_run_end') or attrs.get('bench_time_coverage_end') or _NOT_STATED}",
-             "RF driver calibration: " + str(attrs.get("rf_driver_calibration_reference") or _NOT_STATED)]
+             "RF driver calibration: "
+             + str(read_attr(attrs, "rf_driver_calibration_reference", kind="certificate") or _NOT_STATED)]
     _text(equipment, "description", *lines)
     ids = _sub(equipment, _d("identifications"))
-    for ref, value, name in (("lidarcal_benchId", attrs.get("bench_id"), "Bench id"),
+    for ref, value, name in (("lidarcal_benchId", bench, "Bench id"),
                              ("lidarcal_benchRunId", attrs.get("bench_run_id"), "Bench run")):
         ident = _sub(ids, _d("identification"), refType=ref)
         _sub(ident, _d("issuer"), "calibrationLaboratory")

@@ -4,7 +4,8 @@ Each artefact kind's schema declares, under ``read_back``, the global attributes
 from an artefact of that kind: the type, a description, and where relevant the units, a default,
 whether the attribute is required, a physical range, values that count as "not given" and
 legacy names mapped at this edge (``lidar_serial_number`` for ``lidar_serial``).  A set several
-kinds share is declared once and copied with ``include: [{from: KIND, into: read_back}]``; the
+kinds share is declared once and copied with ``include: [{from: KIND, into: read_back, only: [...]}]``
+(``set: {required: false}`` overrides keys of the copies); the
 attributes :func:`lidarcal.io.open_artefact` stamps on every artefact it reads
 (``lidarcal_source_file``, ``lidarcal_source_sha256``) and the kind itself are declared in
 ``schemas/shared/provenance.yaml`` and belong to every kind.
@@ -84,7 +85,7 @@ def declared_read_back(kind: str) -> dict[str, dict[str, Any]]:
         if missing:
             raise SchemaError(f"schema {kind}.yaml: include from {entry['from']!r} into read_back names "
                               f"{missing}, which it does not declare; it declares {sorted(source)}")
-        out.update({n: source[n] for n in only})
+        out.update({n: {**source[n], **(entry.get("set") or {})} for n in only})
     for name, spec in (raw.get("read_back") or {}).items():
         if name in out:
             raise SchemaError(f"schema {kind}.yaml: read_back {name!r} is declared and also included")
@@ -203,7 +204,8 @@ def read_attr(obj: xr.Dataset | Mapping[str, Any], name: str, *, kind: str | Non
         return _convert(raw, spec)
     except (TypeError, ValueError):
         where = source or _where(obj, attrs)
-        raise InputError(f"{where}: global attribute {key!r} ({spec['description']}) is {raw!r}; "
+        found = np.asarray(raw).item() if np.ndim(raw) == 0 else raw  # 0.0, not np.float64(0.0)
+        raise InputError(f"{where}: global attribute {key!r} ({spec['description']}) is {found!r}; "
                          f"expected {_expected(spec)}") from None
 
 

@@ -146,9 +146,10 @@ def _terms_total(
         out[:, positive] = table4_total(Q_(centres[positive], "m s-1"), **inputs, noise_terms=noise_terms)
         how = "" if noise_terms == "printed" else f", noise_terms={noise_terms!r}"
         return out, f"lidarcal.analysis.terms.uncertainty_terms(**PAPER_INPUTS{how}) at each budget height"
-    if noise_terms != "printed" and read_attr(terms, "noise_terms", kind="uncertainty_terms") != noise_terms:
+    found = read_attr(terms, "noise_terms", kind="uncertainty_terms")
+    if noise_terms != "printed" and found != noise_terms:
         raise InputError(f"{source_name(terms, '<terms>')}: the terms artefact has noise_terms="
-                         f"{terms.attrs.get('noise_terms', 'printed')!r}; asked for {noise_terms!r} "
+                         f"{found!r}; asked for {noise_terms!r} "
                          "(recompute it with lidarcal terms --noise-terms)")
     src = source_name(terms, "<terms>")
     if "total" not in terms.data_vars:

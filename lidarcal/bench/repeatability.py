@@ -41,7 +41,8 @@ __all__ = ["repeatability", "select_runs"]
 
 
 def _label(ds: xr.Dataset) -> str:
-    return f"run_id={ds.attrs.get('run_id')!s} (operator {ds.attrs.get('operator')!s})"
+    return (f"run_id={read_attr(ds, 'run_id', kind='bench_cube')!s} "
+            f"(operator {read_attr(ds, 'operator', kind='bench_cube')!s})")
 
 
 def select_runs(cubes: Sequence[xr.Dataset], exclude: Sequence[str] = ()) -> tuple[list, list]:
@@ -176,11 +177,12 @@ def repeatability(
     })
     config = {"exclude": list(exclude), "min_samples": int(min_samples), "cnr_window_dB": [clo, chi],
               "velocity_window_m_s": [vlo, vhi], "inclusive": inclusive}
-    roles = {f"cube_run_{ds.attrs['run_id']}": ds for ds in kept}
-    roles.update({f"excluded_cube_run_{ds.attrs['run_id']}": ds for ds in dropped})
+    roles = {f"cube_run_{read_attr(ds, 'run_id', kind='bench_cube')}": ds for ds in kept}
+    roles.update({f"excluded_cube_run_{read_attr(ds, 'run_id', kind='bench_cube')}": ds for ds in dropped})
     return stamp(
         out, "repeatability",
-        title=f"SAFO-MV within-laboratory repeatability, lidar {out.attrs['lidar_serial']}",
+        title=("SAFO-MV within-laboratory repeatability, lidar "
+               f"{read_attr(out, 'lidar_serial', kind='bench_cube')}"),
         summary=(f"ISO 5725-4 within-laboratory analysis of {len(kept)} bench runs (paper section 2.4): per "
                  f"ℓcv-bin grand means and between-run standard deviations of the LOS bias and std; "
                  f"s-bar_delta = {s_delta:.4f} m/s and s-bar_s = {s_s:.4f} m/s over {int(used.sum())} bins."),

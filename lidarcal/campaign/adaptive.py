@@ -175,9 +175,9 @@ def adaptive_replicas(
     """
     if int(max_replicas) < 1:
         raise InputError(f"max_replicas must be >= 1; got {max_replicas}")
-    if read_attr(records, "lidarcal_base_seed", kind="simulated_rtd",
-                 default=int(base_seed)) != int(base_seed):
-        raise InputError(f"records were simulated with base seed {records.attrs['lidarcal_base_seed']}; "
+    seed = read_attr(records, "lidarcal_base_seed", kind="simulated_rtd", default=int(base_seed))
+    if seed != int(base_seed):
+        raise InputError(f"records were simulated with base seed {seed}; "
                          f"replicas asked with {base_seed}")
     rule = CertificationRule.of(rule)
     opts = dict(terms=terms, rule=rule, bin_width=bin_width)

@@ -254,7 +254,8 @@ def _summary_attributes(budget: xr.Dataset, *, serial: str | None, cube: xr.Data
     if "certified_statement" in budget:
         attrs["certified_statement_rule"] = (
             "per certified bin: the error of one 10-minute mean lies within +-U (k = "
-            f"{float(budget.attrs.get('coverage_factor', 2)):g}) where that interval holds 95 % to 97.5 % "
+            f"{read_attr(budget, 'coverage_factor', kind='uncertainty_budget'):g}) where that interval holds "
+            "95 % to 97.5 % "
             "of the Monte Carlo distribution; elsewhere (the two differ materially) the Monte Carlo "
             f"{budget.attrs.get('coverage_interval', 'symmetric')} 95 % coverage interval (JCGM 101 7.7) "
             "is certified")

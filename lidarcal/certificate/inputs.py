@@ -118,7 +118,7 @@ def _check_chains(inputs: Mapping[str, xr.Dataset]) -> None:
             raise InputError(
                 f"inputs disagree: {input_label(role, ds)} was computed from {steps}{other} "
                 f"{rec.get('file')!r} (sha256 {sha}), but the {other} given is "
-                f"{inputs[other].attrs.get('lidarcal_source_file')!r} (sha256 {known[other]}); give the "
+                f"{read_attr(inputs[other], 'lidarcal_source_file')!r} (sha256 {known[other]}); give the "
                 f"{other} it was computed from, or recompute it from this one"
             )
 

@@ -169,7 +169,8 @@ def headline_sentence(obj: xr.Dataset) -> str | None:
     rng = headline_range(budget)
     if rng is None:
         return None
-    text = (f"{rng[0]:.2f} % to {rng[1]:.2f} % (k = {float(budget.attrs.get('coverage_factor', 2)):g}; "
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
+    text = (f"{rng[0]:.2f} % to {rng[1]:.2f} % (k = {k:g}; "
             f"certified bins: {certified_rule(budget)}; lidarcal table lists every bin)")
     intervals = coverage_interval_bins(budget)
     if intervals:
@@ -246,7 +247,8 @@ def _reason(flag: str, periods: int, budget: xr.Dataset) -> str:
             "empty": "no period",
             "outside_certified_range": f"centre outside {lo:g} to {hi:g} m/s",
             "not_settled": (f"not settled to {digits_text(digits)} within "
-                            f"{budget.attrs.get('monte_carlo_replicas')} Monte Carlo replicas"),
+                            f"{read_attr(budget, 'monte_carlo_replicas', kind='uncertainty_budget')} "
+                            "Monte Carlo replicas"),
             }.get(flag, flag)
 
 

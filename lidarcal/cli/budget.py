@@ -124,9 +124,10 @@ def run(args: argparse.Namespace) -> int:
                   f">= {ds.attrs['min_periods']} periods)")
     if "numerical_flag" in ds:
         bad = int((ds.numerical_flag == 1).sum())
-        print(f"  Monte Carlo: {ds.attrs['monte_carlo_replicas']} replica(s), "
+        replicas = read_attr(ds, "monte_carlo_replicas", kind="uncertainty_budget")
+        print(f"  Monte Carlo: {replicas} replica(s), "
               f"{ds.attrs['monte_carlo_trials']} "
               f"trials; {bad} bin(s) not settled to "
-              f"{digits_text(ds.attrs['monte_carlo_significant_digits'])} "
+              f"{digits_text(read_attr(ds, 'monte_carlo_significant_digits', kind='uncertainty_budget'))} "
               "(not certified: bin_flag not_settled)")
     return 0

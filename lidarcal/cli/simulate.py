@@ -147,7 +147,8 @@ def run(args: argparse.Namespace) -> int:
 
         ds, bud = adaptive_replicas(ds, conditions, model, rule=rule_of(args), max_replicas=args.max_replicas,
                                     base_seed=base_seed, duration=args.duration, execution=execution)
-        print(f"Monte Carlo: {bud.attrs['monte_carlo_replicas']} replica(s), {ds.sizes.get('trial', 0)} "
+        replicas = read_attr(bud, "monte_carlo_replicas", kind="uncertainty_budget")
+        print(f"Monte Carlo: {replicas} replica(s), {ds.sizes.get('trial', 0)} "
               f"further trials; {int((bud.numerical_flag == 1).sum())} bin(s) not settled to "
               f"{digits_text(args.significant_digits)}")
     if not args.model and args.cube and (serial := read_attr(cube, "lidar_serial", kind="bench_cube")):

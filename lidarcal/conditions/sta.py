@@ -103,7 +103,8 @@ def _time_bounds(ds: xr.Dataset, end: np.ndarray) -> xr.Dataset:
         ds["time"].attrs["long_name"] = "start of 10-minute period (lidar clock time, see comment)"
     ds["time"].attrs["comment"] = (
         "interval start = the .sta file's end-of-interval timestamp minus 10 minutes, in the lidar "
-        f"clock's time zone (header 'timezone': {ds.attrs.get('lidar_timezone', 'not given')})"
+        "clock's time zone (header 'timezone': "
+        f"{read_attr(ds, 'lidar_timezone', kind='conditions', default='not given')})"
     )
     return ds
 
@@ -188,7 +189,8 @@ def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
     ds.attrs["license"] = "not specified: the licence of the source .sta files applies"
     return stamp(
         ds, "conditions",
-        title=f"Measured 10-minute conditions from WindCube {ds.attrs['lidar_serial']}",
+        title=("Measured 10-minute conditions from WindCube "
+               f"{read_attr(ds, 'lidar_serial', kind='conditions')}"),
         summary=f"{ds.sizes['time']} ten-minute periods at {ds.sizes['height']} heights read from "
                 f"{len(paths)} WindCube .sta file(s); CNR and CNR gradient measured; periods below "
                 f"{float(min_availability):g} % availability missing.",

@@ -230,9 +230,11 @@ def headline_text(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT
                  "certified instead (it differs materially from ±U: shown as low…high).")
     missed = not_settled(budget)
     if missed:  # JCGM 101 7.9: the Monte Carlo stopped at --max-replicas before these settled
-        text += (f" {len(missed)} value(s) did not settle to "
-                 f"{digits_text(budget.attrs['monte_carlo_significant_digits'])} within "
-                 f"{int(budget.attrs['monte_carlo_replicas'])} Monte Carlo replicas and are not certified "
+        digits = read_attr(budget, "monte_carlo_significant_digits", kind="uncertainty_budget")
+        replicas = read_attr(budget, "monte_carlo_replicas", kind="uncertainty_budget")
+        text += (f" {len(missed)} value(s) did not settle to {digits_text(digits)} "
+                 f"within {replicas} Monte Carlo "
+                 "replicas and are not certified "
                  "(listed apart, with their tolerances).")
     return text
 

@@ -328,7 +328,8 @@ def figure_names(parts: Mapping[str, Any]) -> list[str]:
         names += ["budget", "budget_contributors"]
     sens = parts.get("sensitivities") or []
     for ds in sens:
-        names.append(f"sensitivity_{ds.attrs.get('environmental_variable', 'variable')}")
+        var = read_attr(ds, "environmental_variable", kind="sensitivity", default="variable")
+        names.append(f"sensitivity_{var}")
     if sens:
         names.append("sensitivity_slopes")
     if parts.get("cube") is not None:

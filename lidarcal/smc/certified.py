@@ -165,7 +165,7 @@ def read_certified(path: str | os.PathLike, *, public_key: str | os.PathLike | N
     if read_attr(cert, "lidarcal_artefact") != "certificate":
         raise InputError(
             f"{path}: not a lidarcal certificate (global attribute 'lidarcal_artefact' is "
-            f"{cert.attrs.get('lidarcal_artefact')!r})"
+            f"{read_attr(cert, 'lidarcal_artefact')!r})"
         )
     names = {c["name"] for c in components(cert)}
     budget = extract_component(cert, "budget").load()

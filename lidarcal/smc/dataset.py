@@ -499,7 +499,7 @@ def binned(obj: xr.Dataset | str | os.PathLike) -> xr.Dataset:
     ds = open_artefact(obj, "smc") if isinstance(obj, str | os.PathLike) else obj
     if read_attr(ds, "lidarcal_artefact") != "smc":
         raise InputError(
-            f"{source_name(ds)}: expected an 'smc' artefact; found {ds.attrs.get('lidarcal_artefact')!r}"
+            f"{source_name(ds)}: expected an 'smc' artefact; found {read_attr(ds, 'lidarcal_artefact')!r}"
         )
     names = [n for n in ds.data_vars if str(n).startswith("bin_")]
     out = ds[names].drop_vars([v for v in ("time", "time_bounds") if v in ds[names].coords], errors="ignore")

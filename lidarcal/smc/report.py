@@ -383,7 +383,7 @@ def write_report(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = F
                 metadata={
                     "Title": str(ds.attrs.get("title", "")),
                     "Creator": "lidarcal",
-                    "Subject": f"status: {ds.attrs.get('calibration_status')}",
+                    "Subject": f"status: {read_attr(ds, 'calibration_status', kind='smc')}",
                 },
             ) as out,
         ):
