@@ -213,7 +213,7 @@ def _statements(admin: etree._Element, attrs: Mapping[str, Any], digest: str, fi
         head = _sub(statements, _d("statement"), refType="lidarcal_headline")
         _text(head, "declaration", f"Expanded uncertainty: {attrs['expanded_uncertainty_headline']}")
     measurand = _sub(statements, _d("statement"), refType="lidarcal_measurand")  # docs/certificate.md
-    _text(measurand, "declaration", str(attrs.get("measurand") or MEASURAND))
+    _text(measurand, "declaration", str(read_attr(attrs, "measurand", kind="certificate") or MEASURAND))
 
 
 def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:

@@ -100,7 +100,8 @@ def certified_rule(obj: xr.Dataset) -> str:
     """
     budget = _budget_of(obj)
     lo, hi = read_attr(budget, "certified_range_m_s", kind="uncertainty_budget")
-    text = f"centres {lo:g} to {hi:g} m/s, >= {int(budget.attrs.get('min_periods', 0))} periods"
+    fewest = read_attr(budget, "min_periods", kind="uncertainty_budget")
+    text = f"centres {lo:g} to {hi:g} m/s, >= {fewest} periods"
     digits = read_attr(budget, "monte_carlo_significant_digits", kind="uncertainty_budget")
     if "numerical_flag" in budget and digits is not None:
         text += f", settled to {digits_text(digits)}"
@@ -243,7 +244,8 @@ def _reason(flag: str, periods: int, budget: xr.Dataset) -> str:
     lo, hi = read_attr(budget, "certified_range_m_s", kind="uncertainty_budget")
     digits = read_attr(budget, "monte_carlo_significant_digits", kind="uncertainty_budget")
     return {"certified": "",
-            "too_few_periods": f"{periods} periods (fewer than {int(budget.attrs.get('min_periods', 0))})",
+            "too_few_periods": (f"{periods} periods (fewer than "
+                                f"{read_attr(budget, 'min_periods', kind='uncertainty_budget')})"),
             "empty": "no period",
             "outside_certified_range": f"centre outside {lo:g} to {hi:g} m/s",
             "not_settled": (f"not settled to {digits_text(digits)} within "

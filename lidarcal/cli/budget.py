@@ -117,16 +117,16 @@ def run(args: argparse.Namespace) -> int:
                 f"  {h:g} m: relative standard uncertainty "
                 f"{np.nanmin(rel[ok]):.2f}-{np.nanmax(rel[ok]):.2f} % "
                 f"over {int(ok.sum())} certified bins (centres {lo:g}-{hi:g} m/s, "
-                f">= {ds.attrs['min_periods']} periods)"
+                f">= {read_attr(ds, 'min_periods', kind='uncertainty_budget')} periods)"
             )
         else:
             print(f"  {h:g} m: no certified bin (centres {lo:g}-{hi:g} m/s, "
-                  f">= {ds.attrs['min_periods']} periods)")
+                  f">= {read_attr(ds, 'min_periods', kind='uncertainty_budget')} periods)")
     if "numerical_flag" in ds:
         bad = int((ds.numerical_flag == 1).sum())
         replicas = read_attr(ds, "monte_carlo_replicas", kind="uncertainty_budget")
         print(f"  Monte Carlo: {replicas} replica(s), "
-              f"{ds.attrs['monte_carlo_trials']} "
+              f"{read_attr(ds, 'monte_carlo_trials', kind='uncertainty_budget')} "
               f"trials; {bad} bin(s) not settled to "
               f"{digits_text(read_attr(ds, 'monte_carlo_significant_digits', kind='uncertainty_budget'))} "
               "(not certified: bin_flag not_settled)")

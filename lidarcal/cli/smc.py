@@ -161,6 +161,7 @@ def summary_line(ds, path) -> str:
     return (
         f"{status}wrote {path}: {ds.sizes['time']} periods x {ds.sizes['height']} heights; "
         f"{ds.attrs['covered_periods']} of {ds.attrs['periods_with_wind_speed']} period-heights covered by "
-        f"the certificate; environmental route quoted: {ds.attrs['environmental_route']}; median relative "
+        f"the certificate; environmental route quoted: {read_attr(ds, 'environmental_route', kind='smc')}; "
+        "median relative "
         f"standard uncertainty {median:.2f} %"
     )

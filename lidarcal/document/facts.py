@@ -301,7 +301,8 @@ def extent_text(budget: xr.Dataset, g: Mapping[str, Any] | None = None) -> str |
     found = {meanings.get(int(f)) for f in np.asarray(g["flag"])[beyond].ravel()}
     thin = found <= {"too_few_periods", "empty"}
     sides = " and ".join([f"below {fmt(first)} m/s"] * below + [f"above {fmt(last)} m/s"] * above)
-    why = (f"no bin has the {int(budget.attrs['min_periods'])} distinct periods a certified bin needs, at "
+    why = (f"no bin has the {read_attr(budget, 'min_periods', kind='uncertainty_budget')} distinct periods "
+           "a certified bin needs, at "
            "any height" if thin and "min_periods" in budget.attrs else "no bin is certified at any height")
     return (f"The certified values span {fmt(first)} to {fmt(last)} m/s of the {fmt(lo)} to {fmt(hi)} m/s "
             f"range: {sides} {why}.")

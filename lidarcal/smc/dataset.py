@@ -450,10 +450,12 @@ def _stamped(ds: xr.Dataset, c: Campaign, route: str, call: str | None) -> xr.Da
         "monte_carlo_periods_per_bin": str(c.settings.get("monte_carlo_periods_per_bin", "all"))
         if c.monte_carlo is not None else "not run",
         "measurand": MEASURAND,
-        "certificate_measurand": str(cert.attrs.get("measurand", "not stated (a certificate older than the "
-                                                                  "measurand statement)")),
-        "certificate_model_form": str(cert.attrs.get("model_form", "not stated: the certificate's budget has "
-                                                                    "no model_form contributor")),
+        "certificate_measurand": read_attr(cert.attrs, "measurand", kind="certificate",
+                                           default="not stated (a certificate older than the "
+                                                   "measurand statement)"),
+        "certificate_model_form": read_attr(cert.attrs, "model_form", kind="certificate",
+                                            default="not stated: the certificate's budget has no model_form "
+                                                    "contributor"),
     }
     title = f"Campaign wind-speed uncertainty of lidar {cert.serial} from certificate {cert.path.name}"
     summary = (
@@ -567,7 +569,7 @@ def binned_table(obj: xr.Dataset | str | os.PathLike):
         {
             "status": str(read_attr(b, "calibration_status", kind="smc")),
             "demonstration": read_attr(b, "calibration_status", kind="smc") == DEMONSTRATION,
-            "route": str(b.attrs.get("environmental_route")),
+            "route": str(read_attr(b, "environmental_route", kind="smc")),
             "title": str(b.attrs.get("title", "")),
         }
     )
