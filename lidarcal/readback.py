@@ -103,7 +103,8 @@ def read_back_names() -> dict[str, tuple[str, ...]]:
     return {name: tuple(kinds) for name, kinds in sorted(names.items())}
 
 
-def _spec(name: str, kind: str | None, found_kind: Any) -> tuple[str, dict[str, Any]]:
+@functools.cache
+def _spec(name: str, kind: str | None, found_kind: str | None) -> tuple[str, dict[str, Any]]:
     kinds = read_back_names().get(name)
     if not kinds:
         raise UndeclaredAttribute(f"no schema declares the read-back global attribute {name!r}; declare it "
@@ -183,7 +184,8 @@ def read_attr(obj: xr.Dataset | Mapping[str, Any], name: str, *, kind: str | Non
     'WLS7-164'
     """
     attrs = obj.attrs if isinstance(obj, xr.Dataset) else obj
-    kind, spec = _spec(name, kind, attrs.get("lidarcal_artefact"))
+    found = attrs.get("lidarcal_artefact")
+    kind, spec = _spec(name, kind, str(found) if isinstance(found, str) else None)
     absent = [a for a in spec.get("absent") or []]
 
     def given(key: str) -> bool:
