@@ -277,16 +277,14 @@ def _with_admin(cert: xr.Dataset, admin: Mapping[str, str] | None, demonstration
                 config: Mapping[str, Any] | None) -> xr.Dataset:
     """Add ``calibration_status`` and the administrative attributes (lidarcal.admin)."""
     cube_attrs = cube.attrs if cube is not None else {}
-
-    def bench(name: str) -> str | None:  # the cube's read-back attribute, None without a cube
-        return read_attr(cube, name, kind="bench_cube") if cube is not None else None
-
+    cubed = cube is not None  # a cube's run_id, operator and bench_id are required: read only with one
     derived = {
         "item_serial_number": read_attr(cert, "lidar_serial", kind="certificate"),
-        "bench_id": bench("bench_id"),
-        "bench_run_id": bench("run_id"),
-        "bench_operator": bench("operator"),
-        "rf_driver_calibration_reference": bench("rf_driver_calibration_reference"),
+        "bench_id": read_attr(cube, "bench_id", kind="bench_cube") if cubed else None,
+        "bench_run_id": read_attr(cube, "run_id", kind="bench_cube") if cubed else None,
+        "bench_operator": read_attr(cube, "operator", kind="bench_cube") if cubed else None,
+        "rf_driver_calibration_reference": (read_attr(cube, "rf_driver_calibration_reference", kind="bench_cube")
+                                            if cubed else None),
         "bench_run_start": cube_attrs.get("time_coverage_start"),
         "bench_run_end": cube_attrs.get("time_coverage_end"),
         "simulation_date": records.attrs.get("date_created") if records is not None else None,
