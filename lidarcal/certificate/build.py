@@ -283,8 +283,8 @@ def _with_admin(cert: xr.Dataset, admin: Mapping[str, str] | None, demonstration
         "bench_id": read_attr(cube, "bench_id", kind="bench_cube") if cubed else None,
         "bench_run_id": read_attr(cube, "run_id", kind="bench_cube") if cubed else None,
         "bench_operator": read_attr(cube, "operator", kind="bench_cube") if cubed else None,
-        "rf_driver_calibration_reference": (read_attr(cube, "rf_driver_calibration_reference", kind="bench_cube")
-                                            if cubed else None),
+        "rf_driver_calibration_reference": (
+            read_attr(cube, "rf_driver_calibration_reference", kind="bench_cube") if cubed else None),
         "bench_run_start": cube_attrs.get("time_coverage_start"),
         "bench_run_end": cube_attrs.get("time_coverage_end"),
         "simulation_date": records.attrs.get("date_created") if records is not None else None,
