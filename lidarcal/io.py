@@ -27,6 +27,7 @@ import xarray as xr
 
 from lidarcal.errors import DiskFullError, InputError, OutputExistsError, ValidationError
 from lidarcal.provenance import sha256, text_problems
+from lidarcal.readback import read_attr, source_name  # source_name: the one answer to "which file was this?"
 from lidarcal.schema import validate_dataset
 
 __all__ = [
@@ -34,22 +35,6 @@ __all__ = [
     "part_path", "publish", "remove_stale_parts", "write_into", "disk_full", "LOW_SPACE_BYTES",
     "read_image", "open_image",
 ]
-
-
-def source_name(obj: object, default: str = "<dataset>") -> str:
-    """Name of the file ``obj`` came from, for messages: the one answer to "which file was this?".
-
-    A path is returned as given; a dataset gives the file name :func:`open_artefact` recorded
-    (``lidarcal_source_file``), else the path xarray opened it from (``encoding["source"]``),
-    else its ``id`` attribute (every lidarcal artefact has one), else ``default``; anything
-    else gives ``default``.
-    """
-    if isinstance(obj, str | os.PathLike):
-        return os.fspath(obj)
-    if isinstance(obj, xr.Dataset):
-        return str(obj.attrs.get("lidarcal_source_file") or obj.encoding.get("source")
-                   or obj.attrs.get("id") or default)
-    return default
 
 
 def check_input_file(path: str | os.PathLike, what: str = "file") -> Path:
@@ -435,7 +420,7 @@ def open_artefact(
         raise InputError(f"{path}: not a readable netCDF file (truncated or corrupt?): {exc}") from None
     if not ds.variables:
         raise InputError(f"{path}: netCDF file contains no variables (truncated or not a dataset)")
-    found = ds.attrs.get("lidarcal_artefact")
+    found = read_attr(ds, "lidarcal_artefact")
     if kind is not None and found is not None and found != kind:
         raise InputError(f"{path}: is a {found!r} artefact; expected a {kind!r} artefact")
     ds = ds.set_coords([n for n in _bounds_names(ds) if n not in ds.coords])  # see _cf_ready

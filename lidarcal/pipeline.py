@@ -67,6 +67,7 @@ from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel
 from lidarcal.provenance import contact_attributes, sha256, stamp
+from lidarcal.readback import read_attr
 from lidarcal.rwf import range_weighting_function
 from lidarcal.units import Q_
 
@@ -304,7 +305,7 @@ def _rwf(run: _Run) -> xr.Dataset:
 def _conditions_artefact(run: _Run) -> xr.Dataset:
     """Stage 3: the conditions the Monte Carlo runs on (not yet written)."""
     cond, cond_inputs = _conditions(run.cfg)
-    if cond.attrs.get("lidarcal_artefact") != "conditions":
+    if read_attr(cond, "lidarcal_artefact") != "conditions":
         # a user's file that is not a lidarcal conditions artefact (a field campaign, a plain
         # input): stamped as this run's file, with the file in its provenance chain
         cond = stamp(cond, "conditions", title="Conditions simulated by lidarcal calibrate",
@@ -317,7 +318,7 @@ def _conditions_artefact(run: _Run) -> xr.Dataset:
 def _publish_inputs(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, cond: xr.Dataset) -> tuple[xr.Dataset, ...]:
     """Write the three inputs of the simulation (read back: their checksums chain on)."""
     cube = run.publish(cube, "cube", "bench_cube")
-    serial = cube.attrs.get("lidar_serial")
+    serial = read_attr(cube, "lidar_serial", kind="bench_cube")
     run.done("cube", f"bench cube ({int(cube.sample_count.sum())} samples, lidar {serial})")
     rwf = run.publish(rwf, "rwf", "rwf")
     run.done("rwf", f"range-weighting function (Zd = {float(rwf.zero_distance):+.3f} m)")
@@ -347,8 +348,8 @@ def _simulate(run: _Run, cube: xr.Dataset, rwf: xr.Dataset, *,
         call="lidarcal calibrate (simulate)",
         inputs={"conditions": paths["conditions"], "cube": paths["cube"], "rwf": paths["rwf"]},
     )
-    if cube.attrs.get("lidar_serial"):
-        records.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
+    if serial := read_attr(cube, "lidar_serial", kind="bench_cube"):
+        records.attrs["lidar_serial"] = serial
     if cfg.model_form_periods:  # the alternatives with replica 0's seeds: the budget's model_form term
         records = model_form_runs(records, paths["conditions"], model, per_bin=cfg.model_form_periods,
                                   wind_speeds=tuple(cfg.certified_range), base_seed=cfg.base_seed,

@@ -26,6 +26,7 @@ import xarray as xr
 
 from lidarcal.cf import canonical_order
 from lidarcal.errors import InputError
+from lidarcal.readback import read_attr
 
 __all__ = ["sha256", "software_versions", "stamp", "read_json_attr", "jsonable", "contact", "lidar_serial",
            "contact_attributes", "merge_history", "check_text", "text_problems",
@@ -158,8 +159,7 @@ def lidar_serial(attrs: Mapping[str, Any]) -> str | None:
     >>> lidar_serial({"lidar_serial_number": "WLS7-164"}), lidar_serial({"title": "t"})
     ('WLS7-164', None)
     """
-    value = attrs.get("lidar_serial") or attrs.get(LEGACY_SERIAL)
-    return str(value) if value else None
+    return read_attr(attrs, "lidar_serial")  # the legacy name is declared in schemas/bench_cube.yaml
 
 
 def software_versions() -> dict[str, str]:
@@ -344,8 +344,8 @@ def merge_history(*texts: str) -> str:
 
 def _input_record(role: str, other: xr.Dataset) -> dict[str, Any]:
     """Record an input artefact: file, checksum, licence and its own inputs (the chain)."""
-    rec: dict[str, Any] = {"role": role, "file": other.attrs.get("lidarcal_source_file", ""),
-                           "sha256": other.attrs.get("lidarcal_source_sha256")}
+    rec: dict[str, Any] = {"role": role, "file": read_attr(other, "lidarcal_source_file", default=""),
+                           "sha256": read_attr(other, "lidarcal_source_sha256")}
     for key, attr in (("kind", "lidarcal_artefact"), ("license", "license"), ("source", "source_data"),
                       ("source_license", "source_license"), ("source_file", "source_file"),
                       ("source_file_sha256", "source_file_sha256")):
@@ -421,7 +421,7 @@ def _from_inputs(inputs: Mapping[str, str | os.PathLike], input_datasets: Mappin
     carried: dict[str, Any] = {}
     coverage: dict[str, Any] = {}
     for role, other in input_datasets.items():
-        digest = other.attrs.get("lidarcal_source_sha256")
+        digest = read_attr(other, "lidarcal_source_sha256")
         given = next((r for r in records if r["role"] == role), None)
         if given is not None:  # also given as a path: add what the dataset knows (its own chain)
             extra = _input_record(role, other)

@@ -44,6 +44,12 @@ same name is merged over the copy (its keys win).  ``prefix`` renames a copy and
 the way a bundle renames a component (the certificate carries the uncertainty budget's variables
 as ``budget_<name>`` on ``budget_<dim>``), so the bundle declares them by including them.
 
+A ``read_back`` section declares the global attributes lidarcal reads back from an artefact of
+the kind (``type``, ``description``, and optionally ``units``, ``default``, ``required``,
+``range``, ``exclusive_min``, ``absent`` values that count as missing, ``legacy`` names): the
+keys are a closed set (:data:`READ_BACK_KEYS`); :mod:`lidarcal.readback` reads them.  An
+``include`` entry ``into: read_back`` copies another kind's (or ``shared/<name>``'s) entries.
+
 A schema whose variables follow a catalogue that lives in code (one ``fit_*`` set per parameter
 of every diagnose effect) declares them once, as templates expanded over the catalogue's rows::
 
@@ -80,7 +86,7 @@ from lidarcal.units import LOG_UNITS, parse_unit
 
 __all__ = ["load_schema", "declared_variables", "declared_spec", "list_kinds", "validate_dataset",
            "output_attrs", "with_output_attrs", "check_schema_keys", "register_catalogue", "catalogue_owners",
-           "COMMON_ATTRIBUTES", "WRITTEN_ATTRIBUTES"]
+           "COMMON_ATTRIBUTES", "WRITTEN_ATTRIBUTES", "READ_BACK_KEYS", "READ_BACK_TYPES"]
 
 #: Global attributes every artefact written by lidarcal must carry.
 COMMON_ATTRIBUTES = (
@@ -105,7 +111,12 @@ _INCLUDE_KEYS = {"from", "into", "only", "name", "keep", "set", "prefix"}
 #: Top-level keys of a schema file.
 _TOP_KEYS = frozenset({"kind", "description", "provenance", "dims", "stackable_dims",
                        "units_on_every_variable", "include", "expand", "coordinates", "variables",
-                       "attributes"})
+                       "attributes", "read_back"})
+#: Keys of a ``read_back`` entry (a global attribute lidarcal reads back; :mod:`lidarcal.readback`).
+READ_BACK_KEYS = frozenset({"type", "description", "units", "default", "required", "range",
+                            "exclusive_min", "absent", "legacy"})
+#: The types a read-back attribute may have (``range``: two numbers lo <= hi; ``json``: JSON text).
+READ_BACK_TYPES = frozenset({"float", "int", "str", "range", "json"})
 #: Keys an ``expand`` entry may have.
 _EXPAND_KEYS = frozenset({"over", "registered_by", "variables"})
 #: Catalogue name -> its rows, as registered by the stage that owns the catalogue.
@@ -257,6 +268,16 @@ def check_schema_keys(schema: dict[str, Any], filename: str) -> None:
         for key in checked:
             if key not in WRITTEN_ATTRIBUTES:
                 raise _unknown(str(key), WRITTEN_ATTRIBUTES, f"{where}, attributes")
+    for name, spec in (schema.get("read_back") or {}).items():
+        where = f"schema {filename}, read_back {name!r}"
+        if not isinstance(spec, dict):
+            raise SchemaError(f"{where}: expected a mapping of keys; found {spec!r}")
+        for key in spec:
+            if key not in READ_BACK_KEYS:
+                raise _unknown(str(key), READ_BACK_KEYS, where)
+        if spec.get("type") not in READ_BACK_TYPES or not spec.get("description"):
+            raise SchemaError(f"{where}: needs a 'description' and a 'type' in {sorted(READ_BACK_TYPES)}; "
+                              f"found type {spec.get('type')!r}")
     keep_keys = _CHECK_KEYS | {"standard_name"}
     for entry in schema.get("include") or []:
         if not isinstance(entry, dict):
@@ -292,9 +313,11 @@ def _included(entry: dict[str, Any], where: str) -> tuple[str, dict[str, dict[st
         raise SchemaError(f"schema {where}: include entry {entry!r} needs 'from' and may only have "
                          f"{sorted(_INCLUDE_KEYS)}; found {sorted(entry)}")
     into = entry.get("into", "variables")
-    if into not in ("variables", "coordinates"):
+    if into not in ("variables", "coordinates", "read_back"):
         raise SchemaError(f"schema {where}: include 'into' is {into!r}; "
-                          "expected 'variables' or 'coordinates'")
+                          "expected 'variables', 'coordinates' or 'read_back'")
+    if into == "read_back":  # resolved by lidarcal.readback.declared_read_back
+        return into, {}
     source = declared_variables(entry["from"])
     if into == "coordinates":  # the source's own coordinates first, then its variables
         coordinates = _read_schema(entry["from"]).get("coordinates") or {}
@@ -327,11 +350,11 @@ def load_schema(kind: str) -> dict[str, Any]:
     :func:`output_attrs`.
     """
     raw = _read_schema(kind)
-    schema = {k: v for k, v in raw.items() if k not in ("include", "expand")}
+    schema = {k: v for k, v in raw.items() if k not in ("include", "expand", "read_back")}
     sections: dict[str, dict[str, Any]] = {"coordinates": {}, "variables": {}}
     for entry in raw.get("include") or []:
         into, specs = _included(entry, f"{kind}.yaml")
-        sections[into].update(specs)
+        sections.get(into, {}).update(specs)
     for section in sections:
         for name, spec in (raw.get(section) or {}).items():
             own = {k: v for k, v in (spec or {}).items() if k in _CHECK_KEYS}

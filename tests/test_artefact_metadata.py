@@ -53,6 +53,30 @@ def test_every_artefact_names_its_makers(run_dir):
         assert stamps == sorted(stamps), path.name
 
 
+def test_every_artefact_carries_the_global_attributes_lidarcal_reads_back(run_dir):
+    """Each written artefact has every read-back attribute its schema declares, readable as declared.
+
+    The exception is the conditions input: its lidar_* configuration and load stamps are optional
+    (absent: the nominal lidar's defaults), so a conditions file need only read without error.
+    """
+    from lidarcal.io import open_artefact
+    from lidarcal.readback import declared_read_back, read_attr
+
+    kinds = set()
+    for path in sorted(run_dir.glob("*.nc")):
+        with open_artefact(path, load=False) as ds:
+            kind = ds.attrs["lidarcal_artefact"]
+            kinds.add(kind)
+            declared = declared_read_back(kind)
+            if kind != "conditions":
+                assert sorted(set(declared) - set(ds.attrs)) == [], path.name
+            for name in declared:
+                read_attr(ds, name, kind=kind)  # raises InputError on a malformed value
+            assert read_attr(ds, "lidarcal_source_file") == path.name
+    assert {"bench_cube", "rwf", "simulated_rtd", "sensitivity", "uncertainty_terms", "uncertainty_budget",
+            "certificate", "conditions"} <= kinds
+
+
 def test_certificate_chain_reaches_the_raw_mast_record(run_dir):
     cert = xr.open_dataset(run_dir / "certificate.nc")
     chain = provenance_chain(cert)  # each input's own chain is on its provenance_<role> variable

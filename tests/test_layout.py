@@ -33,7 +33,7 @@ CONTRIBUTING = PACKAGE.parent / "CONTRIBUTING.md"
 #: plotting API of every report (the calibration's, diagnose's, compare's, smc's), not the
 #: certificate's alone.
 INFRASTRUCTURE = ("", "errors", "units", "schema", "cf", "binning", "provenance", "io", "compliance", "data",
-                  "htmlpage")
+                  "htmlpage", "readback")
 
 #: Stages in dependency order: each may import only infrastructure and the stages before it.
 #: ``analysis`` reads records but never runs a campaign, so it comes before ``campaign``

@@ -215,9 +215,14 @@ def test_lidar_defaults_and_seed_are_declared_once():
     assert (LidarModel.cone_angle, LidarModel.hybrid_weight, DEFAULT_RWF_FWHM) == (28.0, 2.0 / 3.0, 30.0)
     assert DEFAULT_SEED == DEFAULT_BASE_SEED == 20240101  # docs/seeds.md
     assert [f for f, _ in _literals(20240101)] == ["campaign/run.py"]
-    # 28° appears as the model's default and as Table 4's printed input (a paper value, not a default)
-    assert sorted(f for f, _ in _literals(28.0)) == ["analysis/terms.py", "lidar/model.py"]
-    # 2/3 is written only in the model (as 2.0 / 3.0): no other literal 0.666...
+    # the lidar defaults are declared in schemas/conditions.yaml (read_back) and nowhere in code:
+    # 28° appears only as Table 4's printed input (a paper value, not a default), 2/3 nowhere
+    from lidarcal.readback import declared_read_back
+
+    declared = declared_read_back("conditions")
+    assert declared["lidar_cone_angle"]["default"] == LidarModel.cone_angle
+    assert declared["lidar_hybrid_weight"]["default"] == LidarModel.hybrid_weight == 2.0 / 3.0
+    assert sorted(f for f, _ in _literals(28.0)) == ["analysis/terms.py"]
     assert _literals(2.0 / 3.0) == []
 
 

@@ -83,6 +83,7 @@ from lidarcal.cf import with_bounds
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import source_name
 from lidarcal.provenance import lidar_serial, stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import with_output_attrs
 from lidarcal.units import Q_, convert_values, to_magnitude
 
@@ -145,9 +146,10 @@ def _terms_total(
         out[:, positive] = table4_total(Q_(centres[positive], "m s-1"), **inputs, noise_terms=noise_terms)
         how = "" if noise_terms == "printed" else f", noise_terms={noise_terms!r}"
         return out, f"lidarcal.analysis.terms.uncertainty_terms(**PAPER_INPUTS{how}) at each budget height"
-    if noise_terms != "printed" and terms.attrs.get("noise_terms", "printed") != noise_terms:
+    found = read_attr(terms, "noise_terms", kind="uncertainty_terms")
+    if noise_terms != "printed" and found != noise_terms:
         raise InputError(f"{source_name(terms, '<terms>')}: the terms artefact has noise_terms="
-                         f"{terms.attrs.get('noise_terms', 'printed')!r}; asked for {noise_terms!r} "
+                         f"{found!r}; asked for {noise_terms!r} "
                          "(recompute it with lidarcal terms --noise-terms)")
     src = source_name(terms, "<terms>")
     if "total" not in terms.data_vars:
@@ -482,7 +484,7 @@ def _assemble(records: xr.Dataset, terms: xr.Dataset | None, names: tuple[str, .
     ds = with_bounds(ds, "wind_speed", edges)
     ds.attrs = {"approach": approach, "coverage_factor": k, "min_periods": rule.min_periods,
                 "certified_range_m_s": np.array([lo, hi]),
-                "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")), **extra}
+                "records_kind": read_attr(records, "lidarcal_artefact", default="unknown"), **extra}
     serial = lidar_serial(records.attrs)  # old .sta records: lidar_serial_number
     if serial:
         ds.attrs["lidar_serial"] = serial

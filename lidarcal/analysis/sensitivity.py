@@ -60,6 +60,7 @@ from lidarcal.conditions.variables import STANDARD_NAMES
 from lidarcal.errors import InputError
 from lidarcal.io import source_name
 from lidarcal.provenance import lidar_serial, stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 from lidarcal.units import LOG_UNITS, to_magnitude
 
@@ -375,7 +376,7 @@ def _assemble(records: xr.Dataset, variable: str, units: str, relative: bool, ed
                                   if relative else "lidar_wind_speed - reference_wind_speed"),
         "regression_method": config["regression"],
         "min_samples": config["min_samples"],
-        "records_kind": str(records.attrs.get("lidarcal_artefact", "unknown")),
+        "records_kind": read_attr(records, "lidarcal_artefact", default="unknown"),
     }
     serial = lidar_serial(records.attrs)
     if serial:
@@ -409,7 +410,7 @@ def compare_slopes(results: Mapping[str, xr.Dataset]) -> xr.Dataset:
     """
     if not results:
         raise InputError("compare_slopes needs at least one sensitivity dataset")
-    names = {ds.attrs.get("environmental_variable") for ds in results.values()}
+    names = {read_attr(ds, "environmental_variable", kind="sensitivity") for ds in results.values()}
     if len(names) != 1:
         raise InputError(f"cannot compare slopes of different variables: {sorted(map(str, names))}")
     keep = ["slope", "intercept", "correlation", "variable_std", "slope_times_std",

@@ -33,6 +33,7 @@ from lidarcal.conditions.grid import SWEEP_VARIABLES, grid_values
 from lidarcal.conditions.variables import CANONICAL_UNITS, STANDARD_NAMES
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 
 __all__ = ["analyse_sweep"]
@@ -154,13 +155,13 @@ def _stamp(ds, records, values, *, repeats, call, inputs) -> xr.Dataset:
     }
     if "chunk" in run:
         config["chunk"] = run["chunk"]
-    if "lidarcal_lidar_model" in records.attrs:
-        config["lidar_model"] = json.loads(records.attrs["lidarcal_lidar_model"])
+    if (model := read_attr(records, "lidarcal_lidar_model", kind="simulated_rtd")) is not None:
+        config["lidar_model"] = model
     seeds = {"scheme": "SeedSequence([base_seed, period_key, round(height_m * 1000)]), period_key = seconds "
                        "since 1970 of the synthetic time 2000-01-01T00:00 + 600 s * (grid_index * repeats "
                        "+ replicate)"}
-    if "lidarcal_base_seed" in records.attrs:
-        seeds = {"base_seed": int(records.attrs["lidarcal_base_seed"]), **seeds}
+    if (seed := read_attr(records, "lidarcal_base_seed", kind="simulated_rtd")) is not None:
+        seeds = {"base_seed": seed, **seeds}
     return stamp(
         ds,
         "sweep",

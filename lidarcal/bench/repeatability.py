@@ -33,6 +33,7 @@ from lidarcal.bench.ingest import cube_template
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs, validate_dataset
 from lidarcal.units import to_magnitude
 
@@ -40,7 +41,8 @@ __all__ = ["repeatability", "select_runs"]
 
 
 def _label(ds: xr.Dataset) -> str:
-    return f"run_id={ds.attrs.get('run_id')!s} (operator {ds.attrs.get('operator')!s})"
+    return (f"run_id={read_attr(ds, 'run_id', kind='bench_cube')!s} "
+            f"(operator {read_attr(ds, 'operator', kind='bench_cube')!s})")
 
 
 def select_runs(cubes: Sequence[xr.Dataset], exclude: Sequence[str] = ()) -> tuple[list, list]:
@@ -55,8 +57,8 @@ def select_runs(cubes: Sequence[xr.Dataset], exclude: Sequence[str] = ()) -> tup
         if key not in ("", "run_id", "operator"):
             raise InputError(f"--exclude {entry!r}: expected RUN_ID, run_id=RUN_ID or operator=NAME")
         hits = [i for i, ds in enumerate(cubes)
-                if (key in ("", "run_id") and str(ds.attrs.get("run_id")) == value)
-                or (key in ("", "operator") and str(ds.attrs.get("operator")) == value)]
+                if (key in ("", "run_id") and read_attr(ds, "run_id", kind="bench_cube") == value)
+                or (key in ("", "operator") and read_attr(ds, "operator", kind="bench_cube") == value)]
         if not hits:
             raise InputError(f"--exclude {entry!r} matches no run; runs are "
                              f"{[_label(ds) for ds in cubes]}")
@@ -77,7 +79,7 @@ def _check_consistent(cubes: list[xr.Dataset], sources: list[str]) -> None:
             if not np.array_equal(ds[coord].values, ref[coord].values):
                 raise InputError(f"{src}: coordinate {coord!r} differs from {sources[0]}; expected the same "
                                  f"ℓcv grid in every run")
-    ids = [str(ds.attrs["run_id"]) for ds in cubes]
+    ids = [read_attr(ds, "run_id", kind="bench_cube") for ds in cubes]
     dup = sorted({i for i in ids if ids.count(i) > 1})
     if dup:
         raise InputError(f"run_id(s) {dup} appear in more than one input cube ({sources}); each run once")
@@ -145,9 +147,10 @@ def repeatability(
     dims = ("los", "cnr", "velocity")
     rdims = ("run", *dims)
     out = cube_template().assign_coords(
-        run=("run", np.asarray([str(ds.attrs["run_id"]) for ds in kept], dtype=object),
+        run=("run", np.asarray([read_attr(ds, "run_id", kind="bench_cube") for ds in kept], dtype=object),
              output_attrs("repeatability", "run")),
-        operator=("run", np.asarray([str(ds.attrs["operator"]) for ds in kept], dtype=object),
+        operator=("run", np.asarray([read_attr(ds, "operator", kind="bench_cube") for ds in kept],
+                                    dtype=object),
                   output_attrs("repeatability", "operator")),
     )
     values = {"run_los_bias": (rdims, bias), "run_los_std": (rdims, std),
@@ -162,7 +165,8 @@ def repeatability(
     for name, (var_dims, data) in values.items():
         out[name] = (var_dims, data, output_attrs("repeatability", name))
     out.attrs.update({
-        "lidar_serial": kept[0].attrs["lidar_serial"], "bench_id": kept[0].attrs["bench_id"],
+        "lidar_serial": read_attr(kept[0], "lidar_serial", kind="bench_cube"),
+        "bench_id": read_attr(kept[0], "bench_id", kind="bench_cube"),
         "runs_used": ", ".join(_label(ds) for ds in kept),
         "runs_excluded": ", ".join(_label(ds) for ds in dropped) or "none",
         "min_samples_exclusive": int(min_samples),
@@ -173,11 +177,12 @@ def repeatability(
     })
     config = {"exclude": list(exclude), "min_samples": int(min_samples), "cnr_window_dB": [clo, chi],
               "velocity_window_m_s": [vlo, vhi], "inclusive": inclusive}
-    roles = {f"cube_run_{ds.attrs['run_id']}": ds for ds in kept}
-    roles.update({f"excluded_cube_run_{ds.attrs['run_id']}": ds for ds in dropped})
+    roles = {f"cube_run_{read_attr(ds, 'run_id', kind='bench_cube')}": ds for ds in kept}
+    roles.update({f"excluded_cube_run_{read_attr(ds, 'run_id', kind='bench_cube')}": ds for ds in dropped})
     return stamp(
         out, "repeatability",
-        title=f"SAFO-MV within-laboratory repeatability, lidar {out.attrs['lidar_serial']}",
+        title=("SAFO-MV within-laboratory repeatability, lidar "
+               f"{read_attr(out, 'lidar_serial', kind='bench_cube')}"),
         summary=(f"ISO 5725-4 within-laboratory analysis of {len(kept)} bench runs (paper section 2.4): per "
                  f"ℓcv-bin grand means and between-run standard deviations of the LOS bias and std; "
                  f"s-bar_delta = {s_delta:.4f} m/s and s-bar_s = {s_s:.4f} m/s over {int(used.sum())} bins."),

@@ -48,6 +48,7 @@ from lidarcal.binning import bin_index
 from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_replicas
 from lidarcal.campaign.settings import Execution
 from lidarcal.errors import InputError
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 
 __all__ = ["adaptive_replicas", "with_trials", "DEFAULT_MAX_REPLICAS", "BATCH_SCHEDULE"]
@@ -174,8 +175,9 @@ def adaptive_replicas(
     """
     if int(max_replicas) < 1:
         raise InputError(f"max_replicas must be >= 1; got {max_replicas}")
-    if int(records.attrs.get("lidarcal_base_seed", base_seed)) != int(base_seed):
-        raise InputError(f"records were simulated with base seed {records.attrs['lidarcal_base_seed']}; "
+    seed = read_attr(records, "lidarcal_base_seed", kind="simulated_rtd", default=int(base_seed))
+    if seed != int(base_seed):
+        raise InputError(f"records were simulated with base seed {seed}; "
                          f"replicas asked with {base_seed}")
     rule = CertificationRule.of(rule)
     opts = dict(terms=terms, rule=rule, bin_width=bin_width)

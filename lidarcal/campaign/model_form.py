@@ -35,6 +35,7 @@ from lidarcal.campaign.run import DEFAULT_BASE_SEED, simulate_replicas
 from lidarcal.campaign.settings import Execution
 from lidarcal.errors import InputError
 from lidarcal.lidar.model_form import ALTERNATIVES, alternative_models
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 from lidarcal.units import to_magnitude
 
@@ -118,8 +119,9 @@ def model_form_runs(
         ``records`` with the ``model_form_*`` variables (:data:`MODEL_FORM_VARIABLES`); unchanged
         (and without them) when no alternative applies.
     """
-    if int(records.attrs.get("lidarcal_base_seed", base_seed)) != int(base_seed):
-        raise InputError(f"records were simulated with base seed {records.attrs['lidarcal_base_seed']}; "
+    seed = read_attr(records, "lidarcal_base_seed", kind="simulated_rtd", default=int(base_seed))
+    if seed != int(base_seed):
+        raise InputError(f"records were simulated with base seed {seed}; "
                          f"the model-form runs asked with {base_seed} (common random numbers need the same)")
     models = alternative_models(model)
     if not models:

@@ -55,6 +55,7 @@ from lidarcal.io import source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
 from lidarcal.provenance import stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 
 __all__ = ["simulate_campaign", "simulate_replicas", "DEFAULT_BASE_SEED"]
@@ -283,7 +284,7 @@ class _Campaign:
 
     @property
     def checksum(self) -> str:
-        return self.cond.attrs["lidarcal_conditions_checksum"]
+        return read_attr(self.cond, "lidarcal_conditions_checksum", kind="conditions")
 
 
 def _prepare(conditions, model, heights, los_periods) -> _Campaign:

@@ -39,6 +39,7 @@ from lidarcal.certificate.measurand import MEASURAND, model_form_summary
 from lidarcal.certificate.results import headline_sentence, not_settled_items
 from lidarcal.errors import InputError
 from lidarcal.provenance import jsonable, read_json_attr, stamp
+from lidarcal.readback import read_attr
 
 __all__ = ["make_certificate"]
 
@@ -57,7 +58,7 @@ def _provenance(role: str, ds: xr.Dataset) -> dict[str, Any]:
 
 def _records_summary(records: xr.Dataset) -> dict[str, Any]:
     out: dict[str, Any] = {
-        "kind": records.attrs.get("lidarcal_artefact"),
+        "kind": read_attr(records, "lidarcal_artefact"),
         "periods": int(records.sizes.get("time", 0)),
     }
     if "height" in records.coords:
@@ -189,7 +190,7 @@ def _parts_by_role(budget: xr.Dataset, sens: list[xr.Dataset], *, cube: xr.Datas
     sens_roles: dict[str, xr.Dataset] = {}
     for ds in sens:
         check_kind("sensitivity", ds, ["sensitivity"])
-        var = ds.attrs.get("environmental_variable")
+        var = read_attr(ds, "environmental_variable", kind="sensitivity")
         if not var:
             raise InputError(f"{input_label('sensitivity', ds)}: attribute 'environmental_variable' "
                              "is missing")
@@ -219,9 +220,9 @@ def _flattened(parts: Mapping[str, xr.Dataset], records: xr.Dataset | None
             {
                 "name": role,
                 "prefix": f"{role}_",
-                "kind": ds.attrs.get("lidarcal_artefact"),
-                "file": ds.attrs.get("lidarcal_source_file"),
-                "sha256": ds.attrs.get("lidarcal_source_sha256"),
+                "kind": read_attr(ds, "lidarcal_artefact"),
+                "file": read_attr(ds, "lidarcal_source_file"),
+                "sha256": read_attr(ds, "lidarcal_source_sha256"),
                 "scalar_coordinates": scalar_coords(ds),
                 "variable": f"{PROVENANCE_PREFIX}{role}",
             }
@@ -234,7 +235,8 @@ def _flattened(parts: Mapping[str, xr.Dataset], records: xr.Dataset | None
 def _summary_attributes(budget: xr.Dataset, *, serial: str | None, cube: xr.Dataset | None,
                         rwf: xr.Dataset | None, records: xr.Dataset | None) -> dict[str, Any]:
     """Return the certificate's own global attributes (approach, headline, Monte Carlo, lidar, Zd ...)."""
-    attrs: dict[str, Any] = {"budget_approach": str(budget.attrs.get("approach", "unknown")),
+    attrs: dict[str, Any] = {"budget_approach": read_attr(budget, "approach", kind="uncertainty_budget",
+                                                       default="unknown"),
                              "measurand": MEASURAND}
     if (model_form := model_form_summary(budget)) is not None:
         attrs["model_form"] = model_form
@@ -248,7 +250,8 @@ def _summary_attributes(budget: xr.Dataset, *, serial: str | None, cube: xr.Data
     if "certified_statement" in budget:
         attrs["certified_statement_rule"] = (
             "per certified bin: the error of one 10-minute mean lies within +-U (k = "
-            f"{float(budget.attrs.get('coverage_factor', 2)):g}) where that interval holds 95 % to 97.5 % "
+            f"{read_attr(budget, 'coverage_factor', kind='uncertainty_budget'):g}) where that interval holds "
+            "95 % to 97.5 % "
             "of the Monte Carlo distribution; elsewhere (the two differ materially) the Monte Carlo "
             f"{budget.attrs.get('coverage_interval', 'symmetric')} 95 % coverage interval (JCGM 101 7.7) "
             "is certified")
@@ -270,12 +273,14 @@ def _with_admin(cert: xr.Dataset, admin: Mapping[str, str] | None, demonstration
                 config: Mapping[str, Any] | None) -> xr.Dataset:
     """Add ``calibration_status`` and the administrative attributes (lidarcal.certificate.admin)."""
     cube_attrs = cube.attrs if cube is not None else {}
+    cubed = cube is not None  # a cube's run_id, operator and bench_id are required: read only with one
     derived = {
-        "item_serial_number": cert.attrs.get("lidar_serial"),
-        "bench_id": cube_attrs.get("bench_id"),
-        "bench_run_id": cube_attrs.get("run_id"),
-        "bench_operator": cube_attrs.get("operator"),
-        "rf_driver_calibration_reference": cube_attrs.get("rf_driver_calibration_reference"),
+        "item_serial_number": read_attr(cert, "lidar_serial", kind="certificate"),
+        "bench_id": read_attr(cube, "bench_id", kind="bench_cube") if cubed else None,
+        "bench_run_id": read_attr(cube, "run_id", kind="bench_cube") if cubed else None,
+        "bench_operator": read_attr(cube, "operator", kind="bench_cube") if cubed else None,
+        "rf_driver_calibration_reference": (
+            read_attr(cube, "rf_driver_calibration_reference", kind="bench_cube") if cubed else None),
         "bench_run_start": cube_attrs.get("time_coverage_start"),
         "bench_run_end": cube_attrs.get("time_coverage_end"),
         "simulation_date": records.attrs.get("date_created") if records is not None else None,

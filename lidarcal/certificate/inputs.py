@@ -16,13 +16,14 @@ import xarray as xr
 
 from lidarcal.errors import InputError
 from lidarcal.provenance import lidar_serial, read_json_attr
+from lidarcal.readback import read_attr
 
 __all__ = ["check_kind", "check_consistent", "input_label"]
 
 
 def input_label(role: str, ds: xr.Dataset) -> str:
     """Name an input in a message: its role and, when it came from a file, the file."""
-    src = ds.attrs.get("lidarcal_source_file")
+    src = read_attr(ds, "lidarcal_source_file")
     return f"{role} ({src})" if src else role
 
 
@@ -105,7 +106,8 @@ def _check_chains(inputs: Mapping[str, xr.Dataset]) -> None:
     The chain is followed to any depth, so a budget computed from records simulated with
     another bench cube or RWF is refused without the records themselves (``--records``).
     """
-    known = {role: str(sha) for role, ds in inputs.items() if (sha := ds.attrs.get("lidarcal_source_sha256"))}
+    known = {role: str(sha) for role, ds in inputs.items()
+             if (sha := read_attr(ds, "lidarcal_source_sha256"))}
     for role, ds in inputs.items():
         for via, rec in _chain(read_json_attr(ds, "lidarcal_inputs")):
             other, sha = rec.get("role"), rec.get("sha256")
@@ -116,7 +118,7 @@ def _check_chains(inputs: Mapping[str, xr.Dataset]) -> None:
             raise InputError(
                 f"inputs disagree: {input_label(role, ds)} was computed from {steps}{other} "
                 f"{rec.get('file')!r} (sha256 {sha}), but the {other} given is "
-                f"{inputs[other].attrs.get('lidarcal_source_file')!r} (sha256 {known[other]}); give the "
+                f"{read_attr(inputs[other], 'lidarcal_source_file')!r} (sha256 {known[other]}); give the "
                 f"{other} it was computed from, or recompute it from this one"
             )
 
@@ -124,7 +126,7 @@ def _check_chains(inputs: Mapping[str, xr.Dataset]) -> None:
 def check_kind(role: str, ds: xr.Dataset, kinds: Iterable[str]) -> None:
     """Refuse an input stamped as another kind of artefact than ``kinds``."""
     kinds = tuple(kinds)
-    found = ds.attrs.get("lidarcal_artefact")
+    found = read_attr(ds, "lidarcal_artefact")
     if found is not None and found not in kinds:
         raise InputError(
             f"{input_label(role, ds)}: is a {found!r} artefact; expected {' or '.join(map(repr, kinds))}"

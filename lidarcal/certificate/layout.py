@@ -26,6 +26,7 @@ from lidarcal.certificate.seal import invalid_seal_banner, require_valid_seal
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, read_image
 from lidarcal.provenance import jsonable, read_json_attr
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 from lidarcal.units import register_units
 
@@ -236,9 +237,9 @@ def provenance_record(attrs: Mapping[str, Any]) -> dict[str, Any]:
         return value
 
     return {
-        "kind": attrs.get("lidarcal_artefact"),
-        "file": attrs.get("lidarcal_source_file"),
-        "sha256": attrs.get("lidarcal_source_sha256"),
+        "kind": read_attr(attrs, "lidarcal_artefact"),
+        "file": read_attr(attrs, "lidarcal_source_file"),
+        "sha256": read_attr(attrs, "lidarcal_source_sha256"),
         "id": attrs.get("id"),
         "lidarcal_version": attrs.get("lidarcal_version"),
         "inputs": json_attr("lidarcal_inputs"),

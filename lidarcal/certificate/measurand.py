@@ -15,6 +15,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.certificate.results import _budget_of, certified_mask
+from lidarcal.readback import read_attr
 
 __all__ = ["MEASURAND", "model_form_values", "model_form_summary"]
 
@@ -40,7 +41,7 @@ def model_form_values(obj: xr.Dataset) -> dict[str, np.ndarray] | None:
     with np.errstate(invalid="ignore", divide="ignore"):
         se = (100.0 * b["model_form_standard_error"] / b["mean_reference_wind_speed"]).values \
             if "model_form_standard_error" in b else np.full(rel.shape, np.nan)
-        k = float(budget.attrs.get("coverage_factor", 2.0))
+        k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
         total = b["relative_uncertainty"].values
         raised = k * (total - np.sqrt(np.maximum(total**2 - rel**2, 0.0)))
     return {"value": rel, "standard_error": se, "raise": raised,

@@ -22,12 +22,12 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from lidarcal.analysis.budget import DEFAULT_CERTIFIED_RANGE
 from lidarcal.analysis.certification import digits_text
 from lidarcal.certificate.layout import components, extract_component
 from lidarcal.certificate.seal import require_valid_seal
 from lidarcal.errors import InputError
 from lidarcal.io import source_name
+from lidarcal.readback import read_attr
 
 __all__ = [
     "certified_mask",
@@ -51,10 +51,10 @@ def _budget_of(obj: xr.Dataset | xr.DataTree) -> xr.Dataset:
             raise InputError(f"{source_name(obj.to_dataset())}: certificate tree has no 'budget' group; it "
                              f"has {sorted(obj.children)}")
         return obj["budget"].to_dataset()
-    if obj.attrs.get("lidarcal_artefact") == "certificate" or "lidarcal_components" in obj.attrs:
+    if read_attr(obj, "lidarcal_artefact") == "certificate" or "lidarcal_components" in obj.attrs:
         return extract_component(obj, "budget")
     if "relative_expanded_uncertainty" not in obj:
-        kind = obj.attrs.get("lidarcal_artefact")
+        kind = read_attr(obj, "lidarcal_artefact")
         what = f"a {kind!r} artefact" if kind else "a file with no lidarcal_artefact attribute"
         raise InputError(f"{source_name(obj)}: expected a certificate or an uncertainty_budget; found {what} "
                          f"and no variable 'relative_expanded_uncertainty' (variables "
@@ -105,10 +105,12 @@ def certified_rule(obj: xr.Dataset) -> str:
     With a Monte Carlo numerical state, ``, settled to N significant digits`` follows.
     """
     budget = _budget_of(obj)
-    lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
-    text = f"centres {lo:g} to {hi:g} m/s, >= {int(budget.attrs.get('min_periods', 0))} periods"
-    if "numerical_flag" in budget and "monte_carlo_significant_digits" in budget.attrs:
-        text += f", settled to {digits_text(budget.attrs['monte_carlo_significant_digits'])}"
+    lo, hi = read_attr(budget, "certified_range_m_s", kind="uncertainty_budget")
+    fewest = read_attr(budget, "min_periods", kind="uncertainty_budget")
+    text = f"centres {lo:g} to {hi:g} m/s, >= {fewest} periods"
+    digits = read_attr(budget, "monte_carlo_significant_digits", kind="uncertainty_budget")
+    if "numerical_flag" in budget and digits is not None:
+        text += f", settled to {digits_text(digits)}"
     return text
 
 
@@ -175,8 +177,9 @@ HEADLINE_LABEL = "Expanded uncertainty"
 
 def _settle_limits(budget: xr.Dataset) -> str:
     """How far the Monte Carlo went: ``to 1 significant digit within 8 Monte Carlo replicas``."""
-    return (f"to {digits_text(budget.attrs.get('monte_carlo_significant_digits'))} within "
-            f"{budget.attrs.get('monte_carlo_replicas')} Monte Carlo replicas")
+    digits = read_attr(budget, "monte_carlo_significant_digits", kind="uncertainty_budget")
+    replicas = read_attr(budget, "monte_carlo_replicas", kind="uncertainty_budget")
+    return f"to {digits_text(digits)} within {replicas} Monte Carlo replicas"
 
 
 def not_settled_sentence(obj: xr.Dataset) -> str:
@@ -219,7 +222,8 @@ def headline_sentence(obj: xr.Dataset) -> str | None:
     rng = headline_range(budget)
     if rng is None:
         return None
-    text = (f"{rng[0]:.2f} % to {rng[1]:.2f} % (k = {float(budget.attrs.get('coverage_factor', 2)):g}; "
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
+    text = (f"{rng[0]:.2f} % to {rng[1]:.2f} % (k = {k:g}; "
             f"certified bins: {certified_rule(budget)}; lidarcal table lists every bin)")
     intervals = coverage_interval_bins(budget)
     if intervals:
@@ -241,7 +245,8 @@ def headline_text(obj: xr.Dataset) -> str:
     budget = _budget_of(obj)
     sentence = headline_sentence(budget)
     if sentence is None:
-        sentence = (f"nothing is certified (k = {float(budget.attrs.get('coverage_factor', 2)):g}; "
+        k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
+        sentence = (f"nothing is certified (k = {k:g}; "
                     f"certified bins: {certified_rule(budget)}; lidarcal table lists every bin)")
         if missed := not_settled_sentence(budget):
             sentence += f"; {missed}"
@@ -282,7 +287,8 @@ def _significant_sensitivities(cert: xr.Dataset | xr.DataTree) -> dict[float, st
     """Per height, the sensitivities significant by Eq. 12 or 13, as readable text."""
     out: dict[float, list[str]] = {}
     for name, sens in _sensitivities(cert).items():
-        var = sens.attrs.get("environmental_variable", name[len("sensitivity_"):])
+        var = read_attr(sens, "environmental_variable", kind="sensitivity",
+                        default=name[len("sensitivity_"):])
         for z in np.atleast_1d(sens["height"].values):
             one = sens.sel(height=z)
             if not int(one["significant"]):
@@ -298,9 +304,10 @@ def _significant_sensitivities(cert: xr.Dataset | xr.DataTree) -> dict[float, st
 
 def _reason(flag: str, periods: int, budget: xr.Dataset) -> str:
     """Why a bin is not certified, in words ("" when it is)."""
-    lo, hi = np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE), dtype=float)
+    lo, hi = read_attr(budget, "certified_range_m_s", kind="uncertainty_budget")
     return {"certified": "",
-            "too_few_periods": f"{periods} periods (fewer than {int(budget.attrs.get('min_periods', 0))})",
+            "too_few_periods": (f"{periods} periods (fewer than "
+                                f"{read_attr(budget, 'min_periods', kind='uncertainty_budget')})"),
             "empty": "no period",
             "outside_certified_range": f"centre outside {lo:g} to {hi:g} m/s",
             "not_settled": f"not settled {_settle_limits(budget)}",
@@ -360,7 +367,7 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
         require_valid_seal(cert.to_dataset() if isinstance(cert, xr.DataTree) else cert)
 
     budget = _budget_of(cert).load()
-    k = float(budget.attrs.get("coverage_factor", 2.0))
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
     flags = _flag_names(budget["bin_flag"])
     statements = _flag_names(budget["certified_statement"]) if "certified_statement" in budget else {}
     # rows run over (height, wind speed): index by those names, whatever the stored order
@@ -421,6 +428,7 @@ def result_table(cert: xr.Dataset | xr.DataTree, *, contributors: int = 3, allow
     table.attrs["not_settled_items"] = not_settled_items(budget)
     table.attrs["headline"] = headline_text(budget)
     table.attrs["coverage_interval_bins"] = len(coverage_interval_bins(budget))
-    table.attrs["significant_digits"] = budget.attrs.get("monte_carlo_significant_digits")
+    table.attrs["significant_digits"] = read_attr(budget, "monte_carlo_significant_digits",
+                                                  kind="uncertainty_budget")
     return table
 

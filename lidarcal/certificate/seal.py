@@ -41,6 +41,7 @@ from lidarcal.io import (
     read_image,
     write_into,
 )
+from lidarcal.readback import read_attr
 from lidarcal.schema import validate_dataset
 
 INTEGRITY_ATTR = "lidarcal_integrity"
@@ -196,9 +197,9 @@ def write_certificate(cert: xr.Dataset, path: str | os.PathLike, *, overwrite: b
     if signing_key is not None and not isinstance(signing_key, Ed25519PrivateKey):
         signing_key = load_private_key(signing_key)
 
-    if cert.attrs.get("lidarcal_artefact") != "certificate":
+    if (kind := read_attr(cert, "lidarcal_artefact")) != "certificate":
         raise InputError(
-            f"{path}: dataset is a {cert.attrs.get('lidarcal_artefact')!r} artefact, not a certificate"
+            f"{path}: dataset is a {kind!r} artefact, not a certificate"
         )
     path = check_writable(path, overwrite=overwrite)
     with atomic_path(path, overwrite=overwrite) as tmp:

@@ -24,6 +24,7 @@ from lidarcal.cli.options import (
     rule_of,
 )
 from lidarcal.io import check_writable, open_artefact, write_artefact
+from lidarcal.readback import read_attr
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         f"{args.output}: {args.approach} budget, {ds.sizes['height']} height(s) x "
         f"{ds.sizes['wind_speed']} wind speed bins"
     )
-    lo, hi = ds.attrs["certified_range_m_s"]
+    lo, hi = read_attr(ds, "certified_range_m_s", kind="uncertainty_budget")
     for h in ds.height.values:
         sub = ds.sel(height=h)
         rel = sub.relative_uncertainty.values
@@ -116,16 +117,17 @@ def run(args: argparse.Namespace) -> int:
                 f"  {h:g} m: relative standard uncertainty "
                 f"{np.nanmin(rel[ok]):.2f}-{np.nanmax(rel[ok]):.2f} % "
                 f"over {int(ok.sum())} certified bins (centres {lo:g}-{hi:g} m/s, "
-                f">= {ds.attrs['min_periods']} periods)"
+                f">= {read_attr(ds, 'min_periods', kind='uncertainty_budget')} periods)"
             )
         else:
             print(f"  {h:g} m: no certified bin (centres {lo:g}-{hi:g} m/s, "
-                  f">= {ds.attrs['min_periods']} periods)")
+                  f">= {read_attr(ds, 'min_periods', kind='uncertainty_budget')} periods)")
     if "numerical_flag" in ds:
         from lidarcal.certificate import not_settled_sentence  # deferred: only with a Monte Carlo
 
-        missed = not_settled_sentence(ds) or (
-            f"every certified bin settled to {digits_text(ds.attrs['monte_carlo_significant_digits'])}")
-        print(f"  Monte Carlo: {ds.attrs['monte_carlo_replicas']} replica(s), "
-              f"{ds.attrs['monte_carlo_trials']} trials; {missed}")
+        digits = read_attr(ds, "monte_carlo_significant_digits", kind="uncertainty_budget")
+        missed = not_settled_sentence(ds) or f"every certified bin settled to {digits_text(digits)}"
+        replicas = read_attr(ds, "monte_carlo_replicas", kind="uncertainty_budget")
+        trials = read_attr(ds, "monte_carlo_trials", kind="uncertainty_budget")
+        print(f"  Monte Carlo: {replicas} replica(s), {trials} trials; {missed}")
     return 0

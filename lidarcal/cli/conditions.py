@@ -22,6 +22,7 @@ from lidarcal.diagnose.inputs import check_field
 from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel, check_reachable
+from lidarcal.readback import read_attr
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -120,7 +121,7 @@ def run_check(args: argparse.Namespace) -> int:
             f"  {name:22s} [{ds[name].attrs['units']}]  min {np.nanmin(v):9.4g}"
             f"  median {np.nanmedian(v):9.4g}  max {np.nanmax(v):9.4g}"
         )
-    print(f"  skipped (period, height) pairs: {ds.attrs['lidarcal_skipped_count']}")
+    print(f"  skipped (period, height) pairs: {read_attr(ds, 'lidarcal_skipped_count', kind='conditions')}")
     for w in caught:
         print(f"  note: {w.message}")
     return 0

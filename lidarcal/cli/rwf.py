@@ -16,6 +16,7 @@ import numpy as np
 from lidarcal.cli import COMMANDS, command_line
 from lidarcal.cli.options import add_output_options, finite, positive
 from lidarcal.io import check_writable, write_artefact
+from lidarcal.readback import read_attr
 from lidarcal.rwf import range_weighting_function
 from lidarcal.units import Q_
 
@@ -72,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     )
     path = write_artefact(ds, args.output, overwrite=args.overwrite)
     g = ds.cnr_gradient.values
-    print(f"{path}: {ds.attrs['pulse_shape']} pulse, FFT {args.fft_size} points")
+    print(f"{path}: {read_attr(ds, 'pulse_shape', kind='rwf')} pulse, FFT {args.fft_size} points")
     print(f"  zero distance Zd      {float(ds.zero_distance):+.4f} m")
     print(f"  RWF FWHM              {float(ds.rwf_fwhm):.3f} m")
     print(f"  barycenter at {g.min():+g} / {g.max():+g} dB m-1: "

@@ -47,6 +47,7 @@ from lidarcal.conditions import load_conditions, sample_conditions_path
 from lidarcal.diagnose import corrected_model
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel
+from lidarcal.readback import read_attr
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -150,12 +151,12 @@ def run(args: argparse.Namespace) -> int:
 
         missed = (not_settled_sentence(bud)
                   or f"every certified bin settled to {digits_text(args.significant_digits)}")
-        print(f"Monte Carlo: {bud.attrs['monte_carlo_replicas']} replica(s), {ds.sizes.get('trial', 0)} "
-              f"further trials; {missed}")
-    if not args.model and args.cube and cube.attrs.get("lidar_serial"):  # records of the cube's lidar
-        ds.attrs["lidar_serial"] = cube.attrs["lidar_serial"]
+        replicas = read_attr(bud, "monte_carlo_replicas", kind="uncertainty_budget")
+        print(f"Monte Carlo: {replicas} replica(s), {ds.sizes.get('trial', 0)} further trials; {missed}")
+    if not args.model and args.cube and (serial := read_attr(cube, "lidar_serial", kind="bench_cube")):
+        ds.attrs["lidar_serial"] = serial  # records of the cube's lidar
     write_artefact(ds, args.output, overwrite=args.overwrite)
-    skipped = int(ds.attrs["lidarcal_skipped_count"])
+    skipped = read_attr(ds, "lidarcal_skipped_count", kind="simulated_rtd")
     print(
         f"wrote {os.fspath(args.output)}: {ds.sizes['time']} periods x {ds.sizes['height']} heights, "
         f"{skipped} (period, height) skipped for missing input, base seed {base_seed}"

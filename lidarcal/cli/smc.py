@@ -29,6 +29,7 @@ from lidarcal.cli.options import (
     positive_int,
 )
 from lidarcal.io import check_writable, write_artefact
+from lidarcal.readback import read_attr
 
 
 def _periods_per_bin(text: str) -> int | None:
@@ -152,7 +153,7 @@ def summary_line(ds, path) -> str:
     """Return what the command prints: status, coverage, quoted route, median relative uncertainty."""
     status = (
         "DEMONSTRATION result (from a demonstration certificate): "
-        if ds.attrs.get("calibration_status") == "demonstration"
+        if read_attr(ds, "calibration_status", kind="smc") == "demonstration"
         else ""
     )
     rel = ds["relative_uncertainty"].values
@@ -160,6 +161,7 @@ def summary_line(ds, path) -> str:
     return (
         f"{status}wrote {path}: {ds.sizes['time']} periods x {ds.sizes['height']} heights; "
         f"{ds.attrs['covered_periods']} of {ds.attrs['periods_with_wind_speed']} period-heights covered by "
-        f"the certificate; environmental route quoted: {ds.attrs['environmental_route']}; median relative "
+        f"the certificate; environmental route quoted: {read_attr(ds, 'environmental_route', kind='smc')}; "
+        "median relative "
         f"standard uncertainty {median:.2f} %"
     )

@@ -31,6 +31,7 @@ from lidarcal.errors import InputError
 from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.lidar import LidarModel
 from lidarcal.pipeline import sweep
+from lidarcal.readback import read_attr
 from lidarcal.units import Q_
 
 
@@ -112,7 +113,8 @@ def run(args: argparse.Namespace) -> int:
     write_artefact(ds, args.output, overwrite=args.overwrite)
     if args.records_output:
         write_artefact(records, args.records_output, overwrite=args.overwrite)
-    print(f"{args.output}: {ds.attrs['sweep_points']} grid points x {ds.attrs['sweep_repeats']} replicate(s)")
+    print(f"{args.output}: {read_attr(ds, 'sweep_points', kind='sweep')} grid points x "
+          f"{read_attr(ds, 'sweep_repeats', kind='sweep')} replicate(s)")
     for i, h in enumerate(ds.height.values):
         where = ", ".join(f"{n}={float(ds[f'max_deviation_{n}'][i]):g}" for n in SWEEP_VARIABLES)
         print(f"  {h:g} m: max |deviation| {float(ds.max_abs_deviation[i]):.3f} % at {where}")

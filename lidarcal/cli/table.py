@@ -37,6 +37,7 @@ from lidarcal.certificate.seal import invalid_seal_banner, require_valid_seal
 from lidarcal.cli import COMMANDS
 from lidarcal.cli.options import add_overwrite_option
 from lidarcal.io import atomic_path, check_writable, open_artefact
+from lidarcal.readback import read_attr
 
 FORMATS = ("csv", "md", "html")
 _SUFFIXES = {".csv": "csv", ".md": "md", ".markdown": "md", ".html": "html", ".htm": "html"}
@@ -171,7 +172,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output:
         check_writable(args.output, overwrite=args.overwrite)
     found = open_artefact(args.certificate)
-    if found.attrs.get("lidarcal_artefact") == "smc":
+    if read_attr(found, "lidarcal_artefact") == "smc":
         text = _smc_text(found, fmt)
         if not args.output:
             sys.stdout.write(text)

@@ -23,6 +23,7 @@ from lidarcal.cli import COMMANDS
 from lidarcal.compliance import check_compliance, missing_attributes, missing_lines, summary_lines
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact
+from lidarcal.readback import read_attr
 from lidarcal.schema import catalogue_owners, validate_dataset
 
 
@@ -51,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"{path}: FAIL (not readable)")
             unreadable += 1
             continue
-        kind = args.kind or ds.attrs.get("lidarcal_artefact")
+        kind = args.kind or read_attr(ds, "lidarcal_artefact")
         sealed = kind == "certificate" or INTEGRITY_ATTR in ds.attrs
         try:
             for owner in catalogue_owners(str(kind)):  # the stage whose catalogue the schema expands over

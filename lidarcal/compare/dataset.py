@@ -26,6 +26,7 @@ from lidarcal.cf import height_coord, with_bounds
 from lidarcal.compare.core import CORRECTION, Comparison
 from lidarcal.conditions.variables import CANONICAL_UNITS
 from lidarcal.provenance import stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 
 __all__ = ["to_dataset", "summary", "slope_units"]
@@ -203,4 +204,4 @@ def summary_object(ds: xr.Dataset, result: Comparison) -> dict[str, Any]:
 
 def summary(ds: xr.Dataset) -> dict[str, Any]:
     """Return the ``--json`` object stored in a ``comparison`` artefact."""
-    return json.loads(ds.attrs["comparison_json"])
+    return read_attr(ds, "comparison_json", kind="comparison")

@@ -14,7 +14,6 @@ inline, nothing from the network):
 from __future__ import annotations
 
 import html
-import json
 import os
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.htmlpage import grid, legend_outside, offline_html, plot, write_text
+from lidarcal.readback import read_attr
 
 __all__ = ["write_report", "slope_figure", "budget_figure"]
 
@@ -31,7 +31,7 @@ Z95 = 1.959963984540054
 
 
 def _header(ds: xr.Dataset) -> str:
-    js = json.loads(ds.attrs["comparison_json"])
+    js = read_attr(ds, "comparison_json", kind="comparison")
     rows = "".join(
         f"<tr><td>{html.escape(c['variable'])}</td><td>{c['height']:g}</td>"
         f"<td>{c['measured_slope']:.3g} ± {c['measured_se']:.2g}</td>"
@@ -44,7 +44,7 @@ def _header(ds: xr.Dataset) -> str:
     return (
         f"<h2>Verdict: {html.escape(js['verdict'])}</h2>"
         f"<p>Simulated lidar: {html.escape(js['model'])}. "
-        f"Field: {html.escape(ds.attrs.get('field_source', ''))}."
+        f"Field: {html.escape(read_attr(ds, 'field_source', kind='comparison'))}."
         f"<br>Cells agree when the Holm-adjusted p-value of equal slopes is at least alpha = {js['alpha']:g}."
         f"{nxt}</p>"
         f"<table class='numbers'><tr><th>variable</th><th>height (m)</th><th>measured slope</th>"

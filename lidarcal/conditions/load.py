@@ -21,6 +21,7 @@ from lidarcal.conditions.variables import CANONICAL_UNITS, CONDITION_NAMES, FIEL
 from lidarcal.errors import InputError, MissingVariableError, ValidationError, raise_first_bad
 from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import LEGACY_SERIAL, lidar_serial
+from lidarcal.readback import read_attr
 from lidarcal.schema import declared_variables, output_attrs, validate_dataset
 from lidarcal.units import convert_values, convert_variable
 
@@ -208,7 +209,7 @@ def load_conditions(
     n_skip = int((~complete).sum())
     out.attrs["lidarcal_skipped_count"] = n_skip
     # a field_campaign holds everything a conditions input needs, so it may stand in for one
-    superset = kind == "conditions" and out.attrs.get("lidarcal_artefact") == "field_campaign"
+    superset = kind == "conditions" and read_attr(out, "lidarcal_artefact") == "field_campaign"
     checked = out.assign_attrs(lidarcal_artefact="conditions") if superset else out
     problems = validate_dataset(checked, kind, source=source)
     problems = [p for p in problems if "lidarcal_artefact" not in p]

@@ -37,6 +37,7 @@ from lidarcal.conditions.variables import variable_attrs
 from lidarcal.errors import InputError, LidarcalError, MissingVariableError, raise_first_bad
 from lidarcal.io import check_input_file
 from lidarcal.provenance import stamp
+from lidarcal.readback import read_attr
 from lidarcal.units import convert_values
 
 __all__ = ["parse_height_columns", "read_reference_csv", "sta_field_campaign", "column_unit", "RATIO_LIMITS"]
@@ -381,7 +382,8 @@ def sta_field_campaign(
               "cone_angle": cone_angle}
     return stamp(
         out, "field_campaign",
-        title=f"Field campaign: WindCube {out.attrs['lidar_serial']} against a met mast",
+        title=(f"Field campaign: WindCube {read_attr(out, 'lidar_serial', kind='field_campaign')} "
+               "against a met mast"),
         summary=f"{out.sizes['time']} ten-minute periods at {out.sizes['height']} mast heights: lidar speed "
                 f"from {len(sta_paths)} .sta file(s), reference speed from {out.attrs['reference_file']}.",
         call=call or "lidarcal.conditions.mast.sta_field_campaign(...)",

@@ -25,6 +25,7 @@ from lidarcal.conditions.stafile import ROLES, StaFile
 from lidarcal.conditions.synthetic import conditions_dataset
 from lidarcal.errors import InputError
 from lidarcal.provenance import stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 
 __all__ = ["STA_COMMENTS", "measured_conditions", "sta_attributes", "sta_conditions"]
@@ -97,12 +98,13 @@ def _time_bounds(ds: xr.Dataset, end: np.ndarray) -> xr.Dataset:
     ds["time"].attrs["bounds"] = "time_bounds"
     # one explicit encoding for time and its bounds (CF: bounds share the coordinate's units)
     ds["time"].encoding.update(units="minutes since 1970-01-01 00:00:00", calendar="proleptic_gregorian")
-    tz = str(ds.attrs.get("lidar_timezone", "")).replace(" ", "").upper()
+    tz = read_attr(ds, "lidar_timezone", kind="conditions").replace(" ", "").upper()
     if tz not in ("UTC", "UTC+0", "UTC+00", "UTC+00:00", "UTC-0", "GMT"):
         ds["time"].attrs["long_name"] = "start of 10-minute period (lidar clock time, see comment)"
     ds["time"].attrs["comment"] = (
         "interval start = the .sta file's end-of-interval timestamp minus 10 minutes, in the lidar "
-        f"clock's time zone (header 'timezone': {ds.attrs.get('lidar_timezone', 'not given')})"
+        "clock's time zone (header 'timezone': "
+        f"{read_attr(ds, 'lidar_timezone', kind='conditions', default='not given')})"
     )
     return ds
 
@@ -187,7 +189,8 @@ def sta_conditions(paths, min_availability: float = 80.0, *, warn: bool = True,
     ds.attrs["license"] = "not specified: the licence of the source .sta files applies"
     return stamp(
         ds, "conditions",
-        title=f"Measured 10-minute conditions from WindCube {ds.attrs['lidar_serial']}",
+        title=("Measured 10-minute conditions from WindCube "
+               f"{read_attr(ds, 'lidar_serial', kind='conditions')}"),
         summary=f"{ds.sizes['time']} ten-minute periods at {ds.sizes['height']} heights read from "
                 f"{len(paths)} WindCube .sta file(s); CNR and CNR gradient measured; periods below "
                 f"{float(min_availability):g} % availability missing.",

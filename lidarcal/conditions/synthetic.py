@@ -39,8 +39,8 @@ from lidarcal.conditions.load import load_conditions
 from lidarcal.conditions.variables import CONDITION_NAMES, variable_attrs
 from lidarcal.errors import InputError, raise_first_bad
 from lidarcal.io import source_name
-from lidarcal.lidar.model import LidarModel
 from lidarcal.provenance import stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import declared_variables
 
 __all__ = ["synthetic_conditions", "conditions_dataset"]
@@ -256,7 +256,7 @@ def synthetic_conditions(
     cnr[missing] = np.nan
     vals["cnr"] = cnr
     if cone_angle is None:
-        cone_angle = float(attrs.get("lidar_cone_angle", LidarModel.cone_angle))
+        cone_angle = read_attr(attrs, "lidar_cone_angle", kind="conditions")
     vals["cnr_gradient"] = cnr_gradient_along_beam(cnr, z, float(cone_angle))
     attrs.update({
         "lidarcal_synthetic_seed": int(seed),

@@ -32,6 +32,7 @@ from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.provenance import stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 
 __all__ = ["summary", "to_dataset", "corrected_model", "records_dataset", "sensitivity_statistics"]
@@ -258,12 +259,12 @@ def corrected_model(diagnosis: xr.Dataset | str | os.PathLike, *, cube: xr.Datas
     and RWF the model was built from) restore them (:meth:`~lidarcal.lidar.LidarModel.from_dict`).
     """
     ds = diagnosis if isinstance(diagnosis, xr.Dataset) else open_artefact(diagnosis, load=False, chunks={})
-    text = ds.attrs.get("lidarcal_lidar_model")
     name = source_name(diagnosis)
+    record = read_attr(ds, "lidarcal_lidar_model", source=os.fspath(name))
     if not isinstance(diagnosis, xr.Dataset):
         ds.close()
-    if not text:
+    if not record:
         raise InputError(f"{os.fspath(name)}: global attribute 'lidarcal_lidar_model' is missing; expected "
                          f"the JSON of a LidarModel (a diagnosis or simulated_rtd artefact)")
-    return LidarModel.from_dict(text, cube=cube, rwf=rwf,
+    return LidarModel.from_dict(record, cube=cube, rwf=rwf,
                                 source=f"{os.fspath(name)}: global attribute 'lidarcal_lidar_model'")

@@ -22,6 +22,7 @@ from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.lidar import LidarModel
 from lidarcal.lidar.geometry import check_reachable
+from lidarcal.readback import read_attr
 from lidarcal.units import convert_variable
 
 __all__ = ["MEASURED", "check_field", "load_field", "min_periods", "nominal_model", "open_field"]
@@ -82,11 +83,12 @@ def _check_ratio(raw: xr.Dataset, source: str) -> None:
     lo, hi = RATIO_LIMITS
     if lo <= ratio <= hi:
         return
-    skipped = str(raw.attrs.get("lidar_reference_ratio_checked", "")).strip().lower().startswith("no")
+    checked = read_attr(raw, "lidar_reference_ratio_checked", kind="field_campaign")
+    skipped = checked.strip().lower().startswith("no")
     if skipped:  # accepted knowingly when the campaign was made (field from-sta --skip-ratio-check)
         log.warning("%s: median lidar_wind_speed / reference_wind_speed ratio %.3f is outside [%g, %g]; "
                     "accepted: the file says the ratio check was skipped (%s)", source, ratio, lo, hi,
-                    raw.attrs["lidar_reference_ratio_checked"])
+                    checked)
         return
     units = {name: raw[name].attrs.get("units", "no units") for name in MEASURED}
     raise InputError(

@@ -9,7 +9,6 @@ candidate scores.  The page embeds bokeh's JavaScript, so it opens without netwo
 from __future__ import annotations
 
 import html
-import json
 import os
 from pathlib import Path
 
@@ -17,12 +16,13 @@ import numpy as np
 import xarray as xr
 
 from lidarcal.htmlpage import COLORS, grid, legend_outside, offline_html, plot, write_text
+from lidarcal.readback import read_attr
 
 __all__ = ["write_report", "report_layout"]
 
 
 def _header(ds: xr.Dataset) -> str:
-    js = json.loads(ds.attrs["diagnosis_json"])
+    js = read_attr(ds, "diagnosis_json", kind="diagnosis")
     rows = "".join(
         f"<tr><td>{html.escape(c['effect'])}</td><td>{c['score']:.1f}</td></tr>"
         for c in js["candidates"] if c["score"] is not None)

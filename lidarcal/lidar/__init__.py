@@ -4,7 +4,8 @@ Public API (see ``docs/contracts.md``, "The virtual lidar"):
 
 * :class:`LidarModel` — frozen, JSON-serialisable configuration (``ideal``, ``from_artefacts``,
   ``from_attrs``, ``to_dict``, ``from_dict``); :data:`LIDAR_ATTRIBUTES` and
-  :func:`lidar_attributes` read a conditions file's ``lidar_*`` attributes;
+  :func:`lidar_attributes` (:mod:`lidarcal.lidar.attributes`) read a conditions file's ``lidar_*``
+  attributes, declared in ``schemas/conditions.yaml``;
 * :class:`NoiseTable` (:mod:`lidarcal.lidar.noise`) — the bench cube's LOS bias, std and measured
   residuals per (CNR, velocity) bin, as the simulation draws from them;
 * :mod:`lidarcal.lidar.bad_estimates` — bad estimates as a property of CNR: the fitted rate

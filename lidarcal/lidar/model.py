@@ -34,6 +34,7 @@ import xarray as xr
 
 from lidarcal.errors import InputError, MissingVariableError
 from lidarcal.io import source_name
+from lidarcal.lidar.attributes import LIDAR_ATTRIBUTES, LIDAR_DEFAULTS, lidar_attributes, lidar_cnr_threshold
 from lidarcal.lidar.bad_estimates import BadEstimates
 from lidarcal.lidar.noise import (
     LOS_NOISE_MODELS,
@@ -52,7 +53,8 @@ from lidarcal.turbulence.kernels import COHERENCE_DECAY, L_C, LAMBDA_1, SIGMA_RA
 
 __all__ = ["LidarModel", "DEFAULT_CNR_THRESHOLD", "flow_distortion_factor", "direction_spread",
            "RwfProfileDigest",
-           "rwf_profile_digest", "REFERENCE_TURBULENCE", "fit_bad_estimates", "lidar_cnr_threshold"]
+           "rwf_profile_digest", "REFERENCE_TURBULENCE", "fit_bad_estimates", "lidar_cnr_threshold",
+           "LIDAR_ATTRIBUTES", "lidar_attributes"]
 
 log = logging.getLogger(__name__)
 
@@ -63,8 +65,8 @@ _LEGACY_AMPLITUDES = {"deterministic": "pinned_uvw", "rayleigh": "free"}
 #: Readings of Eq. 5's p: the average it multiplies (see :func:`lidarcal.lidar.wfr.hybrid_speed`).
 HYBRID_CONVENTIONS = ("scalar", "vector")
 
-#: Full width at half maximum (m) of the ideal lidar's Gaussian RWF.
-DEFAULT_RWF_FWHM = 30.0
+#: Full width at half maximum (m) of the ideal lidar's Gaussian RWF (``schemas/conditions.yaml``).
+DEFAULT_RWF_FWHM = LIDAR_DEFAULTS["lidar_rwf_fwhm"]
 #: Gauss quadrature nodes per beam.
 DEFAULT_RWF_NODES = 5
 
@@ -77,14 +79,17 @@ DEFAULT_CNR_THRESHOLD = -23.0
 class LidarModel:
     """Configuration of the virtual DBS lidar (see module docstring for conventions)."""
 
-    cone_angle: float = 28.0  #: nominal cone angle from vertical (degree)
+    #: nominal cone angle from vertical (degree); this and the other ``lidar_*`` defaults are declared
+    #: in ``schemas/conditions.yaml`` (:data:`~lidarcal.lidar.attributes.LIDAR_DEFAULTS`)
+    cone_angle: float = LIDAR_DEFAULTS["lidar_cone_angle"]
     azimuths: tuple[float, ...] = (0.0, 90.0, 180.0, 270.0)  #: beam azimuths (degree)
-    beam_period: float = 1.0  #: seconds per LOS (vertical beam ignored)
-    hybrid_weight: float = 2.0 / 3.0  #: p: V = p V_scalar + (1 - p) V_vector
+    beam_period: float = LIDAR_DEFAULTS["lidar_beam_period"]  #: seconds per LOS (vertical beam ignored)
+    hybrid_weight: float = LIDAR_DEFAULTS["lidar_hybrid_weight"]  #: p: V = p V_scalar + (1 - p) V_vector
     hybrid_convention: str = "scalar"  #: which Eq. 5 average p multiplies: "scalar" or "vector"
     rwf_offsets: tuple[float, ...] = tuple(gauss_hermite_rwf(DEFAULT_RWF_FWHM, DEFAULT_RWF_NODES)[0].tolist())
     rwf_weights: tuple[float, ...] = tuple(gauss_hermite_rwf(DEFAULT_RWF_FWHM, DEFAULT_RWF_NODES)[1].tolist())
-    los_noise_std: float = 0.1  #: ideal Gaussian LOS noise (m s-1), used when no table
+    #: ideal Gaussian LOS noise (m s-1), used when no table
+    los_noise_std: float = LIDAR_DEFAULTS["lidar_los_noise_std"]
     noise_table: NoiseTable | None = None  #: bench cube (overrides ``los_noise_std``)
     availability: float = 1.0  #: probability that a LOS sample is kept
     cnr_threshold: float | None = None  #: CNR filter (dB): periods below it are unavailable
@@ -570,65 +575,3 @@ def flow_distortion_factor(direction: Any, centre: float, width: float, deficit:
     s = np.where(spread > 0, spread, 1.0)
     smooth = ndtr((0.5 * width - delta) / s) - ndtr((-0.5 * width - delta) / s)
     return 1.0 - deficit * np.where(spread > 0, smooth, hard)
-
-
-_FIELD_DEFAULTS = {f.name: f.default for f in dataclasses.fields(LidarModel)}
-
-#: Optional global attributes of a ``conditions`` / ``field_campaign`` file giving the lidar's
-#: nominal configuration: ``name: (default, meaning, lower bound, upper bound, zero allowed)``.
-#: The defaults are :class:`LidarModel`'s own.
-LIDAR_ATTRIBUTES: dict[str, tuple[float, str, float, float, bool]] = {
-    "lidar_cone_angle": (_FIELD_DEFAULTS["cone_angle"], "cone angle from vertical (degree)", 0.0, 90.0,
-                         False),
-    "lidar_hybrid_weight": (_FIELD_DEFAULTS["hybrid_weight"], "hybrid weight p", 0.0, 1.0, True),
-    "lidar_rwf_fwhm": (DEFAULT_RWF_FWHM, "Gaussian RWF full width at half maximum (m)", 0.0, 1000.0, False),
-    "lidar_los_noise_std": (_FIELD_DEFAULTS["los_noise_std"], "LOS noise standard deviation (m s-1)", 0.0,
-                            10.0, True),
-    "lidar_beam_period": (_FIELD_DEFAULTS["beam_period"], "time per LOS (s)", 0.0, 60.0, False),
-}
-
-
-def lidar_attributes(ds: xr.Dataset, *, source: str | None = None) -> dict[str, float]:
-    """Return the ``lidar_*`` configuration in ``ds``'s global attributes, defaults filled in.
-
-    Raises :class:`~lidarcal.errors.InputError` naming the file and attribute when a value is
-    not a number or outside its range.
-    """
-    source = source or source_name(ds)
-    out = {}
-    for name, (default, meaning, lo, hi, zero_ok) in LIDAR_ATTRIBUTES.items():
-        raw = ds.attrs.get(name, default)
-        try:
-            value = float(np.asarray(raw).item())
-        except (TypeError, ValueError):
-            raise InputError(
-                f"{source}: global attribute {name!r} ({meaning}) is {raw!r}; expected a number"
-            ) from None
-        if not np.isfinite(value) or value > hi or value < lo or (value == lo and not zero_ok):
-            raise InputError(
-                f"{source}: global attribute {name!r} ({meaning}) is {value!r}; expected a value in "
-                f"{'[' if zero_ok else '('}{lo:g}, {hi:g}]"
-            )
-        out[name] = value
-    return out
-
-
-def lidar_cnr_threshold(ds: xr.Dataset, *, source: str | None = None) -> float | None:
-    """Return the CNR filter (dB) ``ds``'s ``lidar_cnr_threshold`` attribute gives, or None.
-
-    ``lidarcal conditions from-sta`` and ``field from-sta`` write the ``.sta`` header's
-    ``CNRThreshold`` there (``"not given"`` when the header has none, which counts as absent).
-    A value that is neither a finite number in [-60, 20] dB nor ``"not given"`` is an
-    :class:`~lidarcal.errors.InputError` naming the file.
-    """
-    raw = ds.attrs.get("lidar_cnr_threshold")
-    if raw is None or (isinstance(raw, str) and raw.strip().lower() == "not given"):
-        return None
-    try:
-        value = float(np.asarray(raw).item())
-    except (TypeError, ValueError):
-        value = np.nan
-    if not (np.isfinite(value) and -60.0 <= value <= 20.0):
-        raise InputError(f"{source or source_name(ds)}: global attribute 'lidar_cnr_threshold' (the lidar's "
-                         f"CNR filter, dB) is {raw!r}; expected a number in [-60, 20] or 'not given'")
-    return value

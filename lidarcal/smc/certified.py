@@ -28,6 +28,7 @@ from lidarcal.certificate.seal import require_valid_seal
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, read_image
 from lidarcal.lidar import LidarModel
+from lidarcal.readback import read_attr
 
 __all__ = ["Certified", "read_certified", "flag_meanings"]
 
@@ -57,7 +58,8 @@ class Certified:
     @property
     def serial(self) -> str | None:
         """The calibrated item's serial number (``item_serial_number``, else ``lidar_serial``)."""
-        return self.attrs.get("item_serial_number") or self.attrs.get("lidar_serial")
+        return (read_attr(self.attrs, "item_serial_number", kind="certificate")
+                or read_attr(self.attrs, "lidar_serial", kind="certificate"))
 
     @property
     def status(self) -> str:
@@ -160,10 +162,10 @@ def read_certified(path: str | os.PathLike, *, public_key: str | os.PathLike | N
     image = read_image(path, "certificate file")
     report = require_valid_seal(path, public_key=public_key, image=image)
     cert = open_artefact(path, "certificate", image=image)
-    if cert.attrs.get("lidarcal_artefact") != "certificate":
+    if read_attr(cert, "lidarcal_artefact") != "certificate":
         raise InputError(
             f"{path}: not a lidarcal certificate (global attribute 'lidarcal_artefact' is "
-            f"{cert.attrs.get('lidarcal_artefact')!r})"
+            f"{read_attr(cert, 'lidarcal_artefact')!r})"
         )
     names = {c["name"] for c in components(cert)}
     budget = extract_component(cert, "budget").load()
@@ -171,7 +173,8 @@ def read_certified(path: str | os.PathLike, *, public_key: str | os.PathLike | N
     sens = {}
     for name in sorted(n for n in names if n.startswith("sensitivity_")):
         ds = extract_component(cert, name).load()
-        sens[str(ds.attrs.get("environmental_variable", name[len("sensitivity_") :]))] = ds
+        var = read_attr(ds, "environmental_variable", kind="sensitivity", default=name[len("sensitivity_") :])
+        sens[var] = ds
     parts = {
         role: extract_component(cert, role).load() if role in names else None
         for role in ("terms", "cube", "rwf")

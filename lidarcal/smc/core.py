@@ -46,6 +46,7 @@ from lidarcal.conditions.stafile import CONE_ANGLE_TOLERANCE
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import lidar_serial
+from lidarcal.readback import read_attr
 from lidarcal.smc.certified import Certified, read_certified
 from lidarcal.smc.montecarlo import MonteCarloRoute, monte_carlo_route
 from lidarcal.smc.routes import IecRoute, calibration_part, iec_route, table_edges
@@ -125,14 +126,15 @@ def _from_conditions(cert: Certified, path: str | os.PathLike) -> tuple[xr.Datas
     raw = open_artefact(path)
     name = source_name(path)
     _serial_check(cert, lidar_serial(raw.attrs), f"{name}: global attribute 'lidar_serial'")
-    if "lidar_cone_angle" not in raw.attrs:
+    cone = read_attr(raw, "lidar_cone_angle", kind="conditions", default=None, source=name)
+    if cone is None:
         raise InputError(
             f"{name}: global attribute 'lidar_cone_angle' is missing; expected the campaign lidar's "
             f"cone angle ({cert.cone_angle:g} degree, the certificate's) to check the configuration"
         )
-    _cone_check(cert, float(raw.attrs["lidar_cone_angle"]), f"{name}: global attribute 'lidar_cone_angle'")
-    if "lidar_hybrid_weight" in raw.attrs and cert.hybrid_weight is not None:
-        p = float(raw.attrs["lidar_hybrid_weight"])
+    _cone_check(cert, cone, f"{name}: global attribute 'lidar_cone_angle'")
+    p = read_attr(raw, "lidar_hybrid_weight", kind="conditions", default=None, source=name)
+    if p is not None and cert.hybrid_weight is not None:
         if abs(p - cert.hybrid_weight) > 1e-6:
             raise InputError(
                 f"{name}: global attribute 'lidar_hybrid_weight': expected {cert.hybrid_weight:.6g} "
@@ -313,7 +315,8 @@ def smc(
     iec = iec_route(cert, ds, height_index)
     mc, note = None, "not run (monte_carlo=False, --no-monte-carlo)"
     replicas = (
-        max(4, int(cert.attrs.get("monte_carlo_replicas", 4))) if max_replicas is None else int(max_replicas)
+        max(4, read_attr(cert.attrs, "monte_carlo_replicas", kind="certificate")) if max_replicas is None
+        else int(max_replicas)
     )
     lacking = [cert.missing[k] for k in ("lidar_model", "terms") if k in cert.missing]
     if monte_carlo and lacking:  # an older certificate: say what it lacks, quote the 50-2 route
@@ -333,11 +336,10 @@ def smc(
             covered=cov,
             lookup_edges=table_edges(cert.budget, speed),
             rule=CertificationRule(
-                certified_range=tuple(
-                    np.asarray(cert.budget.attrs.get("certified_range_m_s", (4.0, 16.0)), float)
-                ),
-                significant_digits=int(cert.attrs.get("monte_carlo_significant_digits", 2)),
-                coverage_factor=float(cert.budget.attrs.get("coverage_factor", 2.0)),
+                certified_range=read_attr(cert.budget, "certified_range_m_s", kind="uncertainty_budget"),
+                significant_digits=read_attr(cert.attrs, "monte_carlo_significant_digits",
+                                             kind="certificate"),
+                coverage_factor=read_attr(cert.budget, "coverage_factor", kind="uncertainty_budget"),
             ),
             max_replicas=replicas,
             base_seed=int(base_seed),

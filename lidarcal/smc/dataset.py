@@ -23,6 +23,7 @@ from lidarcal.conditions.variables import CONDITION_NAMES
 from lidarcal.errors import InputError
 from lidarcal.io import open_artefact, source_name
 from lidarcal.provenance import stamp
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 from lidarcal.smc.certified import flag_meanings
 from lidarcal.smc.core import Campaign
@@ -314,7 +315,7 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
     route = "monte_carlo" if c.monte_carlo is not None else "iec"
     speed = cond["wind_speed"].values
     edges = table_edges(cert.budget, speed)
-    k = float(cert.budget.attrs.get("coverage_factor", 2.0))
+    k = read_attr(cert.budget, "coverage_factor", kind="uncertainty_budget")
     cflags = flag_meanings(cert.budget["bin_flag"])
     low, high, outside, env_names = envelope(cert, cond, c.height_index)
     sources = {**_DESCRIPTION, **{t.name: f"user term ({t.source})" for t in c.user_terms}}
@@ -425,15 +426,16 @@ def _stamped(ds: xr.Dataset, c: Campaign, route: str, call: str | None) -> xr.Da
             else f"the certificate's status is {cert.status!r}"
         ),
         "certificate_file": cert.path.name,
-        "certificate_sha256": cert.attrs.get("lidarcal_source_sha256", ""),
+        "certificate_sha256": read_attr(cert.attrs, "lidarcal_source_sha256", kind="certificate", default=""),
         "certificate_id": str(cert.attrs.get("certificate_id", cert.attrs.get("id", "not stated"))),
         "certificate_seal": cert.seal,
         "lidar_serial": str(cert.serial),
         "environmental_route": route,
         "monte_carlo_route": c.monte_carlo_note,
         "iec_route": c.iec.note,
-        "lidar_cone_angle": float(cond.attrs.get("lidar_cone_angle", cert.cone_angle)),
-        "lidar_cone_angle_source": str(cond.attrs.get("lidar_cone_angle_source", "conditions file")),
+        "lidar_cone_angle": read_attr(cond, "lidar_cone_angle", kind="conditions",
+                                      default=float(cert.cone_angle)),
+        "lidar_cone_angle_source": read_attr(cond, "lidar_cone_angle_source", kind="conditions"),
         "user_terms": json.dumps([t.describe() for t in c.user_terms]),
         "heights_not_covered_m": json.dumps(
             [float(z) for z, i in zip(ds["height"].values, c.height_index, strict=True) if i < 0]
@@ -443,15 +445,17 @@ def _stamped(ds: xr.Dataset, c: Campaign, route: str, call: str | None) -> xr.Da
         "campaign_files": cond.attrs.get(
             "sta_files", json.dumps([str(p.name) for r, p in c.inputs.items() if r != "certificate"])
         ),
-        "lidar_site": str(cond.attrs.get("lidar_site", "not given")),
+        "lidar_site": read_attr(cond, "lidar_site", kind="conditions"),
         "lidarcal_smc_settings": json.dumps(c.settings, sort_keys=True),
         "monte_carlo_periods_per_bin": str(c.settings.get("monte_carlo_periods_per_bin", "all"))
         if c.monte_carlo is not None else "not run",
         "measurand": MEASURAND,
-        "certificate_measurand": str(cert.attrs.get("measurand", "not stated (a certificate older than the "
-                                                                  "measurand statement)")),
-        "certificate_model_form": str(cert.attrs.get("model_form", "not stated: the certificate's budget has "
-                                                                    "no model_form contributor")),
+        "certificate_measurand": read_attr(cert.attrs, "measurand", kind="certificate",
+                                           default="not stated (a certificate older than the "
+                                                   "measurand statement)"),
+        "certificate_model_form": read_attr(cert.attrs, "model_form", kind="certificate",
+                                            default="not stated: the certificate's budget has no model_form "
+                                                    "contributor"),
     }
     title = f"Campaign wind-speed uncertainty of lidar {cert.serial} from certificate {cert.path.name}"
     summary = (
@@ -495,9 +499,9 @@ def binned(obj: xr.Dataset | str | os.PathLike) -> xr.Dataset:
     ``obj`` is the artefact or its file.
     """
     ds = open_artefact(obj, "smc") if isinstance(obj, str | os.PathLike) else obj
-    if ds.attrs.get("lidarcal_artefact") != "smc":
+    if read_attr(ds, "lidarcal_artefact") != "smc":
         raise InputError(
-            f"{source_name(ds)}: expected an 'smc' artefact; found {ds.attrs.get('lidarcal_artefact')!r}"
+            f"{source_name(ds)}: expected an 'smc' artefact; found {read_attr(ds, 'lidarcal_artefact')!r}"
         )
     names = [n for n in ds.data_vars if str(n).startswith("bin_")]
     out = ds[names].drop_vars([v for v in ("time", "time_bounds") if v in ds[names].coords], errors="ignore")
@@ -563,9 +567,9 @@ def binned_table(obj: xr.Dataset | str | os.PathLike):
     table = pd.DataFrame(rows)
     table.attrs.update(
         {
-            "status": str(b.attrs.get("calibration_status")),
-            "demonstration": b.attrs.get("calibration_status") == DEMONSTRATION,
-            "route": str(b.attrs.get("environmental_route")),
+            "status": str(read_attr(b, "calibration_status", kind="smc")),
+            "demonstration": read_attr(b, "calibration_status", kind="smc") == DEMONSTRATION,
+            "route": str(read_attr(b, "environmental_route", kind="smc")),
             "title": str(b.attrs.get("title", "")),
         }
     )

@@ -57,6 +57,7 @@ from lidarcal.campaign.chunks import period_keys
 from lidarcal.campaign.run import simulate_replicas
 from lidarcal.campaign.settings import Execution
 from lidarcal.cf import height_coord, time_coord
+from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 from lidarcal.smc import subsample
 from lidarcal.smc.kernels import (
@@ -121,7 +122,7 @@ def with_carried(bud: xr.Dataset, carried: xr.Dataset | None) -> xr.Dataset:
     mean_ref = b["mean_reference_wind_speed"].values
     contribution = np.concatenate([b["contribution"].values, rel * mean_ref[..., None] / 100.0], axis=-1)
     combined = np.sqrt(np.sum(contribution**2, axis=-1))
-    k = float(b.attrs.get("coverage_factor", 2.0))
+    k = read_attr(b, "coverage_factor", kind="uncertainty_budget")
     with np.errstate(invalid="ignore", divide="ignore"):
         pct = 100.0 / mean_ref
     out = b.drop_vars(["contribution", "relative_contribution"]).drop_dims("contributor")

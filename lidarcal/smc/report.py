@@ -30,6 +30,7 @@ import xarray as xr
 from lidarcal.certificate.document.figures import A4, FONT, STYLE
 from lidarcal.htmlpage import html_table, write_text
 from lidarcal.io import atomic_path, check_writable
+from lidarcal.readback import read_attr
 from lidarcal.smc.dataset import binned
 from lidarcal.smc.routes import COVERAGE, ENVELOPE
 
@@ -296,7 +297,7 @@ def _png(fig) -> str:
 
 
 def _html(ds: xr.Dataset, figs: dict[str, Any]) -> str:
-    demo = ds.attrs.get("calibration_status") == "demonstration"
+    demo = read_attr(ds, "calibration_status", kind="smc") == "demonstration"
     banner = (
         '<p class="status"><strong>DEMONSTRATION result: the certificate is a demonstration, not a '
         "calibration of a real instrument.</strong></p>\n"
@@ -382,7 +383,7 @@ def write_report(ds: xr.Dataset, path: str | os.PathLike, *, overwrite: bool = F
                 metadata={
                     "Title": str(ds.attrs.get("title", "")),
                     "Creator": "lidarcal",
-                    "Subject": f"status: {ds.attrs.get('calibration_status')}",
+                    "Subject": f"status: {read_attr(ds, 'calibration_status', kind='smc')}",
                 },
             ) as out,
         ):

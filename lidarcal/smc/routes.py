@@ -24,6 +24,7 @@ import xarray as xr
 
 from lidarcal.analysis.kernels import centred_edges
 from lidarcal.errors import InputError
+from lidarcal.readback import read_attr
 from lidarcal.smc.certified import Certified, flag_meanings
 from lidarcal.smc.kernels import bin_index, binned_quantiles, iec_deviations, quadrature
 
@@ -161,7 +162,8 @@ def iec_route(cert: Certified, conditions: xr.Dataset, height_index: np.ndarray)
     units, slope_units = [], []
     for k, v in enumerate(variables):
         sens = cert.sensitivities[v].transpose("height", ...)
-        found = sens.attrs.get("environmental_variable_units", sens["bin"].attrs.get("units"))
+        found = read_attr(sens, "environmental_variable_units", kind="sensitivity",
+                          default=sens["bin"].attrs.get("units"))
         want = conditions[v].attrs.get("units")
         if found != want:
             raise InputError(

@@ -67,6 +67,7 @@ from lidarcal.certificate.seal import require_valid_seal, seal_problems
 from lidarcal.errors import InputError, SealError, ValidationError
 from lidarcal.io import atomic_path, check_writable, open_artefact, read_image
 from lidarcal.provenance import check_text
+from lidarcal.readback import read_attr
 from lidarcal.units import si_unit
 
 __all__ = ["DCC_NS", "SI_NS", "DCC_SCHEMA_VERSION", "SI_SCHEMA_URL", "dcc_tree",
@@ -128,7 +129,7 @@ _MONTE_CARLO_LISTS = (
 def _budget_results(root: etree._Element, cert: xr.Dataset, attrs: Mapping[str, Any], digest: str,
                     file_name: str) -> None:
     budget = extract_component(cert, "budget").load()
-    k = float(budget.attrs.get("coverage_factor", 2.0))
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
     flags = _flags(budget)
     result_el = _sub(root, _d("measurementResult"), refType="lidarcal_windSpeedUncertainty")
     _text(result_el, "name", "Expanded uncertainty of the lidar's 10-minute mean horizontal wind speed")
@@ -251,7 +252,8 @@ def _sensitivity_results(root: etree._Element, cert: xr.Dataset) -> None:
         if not comp["name"].startswith("sensitivity_"):
             continue
         sens = extract_component(cert, comp["name"]).load()
-        var = sens.attrs.get("environmental_variable", comp["name"][len("sensitivity_"):])
+        var = read_attr(sens, "environmental_variable", kind="sensitivity",
+                        default=comp["name"][len("sensitivity_"):])
         sig = np.atleast_1d(sens["significant"].values).astype(bool) & np.isfinite(np.atleast_1d(
             sens["slope"].values))
         if not sig.any():
@@ -293,9 +295,9 @@ def dcc_attributes(cert: xr.Dataset, *, admin: Mapping[str, str] | None = None,
     InputError
         Not a certificate, ``admin`` contradicting it, or an issued one without a country.
     """
-    if cert.attrs.get("lidarcal_artefact") != "certificate":
+    if read_attr(cert, "lidarcal_artefact") != "certificate":
         raise InputError(f"{certificate_file}: not a lidarcal certificate (lidarcal_artefact "
-                         f"{cert.attrs.get('lidarcal_artefact')!r})")
+                         f"{read_attr(cert, 'lidarcal_artefact')!r})")
     attrs = dict(cert.attrs)
     for key, value in attrs.items():  # a certificate sealed before control characters were refused
         if isinstance(value, str):

@@ -8,7 +8,6 @@ customer, statements and the method text.
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import re
 from collections.abc import Iterable, Mapping
 from typing import Any
@@ -22,6 +21,7 @@ from lidarcal.certificate.admin import (
 )
 from lidarcal.certificate.measurand import MEASURAND
 from lidarcal.certificate.results import HEADLINE_LABEL
+from lidarcal.readback import read_attr
 
 DCC_NS = "https://ptb.de/dcc"
 SI_NS = "https://ptb.de/si"
@@ -189,7 +189,8 @@ def _item(admin: etree._Element, attrs: Mapping[str, Any]) -> None:
     ids = _sub(item, _d("identifications"))
     ident = _sub(ids, _d("identification"), refType="basic_serialNumber")
     _sub(ident, _d("issuer"), "manufacturer")
-    _sub(ident, _d("value"), attrs.get("item_serial_number") or attrs.get("lidar_serial") or _NOT_STATED)
+    _sub(ident, _d("value"), (read_attr(attrs, "item_serial_number", kind="certificate")
+                                   or read_attr(attrs, "lidar_serial", kind="certificate") or _NOT_STATED))
     _text(ident, "name", "Serial number")
 
 
@@ -211,7 +212,7 @@ def _statements(admin: etree._Element, attrs: Mapping[str, Any], digest: str, fi
         head = _sub(statements, _d("statement"), refType="lidarcal_headline")
         _text(head, "declaration", f"{HEADLINE_LABEL}: {attrs['expanded_uncertainty_headline']}")
     measurand = _sub(statements, _d("statement"), refType="lidarcal_measurand")  # docs/certificate.md
-    _text(measurand, "declaration", str(attrs.get("measurand") or MEASURAND))
+    _text(measurand, "declaration", str(read_attr(attrs, "measurand", kind="certificate") or MEASURAND))
 
 
 def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:
@@ -233,15 +234,17 @@ def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:
 
     equipment = _sub(_sub(parent, _d("measuringEquipments")), _d("measuringEquipment"),
                      refType="lidarcal_fiberOpticBench")
-    _text(equipment, "name", f"Fiber-optic lidar calibration bench {attrs.get('bench_id') or ''}".strip())
+    bench = read_attr(attrs, "bench_id", kind="certificate")
+    _text(equipment, "name", f"Fiber-optic lidar calibration bench {bench or ''}".strip())
     lines = [f"bench run {attrs.get('bench_run_id') or _NOT_STATED}",
              f"operator {attrs.get('bench_operator') or _NOT_STATED}",
              f"from {attrs.get('bench_run_start') or attrs.get('bench_time_coverage_start') or _NOT_STATED} "
              f"to {attrs.get('bench_run_end') or attrs.get('bench_time_coverage_end') or _NOT_STATED}",
-             "RF driver calibration: " + str(attrs.get("rf_driver_calibration_reference") or _NOT_STATED)]
+             "RF driver calibration: "
+             + str(read_attr(attrs, "rf_driver_calibration_reference", kind="certificate") or _NOT_STATED)]
     _text(equipment, "description", *lines)
     ids = _sub(equipment, _d("identifications"))
-    for ref, value, name in (("lidarcal_benchId", attrs.get("bench_id"), "Bench id"),
+    for ref, value, name in (("lidarcal_benchId", bench, "Bench id"),
                              ("lidarcal_benchRunId", attrs.get("bench_run_id"), "Bench run")):
         ident = _sub(ids, _d("identification"), refType=ref)
         _sub(ident, _d("issuer"), "calibrationLaboratory")
@@ -259,8 +262,10 @@ def _methods(parent: etree._Element, attrs: Mapping[str, Any]) -> None:
 
 def _records_text(attrs: Mapping[str, Any]) -> str:
     try:
-        records = json.loads(attrs["lidarcal_records_summary"])
-    except (KeyError, TypeError, ValueError):
+        records = read_attr(attrs, "lidarcal_records_summary", kind="certificate")  # InputError: a ValueError
+    except ValueError:
+        records = None
+    if not isinstance(records, dict):
         return "Simulated periods: not stated in the certificate."
     heights = ", ".join(f"{float(z):g}" for z in records.get("heights_m", []))
     return (f"{records.get('periods', _NOT_STATED)} simulated 10-minute periods"

@@ -29,6 +29,7 @@ from lidarcal.certificate.results import (
     not_settled_items,
 )
 from lidarcal.certificate.seal import INTEGRITY_ATTR, SIGNATURE_ATTR, SIGNATURE_KEY_ATTR
+from lidarcal.readback import read_attr
 
 __all__ = [
     "NOT_STATED",
@@ -112,7 +113,7 @@ def signature_status(attrs: Mapping[str, Any], seal: str | None = None) -> str:
     ``seal`` (:func:`seal_statement`) stands for a certificate not yet written, whose seal
     and signature are added when it is.  A certificate read from a file is named by it.
     """
-    name = attrs.get("lidarcal_source_file")
+    name = read_attr(attrs, "lidarcal_source_file")
     if SIGNATURE_ATTR in attrs:
         return seal_statement(str(attrs.get(SIGNATURE_KEY_ATTR, NOT_STATED)), name)
     if INTEGRITY_ATTR in attrs:
@@ -135,8 +136,8 @@ def certificate_facts(
             [
                 ("Calibration status", stated(attrs, "calibration_status")),
                 *(
-                    [("Why", str(attrs["calibration_status_reason"]))]
-                    if attrs.get("calibration_status_reason")
+                    [("Why", reason)]
+                    if (reason := read_attr(attrs, "calibration_status_reason", kind="certificate"))
                     else []
                 ),
                 ("Certificate id", certificate_id(attrs)),
@@ -204,7 +205,7 @@ def not_settled_text(budget: xr.Dataset) -> str:
     items = not_settled_items(budget)
     if not items:
         return ""
-    k = float(budget.attrs.get("coverage_factor", 2.0))
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
     return (f"Not certified, not settled (U for k = {k:g}, with the largest numerical tolerance of the bin's "
             "values): " + "; ".join(items) + ".")
 
@@ -242,7 +243,7 @@ def extent_text(budget: xr.Dataset, g: Mapping[str, Any] | None = None) -> str |
     shown = certified_rows(g)
     if not shown.size:
         return None
-    lo, hi = (float(v) for v in np.asarray(budget.attrs.get("certified_range_m_s", DEFAULT_CERTIFIED_RANGE)))
+    lo, hi = read_attr(budget, "certified_range_m_s", kind="uncertainty_budget")
     ws = g["wind_speed"]
     step = float(np.median(np.diff(ws))) if ws.size > 1 else 0.0
     first, last = float(ws[shown[0]]), float(ws[shown[-1]])
@@ -255,7 +256,8 @@ def extent_text(budget: xr.Dataset, g: Mapping[str, Any] | None = None) -> str |
     found = {meanings.get(int(f)) for f in np.asarray(g["flag"])[beyond].ravel()}
     thin = found <= {"too_few_periods", "empty"}
     sides = " and ".join([f"below {fmt(first)} m/s"] * below + [f"above {fmt(last)} m/s"] * above)
-    why = (f"no bin has the {int(budget.attrs['min_periods'])} distinct periods a certified bin needs, at "
+    why = (f"no bin has the {read_attr(budget, 'min_periods', kind='uncertainty_budget')} distinct periods "
+           "a certified bin needs, at "
            "any height" if thin and "min_periods" in budget.attrs else "no bin is certified at any height")
     return (f"The certified values span {fmt(first)} to {fmt(last)} m/s of the {fmt(lo)} to {fmt(hi)} m/s "
             f"range: {sides} {why}.")

@@ -37,6 +37,7 @@ from lidarcal.certificate.document.facts import (
     fmt,
     units_suffix,
 )
+from lidarcal.readback import read_attr
 
 __all__ = [
     "BudgetData",
@@ -68,7 +69,7 @@ def _step(ws: np.ndarray) -> float:
 
 
 def _variable_name(ds: xr.Dataset) -> tuple[str, str]:
-    var = str(ds.attrs.get("environmental_variable", "variable"))
+    var = read_attr(ds, "environmental_variable", kind="sensitivity", default="variable")
     return var, VARIABLE_NAMES.get(var, var.replace("_", " "))
 
 
@@ -118,8 +119,8 @@ def budget_data(budget: xr.Dataset, wind_speeds: tuple[float, float] = DEFAULT_C
     finite = np.isfinite(val)
     step = _step(ws)
     return BudgetData(
-        k=float(budget.attrs.get("coverage_factor", 2.0)),
-        approach=str(budget.attrs.get("approach", "")),
+        k=read_attr(budget, "coverage_factor", kind="uncertainty_budget"),
+        approach=read_attr(budget, "approach", kind="uncertainty_budget", default=""),
         wind_speed=ws,
         height=g["height"],
         step=step,

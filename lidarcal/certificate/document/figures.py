@@ -12,7 +12,6 @@ are the same drawings, in the same style (:data:`STYLE`).
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any
 
@@ -32,6 +31,7 @@ from lidarcal.certificate.document.figure_data import (
     significance_data,
 )
 from lidarcal.certificate.layout import components, extract_component
+from lidarcal.readback import read_attr
 
 __all__ = [
     "A4",
@@ -328,7 +328,8 @@ def figure_names(parts: Mapping[str, Any]) -> list[str]:
         names += ["budget", "budget_contributors"]
     sens = parts.get("sensitivities") or []
     for ds in sens:
-        names.append(f"sensitivity_{ds.attrs.get('environmental_variable', 'variable')}")
+        var = read_attr(ds, "environmental_variable", kind="sensitivity", default="variable")
+        names.append(f"sensitivity_{var}")
     if sens:
         names.append("sensitivity_slopes")
     if parts.get("cube") is not None:
@@ -343,7 +344,8 @@ def draw(fig, name: str, parts: Mapping[str, Any]) -> None:
     if name.startswith("sensitivity_") and name != "sensitivity_slopes":
         var = name.removeprefix("sensitivity_")
         ds = next(
-            d for d in parts["sensitivities"] if d.attrs.get("environmental_variable", "variable") == var
+            d for d in parts["sensitivities"]
+            if read_attr(d, "environmental_variable", kind="sensitivity", default="variable") == var
         )
         draw_sensitivity(fig, ds)
     else:
@@ -359,7 +361,7 @@ def parts_of(cert: xr.Dataset) -> dict[str, Any]:
             parts["sensitivities"].append(extract_component(cert, name))
         elif name in ("budget", "cube", "rwf"):
             parts[name] = extract_component(cert, name)
-    summary = cert.attrs.get("lidarcal_records_summary")
+    summary = read_attr(cert, "lidarcal_records_summary", kind="certificate")
     if parts.get("cube") is not None and summary:
-        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], json.loads(summary))
+        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], summary)
     return parts

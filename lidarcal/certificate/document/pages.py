@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import contextlib
 import gc
-import json
 import logging
 import os
 import textwrap
@@ -51,6 +50,7 @@ from lidarcal.certificate.measurand import MEASURAND, model_form_summary
 from lidarcal.certificate.results import headline_text
 from lidarcal.certificate.seal import VerificationReport, invalid_seal_banner, require_valid_seal
 from lidarcal.io import atomic_path, check_writable
+from lidarcal.readback import read_attr
 
 __all__ = ["write_document", "gc_paused", "BOTTOM", "FOOTER_RULE"]
 
@@ -252,7 +252,7 @@ def _relative_cell(g: dict[str, Any], only_certified: bool) -> Callable[[int, in
 
 def _result_tables(budget: xr.Dataset) -> list[_Table]:
     """Page 1's certified result: U (%) with its tolerance, then U (m/s), on the certified bins."""
-    k = float(budget.attrs.get("coverage_factor", 2.0))
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
     g = certified_grid(budget)
     rows = certified_rows(g)
     tol = "; ± its numerical tolerance (Monte Carlo)" if g["tolerance"] is not None else ""
@@ -294,7 +294,7 @@ def _page_one(pages: _Pages, cert: xr.Dataset, budget: xr.Dataset | None, seal: 
     attrs = cert.attrs
     status = stated(attrs, "calibration_status")
     _title(fig, "Calibration certificate: pulsed Doppler wind lidar", stated(attrs, "title"))
-    reason = attrs.get("calibration_status_reason")
+    reason = read_attr(attrs, "calibration_status_reason", kind="certificate")
     banner = {
         "demonstration": (
             "DEMONSTRATION: not a calibration of a real instrument"
@@ -329,7 +329,7 @@ def _page_one(pages: _Pages, cert: xr.Dataset, budget: xr.Dataset | None, seal: 
 
 
 def _all_bins_pages(pages: _Pages, budget: xr.Dataset) -> None:
-    k = float(budget.attrs.get("coverage_factor", 2.0))
+    k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
     fig = pages.new()
     _title(
         fig,
@@ -384,8 +384,7 @@ def _provenance_pages(pages: _Pages, cert: xr.Dataset) -> None:
         "configuration and seeds are in the certificate's lidarcal_* attributes.",
     )
     rows: list[tuple[str, str, dict]] = [("Inputs", "", {"section": True})]
-    chain = cert.attrs.get("lidarcal_provenance_chain")
-    for item in json.loads(chain) if chain else []:
+    for item in read_attr(cert, "lidarcal_provenance_chain", kind="certificate") or []:
         rows.append((f"{item.get('role')}",
                      f"{item.get('file')} ({item.get('kind', '')}), SHA-256:\n{item.get('sha256')}", {}))
     rows.append(("Certificate", "", {"section": True}))

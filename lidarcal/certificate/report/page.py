@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import html
-import json
 import os
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
@@ -42,6 +41,7 @@ from lidarcal.certificate.results import headline_text
 from lidarcal.certificate.seal import invalid_seal_banner, require_valid_seal
 from lidarcal.htmlpage import html_table, offline_html, write_text
 from lidarcal.io import atomic_path, check_writable
+from lidarcal.readback import read_attr
 
 __all__ = ["write_report"]
 
@@ -52,7 +52,7 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None
     """Return the top of the page: status, headline, certified result, then the certificate's facts."""
     out = []
     if cert is not None:
-        status = cert.attrs.get("calibration_status", NOT_STATED)
+        status = read_attr(cert, "calibration_status", kind="certificate", default=NOT_STATED)
         cid = html.escape(certificate_id(cert.attrs))
         out.append(f'<p class="status status-{html.escape(str(status))}"><strong>Calibration status: '
                    f"{html.escape(str(status))}</strong> · certificate {cid}</p>")
@@ -66,7 +66,7 @@ def _header(cert: xr.Dataset | None, budget: xr.Dataset | None, seal: str | None
         for i in certified_rows(g):
             cells = [grid_cell(g, i, j) if g["certified"][i, j] else "–" for j in range(g["height"].size)]
             rows.append([fmt(g["wind_speed"][i]), *cells])
-        k = float(budget.attrs.get("coverage_factor", 2.0))
+        k = read_attr(budget, "coverage_factor", kind="uncertainty_budget")
         intervals = g["statement"] is not None and bool((g["certified"] & (g["statement"] == 1)).any())
         header = ["wind speed bin (m/s)", *[f"{fmt(h)} m" for h in g["height"]]]
         out.append(html_table(header, rows,
@@ -124,8 +124,7 @@ def _provenance(cert: xr.Dataset | None) -> str:
                        ("zero_distance_m", "Zero distance Zd (m)")):
         if key in cert.attrs:
             rows.append((label, fmt(cert.attrs[key]) if key.endswith("_m") else str(cert.attrs[key])))
-    chain = cert.attrs.get("lidarcal_provenance_chain")
-    for item in json.loads(chain) if chain else []:
+    for item in read_attr(cert, "lidarcal_provenance_chain", kind="certificate") or []:
         rows.append((f"Input: {item.get('role')}", f"{item.get('file')}  sha256 {item.get('sha256')}"))
     body = "\n".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>" for k, v in rows)
     return f'<div id="provenance"><h2>Inputs and provenance</h2>\n<table>\n{body}\n</table></div>'
@@ -188,9 +187,10 @@ def write_report(
     sens = list(sensitivities.values()) if isinstance(sensitivities, Mapping) else list(sensitivities)
     if sens:
         parts["sensitivities"] = sens
-    summary = certificate.attrs.get("lidarcal_records_summary") if certificate is not None else None
+    summary = (read_attr(certificate, "lidarcal_records_summary", kind="certificate")
+               if certificate is not None else None)
     if summary and parts.get("cube") is not None:
-        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], json.loads(summary))
+        parts["drawn_cnr"] = drawn_cnr_range(parts["cube"], summary)
     figs = report_figures(**parts)
     path = Path(path)
     pdf_path = path.with_suffix(".pdf") if pdf and certificate is not None else None

@@ -44,6 +44,7 @@ from lidarcal.certificate.document.figure_data import (
 )
 from lidarcal.errors import InputError
 from lidarcal.htmlpage import COLORS, html_table, legend_outside, plot
+from lidarcal.readback import read_attr
 
 __all__ = ["Figure", "report_figures"]
 
@@ -281,8 +282,8 @@ def _sensitivity_figure(ds: xr.Dataset) -> Figure:
 
 def _sensitivity_plots(sens: Iterable[xr.Dataset]) -> dict[str, Figure]:
     sens = list(sens)
-    out = {f"sensitivity_{ds.attrs.get('environmental_variable', 'variable')}": _sensitivity_figure(ds)
-           for ds in sens}
+    out = {f"sensitivity_{read_attr(ds, 'environmental_variable', kind='sensitivity', default='variable')}":
+           _sensitivity_figure(ds) for ds in sens}
     if out:
         def build() -> Any:
             from bokeh.models import Span
