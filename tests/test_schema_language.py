@@ -153,3 +153,30 @@ def test_an_expand_template_needs_every_placeholder_from_the_rows(toy_schemas, t
                                             "units": "1", "range": [0, 1]}])
     with pytest.raises(SchemaError, match="'fit_gain_g' is declared and also expanded"):
         schema.load_schema("toy")
+
+
+class _NoDuplicatesLoader(yaml.SafeLoader):
+    """A YAML loader that refuses a key given twice in one mapping (PyYAML keeps the last)."""
+
+
+def _no_duplicates(loader, node, deep=False):
+    keys = [loader.construct_object(k, deep=deep) for k, _ in node.value]
+    twice = sorted({k for k in keys if keys.count(k) > 1}, key=str)
+    if twice:
+        raise yaml.constructor.ConstructorError(None, None, f"key(s) {twice} given twice", node.start_mark)
+    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+
+_NoDuplicatesLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _no_duplicates)
+
+
+@pytest.mark.parametrize("path", SCHEMA_FILES, ids=lambda p: p.name)
+def test_no_schema_file_gives_a_key_twice(path):
+    # PyYAML silently keeps the last of two equal keys: a second `include:` would drop the first's
+    # entries without a word (it happened when two branches each added one to certificate.yaml).
+    yaml.load(path.read_text(), Loader=_NoDuplicatesLoader)
+
+
+def test_a_key_given_twice_is_caught():
+    with pytest.raises(yaml.constructor.ConstructorError, match="given twice"):
+        yaml.load("include: [a]\nvariables: {}\ninclude: [b]\n", Loader=_NoDuplicatesLoader)
