@@ -32,11 +32,9 @@ from typing import Any
 
 import numpy as np
 import xarray as xr
-import yaml
 
-from lidarcal.data import packaged_dir
 from lidarcal.errors import InputError, SchemaError
-from lidarcal.schema import check_schema_keys, list_kinds
+from lidarcal.schema import list_kinds, schema_file
 
 __all__ = ["read_attr", "declared_read_back", "read_back_names", "source_name", "UndeclaredAttribute"]
 
@@ -56,16 +54,10 @@ def _raw(kind: str) -> dict[str, Any]:
     A fragment has only ``kind``, ``description`` and ``read_back``.  Catalogue expansions are not
     needed here, so the read-back declarations load without the stage that registers them.
     """
-    path = packaged_dir("schemas") / f"{kind}.yaml"
-    if not path.is_file():
-        raise SchemaError(f"schema {kind}.yaml does not exist; kinds: {', '.join(list_kinds())}")
-    raw = yaml.safe_load(path.read_text()) or {}
-    if raw.get("kind") != kind:
-        raise SchemaError(f"schema {kind}.yaml declares kind {raw.get('kind')!r}")
+    raw = schema_file(kind, required=("kind",))
     if kind.startswith("shared/") and set(raw) - {"kind", "description", "read_back"}:
         raise SchemaError(f"schema fragment {kind}.yaml may only have kind, description and read_back; "
                           f"found {sorted(raw)}")
-    check_schema_keys(raw, f"{kind}.yaml")
     return raw
 
 

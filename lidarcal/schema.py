@@ -85,7 +85,8 @@ from lidarcal.errors import InputError, SchemaError, ValidationError
 from lidarcal.units import LOG_UNITS, parse_unit
 
 __all__ = ["load_schema", "declared_variables", "declared_spec", "list_kinds", "validate_dataset",
-           "output_attrs", "with_output_attrs", "check_schema_keys", "register_catalogue", "catalogue_owners",
+           "output_attrs", "with_output_attrs", "check_schema_keys", "schema_file", "register_catalogue",
+           "catalogue_owners",
            "COMMON_ATTRIBUTES", "WRITTEN_ATTRIBUTES", "READ_BACK_KEYS", "READ_BACK_TYPES"]
 
 #: Global attributes every artefact written by lidarcal must carry.
@@ -143,19 +144,30 @@ WRITTEN_ATTRIBUTES = frozenset({
 _LEADING_ATTRS = ("long_name", "units", "coverage_content_type", "standard_name")
 
 
-@functools.cache
-def _read_schema(kind: str) -> dict[str, Any]:
-    """Read the YAML of ``kind`` (``expand`` entries expanded, includes not resolved) and check it."""
+def schema_file(kind: str, required: tuple[str, ...] = ("kind", "description", "dims")) -> dict[str, Any]:
+    """Read ``schemas/<kind>.yaml`` as written: nothing expanded or included, every key checked.
+
+    Its ``required`` top-level keys must be present and the kind it declares must be ``kind``
+    (:func:`check_schema_keys` checks the rest); a ``shared/<name>`` fragment needs only ``kind``.
+    """
     path = _schema_dir() / f"{kind}.yaml"
     if not path.is_file():
         raise InputError(f"unknown artefact kind {kind!r}; known kinds: {', '.join(list_kinds())}")
-    schema = yaml.safe_load(path.read_text())
-    for key in ("kind", "description", "dims"):
+    schema = yaml.safe_load(path.read_text()) or {}
+    for key in required:
         if key not in schema:
             raise SchemaError(f"schema {path.name}: missing top-level key {key!r}")
     if schema["kind"] != kind:
         raise SchemaError(f"schema {path.name}: declares kind {schema['kind']!r}")
     check_schema_keys(schema, path.name)
+    return schema
+
+
+@functools.cache
+def _read_schema(kind: str) -> dict[str, Any]:
+    """Read the YAML of ``kind`` (``expand`` entries expanded, includes not resolved) and check it."""
+    path = _schema_dir() / f"{kind}.yaml"
+    schema = schema_file(kind)
     if schema.get("expand"):
         variables = dict(schema.get("variables") or {})
         for entry in schema["expand"]:
