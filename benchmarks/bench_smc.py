@@ -161,6 +161,13 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
+def _covered(path: Path) -> int:
+    """Period-heights the certificate covers, as the written ``smc`` artefact says."""
+    from lidarcal.io import open_artefact
+
+    return int(open_artefact(path, load=False).attrs["covered_periods"])
+
+
 def cpu_seconds() -> float:
     """CPU time (user + system) of this process and of its finished children (the pool's workers)."""
     own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -202,7 +209,7 @@ def case(args) -> None:
     mc = c.monte_carlo
     kids = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
     print(json.dumps({
-        "wall": t, "cpu": cpu, "cells": int(mc.trials.sum()), "simulated": int((mc.trials > 0).sum()),
+        "wall": t, "cpu": cpu, "cells": int(mc.count.sum()), "simulated": mc.simulated,
         "period_heights": int(c.conditions["wind_speed"].count()), "replicas": mc.replicas,
         "rss": peak_rss_mb(), "worker_rss": kids, "traced": traced,
         "load": os.getloadavg()[0],
@@ -292,7 +299,7 @@ def main() -> None:
                 f"50-2 route, {args.periods} periods x {len(heights)} heights: {t:7.1f} s wall, {cpu:7.1f} s "
                 f"CPU (target: seconds); traced peak {traced:.0f} MB, process peak RSS "
                 f"{peak_rss_mb():.0f} MB; "
-                f"{int((c.coverage == 0).sum())} of {cells} period-heights covered", flush=True
+                f"{_covered(d / 'smc-year-iec.nc')} of {cells} period-heights covered", flush=True
             )
         if "baseline" in parts:
             per_cell = baseline(args, d, cert, heights, common, cells)

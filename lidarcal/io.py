@@ -329,8 +329,21 @@ def write_artefact(
     path = check_writable(path, overwrite=overwrite)
     ds = _ready(ds, path, validate=validate)
     with atomic_path(path, overwrite=overwrite) as tmp:
-        ds.to_netcdf(tmp, format="NETCDF4", engine="netcdf4", encoding=_encoding(ds))
+        _to_netcdf(ds, tmp)
     return path
+
+
+def _to_netcdf(ds: xr.Dataset, tmp: str | os.PathLike) -> None:
+    """Write ``ds`` to netCDF-4 in this process.
+
+    A lazy variable (a dask array: ``smc``'s per-period values, one chunk per block of periods) is
+    computed chunk by chunk as it is written, on this process's synchronous scheduler: never on a
+    cluster the caller made dask's default, and holding one chunk at a time.
+    """
+    import dask  # deferred: light import of the writers
+
+    with dask.config.set(scheduler="synchronous"):
+        ds.to_netcdf(tmp, format="NETCDF4", engine="netcdf4", encoding=_encoding(ds))
 
 
 def write_into(ds: xr.Dataset, tmp: str | os.PathLike, *, target: str | os.PathLike,
@@ -341,7 +354,7 @@ def write_into(ds: xr.Dataset, tmp: str | os.PathLike, *, target: str | os.PathL
     comes from :func:`atomic_path` for ``target``, which publishes it.  Messages name ``target``.
     """
     ds = _ready(ds, target, validate=validate)
-    ds.to_netcdf(tmp, format="NETCDF4", engine="netcdf4", encoding=_encoding(ds))
+    _to_netcdf(ds, tmp)
 
 
 def _ready(ds: xr.Dataset, path: str | os.PathLike, *, validate: bool) -> xr.Dataset:

@@ -504,8 +504,30 @@ def _dims_match(found, expected, stackable) -> bool:
     return extra > 0 and found[:len(expected)] == expected and set(found[len(expected):]) <= set(stackable)
 
 
+def _lazy_value_stats(ds: xr.Dataset) -> dict[str, tuple[int, float, float]]:
+    """(NaN count, least and greatest non-NaN value) of every dask-backed numeric variable.
+
+    All in one computation on this process, so a lazily computed artefact (``smc``: one chunk per
+    block of periods) is computed once for its checks, a block at a time, whatever its length.
+    """
+    lazy = {str(n): v for n, v in ds.variables.items() if v.chunks is not None and v.dtype.kind in "fiu"}
+    if not lazy:
+        return {}
+    import dask  # deferred: only for lazy datasets
+    import dask.array as da
+
+    exprs = {}
+    for name, var in lazy.items():
+        x = var.data.astype(float)
+        nan = da.isnan(x)
+        exprs[name] = (nan.sum(), da.where(nan, np.inf, x).min(), da.where(nan, -np.inf, x).max())
+    (stats,) = dask.compute(exprs, scheduler="synchronous")
+    return {n: (int(k), float(lo), float(hi)) for n, (k, lo, hi) in stats.items()}
+
+
 def _check_variable(ds: xr.Dataset, name: str, spec: dict, role: str, problems: list[str],
-                    stackable: tuple[str, ...] = ()) -> None:
+                    stackable: tuple[str, ...] = (),
+                    stats: Mapping[str, tuple[int, float, float]] | None = None) -> None:
     if name not in ds.variables:
         if spec.get("required", True):
             problems.append(f"{role} {name!r} is missing")
@@ -526,19 +548,24 @@ def _check_variable(ds: xr.Dataset, name: str, spec: dict, role: str, problems: 
     kind = var.dtype.kind
     if kind not in "fiu":
         return
-    values = np.asarray(var.values, dtype=float)
-    nan = np.isnan(values)
-    if not spec.get("allow_nan", False) and nan.any():
-        problems.append(f"{role} {name!r} has {int(nan.sum())} NaN value(s); NaN is not allowed here")
+    if stats and name in stats:
+        n_nan, least, greatest = stats[name]
+    else:
+        values = np.asarray(var.values, dtype=float)
+        nan = np.isnan(values)
+        n_nan = int(nan.sum())
+        least, greatest = (float(values[~nan].min()), float(values[~nan].max())) if n_nan < values.size else (
+            np.inf, -np.inf)
+    if not spec.get("allow_nan", False) and n_nan:
+        problems.append(f"{role} {name!r} has {n_nan} NaN value(s); NaN is not allowed here")
     rng = spec.get("range")
-    if rng is not None and (~nan).any():
+    if rng is not None and n_nan < var.size:
         lo, hi = (float(r) if r is not None else None for r in rng)
-        finite = values[~nan]
-        if lo is not None and finite.min() < lo:
-            problems.append(f"{role} {name!r} has minimum {finite.min():.6g}, "
+        if lo is not None and least < lo:
+            problems.append(f"{role} {name!r} has minimum {least:.6g}, "
                             f"below the physical range [{lo}, {hi}]")
-        if hi is not None and finite.max() > hi:
-            problems.append(f"{role} {name!r} has maximum {finite.max():.6g}, "
+        if hi is not None and greatest > hi:
+            problems.append(f"{role} {name!r} has maximum {greatest:.6g}, "
                             f"above the physical range [{lo}, {hi}]")
 
 
@@ -569,14 +596,15 @@ def validate_dataset(
                 problems.append(f"dimension {dim!r} is missing; found {sorted(map(str, ds.dims))}")
         exact = {n for section in ("coordinates", "variables") for n in schema.get(section) or {}
                  if not _is_template(n)}
+        stats = _lazy_value_stats(ds)
         for section, role in (("coordinates", "coordinate"), ("variables", "variable")):
             for name, spec in (schema.get(section) or {}).items():
                 if not _is_template(name):
-                    _check_variable(ds, name, spec or {}, role, problems, stackable)
+                    _check_variable(ds, name, spec or {}, role, problems, stackable, stats)
                     continue
                 for found in sorted(map(str, ds.variables)):  # a name template checks every match
                     if found not in exact and _name_pattern(name).fullmatch(found):  # exact specs win
-                        _check_variable(ds, found, spec or {}, role, problems, stackable)
+                        _check_variable(ds, found, spec or {}, role, problems, stackable, stats)
         attrs = list(schema.get("attributes") or [])
         if schema.get("provenance", True):
             attrs = [*COMMON_ATTRIBUTES, *attrs]

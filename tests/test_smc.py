@@ -21,7 +21,7 @@ from lidarcal.certificate.signing import generate_keypair
 from lidarcal.cli import main
 from lidarcal.data import sample_file
 from lidarcal.errors import InputError
-from lidarcal.smc import binned, binned_table, smc
+from lidarcal.smc import binned, binned_table, smc, smc_dataset
 from lidarcal.smc.kernels import group_of, within_bin_fit
 
 COVERAGE = [
@@ -149,8 +149,10 @@ def test_only_bins_whose_flag_means_certified_count(tmp_path):
     speeds = np.array([[8.0, 8.1], [9.0, 9.1], [8.1, 3.0]])
     v = {**{k: a[:3] for k, a in campaign_values(3, HEIGHTS).items()}, "wind_speed": speeds}
     c = smc(cert, conditions=conditions_file(tmp_path / "c.nc", v, HEIGHTS), monte_carlo=False)
-    assert c.coverage.tolist() == [[4, 4], [0, 0], [4, 3]]
-    assert np.isnan(c.calibration[[0, 0, 2], [0, 1, 0]]).all() and np.isfinite(c.calibration[1]).all()
+    ds = smc_dataset(c)
+    assert ds.coverage_flag.transpose("time", "height").values.tolist() == [[4, 4], [0, 0], [4, 3]]
+    cal = ds.contribution.sel(contributor="calibration").transpose("time", "height").values
+    assert np.isnan(cal[[0, 0, 2], [0, 1, 0]]).all() and np.isfinite(cal[1]).all()
 
 
 def test_sample_firmware2_sta_takes_the_certificate_cone_angle(tmp_path, cert):
@@ -359,8 +361,10 @@ def test_monte_carlo_route_runs_on_a_tiny_campaign(tmp_path, cert):
     mc = c.monte_carlo
     assert mc.replicas == 2 and mc.records.sizes["time"] == 6
     # every period was simulated; the not-settled bins' periods got their second replica
-    assert (mc.trials[:, 0] >= 1).all() and (mc.trials[:, 0] <= 2).all()
-    assert np.isfinite(mc.expected).sum() >= 1
+    ds = smc_dataset(c)
+    trials = ds.monte_carlo_trials.transpose("time", "height").values
+    assert (trials[:, 0] >= 1).all() and (trials[:, 0] <= 2).all()
+    assert np.isfinite(ds.monte_carlo_expected_deviation.values).sum() >= 1
 
 
 def test_within_bin_fit_recovers_known_slopes():

@@ -89,9 +89,10 @@ def test_the_calibrations_own_conditions_give_the_certificates_budget_back(calib
     allowed = 1.5 * (b.simulated_numerical_tolerance + b.certified_numerical_tolerance)
     assert bool((diff <= allowed).where(both, True).all()), (diff.where(both), allowed.where(both))
     # and the environmental term is small beside the calibration's where nothing changed
-    ok = c.coverage == 0
-    env = smc_dataset(c).contribution.sel(contributor="environmental_monte_carlo").transpose("time", "height")
-    cal = c.calibration[ok]
+    ds = smc_dataset(c)
+    ok = ds.coverage_flag.transpose("time", "height").values == 0
+    env = ds.contribution.sel(contributor="environmental_monte_carlo").transpose("time", "height")
+    cal = ds.contribution.sel(contributor="calibration").transpose("time", "height").values[ok]
     assert float(np.sqrt(np.mean(env.values[ok] ** 2))) < 0.5 * float(np.sqrt(np.mean(cal**2)))
 
 

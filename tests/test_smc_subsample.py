@@ -88,10 +88,10 @@ def test_the_subsample_is_the_full_campaigns_cells_and_is_marked(tmp_path, cert)
     full = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=None, execution=opts)
     sub = smc(cert, conditions=cond, max_replicas=1, periods_per_bin=6, execution=opts)
     # 6 of each full bin's periods (by their own speed) and the 6 of the small one
-    simulated = sub.monte_carlo.trials[:, 0] > 0
+    simulated = smc_dataset(sub).monte_carlo_trials.transpose("time", "height").values[:, 0] > 0
     population = np.bincount(np.floor((speed - 7.25) / 0.5).astype(int))
     assert population[:3].min() > 6 and simulated.sum() == 3 * 6 + 6
-    assert full.monte_carlo.trials[:, 0].min() == 1
+    assert smc_dataset(full).monte_carlo_trials.transpose("time", "height").values[:, 0].min() == 1
     # bit for bit the full campaign's trials at the same cells (the seed is the period's)
     rec_f, rec_s = full.monte_carlo.records, sub.monte_carlo.records
     at = np.searchsorted(rec_f.period_key.values, rec_s.period_key.values)

@@ -11,7 +11,8 @@ apart (``docs/smc.md``):
    a stated hybrid weight matches; at least two periods; at least one certified height (the
    others are reported as not covered, never interpolated);
 2. ``calibration`` — the certificate's certified value at the period's height and wind-speed
-   bin (:func:`lidarcal.smc.routes.calibration_part`);
+   bin (:func:`lidarcal.smc.routes.calibration_part`, applied block by block in
+   :mod:`lidarcal.smc.periods`);
 3. ``environmental_iec`` — the 50-2 route (:func:`lidarcal.smc.routes.iec_route`);
 4. ``environmental_monte_carlo`` — the Monte Carlo route (:func:`lidarcal.smc.montecarlo.monte_carlo_route`);
 5. the user's terms (:mod:`lidarcal.smc.user_terms`).
@@ -49,7 +50,7 @@ from lidarcal.provenance import lidar_serial
 from lidarcal.readback import read_attr
 from lidarcal.smc.certified import Certified, read_certified
 from lidarcal.smc.montecarlo import MonteCarloRoute, monte_carlo_route
-from lidarcal.smc.routes import IecRoute, calibration_part, iec_route, table_edges
+from lidarcal.smc.routes import IecRoute, iec_route, table_edges
 from lidarcal.smc.subsample import DEFAULT_PERIODS_PER_BIN
 from lidarcal.smc.user_terms import UserTerm, load_user_terms
 
@@ -66,15 +67,18 @@ CARRIED = ("model_form",)
 
 @dataclass
 class Campaign:
-    """Everything :func:`smc` computed before it is written (:func:`lidarcal.smc.dataset.smc_dataset`)."""
+    """Everything :func:`smc` computed before it is written (:func:`lidarcal.smc.dataset.smc_dataset`).
+
+    Nothing here is per period but the campaign's conditions: each period's values are computed
+    from them block by block (:func:`lidarcal.smc.periods.period_block`).
+    """
 
     cert: Certified
     conditions: xr.Dataset  #: the campaign's conditions (time, height), canonical units
     inputs: dict[str, Path]  #: role -> file, recorded with its SHA-256
     source: str  #: how messages name the campaign's files
     height_index: np.ndarray  #: (height,) certified height of each campaign height, -1: none
-    calibration: np.ndarray  #: (time, height) m s-1
-    coverage: np.ndarray  #: (time, height) code (lidarcal.smc.routes.COVERAGE)
+    edges: np.ndarray  #: the campaign's wind-speed bin edges, m s-1 (:func:`.routes.table_edges`)
     iec: IecRoute
     monte_carlo: MonteCarloRoute | None
     monte_carlo_note: str
@@ -311,7 +315,7 @@ def smc(
             f"{source}: variable 'wind_speed': no period has a wind speed at a certified height "
             "(an empty campaign)"
         )
-    calibration, coverage, _ = calibration_part(cert, speed, height_index)
+    edges = table_edges(cert.budget, speed)
     iec = iec_route(cert, ds, height_index)
     mc, note = None, "not run (monte_carlo=False, --no-monte-carlo)"
     replicas = (
@@ -334,7 +338,7 @@ def smc(
             model,
             terms=cert.terms,
             covered=cov,
-            lookup_edges=table_edges(cert.budget, speed),
+            lookup_edges=edges,
             rule=CertificationRule(
                 certified_range=read_attr(cert.budget, "certified_range_m_s", kind="uncertainty_budget"),
                 significant_digits=read_attr(cert.attrs, "monte_carlo_significant_digits",
@@ -347,7 +351,7 @@ def smc(
             execution=execution,
             carried=_carried(cert, height_index),
         )
-        sampled = int((mc.trials > 0).sum())
+        sampled = mc.simulated
         total = int(np.isfinite(speed[:, height_index >= 0]).sum())
         note = (f"run: {mc.replicas} replica(s), base seed {int(base_seed)}, "
                 + ("every period" if periods_per_bin is None else
@@ -369,8 +373,7 @@ def smc(
         inputs=inputs,
         source=source,
         height_index=height_index,
-        calibration=calibration,
-        coverage=coverage,
+        edges=edges,
         iec=iec,
         monte_carlo=mc,
         monte_carlo_note=note,

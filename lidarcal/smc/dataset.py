@@ -9,14 +9,16 @@ artefact (``schemas/smc.yaml``); :func:`binned` gives its per-bin part as a Data
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 
+import dask
+import dask.array as da
 import numpy as np
 import xarray as xr
 
 from lidarcal.analysis.sensitivity import per_unit
-from lidarcal.binning import bin_index
 from lidarcal.certificate.admin import DEMONSTRATION
 from lidarcal.cf import with_bounds
 from lidarcal.conditions.variables import CONDITION_NAMES
@@ -27,21 +29,16 @@ from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 from lidarcal.smc.certified import flag_meanings
 from lidarcal.smc.core import Campaign
-from lidarcal.smc.kernels import binned_mean_uncertainty, quadrature
 from lidarcal.smc.montecarlo import REGRESSORS
+from lidarcal.smc.periods import BLOCK_PERIODS, CONTRIBUTORS, BinSums, blocks, contributor_names, period_block
 from lidarcal.smc.routes import (
-    COVERAGE,
     QUANTILES,
-    budget_edges,
     calibration_quantiles,
     envelope,
-    table_edges,
 )
 
 __all__ = ["smc_dataset", "binned", "binned_table", "CONTRIBUTORS", "ROUTES", "MEASURAND"]
 
-#: The contributors lidarcal computes, in order; the user's terms follow.
-CONTRIBUTORS = ("calibration", "environmental_iec", "environmental_monte_carlo")
 ROUTES = ("monte_carlo", "iec")
 #: What ``uncertainty`` and the bin values are (global attribute ``measurand``; docs/smc.md).
 MEASURAND = (
@@ -61,15 +58,6 @@ _DESCRIPTION = {
     "environmental_monte_carlo": "Monte Carlo route: the calibrated virtual lidar in the campaign's "
     "conditions",
 }
-
-
-def _rms(values: np.ndarray, bins: np.ndarray, nb: int) -> np.ndarray:
-    """Root mean square of ``values`` (time,) per bin over its finite values; NaN for a bin with none."""
-    ok = (bins >= 0) & np.isfinite(values)
-    n = np.bincount(bins[ok], minlength=nb)
-    s = np.bincount(bins[ok], weights=values[ok] ** 2, minlength=nb)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(n > 0, np.sqrt(s / np.maximum(n, 1)), np.nan)
 
 
 def _by_centre(
@@ -94,172 +82,11 @@ def _by_centre(
     return out
 
 
-def _per_period(c: Campaign) -> tuple[dict, np.ndarray, list[str], dict]:
-    """Per-period variables, contributions (contributor, time, height), contributor names, their split.
-
-    The split: per contributor, its (correlated, independent) parts on (time, height), m s-1.
-    """
-    speed = c.conditions["wind_speed"].transpose("time", "height").values
-    nt, nh = speed.shape
-    names = [*CONTRIBUTORS, *(t.name for t in c.user_terms)]
-    mc_env = np.full((nt, nh), np.nan)
-    mc_dev = np.full((nt, nh), np.nan)
-    mc_expected = np.full((nt, nh), np.nan)
-    mc_expected_se = np.full((nt, nh), np.nan)
-    mc_excess = np.full((nt, nh), np.nan)
-    trials = np.zeros((nt, nh), dtype=np.int32)
-    cols = np.flatnonzero(c.height_index >= 0)
-    if c.monte_carlo is not None:
-        mc = c.monte_carlo
-        edges = budget_edges(c.cert.budget)
-        cert_md = c.cert.budget["mean_difference"].transpose("height", "wind_speed").values
-        cert_sd = c.cert.budget["std_difference"].transpose("height", "wind_speed").values
-        sim = mc.budget.transpose("height", "wind_speed", ...)
-        sim_edges = budget_edges(sim)
-        for k, j in enumerate(cols):
-            i = c.height_index[j]
-            b = bin_index(speed[:, j], edges)
-            ok = b >= 0
-            shift = mc.expected[:, k] - np.where(ok, cert_md[i, np.maximum(b, 0)], np.nan)
-            # the campaign's spread beyond the calibration's in the bin (the lidar's random deviation)
-            sb = bin_index(speed[:, j], sim_edges)
-            s_sim = np.where(sb >= 0, sim["std_difference"].values[k, np.maximum(sb, 0)], np.nan)
-            s_cal = np.where(ok, cert_sd[i, np.maximum(b, 0)], np.nan)
-            excess = np.sqrt(np.maximum(s_sim**2 - s_cal**2, 0.0))
-            mc_dev[:, j], mc_expected[:, j] = shift, mc.expected[:, k]
-            mc_expected_se[:, j], mc_excess[:, j] = mc.expected_se[:, k], excess
-            mc_env[:, j] = quadrature(shift, excess)
-            trials[:, j] = mc.trials[:, k]
-    user = [t.at(speed) for t in c.user_terms]
-    contribution = np.stack([c.calibration, c.iec.contribution, mc_env, *user])
-    cal_user = quadrature(c.calibration, *user)
-    u_iec = quadrature(cal_user, c.iec.contribution)
-    u_mc = quadrature(cal_user, mc_env)
-    quoted = u_mc if c.monte_carlo is not None else u_iec
-    coverage = c.coverage.copy()
-    coverage[(coverage == 0) & ~np.isfinite(quoted)] = COVERAGE.index("environmental_term_missing")
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rel = 100.0 * quoted / speed
-    values = {
-        "uncertainty": quoted,
-        "relative_uncertainty": rel,
-        "uncertainty_iec_route": u_iec,
-        "uncertainty_monte_carlo_route": u_mc,
-        "environmental_deviation_iec": c.iec.deviation,
-        "environmental_deviation_monte_carlo": mc_dev,
-        "monte_carlo_expected_deviation": mc_expected,
-        "monte_carlo_expected_deviation_standard_error": mc_expected_se,
-        "monte_carlo_trials": trials,
-        "monte_carlo_simulated": (trials > 0).astype(np.int8),
-        "coverage_flag": coverage,
-    }
-    # each contributor's part fully correlated across periods and its part independent between them
-    # (the uncertainty of a bin's mean, docs/smc.md): calibration = its certified terms (correlated)
-    # and the calibration's single-period spread std_difference (independent); the Monte Carlo
-    # route = its expected shift (correlated) and its excess spread (independent); the 50-2 route
-    # and the user terms wholly correlated
-    cal_random = _calibration_random(c, speed)
-    zero = np.zeros((nt, nh))
-    split = {
-        "calibration": (np.sqrt(np.maximum(c.calibration**2 - cal_random**2, 0.0)), cal_random),
-        "environmental_iec": (c.iec.contribution, zero),
-        "environmental_monte_carlo": (np.abs(mc_dev), mc_excess),
-        **{t.name: (u, zero) for t, u in zip(c.user_terms, user, strict=True)},
-    }
-    return values, contribution, names, split
-
-
-def _calibration_random(c: Campaign, speed: np.ndarray) -> np.ndarray:
-    """(time, height) the calibration contributor's independent part: the certified bin's std_difference.
-
-    Its relative contribution (%) times the period's speed; 0 where the certificate's budget has no
-    such contributor (then the whole contributor counts as correlated), NaN where not certified.
-    """
-    bud = c.cert.budget.transpose("height", "wind_speed", "contributor", ...)
-    out = np.where(np.isfinite(c.calibration), 0.0, np.nan)
-    if "std_difference" not in [str(n) for n in bud["contributor"].values]:
-        return out
-    rel = bud["relative_contribution"].sel(contributor="std_difference").values  # (height, bin), %
-    edges = budget_edges(bud)
-    for j, i in enumerate(c.height_index):
-        if i >= 0:
-            b = bin_index(speed[:, j], edges)
-            part = np.where(b >= 0, rel[i, np.maximum(b, 0)] * speed[:, j] / 100.0, np.nan)
-            out[:, j] = np.where(np.isfinite(c.calibration[:, j]), part, np.nan)
-    return out
-
-
-def _bin_mean(c: Campaign, per: dict, split: dict, names: list[str], edges: np.ndarray) -> dict:
-    """Return the (bin, [contributor,] height) uncertainty of each bin's mean speed over its covered periods.
-
-    Per contributor :func:`lidarcal.smc.kernels.binned_mean_uncertainty` of its split (correlated
-    parts add linearly, independent ones in quadrature; over the covered periods where it has a
-    value); combined in quadrature over the contributors of the quoted route (docs/smc.md).
-    """
-    speed = c.conditions["wind_speed"].transpose("time", "height").values
-    nb, nh = len(edges) - 1, speed.shape[1]
-    covered = per["coverage_flag"] == 0
-    route = "environmental_iec" if c.monte_carlo is None else "environmental_monte_carlo"
-    quoted = [k for k, n in enumerate(names) if not n.startswith("environmental_") or n == route]
-    out = {"bin_mean_contribution": np.full((nb, len(names), nh), np.nan),
-           "bin_mean_uncertainty": np.full((nb, nh), np.nan),
-           "bin_mean_relative_uncertainty": np.full((nb, nh), np.nan)}
-    for j in range(nh):
-        b = np.where(covered[:, j], bin_index(speed[:, j], edges), -1)
-        for k, n in enumerate(names):
-            corr, rand = split[n]
-            u, _ = binned_mean_uncertainty(corr[None, :, j], rand[None, :, j], b, nb)
-            out["bin_mean_contribution"][:, k, j] = u[0]
-        n_cov = np.bincount(b[b >= 0], minlength=nb)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            mean_speed = np.bincount(b[b >= 0], weights=speed[b >= 0, j], minlength=nb) / n_cov
-        u = np.sqrt(np.sum(out["bin_mean_contribution"][:, quoted, j] ** 2, axis=1))
-        out["bin_mean_uncertainty"][:, j] = np.where(n_cov > 0, u, np.nan)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out["bin_mean_relative_uncertainty"][:, j] = np.where(n_cov > 0, 100.0 * u / mean_speed, np.nan)
-    return out
-
-
-def _binned_values(c: Campaign, per: dict, contribution: np.ndarray, edges: np.ndarray) -> dict:
-    """Return the (bin, height) variables: counts, RMS of the uncertainties, the two budgets side by side."""
-    speed = c.conditions["wind_speed"].transpose("time", "height").values
-    nb, nh = len(edges) - 1, speed.shape[1]
+def _binned_values(c: Campaign, edges: np.ndarray) -> dict:
+    """Return the (bin, height) variables of the certificate and of the Monte Carlo route, side by side."""
+    nb, nh = len(edges) - 1, c.height_index.size
     centres = 0.5 * (edges[:-1] + edges[1:])
-    covered = per["coverage_flag"] == 0
-    out = {
-        k: np.full((nb, nh), np.nan)
-        for k in (
-            "bin_mean_wind_speed",
-            "bin_uncertainty",
-            "bin_relative_uncertainty",
-            "bin_uncertainty_iec_route",
-            "bin_uncertainty_monte_carlo_route",
-        )
-    }
-    out["bin_period_count"] = np.zeros((nb, nh), dtype=np.int32)
-    out["bin_covered_count"] = np.zeros((nb, nh), dtype=np.int32)
-    out["bin_contribution"] = np.full((nb, contribution.shape[0], nh), np.nan)
-    for j in range(nh):
-        b = bin_index(speed[:, j], edges)
-        out["bin_period_count"][:, j] = np.bincount(b[b >= 0], minlength=nb)
-        bc = np.where(covered[:, j], b, -1)
-        out["bin_covered_count"][:, j] = np.bincount(bc[bc >= 0], minlength=nb)
-        n = np.bincount(b[b >= 0], minlength=nb)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            out["bin_mean_wind_speed"][:, j] = np.where(
-                n > 0,
-                np.bincount(b[b >= 0], weights=speed[b >= 0, j], minlength=nb) / np.maximum(n, 1),
-                np.nan,
-            )
-        for name, src in (
-            ("bin_uncertainty", "uncertainty"),
-            ("bin_relative_uncertainty", "relative_uncertainty"),
-            ("bin_uncertainty_iec_route", "uncertainty_iec_route"),
-            ("bin_uncertainty_monte_carlo_route", "uncertainty_monte_carlo_route"),
-        ):
-            out[name][:, j] = _rms(per[src][:, j], bc, nb)
-        for k in range(contribution.shape[0]):
-            out["bin_contribution"][:, k, j] = _rms(contribution[k, :, j], bc, nb)
+    out = {}
     cert = c.cert.budget
     hi = c.height_index
     out["bin_certificate_flag"] = np.nan_to_num(_by_centre(cert, "bin_flag", centres, hi), nan=-1).astype(
@@ -308,16 +135,29 @@ def _binned_values(c: Campaign, per: dict, contribution: np.ndarray, edges: np.n
     return out
 
 
-def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
-    """Assemble the stamped ``smc`` artefact of a :class:`~lidarcal.smc.core.Campaign`."""
+def smc_dataset(c: Campaign, *, call: str | None = None, block: int = BLOCK_PERIODS) -> xr.Dataset:
+    """Assemble the stamped ``smc`` artefact of a :class:`~lidarcal.smc.core.Campaign`.
+
+    The per-bin tables are summed over the campaign block by block of ``block`` periods
+    (:class:`~lidarcal.smc.periods.BinSums`); the per-period variables are dask arrays with one
+    chunk per block, each computed from its periods when it is read or written
+    (:func:`~lidarcal.smc.periods.period_block`), so writing the artefact holds one block at a time.
+    """
     cert, cond = c.cert, c.conditions.transpose("time", "height", ...)
-    per, contribution, names, split = _per_period(c)
+    names = contributor_names(c)
     route = "monte_carlo" if c.monte_carlo is not None else "iec"
-    speed = cond["wind_speed"].values
-    edges = table_edges(cert.budget, speed)
+    edges = c.edges
+    nt, nh = cond.sizes["time"], cond.sizes["height"]
+    sums = BinSums(edges, names, nh, "environmental_iec" if route == "iec" else "environmental_monte_carlo")
+    slices = list(blocks(nt, block))
+    kinds: dict[str, np.dtype] = {}
+    for sl in slices:
+        one = period_block(c, sl)
+        sums.add(one)
+        kinds = kinds or {n: v.dtype for n, v in one.arrays().items()}
     k = read_attr(cert.budget, "coverage_factor", kind="uncertainty_budget")
     cflags = flag_meanings(cert.budget["bin_flag"])
-    low, high, outside, env_names = envelope(cert, cond, c.height_index)
+    low, high, _, env_names = envelope(cert, cond.isel(time=slice(0, 1)), c.height_index)
     sources = {**_DESCRIPTION, **{t.name: f"user term ({t.source})" for t in c.user_terms}}
     description = "; ".join(f"{n}: {sources[n]}" for n in names)
     context = {
@@ -340,11 +180,13 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
     )
     for name in CONDITION_NAMES:
         ds[name] = (dims, cond[name].values, dict(cond[name].attrs))
-    for name, values in per.items():
-        ds[name] = (dims, values, output_attrs("smc", name, **context))
+    lazy = _lazy_periods(c, slices, kinds, len(names))
+    for name, values in lazy.items():
+        if name not in ("contribution", "outside_envelope"):
+            ds[name] = (dims, values, output_attrs("smc", name, **context))
     ds["contribution"] = (
         ("contributor", *dims),
-        contribution,
+        lazy["contribution"],
         output_attrs("smc", "contribution", **context),
     )
     combined = np.array(
@@ -355,7 +197,8 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
         dtype=np.int8,
     )
     ds["combined"] = ("contributor", combined, output_attrs("smc", "combined", **context))
-    ds["outside_envelope"] = (dims, outside, output_attrs("smc", "outside_envelope", **context))
+    ds["outside_envelope"] = (dims, lazy["outside_envelope"],
+                              output_attrs("smc", "outside_envelope", **context))
     masks = ds["outside_envelope"].attrs["flag_masks"]
     ds["outside_envelope"].attrs["flag_masks"] = np.asarray(masks, np.int8)  # the variable's type (CF 3.5)
     quantiles = calibration_quantiles(cert, c.height_index)
@@ -393,7 +236,8 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
             )
     bdims = {n: ("wind_speed_bin", "contributor", "height")
              for n in ("bin_contribution", "bin_mean_contribution")}
-    binned_values = {**_binned_values(c, per, contribution, edges), **_bin_mean(c, per, split, names, edges)}
+    tables = sums.tables()
+    binned_values = {**{n: tables.pop(n) for n in _FROM_PERIODS}, **_binned_values(c, edges), **tables}
     for name, values in binned_values.items():
         ds[name] = (
             bdims.get(name, ("wind_speed_bin", "height")),
@@ -410,14 +254,41 @@ def smc_dataset(c: Campaign, *, call: str | None = None) -> xr.Dataset:
         ds["time"].encoding.update(
             {k: v for k, v in cond["time"].encoding.items() if k in ("units", "calendar")}
         )
-    return _stamped(ds, c, route, call)
+    return _stamped(ds, c, route, call, covered=sums.covered_periods, total=sums.periods_with_wind_speed)
 
 
-def _stamped(ds: xr.Dataset, c: Campaign, route: str, call: str | None) -> xr.Dataset:
+#: The per-bin variables from the periods that come before the certificate's and the route's (file order).
+_FROM_PERIODS = ("bin_mean_wind_speed", "bin_uncertainty", "bin_relative_uncertainty",
+                 "bin_uncertainty_iec_route", "bin_uncertainty_monte_carlo_route", "bin_period_count",
+                 "bin_covered_count", "bin_contribution")
+
+
+def _lazy_periods(c: Campaign, slices: list[slice], kinds: dict[str, np.dtype],
+                  n_contributors: int) -> dict[str, da.Array]:
+    """Each per-period variable as a dask array, one chunk per block, computed from its block's periods.
+
+    A block's values are computed once however many of its variables a computation reads
+    (one task per block; each variable's chunk is an item of it).
+    """
+    nh = c.height_index.size
+    compute = functools.partial(_block_arrays, c)
+    pieces = [(dask.delayed(compute, pure=False)(sl), sl.stop - sl.start) for sl in slices]
+    out = {}
+    for name, kind in kinds.items():
+        lead = (n_contributors,) if name == "contribution" else ()
+        parts = [da.from_delayed(piece[name], shape=(*lead, n, nh), dtype=kind) for piece, n in pieces]
+        out[name] = da.concatenate(parts, axis=len(lead))
+    return out
+
+
+def _block_arrays(c: Campaign, periods: slice) -> dict[str, np.ndarray]:
+    return period_block(c, periods).arrays()
+
+
+def _stamped(ds: xr.Dataset, c: Campaign, route: str, call: str | None, *, covered: int,
+             total: int) -> xr.Dataset:
     cert, cond = c.cert, c.conditions
     demo = cert.demonstration
-    covered = int((ds["coverage_flag"].values == 0).sum())
-    total = int(np.isfinite(ds["wind_speed"].values).sum())
     ds.attrs = {
         "calibration_status": cert.status,
         "calibration_status_reason": (

@@ -27,6 +27,8 @@ __all__ = [
     "expected_deviation",
     "expected_deviation_se",
     "binned_mean_uncertainty",
+    "binned_mean_sums",
+    "binned_mean_finish",
     "group_of",
     "bin_index",
     "SEQUENCES",
@@ -208,18 +210,33 @@ def binned_mean_uncertainty(
     >>> float(u[0, 0]), int(n[0])  # sqrt(1 + (sqrt(16) / 4)^2)
     (1.4142135623730951, 4)
     """
+    n, s1, s2 = binned_mean_sums(correlated, random, bins, n_bins)
+    return binned_mean_finish(n[None, :], s1, s2), n
+
+
+def binned_mean_sums(
+    correlated: np.ndarray, random: np.ndarray, bins: np.ndarray, n_bins: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Return what :func:`binned_mean_uncertainty` adds up: per bin n, Σ c(t) and Σ r(t)² per contributor.
+
+    Sums of several blocks of periods add, so :func:`binned_mean_finish` of their totals is the
+    uncertainty of the bin's mean over every period (``correlated``, ``random`` and ``bins`` as
+    for :func:`binned_mean_uncertainty`; n (bin,), the sums (contributor, bin)).
+    """
     c = np.asarray(correlated, dtype=float)
     r = np.asarray(random, dtype=float)
     b = np.asarray(bins)
     ok = (b >= 0) & np.isfinite(c).all(axis=0) & np.isfinite(r).all(axis=0)
     n = np.bincount(b[ok], minlength=n_bins)
-    out = np.full((c.shape[0], n_bins), np.nan)
+    s1 = np.array([np.bincount(b[ok], weights=c[k, ok], minlength=n_bins) for k in range(c.shape[0])])
+    s2 = np.array([np.bincount(b[ok], weights=r[k, ok] ** 2, minlength=n_bins) for k in range(c.shape[0])])
+    return n, s1.reshape(c.shape[0], n_bins), s2.reshape(c.shape[0], n_bins)
+
+
+def binned_mean_finish(n: np.ndarray, s1: np.ndarray, s2: np.ndarray) -> np.ndarray:
+    """ū = √((Σ c / n)² + Σ r² / n²) from :func:`binned_mean_sums`' totals; NaN where n is 0."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        for k in range(c.shape[0]):
-            s1 = np.bincount(b[ok], weights=c[k, ok], minlength=n_bins)
-            s2 = np.bincount(b[ok], weights=r[k, ok] ** 2, minlength=n_bins)
-            out[k] = np.where(n > 0, np.sqrt((s1 / n) ** 2 + s2 / n**2), np.nan)
-    return out, n
+        return np.where(n > 0, np.sqrt((s1 / n) ** 2 + s2 / n**2), np.nan)
 
 
 def group_of(period_key: np.ndarray, replica: np.ndarray, sequences: int = SEQUENCES) -> np.ndarray:

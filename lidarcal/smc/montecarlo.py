@@ -87,16 +87,66 @@ class MonteCarloRoute:
     budget: xr.Dataset  #: the campaign's Monte Carlo budget per (height, reference wind-speed bin)
     tolerance: np.ndarray  #: (height, budget bin) numerical tolerance of its relative expanded U (%)
     settled: np.ndarray  #: (height, budget bin) 0 settled, 1 not settled, 2 not assessed
-    expected: np.ndarray  #: (time, height) expected lidar − reference deviation (m s-1) given conditions
+    fit: ExpectedFit  #: the within-bin fit giving each period's expected deviation (:meth:`at`)
     slopes: np.ndarray  #: (height, regressor) within-bin slopes of the deviation (m s-1 per unit)
-    trials: np.ndarray  #: (time, height) trials simulated of each period (0: not simulated)
+    rows: np.ndarray  #: (record period,) the campaign period (time index) of each simulated period
+    count: np.ndarray  #: (record period, height) trials simulated of each of them
     replicas: int  #: replicas run, replica 0 included
-    expected_se: np.ndarray  #: (time, height) standard error of ``expected`` (m s-1)
     periods_per_bin: int | None  #: most periods simulated per (height, bin); None: every period
     periods_simulated: np.ndarray  #: (height, budget bin) distinct periods among the bin's trials
     population: np.ndarray  #: (height, budget bin) the campaign's periods in the bin (their own speed)
     mean_difference_se: np.ndarray  #: (height, budget bin) SE of the mean deviation from subsampling, m s-1
     std_difference_se: np.ndarray  #: (height, budget bin) SE of the spread from subsampling, m s-1
+
+    def at(self, conditions: xr.Dataset, start: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Return (expected deviation, its standard error, trials) of a block of the campaign's periods.
+
+        ``conditions`` are the campaign's periods ``start``, ``start + 1`` … at the simulated heights,
+        (time, height) arrays on them: the route holds no per-period array of the campaign, so a
+        campaign of any length is taken block by block (:mod:`lidarcal.smc.periods`).
+        """
+        expected, se = self.fit.at(conditions)
+        trials = np.zeros(expected.shape, dtype=np.int64)
+        mine = (self.rows >= start) & (self.rows < start + expected.shape[0])
+        trials[self.rows[mine] - start] = self.count[mine]
+        return expected, se, trials
+
+    @property
+    def simulated(self) -> int:
+        """Period-heights simulated at least once."""
+        return int((self.count > 0).sum())
+
+
+@dataclass(frozen=True)
+class ExpectedFit:
+    """The trials' within-bin fit per simulated height, evaluated at any periods (:meth:`at`).
+
+    Per height: the trials' deviations, conditions and reference-speed bins, and what
+    :func:`~lidarcal.smc.kernels.within_bin_fit` made of them.  A period is looked up by its own
+    speed's bin (``edges``).
+    """
+
+    heights: np.ndarray  #: (height,) m
+    edges: np.ndarray  #: lookup bin edges, m s-1
+    deviation: tuple[np.ndarray, ...]  #: per height, each trial's lidar − reference (m s-1)
+    conditions: tuple[np.ndarray, ...]  #: per height, (trial, regressor) the trial's period's conditions
+    bins: tuple[np.ndarray, ...]  #: per height, each trial's reference-speed bin
+    fitted: tuple[tuple[np.ndarray, ...], ...]  #: per height, (count, mean_d, mean_x, beta)
+
+    def at(self, conditions: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """Return the expected deviation and its standard error (time, height, m s-1) at these periods."""
+        cond = conditions.sel(height=self.heights).transpose("time", "height", ...)
+        x_all = np.stack([cond[n].values for n in REGRESSORS], axis=-1)  # (time, height, regressor)
+        speed = cond["wind_speed"].values
+        expected = np.full(speed.shape, np.nan)
+        se = np.full(speed.shape, np.nan)
+        for i in range(self.heights.size):
+            n, mean_d, mean_x, beta = self.fitted[i]
+            at = bin_index(speed[:, i], self.edges)
+            expected[:, i] = expected_deviation(x_all[:, i], at, mean_d, mean_x, beta, n >= 2)
+            se_i = expected_deviation_se(self.deviation[i], self.conditions[i], self.bins[i], x_all[:, i], at)
+            se[:, i] = np.where(np.isfinite(expected[:, i]), se_i, np.nan)
+        return expected, se
 
 
 def with_carried(bud: xr.Dataset, carried: xr.Dataset | None) -> xr.Dataset:
@@ -432,31 +482,30 @@ def monte_carlo_route(
         bud = with_carried(budget(current, terms=terms, rule=rule), carried)
         targets = _targets(bud, covered)
         tol, flag = _assess(current, bud, targets, digits, k)
-    expected, slopes, count, expected_se = _expected(current, sim_cond, cond, lookup_edges)
-    full_count = np.zeros(speed.shape, dtype=np.int64)
-    full_count[rows] = count
+    fit, slopes, count = _expected(current, sim_cond, lookup_edges)
     # each simulated cell stands for N / n campaign periods of its own-speed bin (N periods, n simulated)
     lookup_edges = np.asarray(lookup_edges, dtype=float)
-    lookup = np.stack([bin_index(speed[:, i], lookup_edges) for i in range(speed.shape[1])], axis=1)
-    weight = np.zeros(speed.shape)
+    nb = len(lookup_edges) - 1
+    weight = np.zeros((rows.size, speed.shape[1]))  # at the simulated periods only
     for i in range(speed.shape[1]):
-        nb = len(lookup_edges) - 1
-        mine = lookup[:, i] >= 0
-        pop = np.bincount(lookup[mine, i], minlength=nb)
-        got = np.bincount(lookup[mine & chosen[:, i], i], minlength=nb)
+        lookup = bin_index(speed[:, i], lookup_edges)
+        mine = lookup >= 0
+        pop = np.bincount(lookup[mine], minlength=nb)
+        got = np.bincount(lookup[mine & chosen[:, i]], minlength=nb)
+        at = lookup[rows]
         with np.errstate(invalid="ignore", divide="ignore"):
-            weight[mine, i] = (pop / np.maximum(got, 1))[lookup[mine, i]]
-    m, se_mean, se_sd, population = _subsample_errors(current, bud, weight[rows])
+            weight[:, i] = np.where(at >= 0, (pop / np.maximum(got, 1))[np.maximum(at, 0)], 0.0)
+    m, se_mean, se_sd, population = _subsample_errors(current, bud, weight)
     return MonteCarloRoute(
         records=current,
         budget=bud,
         tolerance=tol,
         settled=flag,
-        expected=expected,
+        fit=fit,
         slopes=slopes,
-        trials=full_count,
+        rows=rows,
+        count=count,
         replicas=replicas,
-        expected_se=expected_se,
         periods_per_bin=None if periods_per_bin is None else int(periods_per_bin),
         periods_simulated=m,
         population=population,
@@ -500,28 +549,23 @@ def _subsample_errors(
 
 
 def _expected(
-    records: xr.Dataset, fit_conditions: xr.Dataset, conditions: xr.Dataset, edges: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Return the expected deviation (time, height, m s-1), slopes (height, regressor), trials, its SE.
+    records: xr.Dataset, fit_conditions: xr.Dataset, edges: np.ndarray
+) -> tuple[ExpectedFit, np.ndarray, np.ndarray]:
+    """Return the fit of the expected deviation, the slopes (height, regressor) and the trials per period.
 
     The fit is on the trials (their conditions from ``fit_conditions``, the records' periods),
-    grouped by their reference speed's bin; every period of ``conditions`` (simulated or not) is
-    looked up by its own speed's bin.  Trials are counted on the records' periods.
+    grouped by their reference speed's bin; :meth:`ExpectedFit.at` looks any period up by its own
+    speed's bin.  Trials are counted on the records' periods (record period, height).
     """
     heights = np.asarray(records["height"].values, dtype=float)
     tr = _trials(records, heights)
     fit = fit_conditions.sel(height=records["height"].values).transpose("time", "height", ...)
     x_fit = np.stack([fit[n].values for n in REGRESSORS], axis=-1)  # (record time, height, regressor)
-    cond = conditions.sel(height=records["height"].values).transpose("time", "height", ...)
-    x_all = np.stack([cond[n].values for n in REGRESSORS], axis=-1)  # (time, height, regressor)
-    speed = cond["wind_speed"].values
-    nt, nh = speed.shape
-    nb = len(edges) - 1
-    expected = np.full((nt, nh), np.nan)
-    se = np.full((nt, nh), np.nan)
+    nh, nb = heights.size, len(edges) - 1
     slopes = np.full((nh, len(REGRESSORS)), np.nan)
     count = np.zeros((records.sizes["time"], nh), dtype=np.int64)
     np.add.at(count, (tr["period"], tr["height"]), 1)
+    parts: dict[str, list] = {"deviation": [], "conditions": [], "bins": [], "fitted": []}
     for i in range(nh):
         mine = tr["height"] == i
         d = tr["lidar"][mine] - tr["reference"][mine]
@@ -529,8 +573,8 @@ def _expected(
         xt = x_fit[tr["period"][mine], i]
         n, mean_d, mean_x, beta = within_bin_fit(d, xt, b, nb)
         slopes[i] = beta
-        at = bin_index(speed[:, i], edges)
-        expected[:, i] = expected_deviation(x_all[:, i], at, mean_d, mean_x, beta, n >= 2)
-        se_i = expected_deviation_se(d, xt, b, x_all[:, i], at)
-        se[:, i] = np.where(np.isfinite(expected[:, i]), se_i, np.nan)
-    return expected, slopes, count, se
+        for key, value in zip(parts, (d, xt, b, (n, mean_d, mean_x, beta)), strict=True):
+            parts[key].append(value)
+    fitted = ExpectedFit(heights=heights, edges=np.asarray(edges, dtype=float),
+                         **{k: tuple(v) for k, v in parts.items()})
+    return fitted, slopes, count

@@ -128,10 +128,8 @@ def calibration_means(sens: xr.Dataset) -> np.ndarray:
 
 @dataclass(frozen=True)
 class IecRoute:
-    """The 50-2 route's result on (time, height), and what it applied per height."""
+    """What the 50-2 route applies per height; :meth:`apply` gives its result on any block of periods."""
 
-    contribution: np.ndarray  #: root-sum-square of the slopes' deviations, m s-1
-    deviation: np.ndarray  #: their sum, m s-1 (signed)
     variables: tuple[str, ...]  #: the sensitivity variables of the certificate it considered
     slope: np.ndarray  #: (variable, height) slope applied (NaN where not significant), % per unit
     calibration_mean: np.ndarray  #: (variable, height) the calibration's mean of the variable
@@ -140,22 +138,46 @@ class IecRoute:
     significant: np.ndarray  #: (variable, height) 1 where the slope is applied
     note: str = "computed"  #: or why not
 
+    def apply(self, conditions: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
+        """Return the route's contribution (root-sum-square of the slopes' deviations) and their signed sum.
+
+        Both (time, height) in m s-1 at ``conditions``' periods (the campaign's, canonical units,
+        on the route's heights); NaN where the wind speed is missing, or where a condition is
+        missing whose slope is applied, or everywhere when the route could not be computed.
+        """
+        speed = conditions["wind_speed"].transpose("time", "height").values
+        nt, nh = speed.shape
+        if self.note != "computed":
+            nan = np.full((nt, nh), np.nan)
+            return nan, nan.copy()
+        if not self.variables:
+            zero = np.where(np.isfinite(speed), 0.0, np.nan)
+            return zero, zero.copy()
+        x = np.stack([conditions[v].transpose("time", "height").values for v in self.variables])
+        applied = np.where(self.significant == 1, self.slope, 0.0)  # a slope not significant adds nothing
+        dev_pct = iec_deviations(x, applied[:, None, :], self.calibration_mean[:, None, :])  # %
+        # a missing condition matters only where its slope is applied
+        dev_pct = np.where(self.significant[:, None, :] == 1, dev_pct, 0.0)
+        dev = dev_pct * speed[None] / 100.0
+        contribution = np.where(np.isfinite(speed), quadrature(dev, axis=0), np.nan)
+        deviation = np.where(np.isfinite(speed), dev.sum(axis=0), np.nan)
+        return contribution, deviation
+
 
 def iec_route(cert: Certified, conditions: xr.Dataset, height_index: np.ndarray) -> IecRoute:
-    """Compute the 50-2 route on every period (module docstring); NaN where a needed condition is missing.
+    """Set up the 50-2 route (module docstring): the slopes and calibration means it applies per height.
 
-    ``conditions`` are the campaign's (time, height) in canonical units, ``height_index`` as for
-    :func:`calibration_part`.
+    ``conditions`` are the campaign's (time, height) in canonical units (only their units are
+    read), ``height_index`` as for :func:`calibration_part`; :meth:`IecRoute.apply` computes the
+    route on the periods.
     """
-    nt, nh = conditions.sizes["time"], conditions.sizes["height"]
+    nh = conditions.sizes["height"]
     if "sensitivities" in cert.missing:  # an older certificate: the route cannot be computed, no number
-        nan = np.full((nt, nh), np.nan)
-        return IecRoute(contribution=nan, deviation=nan, variables=(), slope=np.zeros((0, nh)),
+        return IecRoute(variables=(), slope=np.zeros((0, nh)),
                         calibration_mean=np.zeros((0, nh)), units=(), slope_units=(),
                         significant=np.zeros((0, nh), dtype=np.int8),
                         note=f"not computed: {cert.missing['sensitivities']}")
     variables = tuple(v for v in SLOPE_VARIABLES if v in cert.sensitivities)
-    speed = conditions["wind_speed"].transpose("time", "height").values
     slope = np.full((len(variables), nh), np.nan)
     mean = np.full((len(variables), nh), np.nan)
     sig = np.zeros((len(variables), nh), dtype=np.int8)
@@ -186,23 +208,7 @@ def iec_route(cert: Certified, conditions: xr.Dataset, height_index: np.ndarray)
             if int(sens["significant"].values[i]) == 1 and np.isfinite(sens["slope"].values[i]):
                 slope[k, j] = float(sens["slope"].values[i])
                 sig[k, j] = 1
-    x = (
-        np.stack([conditions[v].transpose("time", "height").values for v in variables])
-        if variables
-        else np.zeros((0, nt, nh))
-    )
-    applied = np.where(sig == 1, slope, 0.0)  # a slope that is not significant adds nothing
-    dev_pct = iec_deviations(x, applied[:, None, :], mean[:, None, :])  # (variable, time, height), %
-    # a missing condition matters only where its slope is applied
-    dev_pct = np.where(sig[:, None, :] == 1, dev_pct, 0.0)
-    dev = dev_pct * speed[None] / 100.0
-    contribution = quadrature(dev, axis=0) if variables else np.zeros((nt, nh))
-    deviation = dev.sum(axis=0) if variables else np.zeros((nt, nh))
-    contribution = np.where(np.isfinite(speed), contribution, np.nan)
-    deviation = np.where(np.isfinite(speed), deviation, np.nan)
     return IecRoute(
-        contribution=contribution,
-        deviation=deviation,
         variables=variables,
         slope=slope,
         calibration_mean=mean,
