@@ -305,6 +305,11 @@ def _encoding(ds: xr.Dataset) -> dict[str, dict]:
             e.update({k: var.encoding[k] for k in ("units", "calendar") if k in var.encoding})
         if var.dtype.kind == "f" and var.ndim >= 1 and var.size > 1000:
             e.update(zlib=True, complevel=4)
+        if var.chunks is not None and "time" in var.dims and var.size:
+            # a lazy variable is written block of time after block: one HDF5 chunk per block, so each
+            # block fills whole chunks (the library's own chunks would span blocks and be cached open)
+            e["chunksizes"] = tuple(max(var.chunks[k]) if d == "time" else n
+                                    for k, (d, n) in enumerate(zip(var.dims, var.shape, strict=True)))
         enc[name] = e
     return enc
 
@@ -336,14 +341,62 @@ def write_artefact(
 def _to_netcdf(ds: xr.Dataset, tmp: str | os.PathLike) -> None:
     """Write ``ds`` to netCDF-4 in this process.
 
-    A lazy variable (a dask array: ``smc``'s per-period values, one chunk per block of periods) is
-    computed chunk by chunk as it is written, on this process's synchronous scheduler: never on a
-    cluster the caller made dask's default, and holding one chunk at a time.
+    Lazy variables (dask arrays: ``smc``'s per-period values and a long campaign's conditions,
+    one chunk per block of periods) are computed on this process's synchronous scheduler, never
+    on a cluster the caller made dask's default, and written **one block of time at a time**: all
+    the variables' chunks of a block are computed together (what they share, once) and written
+    before the next block is touched, so writing holds one block, however long the time axis.
+    (Handed the whole dataset, dask would store variable after variable and keep every block's
+    shared values until the last variable is written.)
     """
     import dask  # deferred: light import of the writers
 
+    encoding = _encoding(ds)
     with dask.config.set(scheduler="synchronous"):
-        ds.to_netcdf(tmp, format="NETCDF4", engine="netcdf4", encoding=_encoding(ds))
+        if not _time_blocks(ds):
+            ds.to_netcdf(tmp, format="NETCDF4", engine="netcdf4", encoding=encoding)
+            return
+        _to_netcdf_by_time(ds, tmp, encoding)
+
+
+def _time_blocks(ds: xr.Dataset) -> list[slice]:
+    """Return the time blocks of ``ds``'s first lazy variable on ``time`` (none when there is none)."""
+    for var in ds.variables.values():
+        if var.chunks is not None and "time" in var.dims:
+            edges = np.cumsum((0, *var.chunks[var.dims.index("time")]))
+            return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    return []
+
+
+def _to_netcdf_by_time(ds: xr.Dataset, tmp: str | os.PathLike, encoding: dict) -> None:
+    """Write ``ds`` as ``to_netcdf`` does, its lazy variables block of time after block of time."""
+    import dask.array as da
+    from xarray.backends import NetCDF4DataStore
+    from xarray.backends.common import ArrayWriter
+
+    store = NetCDF4DataStore.open(tmp, mode="w", format="NETCDF4")
+    try:
+        writer = ArrayWriter()
+        ds.dump_to_store(store, writer=writer, encoding=encoding)  # the layout and the in-memory values
+        lazy = [(str(t.variable_name), s, t) for s, t in zip(writer.sources, writer.targets, strict=True)]
+        for name, source, _ in lazy:
+            # the library caches every chunk written (16 MiB a variable) until the file is closed:
+            # room for two chunks, full ones evicted first, keeps one block in memory
+            chunk = max(1, int(np.prod([max(c) for c in source.chunks]))) * source.dtype.itemsize
+            store.ds.variables[name].set_var_chunk_cache(size=2 * chunk, preemption=1.0)
+        for k, block in enumerate(_time_blocks(ds)):
+            sources, targets, regions = [], [], []
+            for name, source, target in lazy:
+                dims = ds.variables[name].dims
+                if "time" not in dims and k:
+                    continue  # written whole with the first block
+                region = tuple(block if d == "time" else slice(None) for d in dims)
+                sources.append(source[region])
+                targets.append(target)
+                regions.append(region)
+            da.store(sources, targets, regions=regions, lock=writer.lock, compute=True)
+    finally:
+        store.close()
 
 
 def write_into(ds: xr.Dataset, tmp: str | os.PathLike, *, target: str | os.PathLike,

@@ -8,11 +8,15 @@ Skipped periods are reported with a :class:`SkippedPeriodsWarning`; they are not
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
+import threading
 import warnings
 from pathlib import Path
 
+import dask
+import dask.array
 import numpy as np
 import xarray as xr
 
@@ -61,25 +65,60 @@ def _check_time(raw: xr.Dataset, source: str) -> None:
     raise_first_bad(~(t[1:] > t[:-1]), out_of_order)
 
 
-def _check_values(name: str, values: np.ndarray, unit: str, spec: dict, ds_shape: xr.Dataset,
-                  source: str, hint: str = "") -> None:
+class _FirstBad:
+    """The first offending value of a variable and how many there are, gathered block after block."""
+
+    def __init__(self) -> None:
+        self.count, self.first, self.value = 0, -1, np.nan
+
+    def add(self, bad: np.ndarray, values: np.ndarray, offset: int) -> None:
+        """Add one block's mask (``values`` its values, ``offset`` its first flat index in the whole)."""
+        flat = np.asarray(bad, dtype=bool).ravel()
+        n = int(flat.sum())
+        if n and self.first < 0:
+            i = int(np.argmax(flat))
+            self.first, self.value = offset + i, float(np.asarray(values).flat[i])
+        self.count += n
+
+
+class _ValueCheck:
     """Refuse +-inf and values outside the declared physical range (NaN stays "missing").
 
     Runs on the values as converted to canonical units, before any folding (a direction of
-    1000 degree is refused, not wrapped), naming the first offending value, time and height.
+    1000 degree is refused, not wrapped), naming the first offending value, time and height and
+    how many there are; :meth:`add` takes the variable block by block, :meth:`done` raises.
     """
-    raise_first_bad(np.isinf(values), lambda i, n: (
-        f"{source}: variable {name!r} has {n} infinite value(s), first {values.flat[i]:g} at "
-        f"{_where(i, values.shape, ds_shape)}; expected finite values (NaN marks a missing value)"))
-    lo, hi = (None, None) if spec.get("range") is None else spec["range"]
-    lo = -np.inf if lo is None else float(lo)
-    hi = np.inf if hi is None else float(hi)
-    with np.errstate(invalid="ignore"):
-        bad = (values < lo) | (values > hi)
-    u, conv = ("", "") if unit == "1" else (f" {unit}", f" (after conversion to {unit})")
-    raise_first_bad(bad, lambda i, n: (
-        f"{source}: variable {name!r} has {n} value(s) outside [{lo:g}, {hi:g}]{u}{conv}, "
-        f"first {values.flat[i]:.6g}{u} at {_where(i, values.shape, ds_shape)}{hint}"))
+
+    def __init__(self, name: str, unit: str, spec: dict, ds_shape: xr.Dataset, source: str,
+                 hint: str = "") -> None:
+        self.name, self.unit, self.ds_shape, self.source, self.hint = name, unit, ds_shape, source, hint
+        lo, hi = (None, None) if spec.get("range") is None else spec["range"]
+        self.lo = -np.inf if lo is None else float(lo)
+        self.hi = np.inf if hi is None else float(hi)
+        self.inf, self.outside = _FirstBad(), _FirstBad()
+
+    def add(self, values: np.ndarray, offset: int) -> None:
+        """Check one block of the (time, height) values; ``offset`` its first flat index."""
+        self.inf.add(np.isinf(values), values, offset)
+        with np.errstate(invalid="ignore"):
+            self.outside.add((values < self.lo) | (values > self.hi), values, offset)
+
+    def done(self) -> None:
+        """Raise for what the blocks held, infinite values first."""
+        name, source = self.name, self.source
+        shape = tuple(self.ds_shape.sizes[d] for d in ("time", "height"))
+        if self.inf.count:
+            raise InputError(
+                f"{source}: variable {name!r} has {self.inf.count} infinite value(s), first "
+                f"{self.inf.value:g} at {_where(self.inf.first, shape, self.ds_shape)}; expected finite "
+                "values (NaN marks a missing value)")
+        if self.outside.count:
+            unit = self.unit
+            u, conv = ("", "") if unit == "1" else (f" {unit}", f" (after conversion to {unit})")
+            raise InputError(
+                f"{source}: variable {name!r} has {self.outside.count} value(s) outside "
+                f"[{self.lo:g}, {self.hi:g}]{u}{conv}, first {self.outside.value:.6g}{u} at "
+                f"{_where(self.outside.first, shape, self.ds_shape)}{self.hint}")
 
 
 def _check_height(ds: xr.Dataset, source: str) -> np.ndarray:
@@ -109,13 +148,65 @@ def conditions_checksum(ds: xr.Dataset, names: tuple[str, ...] | None = None) ->
     Identical for a file and for the same data passed as a Dataset, so it can key cached
     simulation chunks independently of file metadata.
     """
-    digest = hashlib.sha256()
-    digest.update(np.ascontiguousarray(ds["height"].values, dtype=float).tobytes())
-    digest.update(np.ascontiguousarray(ds["time"].values).view(np.uint8).tobytes())
+    digest = _checksum_start(ds["height"].values, ds["time"].values)
     for name in names or CONDITION_NAMES:
         digest.update(name.encode())
         digest.update(np.ascontiguousarray(ds[name].values, dtype=float).tobytes())
     return digest.hexdigest()
+
+
+#: One read of a lazily loaded input at a time: dask's threads must not enter HDF5 together.
+_READ_LOCK = threading.Lock()
+#: The last blocks read from a file, every variable converted (:func:`_file_block`): a block's
+#: variables are asked for one by one, and the file is opened once for them all.
+_LAST_BLOCKS: dict[tuple, xr.Dataset] = {}
+
+
+def _file_block(path: str, periods: slice) -> xr.Dataset:
+    """Return ``periods`` of the file ``path``: its (time, height) variables, loaded, as the file has them.
+
+    Opened and closed here (call it under :data:`_READ_LOCK`); the last two blocks are kept, keyed
+    by the file's size and modification time too, so a file rewritten meanwhile is read again.
+    """
+    stat = Path(path).stat()
+    key = (path, stat.st_size, stat.st_mtime_ns, periods.start, periods.stop)
+    if key not in _LAST_BLOCKS:
+        with xr.open_dataset(path, engine="netcdf4", cache=False, decode_times=False) as f:
+            part = f.isel(time=periods)
+            names = [n for n in part.data_vars if set(part[n].dims) == {"time", "height"}]
+            block = part[names].load()
+        while len(_LAST_BLOCKS) >= 2:
+            _LAST_BLOCKS.pop(next(iter(_LAST_BLOCKS)))
+        _LAST_BLOCKS[key] = block
+    return _LAST_BLOCKS[key]
+
+
+def _checksum_start(height: np.ndarray, time: np.ndarray):
+    """Return the conditions' SHA-256 fed the heights and times (:func:`conditions_checksum`)."""
+    digest = hashlib.sha256()
+    digest.update(np.ascontiguousarray(height, dtype=float).tobytes())
+    digest.update(np.ascontiguousarray(time).view(np.uint8).tobytes())
+    return digest
+
+
+def _canonical(raw: xr.Dataset | str, name: str, periods: slice, order: np.ndarray, source: str,
+               fold: bool = True) -> np.ndarray:
+    """(time, height) values of ``periods`` of ``name`` in canonical units, heights ascending.
+
+    ``raw`` is the input in memory, or the path of its file: then the block is read through a
+    handle of its own, opened and closed here under one lock.  A lazily read input is read in
+    dask's threads; no handle of its file outlives a read, for the garbage collector to close in
+    one thread while another reads (HDF5 is not thread-safe: that crashes the process).
+    With ``fold`` a direction is folded into [0, 360) degree; the loader's range check sees the
+    values as given (a direction of 1000 degree is refused, not wrapped).
+    """
+    if isinstance(raw, str):
+        with _READ_LOCK:
+            block = _file_block(raw, periods)
+        return _canonical(block, name, slice(None), order, source, fold)
+    da = convert_variable(raw.isel(time=periods), name, CANONICAL_UNITS[name], source=source)
+    values = np.asarray(da.transpose("time", "height").values, dtype=float)[:, order]
+    return np.mod(values, 360.0) if fold and name == "wind_from_direction" else values
 
 
 def load_conditions(
@@ -123,6 +214,7 @@ def load_conditions(
     kind: str = "conditions",
     *,
     warn: bool = True,
+    block: int | None = None,
 ) -> xr.Dataset:
     """Open, convert and check a ``conditions`` or ``field_campaign`` input.
 
@@ -135,6 +227,11 @@ def load_conditions(
         ``reference_wind_speed``.
     warn : bool
         Emit a :class:`SkippedPeriodsWarning` when periods have missing values.
+    block : int, optional
+        Read and check the input ``block`` periods at a time and return its variables lazily
+        (dask arrays, one chunk per block, read and converted again when used): memory does not
+        grow with the input's length (``lidarcal smc`` on a long campaign).  Default: load
+        everything at once.
 
     Returns
     -------
@@ -159,7 +256,7 @@ def load_conditions(
     if isinstance(path_or_dataset, xr.Dataset):
         raw = path_or_dataset
     else:
-        raw = open_artefact(Path(path_or_dataset))
+        raw = open_artefact(Path(path_or_dataset), load=block is None)
     if "time" not in raw.dims:
         raise MissingVariableError(
             f"{source}: dimension 'time' is missing; found dims {sorted(map(str, raw.dims))}"
@@ -174,25 +271,43 @@ def load_conditions(
             f"found {sorted(map(str, raw.data_vars))}"
         )
     order = np.argsort(heights, kind="stable")
-    data = {}
     for name in needed:
-        var = raw[name]
-        if set(var.dims) != {"time", "height"}:
+        if set(raw[name].dims) != {"time", "height"}:
             raise InputError(
-                f"{source}: variable {name!r} has dims {tuple(var.dims)}; expected ('time', 'height')"
+                f"{source}: variable {name!r} has dims {tuple(raw[name].dims)}; expected ('time', 'height')"
             )
-        da = convert_variable(raw, name, CANONICAL_UNITS[name], source=source).transpose("time", "height")
-        values = np.asarray(da.values, dtype=float)[:, order]
-        data[name] = values
+    nt = raw.sizes["time"]
+    slices = [slice(0, nt)] if block is None else [slice(a, min(a + int(block), nt))
+                                                    for a in range(0, nt, max(1, int(block)))]
     ds_shape = xr.Dataset(coords={"time": raw["time"].values, "height": heights[order]})
     declared = {**declared_variables("conditions"), **declared_variables(kind)}  # ranges, as validated
     hints = {"turbulence_intensity": "; expected a fraction sigma_u / U (percent must carry units '%')"}
-    for name in needed:
-        _check_values(name, data[name], CANONICAL_UNITS[name], declared.get(name, {}), ds_shape, source,
-                      hints.get(name, ""))
-    data["wind_from_direction"] = np.mod(data["wind_from_direction"], 360.0)
-
-    complete = np.all([np.isfinite(data[n]) for n in needed], axis=0)
+    complete = np.ones((nt, heights.size), dtype=bool)
+    digest = _checksum_start(heights[order], raw["time"].values)
+    data = {}
+    # a lazily read file: every block through a handle of its own (_canonical); in memory: raw itself
+    file = str(raw.encoding.get("source", "")) if block is not None else ""
+    reader = file if file and Path(file).is_file() else raw
+    for name in needed:  # each variable block by block: converted, checked, hashed (as folded)
+        check = _ValueCheck(name, CANONICAL_UNITS[name], declared.get(name, {}), ds_shape, source,
+                            hints.get(name, ""))
+        digest.update(name.encode())
+        for sl in slices:
+            values = _canonical(reader, name, sl, order, source, fold=False)
+            check.add(values, sl.start * heights.size)
+            if name == "wind_from_direction":
+                values = np.mod(values, 360.0)
+            complete[sl] &= np.isfinite(values)
+            digest.update(np.ascontiguousarray(values, dtype=float).tobytes())
+            if block is None:
+                data[name] = values
+        check.done()
+        if block is not None:  # lazy: each block read and converted again when it is used
+            read = dask.delayed(functools.partial(_canonical, reader, name, order=order, source=source),
+                                pure=False)
+            data[name] = dask.array.concatenate(
+                [dask.array.from_delayed(read(sl), shape=(sl.stop - sl.start, heights.size), dtype=float)
+                 for sl in slices], axis=0)
 
     dims = ("time", "height")
     out = xr.Dataset(coords={"time": raw["time"].copy(), "height": height_coord(heights[order])})
@@ -205,7 +320,7 @@ def load_conditions(
         attrs = {("lidar_serial" if k == LEGACY_SERIAL else k): (serial if k == LEGACY_SERIAL else v)
                  for k, v in attrs.items() if k != "lidar_serial"}
     out.attrs = attrs
-    out.attrs["lidarcal_conditions_checksum"] = conditions_checksum(out, needed)
+    out.attrs["lidarcal_conditions_checksum"] = digest.hexdigest()  # conditions_checksum(out, needed)
     n_skip = int((~complete).sum())
     out.attrs["lidarcal_skipped_count"] = n_skip
     # a field_campaign holds everything a conditions input needs, so it may stand in for one

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import dask
 import numpy as np
 import xarray as xr
 
@@ -54,10 +55,13 @@ from lidarcal.smc.routes import IecRoute, iec_route, table_edges
 from lidarcal.smc.subsample import DEFAULT_PERIODS_PER_BIN
 from lidarcal.smc.user_terms import UserTerm, load_user_terms
 
-__all__ = ["smc", "Campaign", "campaign_conditions", "HEIGHT_TOLERANCE"]
+__all__ = ["smc", "Campaign", "campaign_conditions", "HEIGHT_TOLERANCE", "BLOCK_PERIODS"]
 
 log = logging.getLogger(__name__)
 
+#: Periods per block: a campaign is read, computed and written 30 days of 10-minute periods at a
+#: time (a year is 13 blocks; :mod:`lidarcal.smc.periods`).
+BLOCK_PERIODS = 4320
 #: A campaign height within this distance (m) of a certified height is that height.
 HEIGHT_TOLERANCE = 1e-3
 #: Budget contributors the Monte Carlo route carries over from the certificate (its trials cannot
@@ -127,8 +131,17 @@ def _from_sta(
 
 
 def _from_conditions(cert: Certified, path: str | os.PathLike) -> tuple[xr.Dataset, dict[str, Path], str]:
-    raw = open_artefact(path)
-    name = source_name(path)
+    raw = open_artefact(path, load=False)  # read block by block (lidarcal.smc.periods)
+    try:
+        _check_configuration(cert, raw, source_name(path))
+    except BaseException:
+        raw.close()
+        raise
+    return raw, {"conditions": Path(path)}, Path(path).name
+
+
+def _check_configuration(cert: Certified, raw: xr.Dataset, name: str) -> None:
+    """Refuse a conditions file of another unit, cone angle or hybrid weight than the certificate's."""
     _serial_check(cert, lidar_serial(raw.attrs), f"{name}: global attribute 'lidar_serial'")
     cone = read_attr(raw, "lidar_cone_angle", kind="conditions", default=None, source=name)
     if cone is None:
@@ -144,7 +157,6 @@ def _from_conditions(cert: Certified, path: str | os.PathLike) -> tuple[xr.Datas
                 f"{name}: global attribute 'lidar_hybrid_weight': expected {cert.hybrid_weight:.6g} "
                 f"(the certificate's lidar model); found {p:.6g}"
             )
-    return raw, {"conditions": Path(path)}, Path(path).name
 
 
 def _with_time_bounds(ds: xr.Dataset, raw: xr.Dataset) -> xr.Dataset:
@@ -189,10 +201,16 @@ def campaign_conditions(
             "one of the two"
         )
     if conditions is not None:
-        ds, inputs, source = _from_conditions(cert, conditions)
+        raw, inputs, source = _from_conditions(cert, conditions)
     else:
-        ds, inputs, source = _from_sta(cert, list(files), min_availability, allow_gaps)
-    ds = _with_time_bounds(load_conditions(ds, warn=False), ds)
+        raw, inputs, source = _from_sta(cert, list(files), min_availability, allow_gaps)
+    # a conditions file is read lazily, a block of periods at a time (each read through a handle of
+    # its own: the one opened here is closed once the checks are done); .sta files are parsed in memory
+    block = BLOCK_PERIODS if conditions is not None else None
+    try:
+        ds = _with_time_bounds(load_conditions(raw, warn=False, block=block), raw)
+    finally:
+        raw.close()
     if ds.sizes["time"] < 2:
         raise InputError(
             f"{source}: dimension 'time': expected at least 2 ten-minute periods (a campaign); "
@@ -309,13 +327,15 @@ def smc(
     )
     inputs = {"certificate": cert.path, **inputs, **({"user_terms": Path(user_terms)} if user_terms else {})}
     height_index = _heights(cert, ds, source)
-    speed = ds["wind_speed"].transpose("time", "height").values
-    if not np.isfinite(speed[:, height_index >= 0]).any():
+    ws = ds["wind_speed"]  # reductions in one pass over a lazily read campaign
+    certified = ws.isel(height=np.flatnonzero(height_index >= 0))
+    lowest, highest, total = dask.compute(ws.min(), ws.max(), certified.count())
+    if not int(total):
         raise InputError(
             f"{source}: variable 'wind_speed': no period has a wind speed at a certified height "
             "(an empty campaign)"
         )
-    edges = table_edges(cert.budget, speed)
+    edges = table_edges(cert.budget, np.array([float(lowest), float(highest)]))
     iec = iec_route(cert, ds, height_index)
     mc, note = None, "not run (monte_carlo=False, --no-monte-carlo)"
     replicas = (
@@ -352,7 +372,7 @@ def smc(
             carried=_carried(cert, height_index),
         )
         sampled = mc.simulated
-        total = int(np.isfinite(speed[:, height_index >= 0]).sum())
+        total = int(total)
         note = (f"run: {mc.replicas} replica(s), base seed {int(base_seed)}, "
                 + ("every period" if periods_per_bin is None else
                    f"at most {int(periods_per_bin)} periods per height and wind-speed bin")

@@ -28,9 +28,9 @@ from lidarcal.provenance import stamp
 from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 from lidarcal.smc.certified import flag_meanings
-from lidarcal.smc.core import Campaign
+from lidarcal.smc.core import BLOCK_PERIODS, Campaign
 from lidarcal.smc.montecarlo import REGRESSORS
-from lidarcal.smc.periods import BLOCK_PERIODS, CONTRIBUTORS, BinSums, blocks, contributor_names, period_block
+from lidarcal.smc.periods import CONTRIBUTORS, BinSums, blocks, contributor_names, period_block
 from lidarcal.smc.routes import (
     QUANTILES,
     calibration_quantiles,
@@ -179,7 +179,7 @@ def smc_dataset(c: Campaign, *, call: str | None = None, block: int = BLOCK_PERI
         }
     )
     for name in CONDITION_NAMES:
-        ds[name] = (dims, cond[name].values, dict(cond[name].attrs))
+        ds[name] = (dims, cond[name].data, dict(cond[name].attrs))  # lazy when the campaign is
     lazy = _lazy_periods(c, slices, kinds, len(names))
     for name, values in lazy.items():
         if name not in ("contribution", "outside_envelope"):

@@ -344,7 +344,7 @@ def _subsample_records(
     the same numbers a full campaign gives at those cells (the seed is the period's, docs/seeds.md).
     """
     rows = np.flatnonzero(chosen.any(axis=1))
-    sub = conditions.isel(time=rows)
+    sub = conditions.isel(time=rows).compute()  # a bounded number of periods, however long the campaign
     heights = np.asarray(sub["height"].values, dtype=float)
     done = simulate_replicas(sub, model, chosen[rows], [0], heights=heights.tolist(),
                              base_seed=int(base_seed), execution=execution)[0]
@@ -413,33 +413,44 @@ def monte_carlo_route(
     digits, k = rule.significant_digits, rule.coverage_factor
     heights = np.asarray(conditions["height"].values, dtype=float)
     cond = conditions.transpose("time", "height", ...)
-    speed = cond["wind_speed"].values
-    chosen = subsample.select(
-        speed,
-        np.stack([cond[n].values for n in ("turbulence_intensity", "wind_shear_exponent", "cnr")], axis=-1),
-        cond["wind_from_direction"].values,
-        period_keys(cond["time"].values),
-        heights,
-        np.asarray(lookup_edges, dtype=float),
-        None if periods_per_bin is None else int(periods_per_bin),
-        int(base_seed),
-    )
-    inside = np.isfinite(speed) & (speed >= lookup_edges[0]) & (speed < lookup_edges[-1])
+    keys = period_keys(cond["time"].values)
+    lookup_edges = np.asarray(lookup_edges, dtype=float)
+    nt, nh, nb = cond.sizes["time"], heights.size, len(lookup_edges) - 1
     # the budget never extrapolates the certificate's Table 4 terms: a period beyond their speeds
     # (less one bin for the reference's own drift) cannot be budgeted, so it is not simulated
     span = _terms_span(terms)
-    chosen &= (speed >= span[0]) & (speed <= span[1])
-    inside &= (speed >= span[0]) & (speed <= span[1])
+    chosen, inside = np.zeros((nt, nh), dtype=bool), np.zeros((nt, nh), dtype=bool)
+    population, got = np.zeros((nh, nb), dtype=np.int64), np.zeros((nh, nb), dtype=np.int64)
+    for i in range(nh):  # one height's conditions at a time (a long campaign's are read lazily)
+        col = cond.isel(height=i).compute()
+        speed = col["wind_speed"].values
+        within = (speed >= span[0]) & (speed <= span[1])
+        strata = ("turbulence_intensity", "wind_shear_exponent", "cnr")
+        chosen[:, i] = within & subsample.select_height(
+            speed,
+            np.stack([col[n].values for n in strata], axis=-1),
+            col["wind_from_direction"].values,
+            keys,
+            heights[i],
+            lookup_edges,
+            None if periods_per_bin is None else int(periods_per_bin),
+            int(base_seed),
+        )
+        inside[:, i] = np.isfinite(speed) & (speed >= lookup_edges[0]) & (speed < lookup_edges[-1]) & within
+        # each simulated cell stands for N / n campaign periods of its own-speed bin (N periods, n simulated)
+        lookup = bin_index(speed, lookup_edges)
+        population[i] = np.bincount(lookup[lookup >= 0], minlength=nb)
+        got[i] = np.bincount(lookup[(lookup >= 0) & chosen[:, i]], minlength=nb)
     if (chosen == inside).all():  # every period: the campaign as a whole
-        sim_cond = conditions
+        sim_cond = conditions.compute()
         records = simulate_campaign(
-            conditions,
+            sim_cond,
             model,
             base_seed=int(base_seed),
             execution=execution,
             call="lidarcal smc (Monte Carlo route)",
         ).transpose("time", "height", ...)
-        rows = np.arange(conditions.sizes["time"])
+        rows = np.arange(nt)
     else:
         log.info(
             "Monte Carlo route: simulating %d of %d (period, height) cells, at most %d periods per height "
@@ -483,18 +494,12 @@ def monte_carlo_route(
         targets = _targets(bud, covered)
         tol, flag = _assess(current, bud, targets, digits, k)
     fit, slopes, count = _expected(current, sim_cond, lookup_edges)
-    # each simulated cell stands for N / n campaign periods of its own-speed bin (N periods, n simulated)
-    lookup_edges = np.asarray(lookup_edges, dtype=float)
-    nb = len(lookup_edges) - 1
-    weight = np.zeros((rows.size, speed.shape[1]))  # at the simulated periods only
-    for i in range(speed.shape[1]):
-        lookup = bin_index(speed[:, i], lookup_edges)
-        mine = lookup >= 0
-        pop = np.bincount(lookup[mine], minlength=nb)
-        got = np.bincount(lookup[mine & chosen[:, i]], minlength=nb)
-        at = lookup[rows]
+    sim_speed = sim_cond.transpose("time", "height", ...)["wind_speed"].values  # the simulated periods'
+    weight = np.zeros((rows.size, nh))
+    for i in range(nh):
+        at = bin_index(sim_speed[:, i], lookup_edges)
         with np.errstate(invalid="ignore", divide="ignore"):
-            weight[:, i] = np.where(at >= 0, (pop / np.maximum(got, 1))[np.maximum(at, 0)], 0.0)
+            weight[:, i] = np.where(at >= 0, (population[i] / np.maximum(got[i], 1))[np.maximum(at, 0)], 0.0)
     m, se_mean, se_sd, population = _subsample_errors(current, bud, weight)
     return MonteCarloRoute(
         records=current,

@@ -9,30 +9,26 @@ at a time, and writes them to ``smc.nc`` block by block (a dask array per variab
 block): the memory the command needs does not grow with the campaign's length beyond the
 campaign's own conditions (``docs/smc.md``, "Long campaigns").
 
-A block is :data:`BLOCK_PERIODS` periods.  Per-period values do not depend on it; the per-bin
-tables' sums are added block after block, so a table value may differ in its last bit between
-two block sizes (never between two runs, schedulers or machines: the size is fixed).
+A block is :data:`lidarcal.smc.core.BLOCK_PERIODS` periods (30 days).  Per-period values do not
+depend on it; the per-bin tables' sums are added block after block, so a table value may differ
+in its last bit between two block sizes (never between two runs, schedulers or machines: the
+size is fixed).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lidarcal.binning import bin_index
+from lidarcal.smc.core import BLOCK_PERIODS, Campaign
 from lidarcal.smc.kernels import binned_mean_finish, binned_mean_sums, quadrature
 from lidarcal.smc.routes import COVERAGE, budget_edges, calibration_part, envelope
 
-if TYPE_CHECKING:
-    from lidarcal.smc.core import Campaign
+__all__ = ["CONTRIBUTORS", "Block", "BinSums", "blocks", "contributor_names", "period_block"]
 
-__all__ = ["BLOCK_PERIODS", "CONTRIBUTORS", "Block", "BinSums", "blocks", "contributor_names", "period_block"]
-
-#: Periods per block: 30 days of 10-minute periods (a year is 13 blocks).
-BLOCK_PERIODS = 4320
 #: The contributors lidarcal computes, in order; the user's terms follow.
 CONTRIBUTORS = ("calibration", "environmental_iec", "environmental_monte_carlo")
 #: Per-period uncertainties whose root mean square over a bin's covered periods the tables give.

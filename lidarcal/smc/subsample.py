@@ -45,7 +45,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["DEFAULT_PERIODS_PER_BIN", "MIN_PERIODS", "SPAWN_KEY", "select", "select_bin", "standard_errors"]
+__all__ = ["DEFAULT_PERIODS_PER_BIN", "MIN_PERIODS", "SPAWN_KEY", "select", "select_height", "select_bin",
+           "standard_errors"]
 
 #: Periods simulated per (height, wind-speed bin) by default: a year of 12 heights in <= 15 min on 2
 #: cores with the default replicas (docs/performance.md), a mean deviation to s / 10.
@@ -125,7 +126,30 @@ def select(
     ``speed`` (time, height) the periods' own wind speeds, ``conditions`` (time, height, variable)
     what the bin is stratified over, ``direction`` (time, height) degrees, ``period_key`` (time,),
     ``heights`` (height,) m, ``edges`` the wind-speed bins (m s-1).  ``n`` None: every period with
-    a wind speed.  See the module docstring.
+    a wind speed.  See the module docstring; :func:`select_height` is one height's.
+    """
+    speed = np.asarray(speed, dtype=float)
+    return np.stack(
+        [select_height(speed[:, j], np.asarray(conditions)[:, j], np.asarray(direction)[:, j], period_key, z,
+                       edges, n, base_seed) for j, z in enumerate(np.asarray(heights, dtype=float))],
+        axis=1,
+    ).reshape(speed.shape)
+
+
+def select_height(
+    speed: np.ndarray,
+    conditions: np.ndarray,
+    direction: np.ndarray,
+    period_key: np.ndarray,
+    height: float,
+    edges: np.ndarray,
+    n: int | None,
+    base_seed: int,
+) -> np.ndarray:
+    """(time,) bool: the periods the Monte Carlo route simulates at one height (:func:`select`'s column).
+
+    ``speed`` (time,), ``conditions`` (time, variable), ``direction`` (time,) at ``height`` (m):
+    the route takes a long campaign one height at a time.
     """
     speed = np.asarray(speed, dtype=float)
     inside = np.isfinite(speed) & (speed >= edges[0]) & (speed < edges[-1])
@@ -134,16 +158,16 @@ def select(
     out = np.zeros(speed.shape, dtype=bool)
     centres = 0.5 * (edges[:-1] + edges[1:])
     order = np.argsort(np.asarray(period_key, dtype=np.int64), kind="stable")  # time order, not file order
-    for j, z in enumerate(np.asarray(heights, dtype=float)):
-        s = speed[order, j]
-        b = np.where(inside[order, j], np.searchsorted(edges, s, side="right") - 1, -1)
-        for k in np.unique(b[b >= 0]):
-            rows = np.flatnonzero(b == k)
-            seed = np.random.SeedSequence(
-                [int(base_seed), int(round(z * 1000)), int(round(centres[k] * 1000))], spawn_key=(SPAWN_KEY,)
-            )
-            pick = select_bin(conditions[order[rows], j], direction[order[rows], j], int(n), seed)
-            out[order[rows[pick]], j] = True
+    s = speed[order]
+    b = np.where(inside[order], np.searchsorted(edges, s, side="right") - 1, -1)
+    for k in np.unique(b[b >= 0]):
+        rows = np.flatnonzero(b == k)
+        seed = np.random.SeedSequence(
+            [int(base_seed), int(round(float(height) * 1000)), int(round(centres[k] * 1000))],
+            spawn_key=(SPAWN_KEY,),
+        )
+        pick = select_bin(conditions[order[rows]], direction[order[rows]], int(n), seed)
+        out[order[rows[pick]]] = True
     return out
 
 
