@@ -179,7 +179,7 @@ def smc_dataset(c: Campaign, *, call: str | None = None, block: int = BLOCK_PERI
         }
     )
     for name in CONDITION_NAMES:
-        ds[name] = (dims, cond[name].data, dict(cond[name].attrs))  # lazy when the campaign is
+        ds[name] = (dims, _in_blocks(cond[name].data, block), dict(cond[name].attrs))
     lazy = _lazy_periods(c, slices, kinds, len(names))
     for name, values in lazy.items():
         if name not in ("contribution", "outside_envelope"):
@@ -279,6 +279,12 @@ def _lazy_periods(c: Campaign, slices: list[slice], kinds: dict[str, np.dtype],
         parts = [da.from_delayed(piece[name], shape=(*lead, n, nh), dtype=kind) for piece, n in pieces]
         out[name] = da.concatenate(parts, axis=len(lead))
     return out
+
+
+def _in_blocks(values, block: int) -> da.Array:
+    """(time, ...) values as a dask array of the per-period variables' blocks (written alike)."""
+    chunks = (max(1, int(block)), *(-1,) * (values.ndim - 1))
+    return values.rechunk(chunks) if isinstance(values, da.Array) else da.from_array(values, chunks=chunks)
 
 
 def _block_arrays(c: Campaign, periods: slice) -> dict[str, np.ndarray]:
