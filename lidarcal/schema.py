@@ -505,12 +505,14 @@ def _dims_match(found, expected, stackable) -> bool:
 
 
 def _lazy_value_stats(ds: xr.Dataset) -> dict[str, tuple[int, float, float]]:
-    """(NaN count, least and greatest non-NaN value) of every dask-backed numeric variable.
+    """(NaN count, least and greatest non-NaN value) of every numeric variable of several dask chunks.
 
     All in one computation on this process, so a lazily computed artefact (``smc``: one chunk per
-    block of periods) is computed once for its checks, a block at a time, whatever its length.
+    block of periods) is computed once for its checks, a block at a time, whatever its length.  A
+    variable of one chunk (a lazily opened file's) is read whole by the caller, as it is cheaper.
     """
-    lazy = {str(n): v for n, v in ds.variables.items() if v.chunks is not None and v.dtype.kind in "fiu"}
+    lazy = {str(n): v for n, v in ds.variables.items()
+            if v.chunks is not None and v.dtype.kind in "fiu" and any(len(c) > 1 for c in v.chunks)}
     if not lazy:
         return {}
     import dask  # deferred: only for lazy datasets
@@ -575,11 +577,15 @@ def validate_dataset(
     *,
     source: str = "<dataset>",
     raise_on_error: bool = False,
+    value_stats: Mapping[str, tuple[int, float, float]] | None = None,
 ) -> list[str]:
     """Check ``ds`` against the schema of ``kind`` (default: its ``lidarcal_artefact``).
 
     Returns the list of problems (empty when valid); with ``raise_on_error`` a non-empty
     list raises :class:`~lidarcal.errors.ValidationError` carrying all of them.
+    ``value_stats``: variables whose values the caller has already gone through, by name: (NaN
+    count, least and greatest non-NaN value) of the values ``ds`` holds (a lazily read input,
+    checked block by block as it was read: not read again here).
     """
     found_kind = ds.attrs.get("lidarcal_artefact")
     kind = kind or found_kind
@@ -596,7 +602,8 @@ def validate_dataset(
                 problems.append(f"dimension {dim!r} is missing; found {sorted(map(str, ds.dims))}")
         exact = {n for section in ("coordinates", "variables") for n in schema.get(section) or {}
                  if not _is_template(n)}
-        stats = _lazy_value_stats(ds)
+        known = dict(value_stats or {})
+        stats = {**_lazy_value_stats(ds.drop_vars(list(known), errors="ignore")), **known}
         for section, role in (("coordinates", "coordinate"), ("variables", "variable")):
             for name, spec in (schema.get(section) or {}).items():
                 if not _is_template(name):

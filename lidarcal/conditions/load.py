@@ -171,7 +171,8 @@ def _file_block(path: str, periods: slice) -> xr.Dataset:
     stat = Path(path).stat()
     key = (path, stat.st_size, stat.st_mtime_ns, periods.start, periods.stop)
     if key not in _LAST_BLOCKS:
-        with xr.open_dataset(path, engine="netcdf4", cache=False, decode_times=False) as f:
+        with xr.open_dataset(path, engine="netcdf4", cache=False, decode_times=False,
+                             create_default_indexes=False) as f:  # a block's values only: no index
             part = f.isel(time=periods)
             names = [n for n in part.data_vars if set(part[n].dims) == {"time", "height"}]
             block = part[names].load()
@@ -179,6 +180,16 @@ def _file_block(path: str, periods: slice) -> xr.Dataset:
             _LAST_BLOCKS.pop(next(iter(_LAST_BLOCKS)))
         _LAST_BLOCKS[key] = block
     return _LAST_BLOCKS[key]
+
+
+def _with_block_stats(so_far: tuple[int, float, float] | None,
+                      values: np.ndarray) -> tuple[int, float, float]:
+    """Return (NaN count, least, greatest non-NaN value) of the blocks so far and ``values``."""
+    nan = np.isnan(values)
+    n, lo, hi = so_far or (0, np.inf, -np.inf)
+    if (~nan).any():
+        lo, hi = min(lo, float(values[~nan].min())), max(hi, float(values[~nan].max()))
+    return n + int(nan.sum()), lo, hi
 
 
 def _checksum_start(height: np.ndarray, time: np.ndarray):
@@ -284,7 +295,7 @@ def load_conditions(
     hints = {"turbulence_intensity": "; expected a fraction sigma_u / U (percent must carry units '%')"}
     complete = np.ones((nt, heights.size), dtype=bool)
     digest = _checksum_start(heights[order], raw["time"].values)
-    data = {}
+    data, stats = {}, {}
     # a lazily read file: every block through a handle of its own (_canonical); in memory: raw itself
     file = str(raw.encoding.get("source", "")) if block is not None else ""
     reader = file if file and Path(file).is_file() else raw
@@ -299,6 +310,7 @@ def load_conditions(
                 values = np.mod(values, 360.0)
             complete[sl] &= np.isfinite(values)
             digest.update(np.ascontiguousarray(values, dtype=float).tobytes())
+            stats[name] = _with_block_stats(stats.get(name), values)
             if block is None:
                 data[name] = values
         check.done()
@@ -326,7 +338,9 @@ def load_conditions(
     # a field_campaign holds everything a conditions input needs, so it may stand in for one
     superset = kind == "conditions" and read_attr(out, "lidarcal_artefact") == "field_campaign"
     checked = out.assign_attrs(lidarcal_artefact="conditions") if superset else out
-    problems = validate_dataset(checked, kind, source=source)
+    # the values as stored were gone through above, block by block: not read again to validate
+    problems = validate_dataset(checked, kind, source=source,
+                                value_stats=stats if block is not None else None)
     problems = [p for p in problems if "lidarcal_artefact" not in p]
     if problems:
         raise ValidationError(problems, source)

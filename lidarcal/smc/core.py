@@ -51,7 +51,7 @@ from lidarcal.provenance import lidar_serial
 from lidarcal.readback import read_attr
 from lidarcal.smc.certified import Certified, read_certified
 from lidarcal.smc.montecarlo import MonteCarloRoute, monte_carlo_route
-from lidarcal.smc.routes import IecRoute, iec_route, table_edges
+from lidarcal.smc.routes import IecRoute, envelope_bounds, iec_route, table_edges
 from lidarcal.smc.subsample import DEFAULT_PERIODS_PER_BIN
 from lidarcal.smc.user_terms import UserTerm, load_user_terms
 
@@ -83,6 +83,8 @@ class Campaign:
     source: str  #: how messages name the campaign's files
     height_index: np.ndarray  #: (height,) certified height of each campaign height, -1: none
     edges: np.ndarray  #: the campaign's wind-speed bin edges, m s-1 (:func:`.routes.table_edges`)
+    #: the calibrated envelope (lows, highs), :func:`~lidarcal.smc.routes.envelope_bounds`
+    envelope: tuple[list[np.ndarray], list[np.ndarray]]
     iec: IecRoute
     monte_carlo: MonteCarloRoute | None
     monte_carlo_note: str
@@ -394,6 +396,7 @@ def smc(
         source=source,
         height_index=height_index,
         edges=edges,
+        envelope=envelope_bounds(cert, height_index),
         iec=iec,
         monte_carlo=mc,
         monte_carlo_note=note,

@@ -31,11 +31,7 @@ from lidarcal.smc.certified import flag_meanings
 from lidarcal.smc.core import BLOCK_PERIODS, Campaign
 from lidarcal.smc.montecarlo import REGRESSORS
 from lidarcal.smc.periods import CONTRIBUTORS, BinSums, blocks, contributor_names, period_block
-from lidarcal.smc.routes import (
-    QUANTILES,
-    calibration_quantiles,
-    envelope,
-)
+from lidarcal.smc.routes import ENVELOPE, QUANTILES, calibration_quantiles
 
 __all__ = ["smc_dataset", "binned", "binned_table", "CONTRIBUTORS", "ROUTES", "MEASURAND"]
 
@@ -157,7 +153,7 @@ def smc_dataset(c: Campaign, *, call: str | None = None, block: int = BLOCK_PERI
         kinds = kinds or {n: v.dtype for n, v in one.arrays().items()}
     k = read_attr(cert.budget, "coverage_factor", kind="uncertainty_budget")
     cflags = flag_meanings(cert.budget["bin_flag"])
-    low, high, _, env_names = envelope(cert, cond.isel(time=slice(0, 1)), c.height_index)
+    (low, high), env_names = c.envelope, ENVELOPE
     sources = {**_DESCRIPTION, **{t.name: f"user term ({t.source})" for t in c.user_terms}}
     description = "; ".join(f"{n}: {sources[n]}" for n in names)
     context = {

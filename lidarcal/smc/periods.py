@@ -25,7 +25,7 @@ import numpy as np
 from lidarcal.binning import bin_index
 from lidarcal.smc.core import BLOCK_PERIODS, Campaign
 from lidarcal.smc.kernels import binned_mean_finish, binned_mean_sums, quadrature
-from lidarcal.smc.routes import COVERAGE, budget_edges, calibration_part, envelope
+from lidarcal.smc.routes import COVERAGE, budget_edges, calibration_part, outside_envelope
 
 __all__ = ["CONTRIBUTORS", "Block", "BinSums", "blocks", "contributor_names", "period_block"]
 
@@ -76,7 +76,8 @@ def period_block(c: Campaign, periods: slice) -> Block:
     combinations per route; the coverage and envelope flags; and each contributor's split into a
     part fully correlated across periods and a part independent between them.
     """
-    cond = c.conditions.isel(time=periods).transpose("time", "height", ...)
+    # the block's conditions in one computation (a lazily read campaign's: one read of the block)
+    cond = c.conditions.isel(time=periods).transpose("time", "height", ...).compute()
     start = int(periods.start or 0)
     speed = cond["wind_speed"].values
     nt, nh = speed.shape
@@ -116,7 +117,7 @@ def period_block(c: Campaign, periods: slice) -> Block:
     coverage[(coverage == 0) & ~np.isfinite(quoted)] = COVERAGE.index("environmental_term_missing")
     with np.errstate(invalid="ignore", divide="ignore"):
         rel = 100.0 * quoted / speed
-    _, _, outside, _ = envelope(c.cert, cond, c.height_index)
+    outside = outside_envelope(*c.envelope, cond)
     values = {
         "uncertainty": quoted,
         "relative_uncertainty": rel,

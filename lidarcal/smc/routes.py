@@ -37,6 +37,8 @@ __all__ = [
     "calibration_means",
     "budget_edges",
     "envelope",
+    "envelope_bounds",
+    "outside_envelope",
     "table_edges",
     "calibration_quantiles",
     "QUANTILES",
@@ -233,10 +235,15 @@ def envelope(
     nothing the envelope is NaN and no period is flagged.  Returns (low per variable (height,),
     high per variable (height,), bits (time, height) int8, :data:`ENVELOPE`).
     """
-    nh = conditions.sizes["height"]
+    lows, highs = envelope_bounds(cert, height_index)
+    return lows, highs, outside_envelope(lows, highs, conditions), ENVELOPE
+
+
+def envelope_bounds(cert: Certified, height_index: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Return the calibrated envelope of each :data:`ENVELOPE` variable: (lows, highs), each (height,)."""
+    nh = np.asarray(height_index).size
     lows, highs = [], []
-    bits = np.zeros((conditions.sizes["time"], nh), dtype=np.int8)
-    for k, v in enumerate(ENVELOPE):
+    for v in ENVELOPE:
         lo, hi = np.full(nh, np.nan), np.full(nh, np.nan)
         sens = cert.sensitivities.get(v)
         for j in range(nh):
@@ -251,13 +258,20 @@ def envelope(
                     lo[j], hi[j] = bounds[filled, 0].min(), bounds[filled, 1].max()
             elif v == "cnr" and cert.summary and "cnr_min_db" in cert.summary:
                 lo[j], hi[j] = float(cert.summary["cnr_min_db"]), float(cert.summary["cnr_max_db"])
+        lows.append(lo)
+        highs.append(hi)
+    return lows, highs
+
+
+def outside_envelope(lows: list[np.ndarray], highs: list[np.ndarray], conditions: xr.Dataset) -> np.ndarray:
+    """(time, height) int8: bit k set where :data:`ENVELOPE`'s k-th variable is outside its envelope."""
+    bits = np.zeros((conditions.sizes["time"], conditions.sizes["height"]), dtype=np.int8)
+    for k, (v, lo, hi) in enumerate(zip(ENVELOPE, lows, highs, strict=True)):
         x = conditions[v].transpose("time", "height").values
         with np.errstate(invalid="ignore"):
             out = np.isfinite(x) & ((x < lo[None, :]) | (x > hi[None, :]))
         bits |= (out.astype(np.int8) << k).astype(np.int8)
-        lows.append(lo)
-        highs.append(hi)
-    return lows, highs, bits, ENVELOPE
+    return bits
 
 
 #: Quantile levels of the calibration's distribution of each variable kept in the ``smc`` artefact.
