@@ -360,6 +360,21 @@ def _subsample_records(
     return sub, rec
 
 
+def _height_column(conditions: xr.Dataset, i: int) -> xr.Dataset:
+    """Return the campaign's conditions at its ``i``-th height, in memory, read block after block.
+
+    A lazily read campaign (dask arrays, one chunk per block of periods) is read in its blocks'
+    order, each block once; one in memory is taken as it is.
+    """
+    chunks = conditions["wind_speed"].chunks
+    if chunks is None:
+        return conditions.isel(height=i)
+    edges = np.cumsum((0, *chunks[conditions["wind_speed"].dims.index("time")]))
+    parts = [conditions.isel(height=i, time=slice(int(a), int(b))).compute()
+             for a, b in zip(edges[:-1], edges[1:], strict=True)]
+    return xr.concat(parts, dim="time", data_vars="all", coords="minimal", compat="override")
+
+
 def monte_carlo_route(
     conditions: xr.Dataset,
     model,
@@ -422,7 +437,7 @@ def monte_carlo_route(
     chosen, inside = np.zeros((nt, nh), dtype=bool), np.zeros((nt, nh), dtype=bool)
     population, got = np.zeros((nh, nb), dtype=np.int64), np.zeros((nh, nb), dtype=np.int64)
     for i in range(nh):  # one height's conditions at a time (a long campaign's are read lazily)
-        col = cond.isel(height=i).compute()
+        col = _height_column(cond, i)
         speed = col["wind_speed"].values
         within = (speed >= span[0]) & (speed <= span[1])
         strata = ("turbulence_intensity", "wind_shear_exponent", "cnr")
