@@ -61,6 +61,14 @@ def test_lazy_load_names_the_first_bad_value_and_counts_them_all(tmp_path):
     assert "2 value(s) outside" in str(whole.value) and "(index 25)" in str(whole.value)
 
 
+def test_a_file_changed_under_a_lazy_load_is_refused(tmp_path):
+    path = _campaign(tmp_path / "c.nc")
+    lazy = load_conditions(path, warn=False, block=BLOCK)
+    _campaign(path, turbulence_intensity=([5], [0], 0.3))  # rewritten: other bytes than those hashed
+    with pytest.raises(InputError, match="changed while it was being read"):
+        lazy["turbulence_intensity"].values
+
+
 @pytest.fixture(scope="module")
 def campaign(cert, tmp_path_factory):
     path = _campaign(tmp_path_factory.mktemp("blocks") / "c.nc")

@@ -13,6 +13,7 @@ import hashlib
 import os
 import threading
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import dask
@@ -157,21 +158,39 @@ def conditions_checksum(ds: xr.Dataset, names: tuple[str, ...] | None = None) ->
 
 #: One read of a lazily loaded input at a time: dask's threads must not enter HDF5 together.
 _READ_LOCK = threading.Lock()
-#: The last blocks read from a file, every variable converted (:func:`_file_block`): a block's
-#: variables are asked for one by one, and the file is opened once for them all.
+#: The last blocks read from a file (:func:`_file_block`): a block's variables are asked for one
+#: by one, and the file is opened once for them all.
 _LAST_BLOCKS: dict[tuple, xr.Dataset] = {}
 
 
-def _file_block(path: str, periods: slice) -> xr.Dataset:
+@dataclass(frozen=True)
+class _File:
+    """A lazily read input's file, with its size and modification time when it was first read."""
+
+    path: str
+    size: int
+    mtime_ns: int
+
+    @classmethod
+    def of(cls, path: str) -> _File:
+        stat = Path(path).stat()
+        return cls(str(path), stat.st_size, stat.st_mtime_ns)
+
+
+def _file_block(path: _File, periods: slice) -> xr.Dataset:
     """Return ``periods`` of the file ``path``: its (time, height) variables, loaded, as the file has them.
 
-    Opened and closed here (call it under :data:`_READ_LOCK`); the last two blocks are kept, keyed
-    by the file's size and modification time too, so a file rewritten meanwhile is read again.
+    Opened and closed here (call it under :data:`_READ_LOCK`); the last two blocks are kept.  A
+    file changed since it was first read (and checked, and hashed) is refused: the numbers of a
+    lazily read input are those of the bytes its provenance names.
     """
-    stat = Path(path).stat()
-    key = (path, stat.st_size, stat.st_mtime_ns, periods.start, periods.stop)
+    stat = Path(path.path).stat()
+    if (stat.st_size, stat.st_mtime_ns) != (path.size, path.mtime_ns):
+        raise InputError(f"{path.path}: the file changed while it was being read (size or modification "
+                         "time); expected it unchanged until the command ends")
+    key = (path, periods.start, periods.stop)
     if key not in _LAST_BLOCKS:
-        with xr.open_dataset(path, engine="netcdf4", cache=False, decode_times=False,
+        with xr.open_dataset(path.path, engine="netcdf4", cache=False, decode_times=False,
                              create_default_indexes=False) as f:  # a block's values only: no index
             part = f.isel(time=periods)
             names = [n for n in part.data_vars if set(part[n].dims) == {"time", "height"}]
@@ -200,7 +219,7 @@ def _checksum_start(height: np.ndarray, time: np.ndarray):
     return digest
 
 
-def _canonical(raw: xr.Dataset | str, name: str, periods: slice, order: np.ndarray, source: str,
+def _canonical(raw: xr.Dataset | _File, name: str, periods: slice, order: np.ndarray, source: str,
                fold: bool = True) -> np.ndarray:
     """(time, height) values of ``periods`` of ``name`` in canonical units, heights ascending.
 
@@ -211,7 +230,7 @@ def _canonical(raw: xr.Dataset | str, name: str, periods: slice, order: np.ndarr
     With ``fold`` a direction is folded into [0, 360) degree; the loader's range check sees the
     values as given (a direction of 1000 degree is refused, not wrapped).
     """
-    if isinstance(raw, str):
+    if isinstance(raw, _File):
         with _READ_LOCK:
             block = _file_block(raw, periods)
         return _canonical(block, name, slice(None), order, source, fold)
@@ -298,7 +317,7 @@ def load_conditions(
     data, stats = {}, {}
     # a lazily read file: every block through a handle of its own (_canonical); in memory: raw itself
     file = str(raw.encoding.get("source", "")) if block is not None else ""
-    reader = file if file and Path(file).is_file() else raw
+    reader = _File.of(file) if file and Path(file).is_file() else raw
     for name in needed:  # each variable block by block: converted, checked, hashed (as folded)
         check = _ValueCheck(name, CANONICAL_UNITS[name], declared.get(name, {}), ds_shape, source,
                             hints.get(name, ""))
