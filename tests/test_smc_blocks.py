@@ -66,7 +66,7 @@ def test_a_file_changed_under_a_lazy_load_is_refused(tmp_path):
     lazy = load_conditions(path, warn=False, block=BLOCK)
     _campaign(path, turbulence_intensity=([5], [0], 0.3))  # rewritten: other bytes than those hashed
     with pytest.raises(InputError, match="changed while it was being read"):
-        lazy["turbulence_intensity"].values
+        lazy["turbulence_intensity"].load()
 
 
 @pytest.fixture(scope="module")
