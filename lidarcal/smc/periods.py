@@ -6,8 +6,9 @@ period.  :func:`period_block` computes them for any run of consecutive periods; 
 adds up, block after block, what the per-bin tables are made of (counts, sums, sums of squares).
 So :func:`lidarcal.smc.dataset.smc_dataset` holds one block of the campaign's per-period values
 at a time, and writes them to ``smc.nc`` block by block (a dask array per variable, one chunk per
-block): the memory the command needs does not grow with the campaign's length beyond the
-campaign's own conditions (``docs/smc.md``, "Long campaigns").
+block), and a conditions file is read block by block too (``load_conditions(block=...)``): the
+memory the command needs does not grow with the campaign's length (``docs/smc.md``, "Long
+campaigns: speed and memory").
 
 A block is :data:`lidarcal.smc.core.BLOCK_PERIODS` periods (30 days).  Per-period values do not
 depend on it; the per-bin tables' sums are added block after block, so a table value may differ
