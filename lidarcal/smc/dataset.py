@@ -29,7 +29,7 @@ from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 from lidarcal.smc.certified import flag_meanings
 from lidarcal.smc.core import BLOCK_PERIODS, Campaign
-from lidarcal.smc.montecarlo import REGRESSORS
+from lidarcal.smc.expected import REGRESSORS
 from lidarcal.smc.periods import CONTRIBUTORS, BinSums, blocks, contributor_names, period_block
 from lidarcal.smc.routes import ENVELOPE, QUANTILES, calibration_quantiles
 

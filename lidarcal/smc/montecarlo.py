@@ -17,8 +17,8 @@ and then:
   (:func:`with_carried`);
 * **per period** the deviation expected of the virtual lidar given its conditions: the bin's
   mean deviation plus pooled within-bin least-squares slopes on TI, shear, CNR and CNR gradient
-  (:func:`lidarcal.smc.kernels.within_bin_fit`), so one period's turbulence draw does not pass
-  for an environmental effect.
+  (:mod:`lidarcal.smc.expected`), so one period's turbulence draw does not pass for an
+  environmental effect.
 
 **Numerical tolerance, adaptively** (JCGM 101 §7.9): the trials of a bin are split into h = 4
 sequences (:func:`lidarcal.smc.kernels.group_of`: trial (period p, replica r) goes to sequence
@@ -60,23 +60,15 @@ from lidarcal.cf import height_coord, time_coord
 from lidarcal.readback import read_attr
 from lidarcal.schema import output_attrs
 from lidarcal.smc import subsample
-from lidarcal.smc.kernels import (
-    SEQUENCES,
-    bin_index,
-    expected_deviation,
-    expected_deviation_se,
-    group_of,
-    within_bin_fit,
-)
+from lidarcal.smc.expected import REGRESSORS, ExpectedFit, fit_expected
+from lidarcal.smc.kernels import SEQUENCES, bin_index, group_of
 
-__all__ = ["MonteCarloRoute", "monte_carlo_route", "with_carried", "REGRESSORS"]
+__all__ = ["MonteCarloRoute", "monte_carlo_route", "with_carried"]
 
 log = logging.getLogger(__name__)
 
 #: Monte Carlo budget contributors computed from the trials (recomputed per JCGM 101 sequence).
 _FROM_TRIALS = ("mean_difference", "std_difference", "statistical")
-#: Conditions the expected deviation of a period is regressed on inside its wind-speed bin.
-REGRESSORS = ("turbulence_intensity", "wind_shear_exponent", "cnr", "cnr_gradient")
 
 
 @dataclass(frozen=True)
@@ -115,38 +107,6 @@ class MonteCarloRoute:
     def simulated(self) -> int:
         """Period-heights simulated at least once."""
         return int((self.count > 0).sum())
-
-
-@dataclass(frozen=True)
-class ExpectedFit:
-    """The trials' within-bin fit per simulated height, evaluated at any periods (:meth:`at`).
-
-    Per height: the trials' deviations, conditions and reference-speed bins, and what
-    :func:`~lidarcal.smc.kernels.within_bin_fit` made of them.  A period is looked up by its own
-    speed's bin (``edges``).
-    """
-
-    heights: np.ndarray  #: (height,) m
-    edges: np.ndarray  #: lookup bin edges, m s-1
-    deviation: tuple[np.ndarray, ...]  #: per height, each trial's lidar − reference (m s-1)
-    conditions: tuple[np.ndarray, ...]  #: per height, (trial, regressor) the trial's period's conditions
-    bins: tuple[np.ndarray, ...]  #: per height, each trial's reference-speed bin
-    fitted: tuple[tuple[np.ndarray, ...], ...]  #: per height, (count, mean_d, mean_x, beta)
-
-    def at(self, conditions: xr.Dataset) -> tuple[np.ndarray, np.ndarray]:
-        """Return the expected deviation and its standard error (time, height, m s-1) at these periods."""
-        cond = conditions.sel(height=self.heights).transpose("time", "height", ...)
-        x_all = np.stack([cond[n].values for n in REGRESSORS], axis=-1)  # (time, height, regressor)
-        speed = cond["wind_speed"].values
-        expected = np.full(speed.shape, np.nan)
-        se = np.full(speed.shape, np.nan)
-        for i in range(self.heights.size):
-            n, mean_d, mean_x, beta = self.fitted[i]
-            at = bin_index(speed[:, i], self.edges)
-            expected[:, i] = expected_deviation(x_all[:, i], at, mean_d, mean_x, beta, n >= 2)
-            se_i = expected_deviation_se(self.deviation[i], self.conditions[i], self.bins[i], x_all[:, i], at)
-            se[:, i] = np.where(np.isfinite(expected[:, i]), se_i, np.nan)
-        return expected, se
 
 
 def with_carried(bud: xr.Dataset, carried: xr.Dataset | None) -> xr.Dataset:
@@ -573,28 +533,15 @@ def _expected(
 ) -> tuple[ExpectedFit, np.ndarray, np.ndarray]:
     """Return the fit of the expected deviation, the slopes (height, regressor) and the trials per period.
 
-    The fit is on the trials (their conditions from ``fit_conditions``, the records' periods),
-    grouped by their reference speed's bin; :meth:`ExpectedFit.at` looks any period up by its own
-    speed's bin.  Trials are counted on the records' periods (record period, height).
+    The fit (:func:`lidarcal.smc.expected.fit_expected`) is on the trials, their conditions from
+    ``fit_conditions`` (the records' periods).  Trials are counted on the records' periods
+    (record period, height).
     """
     heights = np.asarray(records["height"].values, dtype=float)
     tr = _trials(records, heights)
     fit = fit_conditions.sel(height=records["height"].values).transpose("time", "height", ...)
     x_fit = np.stack([fit[n].values for n in REGRESSORS], axis=-1)  # (record time, height, regressor)
-    nh, nb = heights.size, len(edges) - 1
-    slopes = np.full((nh, len(REGRESSORS)), np.nan)
-    count = np.zeros((records.sizes["time"], nh), dtype=np.int64)
+    count = np.zeros((records.sizes["time"], heights.size), dtype=np.int64)
     np.add.at(count, (tr["period"], tr["height"]), 1)
-    parts: dict[str, list] = {"deviation": [], "conditions": [], "bins": [], "fitted": []}
-    for i in range(nh):
-        mine = tr["height"] == i
-        d = tr["lidar"][mine] - tr["reference"][mine]
-        b = bin_index(tr["reference"][mine], edges)
-        xt = x_fit[tr["period"][mine], i]
-        n, mean_d, mean_x, beta = within_bin_fit(d, xt, b, nb)
-        slopes[i] = beta
-        for key, value in zip(parts, (d, xt, b, (n, mean_d, mean_x, beta)), strict=True):
-            parts[key].append(value)
-    fitted = ExpectedFit(heights=heights, edges=np.asarray(edges, dtype=float),
-                         **{k: tuple(v) for k, v in parts.items()})
+    fitted, slopes = fit_expected(tr, x_fit, heights, edges)
     return fitted, slopes, count
