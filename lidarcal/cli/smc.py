@@ -28,7 +28,7 @@ from lidarcal.cli.options import (
     number,
     positive_int,
 )
-from lidarcal.io import check_writable, write_artefact
+from lidarcal.io import check_writable, open_artefact, write_artefact
 from lidarcal.readback import read_attr
 
 
@@ -139,13 +139,19 @@ def run(args: argparse.Namespace) -> int:
         execution=execution_of(args),
     )
     ds = smc_dataset(campaign, call=command_line(args))
-    write_artefact(ds, args.output, overwrite=args.overwrite)
-    if args.report:
-        from lidarcal.smc.report import write_report  # deferred: matplotlib only when asked
+    path = write_artefact(ds, args.output, overwrite=args.overwrite)
+    # the report and the summary read the file just written: its per-period values are lazy (computed
+    # block by block from the campaign), and reading them is cheaper than computing them again
+    ds = open_artefact(path, "smc", load=False)
+    try:
+        if args.report:
+            from lidarcal.smc.report import write_report  # deferred: matplotlib only when asked
 
-        written = write_report(ds, args.report, overwrite=args.overwrite)
-        print(f"wrote {written['html']} and {written['pdf']}")
-    print(summary_line(ds, args.output))
+            written = write_report(ds, args.report, overwrite=args.overwrite)
+            print(f"wrote {written['html']} and {written['pdf']}")
+        print(summary_line(ds, args.output))
+    finally:
+        ds.close()
     return 0
 
 
